@@ -1,0 +1,3 @@
+"""launcher: a roslaunch/roscore equivalent for ROS 1."""
+
+__version__ = "0.1.0"

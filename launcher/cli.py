@@ -1,0 +1,80 @@
+"""The `launch` command: roslaunch's options, dispatch, exit codes.
+
+Launch semantics live elsewhere: introspection in `launcher.introspect`,
+`--core` in `launcher.core`, a real run in `launcher.runtime`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from launcher import __version__
+from launcher.errors import LaunchError
+
+USAGE = "launch [options] [package] <filename> [arg_name:=value...]\n       launch [options] <filename> [<filename>...] [arg_name:=value...]\n       launch --core [-p PORT]"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launch", usage=USAGE, allow_abbrev=False,
+                                description="Launch ROS 1 nodes from launch XML, with a built-in master.")
+    # introspection (print and exit), as roslaunch
+    p.add_argument("--files", action="store_true", help="print the launch files loaded, including included ones")
+    p.add_argument("--args", dest="node_args", metavar="NODE_NAME", help="print the command line of a node")
+    p.add_argument("--nodes", action="store_true", help="print the names of the nodes in the launch")
+    p.add_argument("--find-node", dest="find_node", metavar="NODE_NAME", help="print the launch file a node is defined in")
+    p.add_argument("--dump-params", dest="dump_params", action="store_true", help="print the launch's parameters as YAML")
+    p.add_argument("--ros-args", dest="ros_args", action="store_true", help="print the <arg>s the launch file accepts")
+    # running
+    p.add_argument("--core", action="store_true", help="run the core only: master, parameter server, rosout")
+    p.add_argument("-p", "--port", type=int, help="master port (only when the master is started here)")
+    p.add_argument("--screen", action="store_true", help="force output of all nodes to the screen")
+    p.add_argument("--log", action="store_true", help="force output of all nodes to log files")
+    p.add_argument("--required", action="store_true", help="make every node required")
+    p.add_argument("--wait", action="store_true", help="wait for a master to come up instead of starting one")
+    p.add_argument("--local", action="store_true", help="do not launch nodes on other machines")
+    p.add_argument("--no-summary", dest="no_summary", action="store_true", help="do not print the summary")
+    p.add_argument("--skip-log-check", dest="skip_log_check", action="store_true", help="do not check the log directory's size")
+    p.add_argument("--log-check-threshold", dest="log_check_threshold", default="1GB", metavar="SIZE",
+                   help="warn when the log directory is larger than this (default 1GB)")
+    p.add_argument("--sigint-timeout", dest="sigint_timeout", type=float, default=15.0, metavar="SECONDS",
+                   help="seconds from SIGINT to SIGTERM when stopping a node (default 15)")
+    p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=2.0, metavar="SECONDS",
+                   help="seconds from SIGTERM to SIGKILL when stopping a node (default 2)")
+    p.add_argument("--pid", dest="pid_fn", metavar="PID_FN", help="write launch's pid to this file")
+    p.add_argument("--run_id", dest="run_id", help="run_id of the session")
+    p.add_argument("-v", dest="verbose", action="store_true", help="verbose printing")
+    p.add_argument("--disable-title", dest="disable_title", action="store_true", help="accepted for roslaunch compatibility")
+    p.add_argument("-w", "--numworkers", dest="num_workers", type=int, help="accepted for roslaunch compatibility")
+    p.add_argument("-t", "--timeout", dest="timeout", type=float, help="socket time-out of the core, in seconds")
+    p.add_argument("--master-logger-level", dest="master_logger_level", help="accepted for roslaunch compatibility")
+    p.add_argument("-c", "--child", dest="child_name", help="roslaunch child mode: not supported")
+    p.add_argument("-u", "--server_uri", dest="server_uri", help="roslaunch child mode: not supported")
+    p.add_argument("--version", action="version", version="launch " + __version__)
+    p.add_argument("positional", nargs="*", metavar="ARG", help="[package] file.launch ... name:=value ...")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    opts = parser.parse_intermixed_args(sys.argv[1:] if argv is None else argv)
+    try:
+        if opts.sigint_timeout <= 0 or opts.sigterm_timeout <= 0:
+            raise LaunchError("--sigint-timeout and --sigterm-timeout must be greater than zero")
+        if opts.child_name or opts.server_uri:
+            raise LaunchError("roslaunch's child mode (-c/-u) is not supported")
+        if opts.core:
+            from launcher import core
+            return core.run_core(opts)
+        if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:
+            from launcher import introspect
+            return introspect.main(opts)
+        if not opts.positional:
+            parser.error("you must specify at least one input file")
+        from launcher import runtime
+        return runtime.run(opts)
+    except LaunchError as e:
+        print(str(e), file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130

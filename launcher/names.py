@@ -1,0 +1,127 @@
+"""ROS graph names: join, resolve, private `~`, anonymous names, validity.
+
+Semantics follow rosgraph.names (ROS Noetic) exactly, because launch files,
+the master and every client library agree on them.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import socket
+import sys
+
+SEP = "/"
+PRIV_NAME = "~"
+REMAP = ":="
+ANYTYPE = "*"
+
+_LEGAL_NAME = re.compile(r"^[\~\/A-Za-z][\w\/]*$")
+_LEGAL_BASE_NAME = re.compile(r"^[A-Za-z][\w]*$")
+
+
+def is_global(name: str) -> bool:
+    return bool(name) and name[0] == SEP
+
+
+def is_private(name: str) -> bool:
+    return bool(name) and name[0] == PRIV_NAME
+
+
+def canonicalize_name(name: str) -> str:
+    """Remove duplicate and trailing separators (`//a/b/` -> `/a/b`)."""
+    if not name or name == SEP:
+        return name
+    parts = [p for p in name.split(SEP) if p]
+    if name[0] == SEP:
+        return SEP + SEP.join(parts)
+    return SEP.join(parts)
+
+
+def ns_join(ns: str, name: str) -> str:
+    """Join a namespace and a name; global and private names are left alone."""
+    if is_private(name) or is_global(name):
+        return name
+    if ns == PRIV_NAME:
+        return PRIV_NAME + name
+    if not ns:
+        return name
+    if ns[-1] == SEP:
+        return ns + name
+    return ns + SEP + name
+
+
+def namespace(name: str) -> str:
+    """The namespace of a name, with a trailing slash (`/a/b` -> `/a/`)."""
+    if not name:
+        raise ValueError("name must be a non-empty string")
+    if name[-1] == SEP:
+        name = name[:-1]
+    return name[: name.rfind(SEP) + 1] or SEP
+
+
+def make_global_ns(ns: str) -> str:
+    """`a/b` -> `/a/b/`. Private names have no global form."""
+    if is_private(ns):
+        raise ValueError("cannot turn [%s] into a global name" % ns)
+    if not is_global(ns):
+        ns = SEP + ns
+    if ns[-1] != SEP:
+        ns += SEP
+    return ns
+
+
+def resolve_name(name: str, namespace_: str, remappings: dict[str, str] | None = None) -> str:
+    """Resolve `name` against the node name or namespace `namespace_`.
+
+    A private name (`~x`) is resolved against `namespace_` itself (a node's
+    full name); a relative one against the namespace of `namespace_`.
+    """
+    if not name:
+        return namespace(namespace_)
+    name = canonicalize_name(name)
+    if name[0] == SEP:
+        resolved = name
+    elif is_private(name):
+        resolved = canonicalize_name(namespace_ + SEP + name[1:])
+    else:
+        resolved = namespace(namespace_) + name
+    if remappings and resolved in remappings:
+        return remappings[resolved]
+    return resolved
+
+
+def anonymous_name(id_: str) -> str:
+    """`id_<host>_<pid>_<random>`, as rosgraph.names.anonymous_name makes it."""
+    name = "%s_%s_%s_%s" % (id_, socket.gethostname(), os.getpid(), random.randint(0, sys.maxsize))
+    return name.replace(".", "_").replace("-", "_").replace(":", "_")
+
+
+def is_legal_name(name: str | None) -> bool:
+    if name is None:
+        return False
+    if name == "":
+        return True
+    m = _LEGAL_NAME.match(name)
+    return m is not None and m.group(0) == name and "//" not in name
+
+
+def is_legal_base_name(name: str | None) -> bool:
+    if name is None:
+        return False
+    m = _LEGAL_BASE_NAME.match(name)
+    return m is not None and m.group(0) == name
+
+
+def namespaces_of(name: str) -> list[str]:
+    """Every enclosing namespace of a global name, outermost first (`/a/b/c` -> `/`, `/a/`, `/a/b/`)."""
+    if not name or name == SEP:
+        return [SEP] if name == SEP else []
+    parts = [p for p in name.split(SEP) if p][:-1]
+    out = [SEP]
+    acc = SEP
+    for p in parts:
+        acc = acc + p + SEP
+        out.append(acc)
+    return out
