@@ -1,0 +1,770 @@
+"""XML-RPC for ROS 1: a hardened sans-I/O codec, an asyncio HTTP/1.1 server and a small client.
+
+The codec turns bytes into values and back without touching a socket. Parsing
+goes through expat with every DTD refused, so no entity can be declared: no
+XXE, no entity expansion ("billion laughs"); nesting depth is bounded. The
+server speaks HTTP/1.1 with keep-alive on `/` and `/RPC2` (what rospy, roscpp's
+XmlRpc++ and rosjava expect), bounds header and body sizes, times out slow
+clients and answers every malformed call with a fault or an HTTP error.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import datetime
+import inspect
+import re
+import urllib.parse
+from typing import Any, Awaitable, Callable, Iterable
+from xml.parsers import expat
+from xmlrpc.client import Binary, DateTime
+
+__all__ = [
+    "Fault", "XmlRpcError", "loads_request", "loads_response", "dumps_request",
+    "dumps_response", "dumps_fault", "XmlRpcServer", "call", "multicall",
+]
+
+MAXINT = 2**31 - 1
+MININT = -(2**31)
+MAX_DEPTH = 200  # nested arrays/structs; deeper values are refused when parsed
+
+
+class Fault(Exception):
+    """An XML-RPC fault: raised by dispatch functions and by `loads_response`/`call`."""
+
+    def __init__(self, faultCode: int, faultString: str):  # noqa: N803 (XML-RPC's names)
+        super().__init__(faultCode, faultString)
+        self.faultCode = faultCode
+        self.faultString = faultString
+
+    def __repr__(self) -> str:
+        return "<Fault %s: %r>" % (self.faultCode, self.faultString)
+
+
+class XmlRpcError(ValueError):
+    """Malformed XML-RPC (bad XML, unknown tag, bad value) or a bad HTTP exchange."""
+
+
+# ---------------------------------------------------------------------------
+# encoding
+# ---------------------------------------------------------------------------
+
+_ESCAPE_NEEDED = re.compile(r"[&<>]")
+
+
+def _escape(s: str) -> str:
+    if _ESCAPE_NEEDED.search(s) is None:
+        return s
+    return s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _enc_str(v: str, out: list[str]) -> None:
+    out.append("<value><string>" + _escape(v) + "</string></value>")
+
+
+def _enc_int(v: int, out: list[str]) -> None:
+    if v > MAXINT or v < MININT:
+        # what Python's xmlrpc (and so rosmaster) does: such a value cannot be sent
+        raise OverflowError("int exceeds XML-RPC limits")
+    out.append("<value><int>%d</int></value>" % v)
+
+
+def _enc_bool(v: bool, out: list[str]) -> None:
+    out.append("<value><boolean>1</boolean></value>" if v else "<value><boolean>0</boolean></value>")
+
+
+def _enc_float(v: float, out: list[str]) -> None:
+    out.append("<value><double>%r</double></value>" % v)
+
+
+def _enc_bytes(v: bytes | bytearray, out: list[str]) -> None:
+    out.append("<value><base64>%s</base64></value>" % base64.b64encode(v).decode("ascii"))
+
+
+def _enc_binary(v: Binary, out: list[str]) -> None:
+    _enc_bytes(v.data, out)
+
+
+def _enc_datetime(v: DateTime, out: list[str]) -> None:
+    out.append("<value><dateTime.iso8601>%s</dateTime.iso8601></value>" % v.value)
+
+
+def _enc_pydatetime(v: datetime.datetime, out: list[str]) -> None:
+    out.append("<value><dateTime.iso8601>%s</dateTime.iso8601></value>" % v.strftime("%Y%m%dT%H:%M:%S"))
+
+
+def _enc_list(v: list | tuple, out: list[str]) -> None:
+    out.append("<value><array><data>")
+    for item in v:
+        enc = _ENCODERS.get(type(item))
+        if enc is None:
+            enc = _encoder_for(item)
+        enc(item, out)
+    out.append("</data></array></value>")
+
+
+def _enc_dict(v: dict, out: list[str]) -> None:
+    out.append("<value><struct>")
+    for key, item in v.items():
+        if type(key) is not str:
+            if isinstance(key, str):
+                key = str(key)
+            else:
+                raise TypeError("dictionary key must be string")
+        out.append("<member><name>%s</name>" % _escape(key))
+        enc = _ENCODERS.get(type(item))
+        if enc is None:
+            enc = _encoder_for(item)
+        enc(item, out)
+        out.append("</member>")
+    out.append("</struct></value>")
+
+
+def _enc_none(v: None, out: list[str]) -> None:
+    # rosmaster's marshaller has allow_none off: a None cannot be sent
+    raise TypeError("cannot marshal None unless allow_none is enabled")
+
+
+_ENCODERS: dict[type, Callable[[Any, list[str]], None]] = {
+    str: _enc_str, int: _enc_int, bool: _enc_bool, float: _enc_float,
+    bytes: _enc_bytes, bytearray: _enc_bytes, Binary: _enc_binary,
+    DateTime: _enc_datetime, datetime.datetime: _enc_pydatetime,
+    list: _enc_list, tuple: _enc_list, dict: _enc_dict, type(None): _enc_none,
+}
+
+
+def _encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
+    """Encoder for subclasses (an IntEnum, an OrderedDict, ...), by the first matching base."""
+    for base in type(value).__mro__:
+        enc = _ENCODERS.get(base)
+        if enc is not None:
+            return enc
+    raise TypeError("cannot marshal %s objects" % type(value))
+
+
+def _encode_value(value: Any, out: list[str]) -> None:
+    enc = _ENCODERS.get(type(value))
+    if enc is None:
+        enc = _encoder_for(value)
+    enc(value, out)
+
+
+_RESPONSE_HEAD = "<?xml version='1.0'?>\n<methodResponse>\n<params>\n<param>\n"
+_RESPONSE_TAIL = "\n</param>\n</params>\n</methodResponse>\n"
+
+
+def dumps_response(value: Any) -> bytes:
+    """The body of a methodResponse carrying `value` (raises OverflowError/TypeError if unsendable)."""
+    out = [_RESPONSE_HEAD]
+    _encode_value(value, out)
+    out.append(_RESPONSE_TAIL)
+    return "".join(out).encode("utf-8", "xmlcharrefreplace")
+
+
+def dumps_fault(code: int, message: str) -> bytes:
+    """The body of a methodResponse carrying a fault."""
+    return ("<?xml version='1.0'?>\n<methodResponse>\n<fault>\n<value><struct>"
+            "<member><name>faultCode</name><value><int>%d</int></value></member>"
+            "<member><name>faultString</name><value><string>%s</string></value></member>"
+            "</struct></value>\n</fault>\n</methodResponse>\n" % (int(code), _escape(str(message)))
+            ).encode("utf-8", "xmlcharrefreplace")
+
+
+def dumps_request(method: str, params: Iterable[Any]) -> bytes:
+    """The body of a methodCall."""
+    out = ["<?xml version='1.0'?>\n<methodCall>\n<methodName>", _escape(method), "</methodName>\n<params>\n"]
+    for p in params:
+        out.append("<param>\n")
+        _encode_value(p, out)
+        out.append("\n</param>\n")
+    out.append("</params>\n</methodCall>\n")
+    return "".join(out).encode("utf-8", "xmlcharrefreplace")
+
+
+# ---------------------------------------------------------------------------
+# decoding
+# ---------------------------------------------------------------------------
+
+def _refuse_dtd(*_args: Any) -> None:
+    raise XmlRpcError("DTDs and entity declarations are not allowed in XML-RPC")
+
+
+_VALUE_TAGS = frozenset((
+    "value", "i1", "i2", "i4", "i8", "int", "bigint", "biginteger", "boolean", "string",
+    "double", "float", "bigdecimal", "dateTime.iso8601", "base64", "array", "struct",
+    "data", "member", "name", "nil",
+))
+_INT_TAGS = frozenset(("i1", "i2", "i4", "i8", "int", "bigint", "biginteger"))
+_FLOAT_TAGS = frozenset(("double", "float", "bigdecimal"))
+
+
+class _Unmarshaller:
+    """Collects values from expat events with an explicit stack (no recursion, bounded depth)."""
+
+    __slots__ = ("stack", "marks", "data", "value_open", "method", "kind", "fault", "seen_root")
+
+    def __init__(self) -> None:
+        self.stack: list[Any] = []
+        self.marks: list[int] = []
+        self.data: list[str] = []
+        self.value_open = False  # a <value> was opened and no element started inside it yet
+        self.method: str | None = None
+        self.kind: str | None = None
+        self.fault = False
+        self.seen_root = False
+
+    def start(self, tag: str, attrs: Any) -> None:
+        if ":" in tag:  # namespaced tags (ex:nil, ex:i8) as apache xmlrpc sends them
+            tag = tag.rsplit(":", 1)[1]
+        if not self.seen_root:
+            if tag not in ("methodCall", "methodResponse"):
+                raise XmlRpcError("not an XML-RPC message: root element <%s>" % tag)
+            self.seen_root = True
+            self.kind = tag
+        elif tag == "array" or tag == "struct":
+            if len(self.marks) >= MAX_DEPTH:
+                raise XmlRpcError("XML-RPC value nested deeper than %d levels" % MAX_DEPTH)
+            self.marks.append(len(self.stack))
+        elif tag == "fault":
+            self.fault = True
+        if self.value_open and tag not in _VALUE_TAGS:
+            raise XmlRpcError("unknown tag <%s> in an XML-RPC value" % tag)
+        self.data = []
+        self.value_open = tag == "value"
+
+    def chars(self, text: str) -> None:
+        self.data.append(text)
+
+    def end(self, tag: str) -> None:
+        if ":" in tag:
+            tag = tag.rsplit(":", 1)[1]
+        data = "".join(self.data)
+        self.data = []
+        if tag == "value":
+            if self.value_open:  # <value>text</value>: an untyped string, as XmlRpc++ sends
+                self.stack.append(data)
+            self.value_open = False
+        elif tag == "string" or tag == "name":
+            self.stack.append(data)
+        elif tag in _INT_TAGS:
+            try:
+                self.stack.append(int(data))
+            except ValueError:
+                raise XmlRpcError("bad integer value %r" % data[:64]) from None
+        elif tag == "boolean":
+            if data == "0":
+                self.stack.append(False)
+            elif data == "1":
+                self.stack.append(True)
+            else:
+                raise XmlRpcError("bad boolean value %r" % data[:64])
+        elif tag in _FLOAT_TAGS:
+            try:
+                self.stack.append(float(data))
+            except ValueError:
+                raise XmlRpcError("bad double value %r" % data[:64]) from None
+        elif tag == "array":
+            mark = self.marks.pop()
+            items = self.stack[mark:]
+            del self.stack[mark:]
+            self.stack.append(items)
+        elif tag == "struct":
+            mark = self.marks.pop()
+            items = self.stack[mark:]
+            del self.stack[mark:]
+            if len(items) % 2:
+                raise XmlRpcError("malformed struct")
+            d = {}
+            for i in range(0, len(items), 2):
+                key = items[i]
+                if type(key) is not str:
+                    raise XmlRpcError("struct member name must be a string")
+                d[key] = items[i + 1]
+            self.stack.append(d)
+        elif tag == "base64":
+            try:
+                self.stack.append(base64.b64decode(data.encode("ascii")))
+            except (ValueError, UnicodeEncodeError):
+                raise XmlRpcError("bad base64 value") from None
+        elif tag == "dateTime.iso8601":
+            self.stack.append(DateTime(data.strip()))
+        elif tag == "nil":
+            self.stack.append(None)
+        elif tag == "methodName":
+            self.method = data
+        self.value_open = False
+
+
+def _parse(data: bytes) -> _Unmarshaller:
+    u = _Unmarshaller()
+    p = expat.ParserCreate()
+    p.StartDoctypeDeclHandler = _refuse_dtd
+    p.EntityDeclHandler = _refuse_dtd
+    p.UnparsedEntityDeclHandler = _refuse_dtd
+    p.ExternalEntityRefHandler = _refuse_dtd
+    p.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
+    p.buffer_text = True
+    p.StartElementHandler = u.start
+    p.EndElementHandler = u.end
+    p.CharacterDataHandler = u.chars
+    try:
+        p.Parse(data, True)
+    except expat.ExpatError as e:
+        raise XmlRpcError("malformed XML: %s" % e) from None
+    except RecursionError:
+        raise XmlRpcError("XML nested too deeply") from None
+    return u
+
+
+def loads_request(data: bytes) -> tuple[str, list[Any]]:
+    """Parse a methodCall: `(method_name, params)`; raises XmlRpcError if it is not one."""
+    u = _parse(data)
+    if u.kind != "methodCall" or u.method is None:
+        raise XmlRpcError("not an XML-RPC methodCall")
+    if u.marks:
+        raise XmlRpcError("malformed XML-RPC value")
+    return u.method, u.stack
+
+
+def loads_response(data: bytes) -> Any:
+    """Parse a methodResponse: its value; raises Fault for a fault, XmlRpcError if malformed."""
+    u = _parse(data)
+    if u.kind != "methodResponse" or u.marks:
+        raise XmlRpcError("not an XML-RPC methodResponse")
+    if u.fault:
+        f = u.stack[0] if len(u.stack) == 1 else None
+        if not isinstance(f, dict):
+            raise XmlRpcError("malformed XML-RPC fault")
+        raise Fault(f.get("faultCode", 0), f.get("faultString", ""))
+    if len(u.stack) != 1:
+        raise XmlRpcError("an XML-RPC response carries exactly one value, got %d" % len(u.stack))
+    return u.stack[0]
+
+
+# ---------------------------------------------------------------------------
+# dispatch helpers
+# ---------------------------------------------------------------------------
+
+Dispatch = Callable[[str, list], Any]
+
+
+def _exception_fault(exc: BaseException) -> Fault:
+    if isinstance(exc, Fault):
+        return exc
+    # the text Python's SimpleXMLRPCServer (rosmaster's server) puts in such faults
+    return Fault(1, "%s:%s" % (type(exc), exc))
+
+
+def multicall(dispatch: Dispatch, calls: Any) -> Any:
+    """`system.multicall`: run each `{methodName, params}` through `dispatch`.
+
+    Returns the list of results (`[value]` or a fault struct per call), or an
+    awaitable of it when some call answers asynchronously.
+    """
+    if not isinstance(calls, list):
+        raise Fault(1, "system.multicall expects an array of calls")
+    results: list[Any] = []
+    pending: list[tuple[int, Awaitable]] = []
+    for call_ in calls:
+        try:
+            if not isinstance(call_, dict):
+                raise Fault(1, "system.multicall: each call must be a struct")
+            name = call_.get("methodName")
+            params = call_.get("params", [])
+            if not isinstance(name, str) or not isinstance(params, list):
+                raise Fault(1, "system.multicall: a call needs methodName and params")
+            if name == "system.multicall":
+                raise Fault(1, "system.multicall cannot be nested")
+            r = dispatch(name, params)
+        except Exception as e:  # noqa: BLE001 - every failure becomes that call's fault
+            f = _exception_fault(e)
+            results.append({"faultCode": f.faultCode, "faultString": f.faultString})
+            continue
+        if inspect.isawaitable(r):
+            pending.append((len(results), r))
+            results.append(None)
+        else:
+            results.append([r])
+    if not pending:
+        return results
+
+    async def finish() -> list[Any]:
+        for index, aw in pending:
+            try:
+                results[index] = [await aw]
+            except Exception as e:  # noqa: BLE001
+                f = _exception_fault(e)
+                results[index] = {"faultCode": f.faultCode, "faultString": f.faultString}
+        return results
+
+    return finish()
+
+
+# ---------------------------------------------------------------------------
+# HTTP/1.1 server
+# ---------------------------------------------------------------------------
+
+RPC_PATHS = (b"/", b"/RPC2")
+
+
+def _http_response(status: int, reason: str, body: bytes, keep_alive: bool,
+                   content_type: bytes = b"text/xml") -> bytes:
+    return b"".join((
+        b"HTTP/1.1 %d %s\r\nServer: launcher-xmlrpc\r\nContent-Type: %s\r\nContent-Length: %d\r\n"
+        % (status, reason.encode("ascii"), content_type, len(body)),
+        b"" if keep_alive else b"Connection: close\r\n",
+        b"\r\n", body,
+    ))
+
+
+class _HttpError(Exception):
+    def __init__(self, status: int, reason: str):
+        super().__init__(status, reason)
+        self.status = status
+        self.reason = reason
+
+
+class _Connection(asyncio.Protocol):
+    """One client connection: buffered HTTP/1.1 parsing, in-order replies, bounded everything."""
+
+    def __init__(self, server: "XmlRpcServer"):
+        self.server = server
+        self.transport: asyncio.Transport | None = None
+        self.buf = bytearray()
+        self.busy = False            # an asynchronous reply is being awaited
+        self.closing = False
+        self.reading_paused = False
+        self.writing_paused = False
+        self.partial_since: float | None = None  # when the pending, incomplete request began
+        self.last_activity = 0.0
+        self.timer: asyncio.TimerHandle | None = None
+
+    # -- asyncio callbacks --------------------------------------------------
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        if len(self.server._connections) >= self.server.max_connections:
+            self.closing = True  # refused: too many open connections
+            transport.close()
+            return
+        self.server._connections.add(self)
+        self.last_activity = self.server._loop.time()
+        self._arm_timer()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.closing = True
+        self.server._connections.discard(self)
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        self.buf = bytearray()
+
+    def data_received(self, data: bytes) -> None:
+        if self.closing:
+            return
+        buf = self.buf
+        if not buf and self.partial_since is None:
+            self.partial_since = self.server._loop.time()
+        buf += data
+        if len(buf) > self.server.max_request_size + self.server.max_header_size:
+            self._http_error(413, "Request Entity Too Large")
+            return
+        if not self.busy:
+            self._process()
+
+    def pause_writing(self) -> None:
+        # a client that does not read its replies stops being read from
+        self.writing_paused = True
+        self._update_reading()
+
+    def resume_writing(self) -> None:
+        self.writing_paused = False
+        self._update_reading()
+        if not self.busy and self.buf:
+            self._process()
+
+    # -- request handling -----------------------------------------------------
+    def _update_reading(self) -> None:
+        should_pause = self.writing_paused or (self.busy and len(self.buf) > self.server.max_header_size)
+        if should_pause != self.reading_paused and self.transport is not None and not self.closing:
+            self.reading_paused = should_pause
+            if should_pause:
+                self.transport.pause_reading()
+            else:
+                self.transport.resume_reading()
+
+    def _process(self) -> None:
+        """Answer every complete request in the buffer, in order."""
+        server = self.server
+        while self.buf and not self.busy and not self.closing and not self.writing_paused:
+            buf = self.buf
+            end = buf.find(b"\r\n\r\n")
+            if end < 0:
+                if len(buf) > server.max_header_size:
+                    self._http_error(431, "Request Header Fields Too Large")
+                return
+            if end > server.max_header_size:
+                self._http_error(431, "Request Header Fields Too Large")
+                return
+            try:
+                path, length, keep_alive, expect_continue = self._parse_head(bytes(buf[:end]))
+            except _HttpError as e:
+                self._http_error(e.status, e.reason)
+                return
+            body_start = end + 4
+            if len(buf) < body_start + length:
+                if expect_continue and len(buf) == body_start:
+                    self.transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+                return  # wait for the rest of the body
+            body = bytes(buf[body_start:body_start + length])
+            del buf[:body_start + length]
+            now = server._loop.time()
+            self.partial_since = now if buf else None
+            self.last_activity = now
+            if path not in RPC_PATHS:
+                self._reply(_http_response(404, "Not Found", b"No such page", keep_alive, b"text/plain"),
+                            keep_alive)
+                continue
+            self._handle(body, keep_alive)
+
+    def _parse_head(self, head: bytes) -> tuple[bytes, int, bool, bool]:
+        lines = head.split(b"\r\n")
+        request_line = lines[0].split()
+        if len(request_line) != 3 or not request_line[2].startswith(b"HTTP/1."):
+            raise _HttpError(400, "Bad Request")
+        method, target, version = request_line
+        if len(lines) - 1 > self.server.max_header_count:
+            raise _HttpError(431, "Request Header Fields Too Large")
+        if method != b"POST":
+            raise _HttpError(501, "Unsupported method (%s)" % method.decode("latin-1")[:16])
+        keep_alive = version == b"HTTP/1.1"
+        length = -1
+        expect_continue = False
+        for line in lines[1:]:
+            name, sep, value = line.partition(b":")
+            if not sep:
+                raise _HttpError(400, "Bad Request")
+            name = name.strip().lower()
+            if name == b"content-length":
+                try:
+                    n = int(value.strip())
+                except ValueError:
+                    raise _HttpError(400, "Bad Request") from None
+                if n < 0 or (length >= 0 and n != length):
+                    raise _HttpError(400, "Bad Request")
+                length = n
+            elif name == b"connection":
+                v = value.strip().lower()
+                if b"close" in v:
+                    keep_alive = False
+                elif b"keep-alive" in v:
+                    keep_alive = True
+            elif name == b"transfer-encoding":
+                raise _HttpError(501, "Transfer-Encoding not supported")
+            elif name == b"expect":
+                expect_continue = value.strip().lower() == b"100-continue"
+        if length < 0:
+            raise _HttpError(411, "Length Required")
+        if length > self.server.max_request_size:
+            raise _HttpError(413, "Request Entity Too Large")
+        target = target.split(b"?", 1)[0]
+        if target.startswith(b"http://"):  # absolute-form request target
+            target = b"/" + target[7:].partition(b"/")[2]
+        return target, length, keep_alive, expect_continue
+
+    def _handle(self, body: bytes, keep_alive: bool) -> None:
+        server = self.server
+        try:
+            method, params = loads_request(body)
+        except XmlRpcError as e:
+            self._reply_body(dumps_fault(1, "<class 'xml.parsers.expat.ExpatError'>:%s" % e), keep_alive)
+            return
+        try:
+            if method == "system.multicall" and server.multicall:
+                result = multicall(server.dispatch, params[0] if len(params) == 1 else None)
+            else:
+                result = server.dispatch(method, params)
+        except Exception as e:  # noqa: BLE001 - a failing method answers with a fault
+            f = _exception_fault(e)
+            self._reply_body(dumps_fault(f.faultCode, f.faultString), keep_alive)
+            return
+        if inspect.isawaitable(result):
+            self.busy = True
+            task = asyncio.ensure_future(result)
+            task.add_done_callback(lambda t: self._async_done(t, keep_alive))
+            return
+        self._reply_body(self._encode(result), keep_alive)
+
+    @staticmethod
+    def _encode(result: Any) -> bytes:
+        if type(result) is bytes and result.startswith(b"<?xml"):
+            return result  # a pre-encoded response (cached replies)
+        try:
+            return dumps_response(result)
+        except Exception as e:  # noqa: BLE001 - e.g. an int outside int32, as rosmaster faults
+            f = _exception_fault(e)
+            return dumps_fault(f.faultCode, f.faultString)
+
+    def _async_done(self, task: asyncio.Future, keep_alive: bool) -> None:
+        self.busy = False
+        if self.closing:
+            if not task.cancelled():
+                task.exception()  # consumed: the client is gone
+            return
+        if task.cancelled():
+            body = dumps_fault(1, "call cancelled")
+        elif task.exception() is not None:
+            f = _exception_fault(task.exception())  # type: ignore[arg-type]
+            body = dumps_fault(f.faultCode, f.faultString)
+        else:
+            body = self._encode(task.result())
+        self._reply_body(body, keep_alive)
+        self._update_reading()
+        if not self.closing:
+            self._process()
+
+    def _reply_body(self, body: bytes, keep_alive: bool) -> None:
+        self._reply(_http_response(200, "OK", body, keep_alive), keep_alive)
+
+    def _reply(self, data: bytes, keep_alive: bool) -> None:
+        if self.closing or self.transport is None:
+            return
+        self.transport.write(data)
+        if not keep_alive:
+            self.closing = True
+            self.transport.close()
+
+    def _http_error(self, status: int, reason: str) -> None:
+        reason = reason.encode("ascii", "replace").decode("ascii")
+        body = ("%d %s\n" % (status, reason)).encode("ascii")
+        self._reply(_http_response(status, reason, body, False, b"text/plain"), False)
+
+    # -- time-outs ----------------------------------------------------------------
+    def _arm_timer(self) -> None:
+        server = self.server
+        self.timer = server._loop.call_later(min(server.request_timeout, server.idle_timeout), self._on_timer)
+
+    def _on_timer(self) -> None:
+        """Close a connection whose request is too slow to arrive, or that idles too long."""
+        self.timer = None
+        if self.closing or self.transport is None:
+            return
+        server = self.server
+        now = server._loop.time()
+        if self.busy:
+            deadline = now + server.request_timeout  # our own reply is pending: not the client's fault
+        elif self.buf and self.partial_since is not None:
+            deadline = self.partial_since + server.request_timeout
+        else:
+            deadline = self.last_activity + server.idle_timeout
+        if now >= deadline:
+            if self.buf and not self.busy:
+                self._http_error(408, "Request Timeout")
+            else:
+                self.closing = True
+                self.transport.close()
+            return
+        self.timer = server._loop.call_later(deadline - now, self._on_timer)
+
+
+class XmlRpcServer:
+    """An XML-RPC server on the running asyncio loop.
+
+    `dispatch(method, params)` returns the reply value, or an awaitable of it;
+    raising `Fault` answers with that fault, any other exception with fault 1.
+    A `bytes` reply starting with `<?xml` is sent as an already encoded body.
+    """
+
+    def __init__(self, dispatch: Dispatch, host: str | None = "0.0.0.0", port: int = 0, *,
+                 multicall: bool = False, max_request_size: int = 64 * 1024 * 1024,
+                 max_header_size: int = 16 * 1024, max_header_count: int = 100,
+                 request_timeout: float = 30.0, idle_timeout: float = 3600.0,
+                 max_connections: int = 4096):
+        self.dispatch = dispatch
+        self.host = host
+        self.port = port
+        self.multicall = multicall
+        self.max_request_size = max_request_size
+        self.max_header_size = max_header_size
+        self.max_header_count = max_header_count
+        self.request_timeout = request_timeout
+        self.idle_timeout = idle_timeout
+        self.max_connections = max_connections
+        self._server: asyncio.base_events.Server | None = None
+        self._connections: set[_Connection] = set()
+        self._loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
+
+    def _protocol(self) -> asyncio.Protocol:
+        return _Connection(self)
+
+    async def start(self) -> None:
+        """Listen; raises OSError when the port is taken."""
+        self._loop = asyncio.get_running_loop()
+        self._server = await self._loop.create_server(self._protocol, self.host, self.port,
+                                                      reuse_address=True, backlog=1024)
+        self.port = self._server.sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        """Stop listening and close every connection."""
+        if self._server is not None:
+            self._server.close()
+        for conn in list(self._connections):
+            conn.closing = True
+            if conn.transport is not None:
+                conn.transport.close()
+        if self._server is not None:
+            try:
+                await asyncio.wait_for(self._server.wait_closed(), 2.0)
+            except asyncio.TimeoutError:
+                pass
+            self._server = None
+
+
+# ---------------------------------------------------------------------------
+# client
+# ---------------------------------------------------------------------------
+
+async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0) -> Any:
+    """Call `method(*params)` at an XML-RPC `uri` (one connection per call).
+
+    Returns the value; raises Fault, XmlRpcError (bad HTTP/XML), OSError or
+    asyncio.TimeoutError.
+    """
+    if timeout is None:
+        return await _call(uri, method, params)
+    return await asyncio.wait_for(_call(uri, method, params), timeout)
+
+
+async def _call(uri: str, method: str, params: tuple) -> Any:
+    u = urllib.parse.urlsplit(uri)
+    if u.scheme != "http" or not u.hostname:
+        raise XmlRpcError("not an http:// XML-RPC URI: %r" % uri)
+    port = u.port or 80
+    body = dumps_request(method, params)
+    host_header = u.netloc.rsplit("@", 1)[-1]
+    head = ("POST %s HTTP/1.1\r\nHost: %s\r\nContent-Type: text/xml\r\nUser-Agent: launcher-xmlrpc\r\n"
+            "Content-Length: %d\r\nConnection: close\r\n\r\n" % (u.path or "/", host_header, len(body)))
+    reader, writer = await asyncio.open_connection(u.hostname, port)
+    try:
+        writer.write(head.encode("latin-1") + body)
+        status_line = await reader.readline()
+        parts = status_line.split(None, 2)
+        if len(parts) < 2 or not parts[0].startswith(b"HTTP/"):
+            raise XmlRpcError("bad HTTP response from %s" % uri)
+        status = int(parts[1]) if parts[1].isdigit() else 0
+        length = -1
+        while True:
+            line = await reader.readline()
+            if line in (b"\r\n", b"\n", b""):
+                break
+            name, _, value = line.partition(b":")
+            if name.strip().lower() == b"content-length" and value.strip().isdigit():
+                length = int(value.strip())
+        data = await (reader.readexactly(length) if length >= 0 else reader.read())
+        if status != 200:
+            raise XmlRpcError("HTTP %d from %s" % (status, uri))
+        return loads_response(data)
+    except asyncio.IncompleteReadError:
+        raise XmlRpcError("connection closed by %s before the reply was complete" % uri) from None
+    finally:
+        writer.close()

@@ -1,0 +1,342 @@
+"""The XML-RPC codec (against the stdlib's reading of it) and the asyncio server under hostile input."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import time
+import xmlrpc.client
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from launcher import xmlrpc as X
+
+# ---------------------------------------------------------------------------
+# codec
+# ---------------------------------------------------------------------------
+
+xml_text = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\r\x00")
+                   .filter(lambda c: c in "\t\n" or ord(c) >= 0x20 and c not in "\ufffe\uffff"), max_size=20)
+values = st.recursive(
+    st.one_of(st.integers(X.MININT, X.MAXINT), st.booleans(), xml_text,
+              st.floats(allow_nan=False), st.binary(max_size=20)),
+    lambda children: st.one_of(st.lists(children, max_size=4),
+                               st.dictionaries(xml_text, children, max_size=4)),
+    max_leaves=20)
+
+
+def _std(v):
+    """The stdlib's view of a value (bytes come back as Binary there)."""
+    if isinstance(v, (bytes, bytearray)):
+        return xmlrpc.client.Binary(bytes(v))
+    if isinstance(v, list):
+        return [_std(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _std(x) for k, x in v.items()}
+    return v
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(values, max_size=4))
+def test_request_roundtrip_through_stdlib(params):
+    method, got = X.loads_request(xmlrpc.client.dumps(tuple(_std(p) for p in params), "m.x").encode())
+    assert method == "m.x"
+    assert got == params
+    std_params, std_method = xmlrpc.client.loads(X.dumps_request("a.b", params))
+    assert std_method == "a.b"
+    assert list(std_params) == [_std(p) for p in params]
+
+
+@settings(max_examples=200, deadline=None)
+@given(values)
+def test_response_roundtrip_through_stdlib(value):
+    assert xmlrpc.client.loads(X.dumps_response(value))[0][0] == _std(value)
+    assert X.loads_response(xmlrpc.client.dumps((_std(value),), methodresponse=True).encode()) == value
+
+
+def test_untyped_value_i8_nil_and_datetime():
+    body = (b"<?xml version='1.0'?><methodCall><methodName>f</methodName><params>"
+            b"<param><value>bare text</value></param><param><value></value></param>"
+            b"<param><value><i8>4294967296</i8></value></param><param><value><nil/></value></param>"
+            b"<param><value><i4> 7 </i4></value></param>"
+            b"<param><value><dateTime.iso8601>20200102T03:04:05</dateTime.iso8601></value></param>"
+            b"</params></methodCall>")
+    method, params = X.loads_request(body)
+    assert params[:5] == ["bare text", "", 4294967296, None, 7]
+    assert params[5].value == "20200102T03:04:05"
+    assert b"<dateTime.iso8601>20200102T03:04:05</dateTime.iso8601>" in X.dumps_response(params[5])
+
+
+def test_out_of_int32_values_and_none_cannot_be_sent():
+    with pytest.raises(OverflowError):
+        X.dumps_response([1, {"a": 2**31}])
+    with pytest.raises(TypeError):
+        X.dumps_response(None)
+
+
+def test_fault_roundtrip():
+    with pytest.raises(X.Fault) as e:
+        X.loads_response(X.dumps_fault(3, "a < b & c"))
+    assert (e.value.faultCode, e.value.faultString) == (3, "a < b & c")
+    with pytest.raises(xmlrpc.client.Fault) as e2:
+        xmlrpc.client.loads(X.dumps_fault(3, "x"))
+    assert e2.value.faultCode == 3
+
+
+@pytest.mark.parametrize("body", [
+    # external entity (XXE)
+    b"<?xml version='1.0'?><!DOCTYPE m [<!ENTITY x SYSTEM 'file:///etc/passwd'>]>"
+    b"<methodCall><methodName>f</methodName><params><param><value>&x;</value></param></params></methodCall>",
+    # entity expansion (billion laughs)
+    b"<?xml version='1.0'?><!DOCTYPE m [<!ENTITY a 'aaaaaaaaaa'><!ENTITY b '&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;'>"
+    b"<!ENTITY c '&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;'>]>"
+    b"<methodCall><methodName>f</methodName><params><param><value>&c;</value></param></params></methodCall>",
+    # any DTD at all
+    b"<?xml version='1.0'?><!DOCTYPE methodCall SYSTEM 'http://example.invalid/x.dtd'>"
+    b"<methodCall><methodName>f</methodName><params/></methodCall>",
+    # undeclared entity
+    b"<methodCall><methodName>f</methodName><params><param><value>&nope;</value></param></params></methodCall>",
+    b"not xml at all",
+    b"<methodCall><methodName>f</methodName><params><param><value><int>x</int></value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value><boolean>2</boolean></value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value><bogus/></value></param></params></methodCall>",
+    b"<methodResponse><params/></methodResponse>",
+    b"<methodCall><params/></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value><int>" + b"9" * 10000 + b"</int></value></param></params></methodCall>",
+])
+def test_hostile_or_malformed_requests_are_refused(body):
+    with pytest.raises(X.XmlRpcError):
+        X.loads_request(body)
+
+
+def test_nesting_depth_is_bounded():
+    deep = b"<value><array><data>" * (X.MAX_DEPTH + 5) + b"<value>x</value>" + b"</data></array></value>" * (X.MAX_DEPTH + 5)
+    with pytest.raises(X.XmlRpcError):
+        X.loads_request(b"<methodCall><methodName>f</methodName><params><param>" + deep + b"</param></params></methodCall>")
+    ok = b"<value><array><data>" * 50 + b"<value>x</value>" + b"</data></array></value>" * 50
+    _, params = X.loads_request(b"<methodCall><methodName>f</methodName><params><param>" + ok + b"</param></params></methodCall>")
+    v = params[0]
+    for _ in range(50):
+        v = v[0]
+    assert v == "x"
+
+
+def test_multicall_collects_results_and_faults():
+    def dispatch(m, p):
+        if m == "ok":
+            return p[0]
+        raise X.Fault(7, "bad")
+    out = X.multicall(dispatch, [{"methodName": "ok", "params": [5]}, {"methodName": "no", "params": []},
+                                 "junk"])
+    assert out[0] == [5]
+    assert out[1] == {"faultCode": 7, "faultString": "bad"}
+    assert out[2]["faultCode"] == 1
+
+
+# ---------------------------------------------------------------------------
+# server, over real loopback sockets
+# ---------------------------------------------------------------------------
+
+def _dispatch(method, params):
+    if method == "echo":
+        return params
+    if method == "later":
+        async def reply():
+            await asyncio.sleep(params[0])
+            return params[1]
+        return reply()
+    if method == "too_big":
+        return 2**40
+    if method == "boom":
+        raise RuntimeError("boom")
+    raise X.Fault(1, 'method "%s" is not supported' % method)
+
+
+class ServerThread:
+    """Runs an XmlRpcServer on its own loop in a thread so that blocking clients can hit it."""
+
+    def __init__(self, **kw):
+        import threading
+        self.loop = asyncio.new_event_loop()
+        self.server = X.XmlRpcServer(_dispatch, "127.0.0.1", 0, multicall=True, **kw)
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        asyncio.run_coroutine_threadsafe(self.server.start(), self.loop).result(5)
+        self.port = self.server.port
+        self.uri = "http://127.0.0.1:%d/" % self.port
+
+    def close(self):
+        asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(5)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
+        self.loop.close()
+
+
+@pytest.fixture
+def server():
+    s = ServerThread(request_timeout=1.0)
+    yield s
+    s.close()
+
+
+def _raw(port, data: bytes, timeout=5.0) -> bytes:
+    """Send raw bytes, read until the server closes or `timeout`."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as s:
+        s.sendall(data)
+        chunks = []
+        try:
+            while True:
+                c = s.recv(65536)
+                if not c:
+                    break
+                chunks.append(c)
+        except socket.timeout:
+            pass
+        return b"".join(chunks)
+
+
+def _post(body: bytes, path=b"/", extra=b"") -> bytes:
+    return b"POST %s HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n%s\r\n" % (path, len(body), extra) + body
+
+
+def _alive(s):
+    return xmlrpc.client.ServerProxy(s.uri).echo("still") == ["still"]
+
+
+def test_stdlib_client_paths_faults_and_multicall(server):
+    sp = xmlrpc.client.ServerProxy(server.uri)
+    assert sp.echo(1, "a", [True, 2.5], {"k": "v"}) == [1, "a", [True, 2.5], {"k": "v"}]
+    assert xmlrpc.client.ServerProxy(server.uri + "RPC2").echo("r") == ["r"]
+    assert sp.later(0.01, "async") == "async"
+    with pytest.raises(xmlrpc.client.Fault) as e:
+        sp.too_big()
+    assert "OverflowError" in e.value.faultString
+    with pytest.raises(xmlrpc.client.Fault):
+        sp.nope()
+    with pytest.raises(xmlrpc.client.Fault) as e:
+        sp.boom()
+    assert "boom" in e.value.faultString
+    mc = xmlrpc.client.MultiCall(sp)
+    mc.echo(1)
+    mc.later(0.01, "x")
+    results = mc()
+    assert list(results) == [[1], "x"]
+
+
+def test_keep_alive_and_pipelined_replies_stay_in_order(server):
+    body_slow = X.dumps_request("later", [0.1, "first"])
+    body_fast = X.dumps_request("echo", ["second"])
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+        s.sendall(_post(body_slow) + _post(body_fast))
+        data = b""
+        deadline = time.time() + 5
+        while data.count(b"</methodResponse>") < 2 and time.time() < deadline:
+            data += s.recv(65536)
+        # same connection still usable afterwards (keep-alive)
+        s.sendall(_post(X.dumps_request("echo", ["third"])))
+        more = b""
+        while b"</methodResponse>" not in more and time.time() < deadline:
+            more += s.recv(65536)
+    assert data.index(b"first") < data.index(b"second")
+    assert b"third" in more
+
+
+def test_http_1_0_and_connection_close_close_the_connection(server):
+    body = X.dumps_request("echo", ["x"])
+    out = _raw(server.port, b"POST / HTTP/1.0\r\nContent-Length: %d\r\n\r\n" % len(body) + body)
+    assert out.startswith(b"HTTP/1.1 200") and b"<string>x</string>" in out
+    out = _raw(server.port, _post(body, extra=b"Connection: close\r\n"))
+    assert out.startswith(b"HTTP/1.1 200")
+
+
+@pytest.mark.parametrize("request_bytes,status", [
+    (_post(X.dumps_request("echo", []), path=b"/elsewhere"), b"404"),
+    (b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", b"501"),
+    (b"POST / HTTP/1.1\r\nHost: x\r\n\r\n", b"411"),
+    (b"POST / HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\n5\r\nhello\r\n0\r\n\r\n", b"501"),
+    (b"POST / HTTP/1.1\r\nContent-Length: 99999999999\r\n\r\n", b"413"),
+    (b"POST / HTTP/1.1\r\nContent-Length: -1\r\n\r\n", b"400"),
+    (b"garbage\r\n\r\n", b"400"),
+    (b"POST / HTTP/1.1\r\n" + b"X-A: b\r\n" * 200 + b"Content-Length: 0\r\n\r\n", b"431"),
+    (b"POST / HTTP/1.1\r\nX-Long: " + b"a" * 40000 + b"\r\n\r\n", b"431"),
+])
+def test_bad_http_gets_an_http_error_and_the_server_keeps_serving(server, request_bytes, status):
+    out = _raw(server.port, request_bytes)
+    assert out.split(b" ", 2)[1] == status, out[:200]
+    assert _alive(server)
+
+
+@pytest.mark.parametrize("body", [
+    b"<?xml version='1.0'?><!DOCTYPE m [<!ENTITY a 'aaaaaaaaaa'><!ENTITY b '&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;'>]>"
+    b"<methodCall><methodName>echo</methodName><params><param><value>&b;</value></param></params></methodCall>",
+    b"<methodCall><methodName>echo</methodName><params><param><value><int>12",
+    b"\xff\xfe garbage",
+])
+def test_bad_xml_gets_a_fault_and_the_server_keeps_serving(server, body):
+    out = _raw(server.port, _post(body, extra=b"Connection: close\r\n"))
+    assert out.startswith(b"HTTP/1.1 200")
+    with pytest.raises(X.Fault):
+        X.loads_response(out.split(b"\r\n\r\n", 1)[1])
+    assert _alive(server)
+
+
+def test_slow_client_times_out_without_blocking_others(server):
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as slow:
+        slow.sendall(b"POST / HTTP/1.1\r\nContent-Length: 100\r\n\r\n<methodCall>")
+        t0 = time.time()
+        assert _alive(server)  # served while the slow request is pending
+        assert time.time() - t0 < 0.5
+        out = b""
+        while True:
+            c = slow.recv(4096)
+            if not c:
+                break
+            out += c
+        assert out.startswith(b"HTTP/1.1 408")
+        assert 0.5 < time.time() - t0 < 4
+
+
+def test_client_that_never_reads_does_not_wedge_the_server(server):
+    big = X.dumps_request("echo", ["y" * 200000])
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as hog:
+        hog.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        try:
+            for _ in range(200):
+                hog.sendall(_post(big))
+        except (socket.timeout, OSError):
+            pass  # the server stopped reading from us: exactly the point
+        assert _alive(server)
+
+
+def test_async_client_call_and_errors():
+    async def scenario():
+        s = X.XmlRpcServer(_dispatch, "127.0.0.1", 0)
+        await s.start()
+        uri = "http://127.0.0.1:%d/" % s.port
+        try:
+            assert await X.call(uri, "echo", 1, "two") == [1, "two"]
+            with pytest.raises(X.Fault):
+                await X.call(uri, "nope")
+            with pytest.raises(X.XmlRpcError):
+                await X.call(uri + "elsewhere", "echo")
+            with pytest.raises(asyncio.TimeoutError):
+                await X.call(uri, "later", 2.0, "x", timeout=0.2)
+        finally:
+            await s.stop()
+        with pytest.raises(OSError):
+            await X.call(uri, "echo")
+    asyncio.run(scenario())
+
+
+def test_port_taken_raises_oserror():
+    async def scenario():
+        a = X.XmlRpcServer(_dispatch, "127.0.0.1", 0)
+        await a.start()
+        try:
+            b = X.XmlRpcServer(_dispatch, "127.0.0.1", a.port)
+            with pytest.raises(OSError):
+                await b.start()
+        finally:
+            await a.stop()
+    asyncio.run(scenario())
