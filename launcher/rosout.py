@@ -1,0 +1,218 @@
+"""The built-in rosout node: collects /rosout into rosout.log and republishes it on /rosout_agg."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import time
+from collections.abc import Mapping
+from typing import Any, BinaryIO
+
+from launcher.tcpros import PublisherLink, TopicType
+
+log = logging.getLogger("launcher.rosout")
+
+LOG_TYPE = "rosgraph_msgs/Log"
+_LOG_TYPE_RB = "rosgraph_msgs/msg/Log"
+# rosout.cpp's defaults: rotate at 100 MB, keep rosout.log.1 .. rosout.log.10.
+MAX_FILE_SIZE = 100 * 1024 * 1024
+MAX_BACKUPS = 10
+
+_LEVEL_NAMES = {1: b"DEBUG", 2: b"INFO", 4: b"WARN", 8: b"ERROR", 16: b"FATAL"}
+
+
+def format_stamp(sec: int, nsec: int) -> str:
+    """A ros::Time as roscpp prints it: seconds, a dot, nanoseconds padded to nine digits."""
+    return "%d.%09d" % (sec, nsec)
+
+
+def format_log_line(msg: Any, omit_topics: bool = False) -> bytes:
+    """One rosout.log line for a rosgraph_msgs/Log, byte for byte as rosout.cpp writes it."""
+    stamp = msg.header.stamp
+    # rosout.cpp streams an unknown level as the raw uint8_t, i.e. as one byte.
+    level = _LEVEL_NAMES.get(msg.level) or bytes([msg.level & 0xFF])
+    parts = [format_stamp(stamp.sec, stamp.nanosec).encode(), b" ", level, b" ",
+             msg.name.encode("utf-8"), b" [", msg.file.encode("utf-8"), b":",
+             str(msg.line).encode(), b"(", msg.function.encode("utf-8"), b")] "]
+    if not omit_topics:
+        parts += [b"[topics: ", ", ".join(msg.topics).encode("utf-8"), b"] "]
+    parts += [msg.msg.encode("utf-8"), b"\n"]
+    return b"".join(parts)
+
+
+def file_logging_disabled(environ: Mapping[str, str]) -> bool:
+    """ROSOUT_DISABLE_FILE_LOGGING, read as rosout.cpp reads it."""
+    value = environ.get("ROSOUT_DISABLE_FILE_LOGGING", "").lower()
+    return value not in ("", "0", "false", "off", "no")
+
+
+class RosoutLogFile:
+    """rosout.log with rosout.cpp's size-based rotation into rosout.log.1 .. rosout.log.N."""
+
+    def __init__(self, path: str, *, max_size: int = MAX_FILE_SIZE, max_backups: int = MAX_BACKUPS):
+        self.path = path
+        self.max_size = max_size
+        self.max_backups = max_backups
+        self.size = 0
+        self.backups = 0
+        self.lines = 0
+        self.handle: BinaryIO | None = None
+
+    def open(self) -> None:
+        os.makedirs(os.path.dirname(self.path) or ".", exist_ok=True)
+        self.handle = open(self.path, "wb")
+        now = time.time_ns()
+        self.write(b"\n\n%s  Node Startup\n" % format_stamp(now // 10**9, now % 10**9).encode(),
+                   counted=False)
+        self.flush()
+
+    def write(self, line: bytes, *, counted: bool = True) -> None:
+        if self.handle is None:
+            return
+        self.handle.write(line)
+        self.size += len(line)
+        if counted:
+            self.lines += 1
+        if self.size > self.max_size:
+            self.rotate()
+
+    def rotate(self) -> None:
+        """Shift rosout.log -> .1 -> .2 ..., dropping the oldest, and start an empty rosout.log."""
+        log.info("rosout log file %s reached max size, rotating log files", self.path)
+        assert self.handle is not None
+        self.handle.close()
+        if self.backups == self.max_backups:
+            try:
+                os.remove("%s.%d" % (self.path, self.max_backups))
+            except OSError as exc:
+                log.error("deleting the oldest rosout log file: %s", exc)
+        for i in range(min(self.max_backups, self.backups + 1), 0, -1):
+            src = self.path if i == 1 else "%s.%d" % (self.path, i - 1)
+            try:
+                os.rename(src, "%s.%d" % (self.path, i))
+            except OSError as exc:
+                log.error("rotating rosout log file %s: %s", src, exc)
+        self.backups = min(self.backups + 1, self.max_backups)
+        self.handle = open(self.path, "wb")
+        self.size = 0
+
+    def flush(self) -> None:
+        if self.handle is not None:
+            self.handle.flush()
+
+    def close(self) -> None:
+        if self.handle is not None:
+            self.handle.flush()
+            os.fsync(self.handle.fileno())
+            self.handle.close()
+            self.handle = None
+
+
+class Rosout:
+    """The `/rosout` node, in-process on the caller's asyncio loop."""
+
+    def __init__(self, master_uri: str, log_dir: str, *, host: str | None = None,
+                 environ: Mapping[str, str] | None = None, max_file_size: int = MAX_FILE_SIZE,
+                 max_backups: int = MAX_BACKUPS, name: str = "/rosout"):
+        self.master_uri = master_uri
+        self.log_dir = log_dir
+        self.host = host
+        self.name = name
+        self.environ = os.environ if environ is None else environ
+        self.file: RosoutLogFile | None = None
+        if not file_logging_disabled(self.environ):
+            self.file = RosoutLogFile(os.path.join(log_dir, "rosout.log"),
+                                      max_size=max_file_size, max_backups=max_backups)
+        self.omit_topics = False
+        self.received = 0
+        self.undecodable = 0
+        self.node: Any = None
+        self._typestore: Any = None
+        self._agg: Any = None
+        self._flush_pending = False
+        self._watch: asyncio.Task | None = None
+
+    @property
+    def log_path(self) -> str | None:
+        return self.file.path if self.file is not None else None
+
+    async def start(self) -> None:
+        """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout."""
+        from rosbags.typesys import Stores, get_typestore  # heavy; only when rosout runs
+        from launcher.slave import SlaveNode
+
+        self._typestore = get_typestore(Stores.ROS1_NOETIC)
+        definition, md5sum = self._typestore.generate_msgdef(_LOG_TYPE_RB)
+        mtype = TopicType(LOG_TYPE, md5sum, definition)
+        if self.file is not None:
+            try:
+                self.file.open()
+            except OSError as exc:
+                log.error("Error opening rosout log file '%s': %s", self.file.path, exc)
+                self.file = None
+        await self._start_node(mtype)
+
+    async def _start_node(self, mtype: TopicType) -> None:
+        from launcher.slave import SlaveNode
+        self.node = SlaveNode(self.name, self.master_uri, host=self.host)
+        await self.node.start()
+        try:
+            self._agg = await self.node.advertise("/rosout_agg", mtype)
+            value = await self.node.subscribe_param("/rosout/omit_topics", self._set_omit_topics)
+            self._set_omit_topics(value)
+            await self.node.subscribe("/rosout", mtype, self._on_log)
+        except BaseException:
+            await self.node.stop()
+            raise
+        self._watch = asyncio.get_running_loop().create_task(self._respawn_on_shutdown(mtype))
+
+    async def _respawn_on_shutdown(self, mtype: TopicType) -> None:
+        # roscore runs rosout with respawn="true": `rosnode kill /rosout` gets a fresh one.
+        await self.node.shutdown_requested.wait()
+        log.info("/rosout was asked to shut down (%s); restarting it", self.node.shutdown_reason)
+        old, self._watch = self.node, None
+        await old.stop()
+        await self._start_node(mtype)
+
+    def _set_omit_topics(self, value: Any) -> None:
+        # roscpp's getParamCached only takes a bool; anything else leaves the flag as it was.
+        if isinstance(value, bool):
+            self.omit_topics = value
+        elif value == {}:
+            self.omit_topics = False
+
+    def _on_log(self, payload: bytes, link: PublisherLink) -> None:
+        self.received += 1
+        self._agg.publish(payload)
+        if self.file is None:
+            return
+        try:
+            msg = self._typestore.deserialize_ros1(payload, _LOG_TYPE_RB)
+        except Exception as exc:
+            self.undecodable += 1
+            log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
+            return
+        self.file.write(format_log_line(msg, self.omit_topics))
+        if not self._flush_pending:
+            # One flush per burst of messages, not per line: same durability as rosout.cpp's
+            # fflush (the data reaches the OS) at a fraction of the system calls.
+            self._flush_pending = True
+            asyncio.get_running_loop().call_soon(self._flush)
+
+    def _flush(self) -> None:
+        self._flush_pending = False
+        if self.file is not None:
+            self.file.flush()
+
+    async def stop(self) -> None:
+        """Take in what publishers already sent, unregister, and flush+fsync rosout.log."""
+        if self._watch is not None:
+            self._watch.cancel()
+            self._watch = None
+        try:
+            if self.node is not None:
+                await self.node.stop()
+        finally:
+            if self.file is not None:
+                self.file.close()

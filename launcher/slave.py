@@ -1,0 +1,267 @@
+"""A ROS node living inside the launcher: its slave XML-RPC API, master registrations and topic links."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import socket
+from collections.abc import Callable
+from typing import Any
+
+from launcher.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
+                             connect_publisher)
+
+log = logging.getLogger("launcher.slave")
+
+_LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+
+
+def default_host(environ: dict[str, str] | None = None) -> str:
+    """The address other nodes use to reach us, chosen the way rospy/roscpp choose it."""
+    env = os.environ if environ is None else environ
+    return env.get("ROS_HOSTNAME") or env.get("ROS_IP") or socket.gethostname()
+
+
+def bind_address(host: str) -> str:
+    """Listen only on loopback when we told the graph a loopback name (as rospy does)."""
+    if host in _LOOPBACK_NAMES or host.startswith("127."):
+        return host if host != "localhost" else "127.0.0.1"
+    return "0.0.0.0"
+
+
+class Subscription:
+    """A topic we subscribe to, and our connections to its publishers."""
+
+    def __init__(self, node: SlaveNode, topic: str, mtype: TopicType,
+                 callback: Callable[[bytes, PublisherLink], None]):
+        self.node = node
+        self.topic = topic
+        self.mtype = mtype
+        self.callback = callback
+        self.links: dict[str, PublisherLink] = {}
+        self.connecting: dict[str, asyncio.Task] = {}
+        self.closed = False
+
+    def update(self, publisher_uris: list[str]) -> None:
+        """Follow the master's list of publishers: connect to new ones, drop the ones that left."""
+        if self.closed:
+            return
+        wanted = set(publisher_uris)
+        for uri in list(self.links):
+            if uri not in wanted:
+                self.links.pop(uri).close()
+        for uri in list(self.connecting):
+            if uri not in wanted:
+                self.connecting.pop(uri).cancel()
+        for uri in publisher_uris:
+            if uri not in self.links and uri not in self.connecting:
+                task = asyncio.get_running_loop().create_task(self._connect(uri))
+                self.connecting[uri] = task
+
+    async def _connect(self, uri: str) -> None:
+        from launcher.xmlrpc import call
+        try:
+            reply = await call(uri, "requestTopic", self.node.name, self.topic, [["TCPROS"]],
+                               timeout=10.0)
+            code, status, proto = reply
+            if code != 1 or not proto or proto[0] != "TCPROS":
+                log.warning("publisher %s of %s offers no TCPROS: %s", uri, self.topic, status)
+                return
+            link = PublisherLink(self.topic, self.mtype, self.node.name, uri,
+                                 self.callback, self._link_closed)
+            await connect_publisher(str(proto[1]), int(proto[2]), link)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # one unreachable publisher must not affect the others
+            log.warning("cannot connect to publisher %s of %s: %s", uri, self.topic, exc)
+            return
+        finally:
+            if self.connecting.get(uri) is asyncio.current_task():
+                del self.connecting[uri]
+        if self.closed or link.closed:
+            link.close()
+            return
+        self.links[uri] = link
+
+    def _link_closed(self, link: PublisherLink) -> None:
+        if self.links.get(link.publisher_uri) is link:
+            del self.links[link.publisher_uri]
+
+    async def drain(self, rounds: int = 50) -> None:
+        """Let the loop read what the kernel already holds for us, so nothing received is lost."""
+        for _ in range(rounds):
+            before = sum(l.bytes_received for l in self.links.values())
+            await asyncio.sleep(0)
+            if sum(l.bytes_received for l in self.links.values()) == before:
+                return
+
+    def close(self) -> None:
+        self.closed = True
+        for task in self.connecting.values():
+            task.cancel()
+        self.connecting.clear()
+        for link in list(self.links.values()):
+            link.close()
+        self.links.clear()
+
+
+class SlaveNode:
+    """The parts of a ROS node that the graph sees: slave API, registrations, TCPROS server."""
+
+    def __init__(self, name: str, master_uri: str, *, host: str | None = None):
+        self.name = name
+        self.master_uri = master_uri
+        self.host = host or default_host()
+        self.uri = ""
+        self.tcpros = TcprosServer(name, self.host)
+        self.subscriptions: dict[str, Subscription] = {}
+        self.param_callbacks: dict[str, Callable[[Any], None]] = {}
+        self.shutdown_requested = asyncio.Event()
+        self.shutdown_reason = ""
+        self._xmlrpc: Any = None
+
+    @property
+    def publications(self) -> dict[str, Publication]:
+        return self.tcpros.publications
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        from launcher.xmlrpc import XmlRpcServer
+        bind = bind_address(self.host)
+        await self.tcpros.start(bind)
+        self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0)
+        await self._xmlrpc.start()
+        self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
+
+    async def _master(self, method: str, *params: Any) -> Any:
+        from launcher.xmlrpc import call
+        code, status, value = await call(self.master_uri, method, self.name, *params, timeout=10.0)
+        if code != 1:
+            raise RuntimeError("master refused %s%r: %s" % (method, params, status))
+        return value
+
+    async def advertise(self, topic: str, mtype: TopicType, *, latch: bool = False) -> Publication:
+        """Publish `topic` and register it with the master."""
+        pub = Publication(topic, mtype, self.name, latch=latch)
+        self.publications[topic] = pub
+        await self._master("registerPublisher", topic, mtype.name, self.uri)
+        return pub
+
+    async def subscribe(self, topic: str, mtype: TopicType,
+                        callback: Callable[[bytes, PublisherLink], None]) -> Subscription:
+        """Subscribe to `topic`: register with the master and connect to its publishers."""
+        sub = Subscription(self, topic, mtype, callback)
+        self.subscriptions[topic] = sub
+        publishers = await self._master("registerSubscriber", topic, mtype.name, self.uri)
+        sub.update(list(publishers))
+        return sub
+
+    async def advertise_service(self, srv: ServiceServer) -> None:
+        self.tcpros.services[srv.name] = srv
+        await self._master("registerService", srv.name,
+                           "rosrpc://%s:%d" % (self.host, self.tcpros.port), self.uri)
+
+    async def subscribe_param(self, key: str, callback: Callable[[Any], None]) -> Any:
+        """Current value of `key` ({} when unset); `callback(value)` on every later change."""
+        self.param_callbacks[key.rstrip("/") or "/"] = callback
+        return await self._master("subscribeParam", self.uri, key)
+
+    async def stop(self) -> None:
+        """Read what publishers already sent, unregister everything, close every connection."""
+        for sub in self.subscriptions.values():
+            await sub.drain()
+        calls = []
+        for topic, sub in self.subscriptions.items():
+            calls.append(self._master("unregisterSubscriber", topic, self.uri))
+        for topic in self.publications:
+            calls.append(self._master("unregisterPublisher", topic, self.uri))
+        for name in self.tcpros.services:
+            calls.append(self._master("unregisterService", name,
+                                      "rosrpc://%s:%d" % (self.host, self.tcpros.port)))
+        for key in self.param_callbacks:
+            calls.append(self._master("unsubscribeParam", self.uri, key))
+        # A master that is already gone must not stop us from closing our own sockets.
+        for result in await asyncio.gather(*calls, return_exceptions=True):
+            if isinstance(result, BaseException):
+                log.debug("unregistering %s: %s", self.name, result)
+        for sub in self.subscriptions.values():
+            sub.close()
+        await self.tcpros.stop()
+        if self._xmlrpc is not None:
+            await self._xmlrpc.stop()
+            self._xmlrpc = None
+
+    # ------------------------------------------------------------------ slave API
+    def _dispatch(self, method: str, params: list[Any]) -> Any:
+        handler = self._API.get(method)
+        if handler is None:
+            raise ValueError("method [%s] is not supported by %s" % (method, self.name))
+        try:
+            return handler(self, *params)
+        except TypeError as exc:
+            return [-1, "bad arguments to %s: %s" % (method, exc), 0]
+
+    def getBusStats(self, caller_id: str) -> list:
+        subs = [[s.topic, [[l.id, l.bytes_received, l.messages_received, 0, 0]
+                           for l in s.links.values()]] for s in self.subscriptions.values()]
+        return [1, "", [self.tcpros.stats(), subs, [0, 0, 0]]]
+
+    def getBusInfo(self, caller_id: str) -> list:
+        info: list[list[Any]] = []
+        for pub in self.publications.values():
+            for link in pub.links:
+                info.append([link.id, link.callerid, "o", "TCPROS", pub.topic, True, link.info])
+        for sub in self.subscriptions.values():
+            for link in sub.links.values():
+                info.append([link.id, link.publisher_uri, "i", "TCPROS", sub.topic, True, link.info])
+        return [1, "bus info", info]
+
+    def getMasterUri(self, caller_id: str) -> list:
+        return [1, "", self.master_uri]
+
+    def shutdown(self, caller_id: str, msg: str = "") -> list:
+        log.info("%s asked %s to shut down: %s", caller_id, self.name, msg)
+        self.shutdown_reason = msg
+        self.shutdown_requested.set()
+        return [1, "shutdown", 0]
+
+    def getPid(self, caller_id: str) -> list:
+        return [1, "", os.getpid()]
+
+    def getSubscriptions(self, caller_id: str) -> list:
+        return [1, "subscriptions", [[s.topic, s.mtype.name] for s in self.subscriptions.values()]]
+
+    def getPublications(self, caller_id: str) -> list:
+        return [1, "publications", [[p.topic, p.mtype.name] for p in self.publications.values()]]
+
+    def paramUpdate(self, caller_id: str, key: str, value: Any) -> list:
+        callback = self.param_callbacks.get(key.rstrip("/") or "/")
+        if callback is not None:
+            try:
+                callback(value)
+            except Exception:
+                log.exception("applying parameter %s", key)
+        return [1, "", 0]
+
+    def publisherUpdate(self, caller_id: str, topic: str, publishers: list[str]) -> list:
+        sub = self.subscriptions.get(topic)
+        if sub is not None:
+            sub.update([str(uri) for uri in publishers])
+        return [1, "", 0]
+
+    def requestTopic(self, caller_id: str, topic: str, protocols: list) -> list:
+        if topic not in self.publications:
+            return [-1, "Not a publisher of [%s]" % topic, []]
+        for proto in protocols:
+            if proto and proto[0] == "TCPROS":
+                return [1, "ready on %s:%d" % (self.host, self.tcpros.port),
+                        ["TCPROS", self.host, self.tcpros.port]]
+        return [0, "no supported protocol implementations", []]
+
+    _API: dict[str, Callable[..., Any]] = {}
+
+
+SlaveNode._API = {name: getattr(SlaveNode, name) for name in (
+    "getBusStats", "getBusInfo", "getMasterUri", "shutdown", "getPid", "getSubscriptions",
+    "getPublications", "paramUpdate", "publisherUpdate", "requestTopic")}

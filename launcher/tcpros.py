@@ -1,0 +1,499 @@
+"""TCPROS: connection headers and message framing (sans-I/O), plus thin asyncio links for topics and services."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import struct
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+log = logging.getLogger("launcher.tcpros")
+
+_LEN = struct.Struct("<I")
+
+# roscpp refuses headers over 1 GB and messages over 1 GB; a log aggregator has no use for
+# anything near that, and a garbage length must not make us allocate gigabytes.
+MAX_HEADER_SIZE = 1 << 20
+MAX_MESSAGE_SIZE = 64 << 20
+# Above this many unsent bytes a subscriber is stalled: we drop what it cannot take rather than
+# let one slow reader grow the launcher's memory (roscpp drops from its publish queue likewise).
+MAX_WRITE_BACKLOG = 16 << 20
+# Any message type accepted (rospy's AnyMsg, rostopic before it knows the type).
+ANY_MD5 = "*"
+
+
+class TcprosError(Exception):
+    """A peer broke the TCPROS protocol (bad header, absurd length, refused handshake)."""
+
+
+# --------------------------------------------------------------------------- sans-I/O codec
+
+def encode_header(fields: Mapping[str, str]) -> bytes:
+    """A connection header as sent on the wire: total length, then length-prefixed `key=value`s."""
+    body = bytearray()
+    for key, value in fields.items():
+        item = ("%s=%s" % (key, value)).encode("utf-8")
+        body += _LEN.pack(len(item))
+        body += item
+    return _LEN.pack(len(body)) + bytes(body)
+
+
+def decode_header(payload: bytes | memoryview) -> dict[str, str]:
+    """The fields of a connection header body (without its outer length)."""
+    fields: dict[str, str] = {}
+    view = memoryview(payload)
+    pos, end = 0, len(view)
+    while pos < end:
+        if end - pos < 4:
+            raise TcprosError("connection header truncated: %d stray bytes" % (end - pos))
+        (size,) = _LEN.unpack_from(view, pos)
+        pos += 4
+        if size > end - pos:
+            raise TcprosError("connection header field of %d bytes overruns the header" % size)
+        item = bytes(view[pos:pos + size])
+        pos += size
+        key, eq, value = item.partition(b"=")
+        if not eq:
+            raise TcprosError("connection header field without '=': %r" % item[:64])
+        try:
+            fields[key.decode("utf-8")] = value.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise TcprosError("connection header field is not UTF-8: %r" % item[:64]) from exc
+    return fields
+
+
+def encode_frame(payload: bytes | memoryview) -> bytes:
+    """One serialized message as sent on a topic connection: its length, then its bytes."""
+    return _LEN.pack(len(payload)) + bytes(payload)
+
+
+class FrameDecoder:
+    """Splits a byte stream into length-prefixed frames; feed it whatever the socket gave."""
+
+    __slots__ = ("_buf", "limit")
+
+    def __init__(self, limit: int = MAX_MESSAGE_SIZE):
+        self._buf = bytearray()
+        self.limit = limit
+
+    def feed(self, data: bytes) -> list[bytes]:
+        """Complete frames now available, oldest first; raises TcprosError on an absurd length."""
+        buf = self._buf
+        buf += data
+        frames: list[bytes] = []
+        pos, end = 0, len(buf)
+        while end - pos >= 4:
+            (size,) = _LEN.unpack_from(buf, pos)
+            if size > self.limit:
+                raise TcprosError("frame of %d bytes exceeds the %d byte limit" % (size, self.limit))
+            if end - pos - 4 < size:
+                break
+            frames.append(bytes(buf[pos + 4:pos + 4 + size]))
+            pos += 4 + size
+        if pos:
+            del buf[:pos]
+        return frames
+
+    @property
+    def pending(self) -> int:
+        """Bytes received that do not yet make a whole frame."""
+        return len(self._buf)
+
+
+def encode_service_response(ok: bool, payload: bytes) -> bytes:
+    """A service reply: one ok byte, then the response (or the error text) framed."""
+    return (b"\x01" if ok else b"\x00") + encode_frame(payload)
+
+
+def transport_info(sock: socket.socket | None) -> str:
+    """roscpp's connection description, which `rosnode info` parses for ports and socket."""
+    if sock is None:
+        return "TCPROS connection"
+    try:
+        local_port = sock.getsockname()[1]
+        host, port = sock.getpeername()[:2]
+        return "TCPROS connection on port %d to [%s:%d on socket %d]" % (
+            local_port, host, port, sock.fileno())
+    except OSError:
+        return "TCPROS connection"
+
+
+# --------------------------------------------------------------------------- asyncio layer
+
+_next_connection_id = 0
+
+
+def _new_connection_id() -> int:
+    global _next_connection_id
+    _next_connection_id += 1
+    return _next_connection_id
+
+
+@dataclass
+class TopicType:
+    """What both ends of a topic connection must agree on."""
+
+    name: str        # e.g. rosgraph_msgs/Log
+    md5sum: str
+    definition: str
+
+
+class PublisherLink(asyncio.Protocol):
+    """Our connection, as a subscriber, to one publisher of a topic."""
+
+    def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str,
+                 on_message: Callable[[bytes, PublisherLink], None],
+                 on_close: Callable[[PublisherLink], None]):
+        self.topic = topic
+        self.mtype = mtype
+        self.callerid = callerid
+        self.publisher_uri = publisher_uri
+        self.on_message = on_message
+        self.on_close = on_close
+        self.id = _new_connection_id()
+        self.transport: asyncio.Transport | None = None
+        self.header: dict[str, str] | None = None
+        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.bytes_received = 0
+        self.messages_received = 0
+        self.closed = False
+        self.info = "TCPROS connection"
+        self.handshake = asyncio.get_running_loop().create_future()
+
+    # asyncio.Protocol
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        sock = transport.get_extra_info("socket")
+        self.info = transport_info(sock)
+        transport.write(encode_header({  # type: ignore[attr-defined]
+            "callerid": self.callerid, "topic": self.topic, "type": self.mtype.name,
+            "md5sum": self.mtype.md5sum, "message_definition": self.mtype.definition,
+            "tcp_nodelay": "1",
+        }))
+
+    def data_received(self, data: bytes) -> None:
+        self.bytes_received += len(data)
+        try:
+            frames = self.decoder.feed(data)
+        except TcprosError as exc:
+            self._fail("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
+            return
+        for payload in frames:
+            if self.header is None:
+                if not self._accept_header(payload):
+                    return
+                continue
+            self.messages_received += 1
+            try:
+                self.on_message(payload, self)
+            except Exception:  # a bad message must not end the connection or the launcher
+                log.exception("handling a message on %s from %s", self.topic, self.publisher_uri)
+
+    def _accept_header(self, payload: bytes) -> bool:
+        try:
+            header = decode_header(payload)
+        except TcprosError as exc:
+            self._fail("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
+            return False
+        if "error" in header:
+            self._fail("publisher %s refused %s: %s" % (self.publisher_uri, self.topic, header["error"]))
+            return False
+        theirs = header.get("md5sum", "")
+        if self.mtype.md5sum != ANY_MD5 and theirs not in (self.mtype.md5sum, ANY_MD5):
+            self._fail("publisher %s on %s sends %s [%s], we expect %s [%s]" % (
+                self.publisher_uri, self.topic, header.get("type", "?"), theirs,
+                self.mtype.name, self.mtype.md5sum))
+            return False
+        self.header = header
+        self.decoder.limit = MAX_MESSAGE_SIZE
+        if not self.handshake.done():
+            self.handshake.set_result(header)
+        return True
+
+    def _fail(self, why: str) -> None:
+        log.warning("%s; dropping the connection", why)
+        if not self.handshake.done():
+            self.handshake.set_exception(TcprosError(why))
+        self.close()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.handshake.done():
+            self.handshake.set_exception(TcprosError("connection closed during handshake"))
+        if not self.closed:
+            self.closed = True
+            self.on_close(self)
+
+    def close(self) -> None:
+        """Close now; bytes already received have been delivered."""
+        if self.transport is not None:
+            self.transport.close()
+        if not self.closed:
+            self.closed = True
+            self.on_close(self)
+
+    @property
+    def callerid_of_publisher(self) -> str:
+        return (self.header or {}).get("callerid", "")
+
+
+async def connect_publisher(host: str, port: int, link: PublisherLink, *,
+                            timeout: float = 10.0) -> PublisherLink:
+    """Open `link` to a publisher's TCPROS server and complete the handshake."""
+    loop = asyncio.get_running_loop()
+    transport, _ = await asyncio.wait_for(
+        loop.create_connection(lambda: link, host, port), timeout)
+    sock = transport.get_extra_info("socket")
+    if sock is not None:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    try:
+        await asyncio.wait_for(asyncio.shield(link.handshake), timeout)
+    except BaseException:
+        link.close()
+        raise
+    return link
+
+
+@dataclass
+class Publication:
+    """A topic we publish, and the subscribers connected to it."""
+
+    topic: str
+    mtype: TopicType
+    callerid: str
+    latch: bool = False
+    links: list[SubscriberLink] = field(default_factory=list)
+    messages_published: int = 0
+    last: bytes | None = None
+
+    def publish(self, payload: bytes | memoryview) -> None:
+        """Send one serialized message to every connected subscriber."""
+        self.messages_published += 1
+        frame = encode_frame(payload)
+        if self.latch:
+            self.last = frame
+        for link in self.links:
+            link.send(frame)
+
+
+@dataclass
+class ServiceServer:
+    """A service we serve: `handler(request_bytes) -> response_bytes`, raising to report failure."""
+
+    name: str
+    type_name: str
+    md5sum: str
+    request_type: str
+    response_type: str
+    callerid: str
+    handler: Callable[[bytes], bytes]
+
+
+class InboundConnection(asyncio.Protocol):
+    """A connection a peer opened to our TCPROS server: a subscriber or a service client."""
+
+    def __init__(self, server: TcprosServer):
+        self.server = server
+        self.id = _new_connection_id()
+        self.transport: asyncio.Transport | None = None
+        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.header: dict[str, str] | None = None
+        self.publication: Publication | None = None
+        self.service: ServiceServer | None = None
+        self.info = "TCPROS connection"
+        self.bytes_sent = 0
+        self.messages_sent = 0
+        self.drops = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        sock = transport.get_extra_info("socket")
+        self.info = transport_info(sock)
+        self.server.connections.add(self)
+
+    def data_received(self, data: bytes) -> None:
+        try:
+            frames = self.decoder.feed(data)
+        except TcprosError as exc:
+            log.warning("TCPROS client %s: %s; dropping it", self._peer(), exc)
+            self.close()
+            return
+        for payload in frames:
+            if self.header is None:
+                self._accept_header(payload)
+            elif self.service is not None:
+                self._serve(payload)
+            # Anything a subscriber sends after its header is meaningless; ignore it.
+            if self.transport is None or self.transport.is_closing():
+                return
+
+    def _peer(self) -> str:
+        if self.transport is None:
+            return "?"
+        peer = self.transport.get_extra_info("peername")
+        return "%s:%s" % tuple(peer[:2]) if peer else "?"
+
+    def _refuse(self, why: str) -> None:
+        log.warning("refusing TCPROS client %s: %s", self._peer(), why)
+        assert self.transport is not None
+        self.transport.write(encode_header({"error": why}))
+        self.close()
+
+    def _accept_header(self, payload: bytes) -> None:
+        try:
+            header = decode_header(payload)
+        except TcprosError as exc:
+            log.warning("TCPROS client %s: %s; dropping it", self._peer(), exc)
+            self.close()
+            return
+        self.header = header
+        if "service" in header:
+            self._accept_service(header)
+        else:
+            self._accept_subscriber(header)
+
+    def _accept_subscriber(self, header: dict[str, str]) -> None:
+        for required in ("topic", "md5sum", "callerid"):
+            if required not in header:
+                self._refuse("Missing required '%s' field" % required)
+                return
+        pub = self.server.publications.get(header["topic"])
+        if pub is None:
+            self._refuse("[%s] is not a publisher of [%s]. Topics are %s" % (
+                self.server.callerid, header["topic"],
+                [[p.topic, p.mtype.name] for p in self.server.publications.values()]))
+            return
+        md5 = header["md5sum"]
+        if md5 != ANY_MD5 and md5 != pub.mtype.md5sum:
+            wanted = header.get("type", pub.mtype.name)
+            if wanted != pub.mtype.name:
+                self._refuse("topic types do not match: [%s] vs. [%s]" % (wanted, pub.mtype.name))
+            else:
+                self._refuse("Client [%s] wants topic [%s] to have datatype/md5sum [%s/%s], but our "
+                             "version has [%s/%s]. Dropping connection." % (
+                                 header["callerid"], pub.topic, wanted, md5, pub.mtype.name,
+                                 pub.mtype.md5sum))
+            return
+        assert self.transport is not None
+        sock = self.transport.get_extra_info("socket")
+        if sock is not None and header.get("tcp_nodelay") == "1":
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.transport.write(encode_header({
+            "callerid": pub.callerid, "md5sum": pub.mtype.md5sum,
+            "message_definition": pub.mtype.definition, "latching": "1" if pub.latch else "0",
+            "topic": pub.topic, "type": pub.mtype.name,
+        }))
+        self.publication = pub
+        link = SubscriberLink(self, header["callerid"])
+        pub.links.append(link)
+        if pub.latch and pub.last is not None:
+            link.send(pub.last)
+
+    def _accept_service(self, header: dict[str, str]) -> None:
+        srv = self.server.services.get(header["service"])
+        if srv is None:
+            self._refuse("request from [%s]: service [%s] is not provided by this node" % (
+                header.get("callerid", "?"), header["service"]))
+            return
+        md5 = header.get("md5sum", "")
+        if md5 not in (ANY_MD5, srv.md5sum):
+            self._refuse("request from [%s]: md5sums do not match: [%s] vs. [%s]" % (
+                header.get("callerid", "?"), md5, srv.md5sum))
+            return
+        assert self.transport is not None
+        self.transport.write(encode_header({
+            "callerid": srv.callerid, "md5sum": srv.md5sum, "request_type": srv.request_type,
+            "response_type": srv.response_type, "type": srv.type_name,
+        }))
+        if header.get("probe") == "1":
+            # rosservice's type probe only wants our header.
+            self.close()
+            return
+        self.service = srv
+        self.decoder.limit = MAX_MESSAGE_SIZE
+
+    def _serve(self, request: bytes) -> None:
+        assert self.service is not None and self.transport is not None
+        try:
+            reply = encode_service_response(True, self.service.handler(request))
+        except Exception as exc:  # the service failed: the client gets the reason, we carry on
+            reply = encode_service_response(False, str(exc).encode("utf-8"))
+        self.transport.write(reply)
+        if self.header is not None and self.header.get("persistent") != "1":
+            self.close()
+
+    def close(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.close()
+        self._forget()
+
+    def _forget(self) -> None:
+        self.server.connections.discard(self)
+        if self.publication is not None:
+            self.publication.links[:] = [l for l in self.publication.links if l.conn is not self]
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._forget()
+
+
+class SubscriberLink:
+    """One subscriber connected to one of our publications."""
+
+    __slots__ = ("conn", "callerid")
+
+    def __init__(self, conn: InboundConnection, callerid: str):
+        self.conn = conn
+        self.callerid = callerid
+
+    def send(self, frame: bytes) -> None:
+        transport = self.conn.transport
+        if transport is None or transport.is_closing():
+            return
+        if transport.get_write_buffer_size() > MAX_WRITE_BACKLOG:
+            self.conn.drops += 1
+            return
+        transport.write(frame)
+        self.conn.bytes_sent += len(frame)
+        self.conn.messages_sent += 1
+
+    @property
+    def id(self) -> int:
+        return self.conn.id
+
+    @property
+    def info(self) -> str:
+        return self.conn.info
+
+
+class TcprosServer:
+    """The TCP port where subscribers and service clients reach this node."""
+
+    def __init__(self, callerid: str, host: str = "127.0.0.1"):
+        self.callerid = callerid
+        self.host = host
+        self.port = 0
+        self.publications: dict[str, Publication] = {}
+        self.services: dict[str, ServiceServer] = {}
+        self.connections: set[InboundConnection] = set()
+        self._server: asyncio.base_events.Server | None = None
+
+    async def start(self, bind_host: str | None = None) -> None:
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: InboundConnection(self),
+                                                bind_host or self.host, 0)
+        self.port = self._server.sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            self._server.close()
+        for conn in list(self.connections):
+            conn.close()
+        if self._server is not None:
+            await self._server.wait_closed()
+            self._server = None
+
+    def stats(self) -> Any:
+        return [[p.topic, [[l.id, l.conn.bytes_sent, l.conn.bytes_sent, l.conn.messages_sent, 0]
+                           for l in p.links]] for p in self.publications.values()]
