@@ -9,7 +9,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, BinaryIO
 
-from launcher.tcpros import PublisherLink, TopicType
+from launcher.tcpros import PublisherLink, ServiceServer, TopicType
 
 log = logging.getLogger("launcher.rosout")
 
@@ -20,6 +20,22 @@ MAX_FILE_SIZE = 100 * 1024 * 1024
 MAX_BACKUPS = 10
 
 _LEVEL_NAMES = {1: b"DEBUG", 2: b"INFO", 4: b"WARN", 8: b"ERROR", 16: b"FATAL"}
+
+# Every roscpp node (rosout.cpp included) serves ~get_loggers and ~set_logger_level; these are
+# their request/response definitions (roscpp/srv/*.srv), which rosbags' type store lacks.
+_LOGGER_SERVICE_TYPES = {
+    "roscpp/msg/GetLoggers_Request": "",
+    "roscpp/msg/GetLoggers_Response": "roscpp/Logger[] loggers",
+    "roscpp/msg/SetLoggerLevel_Request": "string logger\nstring level",
+    "roscpp/msg/SetLoggerLevel_Response": "",
+}
+_EMPTY_MD5 = "d41d8cd98f00b204e9800998ecf8427e"
+# What our Python loggers are called in roscpp's level words, and back.
+_PY_TO_ROS_LEVEL = {logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warn",
+                    logging.ERROR: "error", logging.CRITICAL: "fatal"}
+_ROS_TO_PY_LEVEL = {v: k for k, v in _PY_TO_ROS_LEVEL.items()}
+# The loggers this node's get_loggers reports and set_logger_level may change.
+_OWN_LOGGERS = ("launcher.rosout", "launcher.slave", "launcher.tcpros")
 
 
 def format_stamp(sec: int, nsec: int) -> str:
@@ -39,6 +55,29 @@ def format_log_line(msg: Any, omit_topics: bool = False) -> bytes:
         parts += [b"[topics: ", ", ".join(msg.topics).encode("utf-8"), b"] "]
     parts += [msg.msg.encode("utf-8"), b"\n"]
     return b"".join(parts)
+
+
+def service_md5(typestore: Any, request: str, response: str) -> str:
+    """A service's md5sum: md5 over the request's then the response's md5 text (genmsg).
+
+    rosbags gives the md5 of each half, not its text; when one half is empty the service md5 is
+    the other half's md5, which covers roscpp's logger services. Other shapes are refused.
+    """
+    req = typestore.generate_msgdef(request)[1]
+    resp = typestore.generate_msgdef(response)[1]
+    if req == _EMPTY_MD5:
+        return resp
+    if resp == _EMPTY_MD5:
+        return req
+    raise NotImplementedError("service md5 of two non-empty halves (%s, %s)" % (request, response))
+
+
+def _logger_level(name: str) -> str:
+    level = logging.getLogger(name).getEffectiveLevel()
+    for py_level in sorted(_PY_TO_ROS_LEVEL, reverse=True):
+        if level >= py_level:
+            return _PY_TO_ROS_LEVEL[py_level]
+    return "debug"
 
 
 def file_logging_disabled(environ: Mapping[str, str]) -> bool:
@@ -142,7 +181,13 @@ class Rosout:
         from rosbags.typesys import Stores, get_typestore  # heavy; only when rosout runs
         from launcher.slave import SlaveNode
 
+        from rosbags.typesys import get_types_from_msg
+
         self._typestore = get_typestore(Stores.ROS1_NOETIC)
+        types: dict[str, Any] = {}
+        for name, text in _LOGGER_SERVICE_TYPES.items():
+            types.update(get_types_from_msg(text, name))
+        self._typestore.register(types)
         definition, md5sum = self._typestore.generate_msgdef(_LOG_TYPE_RB)
         mtype = TopicType(LOG_TYPE, md5sum, definition)
         if self.file is not None:
@@ -162,6 +207,8 @@ class Rosout:
             value = await self.node.subscribe_param("/rosout/omit_topics", self._set_omit_topics)
             self._set_omit_topics(value)
             await self.node.subscribe("/rosout", mtype, self._on_log)
+            for service in self._logger_services():
+                await self.node.advertise_service(service)
         except BaseException:
             await self.node.stop()
             raise
@@ -174,6 +221,36 @@ class Rosout:
         old, self._watch = self.node, None
         await old.stop()
         await self._start_node(mtype)
+
+    def _logger_services(self) -> list[ServiceServer]:
+        ts = self._typestore
+
+        def get_loggers(request: bytes) -> bytes:
+            logger_t = ts.types["roscpp/msg/Logger"]
+            loggers = [logger_t(name=n, level=_logger_level(n)) for n in _OWN_LOGGERS]
+            return bytes(ts.serialize_ros1(ts.types["roscpp/msg/GetLoggers_Response"](
+                loggers=loggers), "roscpp/msg/GetLoggers_Response"))
+
+        def set_logger_level(request: bytes) -> bytes:
+            req = ts.deserialize_ros1(request, "roscpp/msg/SetLoggerLevel_Request")
+            level = _ROS_TO_PY_LEVEL.get(req.level.lower())
+            if req.logger not in _OWN_LOGGERS or level is None:
+                raise ValueError("no logger [%s] or no level [%s]" % (req.logger, req.level))
+            logging.getLogger(req.logger).setLevel(level)
+            return b""
+
+        return [
+            ServiceServer(self.name + "/get_loggers", "roscpp/GetLoggers",
+                          service_md5(ts, "roscpp/msg/GetLoggers_Request",
+                                      "roscpp/msg/GetLoggers_Response"),
+                          "roscpp/GetLoggersRequest", "roscpp/GetLoggersResponse",
+                          self.name, get_loggers),
+            ServiceServer(self.name + "/set_logger_level", "roscpp/SetLoggerLevel",
+                          service_md5(ts, "roscpp/msg/SetLoggerLevel_Request",
+                                      "roscpp/msg/SetLoggerLevel_Response"),
+                          "roscpp/SetLoggerLevelRequest", "roscpp/SetLoggerLevelResponse",
+                          self.name, set_logger_level),
+        ]
 
     def _set_omit_topics(self, value: Any) -> None:
         # roscpp's getParamCached only takes a bool; anything else leaves the flag as it was.

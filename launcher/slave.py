@@ -74,7 +74,8 @@ class Subscription:
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # one unreachable publisher must not affect the others
-            log.warning("cannot connect to publisher %s of %s: %s", uri, self.topic, exc)
+            # Short-lived nodes (rosservice, rostopic) come and go all the time: not a warning.
+            log.debug("cannot connect to publisher %s of %s: %s", uri, self.topic, exc)
             return
         finally:
             if self.connecting.get(uri) is asyncio.current_task():
