@@ -1,0 +1,258 @@
+"""TCPROS headers and framing (sans-I/O), and the asyncio links over real loopback sockets."""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from launcher.tcpros import (FrameDecoder, InboundConnection, Publication, PublisherLink,
+                             ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
+                             decode_header, encode_frame, encode_header, transport_info)
+
+LOG = TopicType("rosgraph_msgs/Log", "acffd30cd6b6de30f120938c17c593fb", "byte level\n")
+
+# A header laid out by hand from the TCPROS spec: 4-byte little-endian length before each field.
+# (tests/integration/test_rosout_nodes.py also compares with rosgraph's own encoder.)
+RECORDED = (b"\x14\x00\x00\x00callerid=/rostopic_1"
+            b"\x11\x00\x00\x00topic=/rosout_agg"
+            b"\x0a\x00\x00\x00md5sum=abc")
+
+
+def test_header_matches_a_recorded_wire_header():
+    encoded = encode_header({"callerid": "/rostopic_1", "topic": "/rosout_agg", "md5sum": "abc"})
+    assert encoded == struct.pack("<I", len(RECORDED)) + RECORDED
+    assert decode_header(RECORDED) == {"callerid": "/rostopic_1", "topic": "/rosout_agg",
+                                       "md5sum": "abc"}
+
+
+def test_value_may_contain_equals_and_newlines():
+    fields = {"message_definition": "byte DEBUG=1\nbyte INFO=2\n", "x": ""}
+    assert decode_header(encode_header(fields)[4:]) == fields
+
+
+keys = st.text(st.characters(blacklist_characters="=", blacklist_categories=("Cs",)), min_size=1)
+values = st.text(st.characters(blacklist_categories=("Cs",)))
+
+
+@given(st.dictionaries(keys, values))
+def test_header_roundtrip(fields):
+    encoded = encode_header(fields)
+    assert struct.unpack_from("<I", encoded)[0] == len(encoded) - 4
+    assert decode_header(encoded[4:]) == fields
+
+
+@pytest.mark.parametrize("garbage, why", [
+    (b"\x01\x00", "stray"),
+    (b"\xff\x00\x00\x00a=b", "overruns"),
+    (b"\x03\x00\x00\x00abc", "without '='"),
+    (b"\x03\x00\x00\x00a=\xff", "UTF-8"),
+])
+def test_bad_headers_are_refused_with_a_reason(garbage, why):
+    with pytest.raises(TcprosError, match=why):
+        decode_header(garbage)
+
+
+@given(st.lists(st.binary(max_size=300), max_size=20), st.data())
+def test_frames_survive_any_split_of_the_stream(payloads, data):
+    stream = b"".join(encode_frame(p) for p in payloads)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=10)))
+    decoder = FrameDecoder()
+    got: list[bytes] = []
+    last = 0
+    for cut in cuts + [len(stream)]:
+        got += decoder.feed(stream[last:cut])
+        last = cut
+    assert got == payloads
+    assert decoder.pending == 0
+
+
+def test_partial_frame_waits_for_the_rest():
+    decoder = FrameDecoder()
+    frame = encode_frame(b"hello")
+    assert decoder.feed(frame[:6]) == []
+    assert decoder.pending == 6
+    assert decoder.feed(frame[6:] + frame[:2]) == [b"hello"]
+    assert decoder.pending == 2
+
+
+def test_absurd_length_is_refused_before_allocating():
+    decoder = FrameDecoder(limit=1000)
+    with pytest.raises(TcprosError, match="exceeds"):
+        decoder.feed(struct.pack("<I", 0xFFFFFFF0) + b"xx")
+
+
+def test_transport_info_has_rosnode_info_shape():
+    assert transport_info(None) == "TCPROS connection"
+
+
+# ------------------------------------------------------------------ asyncio, real loopback sockets
+
+async def _server_with_publication(latch: bool = False) -> tuple[TcprosServer, Publication]:
+    server = TcprosServer("/pubnode", "127.0.0.1")
+    await server.start()
+    pub = Publication("/chat", LOG, "/pubnode", latch=latch)
+    server.publications["/chat"] = pub
+    return server, pub
+
+
+async def _wait_for(cond, timeout: float = 5.0) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not cond():
+        if loop.time() > deadline:
+            raise AssertionError("condition not met in %.1fs" % timeout)
+        await asyncio.sleep(0.005)
+
+
+def _subscriber(received: list[bytes], mtype: TopicType = LOG, topic: str = "/chat") -> PublisherLink:
+    return PublisherLink(topic, mtype, "/subnode", "http://pub:1/",
+                         lambda payload, link: received.append(payload), lambda link: None)
+
+
+def test_publish_and_subscribe_over_loopback():
+    async def main():
+        server, pub = await _server_with_publication()
+        received: list[bytes] = []
+        link = await connect_publisher("127.0.0.1", server.port, _subscriber(received))
+        assert link.header["callerid"] == "/pubnode"
+        assert link.header["md5sum"] == LOG.md5sum
+        assert link.header["latching"] == "0"
+        await _wait_for(lambda: len(pub.links) == 1)
+        assert pub.links[0].callerid == "/subnode"
+        assert "TCPROS connection on port %d to [127.0.0.1:" % server.port in pub.links[0].info
+        for i in range(1000):
+            pub.publish(b"m%d" % i)
+        await _wait_for(lambda: len(received) == 1000)
+        assert received == [b"m%d" % i for i in range(1000)]
+        link.close()
+        await _wait_for(lambda: not pub.links)
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_wrong_md5_is_refused_with_an_error_header():
+    async def main():
+        server, pub = await _server_with_publication()
+        other = TopicType("std_msgs/String", "992ce8a1687cec8c8bd883ec73ca41d1", "string data\n")
+        with pytest.raises(TcprosError, match="topic types do not match"):
+            await connect_publisher("127.0.0.1", server.port, _subscriber([], other))
+        assert pub.links == []
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_unknown_topic_is_refused():
+    async def main():
+        server, _ = await _server_with_publication()
+        with pytest.raises(TcprosError, match="is not a publisher of \\[/nope\\]"):
+            await connect_publisher("127.0.0.1", server.port, _subscriber([], topic="/nope"))
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_garbage_client_does_not_disturb_a_good_subscriber():
+    async def main():
+        server, pub = await _server_with_publication()
+        received: list[bytes] = []
+        await connect_publisher("127.0.0.1", server.port, _subscriber(received))
+        # A client that sends an absurd header length, one that sends a malformed header,
+        # and one that connects and stalls without a word.
+        bad1 = await asyncio.open_connection("127.0.0.1", server.port)
+        bad1[1].write(b"\xff\xff\xff\x7f" + b"x" * 100)
+        bad2 = await asyncio.open_connection("127.0.0.1", server.port)
+        bad2[1].write(b"\x05\x00\x00\x00\x01\x00\x00\x00z")
+        stall = await asyncio.open_connection("127.0.0.1", server.port)
+        assert await asyncio.wait_for(bad1[0].read(), 5) == b""
+        assert await asyncio.wait_for(bad2[0].read(), 5) == b""
+        for i in range(100):
+            pub.publish(b"%d" % i)
+        await _wait_for(lambda: len(received) == 100)
+        stall[1].close()
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_a_subscriber_that_stops_reading_is_dropped_from_not_waited_for(monkeypatch):
+    import launcher.tcpros as tcpros
+    monkeypatch.setattr(tcpros, "MAX_WRITE_BACKLOG", 64 * 1024)
+
+    async def main():
+        server, pub = await _server_with_publication()
+        good: list[bytes] = []
+        await connect_publisher("127.0.0.1", server.port, _subscriber(good))
+        # A raw subscriber that completes the handshake, then never reads again.
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        writer.write(encode_header({"callerid": "/stuck", "topic": "/chat", "md5sum": "*"}))
+        await _wait_for(lambda: len(pub.links) == 2)
+        stuck = [l for l in pub.links if l.callerid == "/stuck"][0]
+        payload = b"x" * 10000
+        for _ in range(2000):
+            pub.publish(payload)
+            await asyncio.sleep(0)
+        await _wait_for(lambda: len(good) == 2000, timeout=20)
+        assert stuck.conn.drops > 0
+        writer.close()
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_latched_publication_sends_the_last_message_on_connect():
+    async def main():
+        server, pub = await _server_with_publication(latch=True)
+        pub.publish(b"first")
+        pub.publish(b"last")
+        received: list[bytes] = []
+        link = await connect_publisher("127.0.0.1", server.port, _subscriber(received))
+        assert link.header["latching"] == "1"
+        await _wait_for(lambda: received == [b"last"])
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_service_call_and_failure():
+    async def main():
+        server = TcprosServer("/srvnode", "127.0.0.1")
+        await server.start()
+
+        def handler(req: bytes) -> bytes:
+            if req == b"boom":
+                raise ValueError("no such logger")
+            return req.upper()
+
+        server.services["/echo"] = ServiceServer("/echo", "pkg/Echo", "0123", "pkg/EchoRequest",
+                                                 "pkg/EchoResponse", "/srvnode", handler)
+
+        async def call(req: bytes) -> tuple[dict, int, bytes]:
+            reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+            writer.write(encode_header({"callerid": "/c", "service": "/echo", "md5sum": "0123"}))
+            writer.write(encode_frame(req))
+            size = struct.unpack("<I", await reader.readexactly(4))[0]
+            header = decode_header(await reader.readexactly(size))
+            ok = (await reader.readexactly(1))[0]
+            size = struct.unpack("<I", await reader.readexactly(4))[0]
+            body = await reader.readexactly(size)
+            writer.close()
+            return header, ok, body
+
+        header, ok, body = await call(b"abc")
+        assert (header["type"], header["md5sum"], ok, body) == ("pkg/Echo", "0123", 1, b"ABC")
+        header, ok, body = await call(b"boom")
+        assert (ok, body) == (0, b"no such logger")
+        await server.stop()
+    asyncio.run(main())
+
+
+def test_inbound_connections_are_forgotten_when_closed():
+    async def main():
+        server, pub = await _server_with_publication()
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
+        await _wait_for(lambda: len(server.connections) == 1)
+        assert isinstance(next(iter(server.connections)), InboundConnection)
+        writer.close()
+        await _wait_for(lambda: not server.connections)
+        await server.stop()
+    asyncio.run(main())
