@@ -1,0 +1,370 @@
+"""Finding ROS packages, node executables and `$(find)` paths, as roslaunch does on Debian.
+
+The rules are those of rospkg (package crawl), catkin's `find_in_workspaces`
+(install/devel spaces from `CMAKE_PREFIX_PATH`) and roslib's `find_node` /
+`find_resource`, including their quirks, because users' launch files were
+written against them. Unlike those libraries, a `PackageIndex` walks each
+directory at most once per run and answers later questions from memory: a
+launch with 1000 nodes must not walk a package 1000 times.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Iterator, Mapping
+
+from launcher.errors import LaunchError
+
+PACKAGE_FILE = "package.xml"
+MANIFEST_FILE = "manifest.xml"  # rosbuild packages: the directory name is the package name
+CATKIN_MARKER = ".catkin"
+# Debian's rospkg always appends /usr/share to ROS_PACKAGE_PATH, and only looks one level deep there.
+SYSTEM_SHARE = "/usr/share"
+# catkin always searches /usr after the workspaces of CMAKE_PREFIX_PATH.
+SYSTEM_PREFIX = "/usr"
+_CATKIN_IGNORE_MARKERS = frozenset(("AMENT_IGNORE", "CATKIN_IGNORE", "COLCON_IGNORE"))
+_USER_RX = stat.S_IRUSR | stat.S_IXUSR
+
+
+class PackageNotFound(LaunchError):
+    """A package name that is on neither ROS_PACKAGE_PATH nor /usr/share."""
+
+    def __init__(self, package: str, ros_paths: list[str] | tuple[str, ...] = ()):
+        self.package = package
+        self.ros_paths = tuple(ros_paths)
+        # rospkg's ResourceNotFound wording, which roslaunch shows as is.
+        text = "Resource not found: %s" % package
+        for i, p in enumerate(self.ros_paths):
+            text += "\nROS path [%d]=%s" % (i, p)
+        super().__init__(text)
+
+
+class ExecutableNotFound(LaunchError):
+    """A `<node type=...>` with no executable file of that name in its package."""
+
+    def __init__(self, package: str, node_type: str):
+        self.package = package
+        self.node_type = node_type
+        super().__init__(
+            "Cannot locate node of type [%s] in package [%s]. Make sure file exists in package path "
+            "and permission is set to executable (chmod +x)" % (node_type, package))
+
+
+class MultipleResources(LaunchError):
+    """`launch pkg file.launch` where the package holds several files of that name."""
+
+    def __init__(self, package: str, filename: str, matches: list[str]):
+        self.package = package
+        self.filename = filename
+        self.matches = tuple(matches)
+        super().__init__("multiple files named [%s] in package [%s]:%s\nPlease specify full path instead"
+                         % (filename, package, "".join("\n- %s" % m for m in matches)))
+
+
+def ros_paths(environ: Mapping[str, str]) -> list[str]:
+    """The package search path in precedence order: ROS_ROOT, ROS_PACKAGE_PATH, /usr/share."""
+    paths = []
+    root = environ.get("ROS_ROOT")
+    if root:
+        paths.append(os.path.normpath(root))
+    rpp = environ.get("ROS_PACKAGE_PATH", "") + os.pathsep + SYSTEM_SHARE
+    paths.extend(p for p in rpp.split(os.pathsep) if p.strip())
+    return paths
+
+
+def catkin_workspaces(environ: Mapping[str, str]) -> list[str]:
+    """CMAKE_PREFIX_PATH entries that hold a `.catkin` marker file, then /usr (catkin's rule)."""
+    entries = [p for p in environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep) if p]
+    spaces = [p for p in entries if os.path.isfile(os.path.join(p, CATKIN_MARKER))]
+    spaces.append(SYSTEM_PREFIX)
+    return spaces
+
+
+def _walk(top: str) -> Iterator[tuple[str, list[str], list[str]]]:
+    """`os.walk(top, followlinks=True)` (same order, callers may prune `dirs`), but a symlink
+    to a directory already walked is not walked again, so link cycles cannot run away."""
+    try:
+        seen = {os.path.realpath(top)}
+    except OSError:
+        return
+    stack: list[tuple[str, str]] = [(top, next(iter(seen)))]
+    while stack:
+        path, real = stack.pop()
+        dirs: list[str] = []
+        files: list[str] = []
+        links: dict[str, str] = {}
+        try:
+            with os.scandir(path) as it:
+                for entry in it:
+                    try:
+                        is_dir = entry.is_dir()
+                    except OSError:
+                        is_dir = False
+                    if is_dir:
+                        dirs.append(entry.name)
+                        if entry.is_symlink():
+                            links[entry.name] = os.path.realpath(entry.path)
+                    else:
+                        files.append(entry.name)
+        except OSError:
+            continue  # unreadable directory: os.walk skips it silently too
+        yield path, dirs, files
+        children = []
+        for name in dirs:
+            child_real = links.get(name) or os.path.join(real, name)
+            if name in links:
+                if child_real in seen:
+                    continue
+            seen.add(child_real)
+            children.append((os.path.join(path, name), child_real))
+        stack.extend(reversed(children))
+
+
+def _package_name(manifest: str) -> tuple[str | None, bool]:
+    """(the `<name>` of a package.xml, whether it is a metapackage); (None, False) if unreadable."""
+    import xml.etree.ElementTree as ET  # lazy: only needed when a crawl meets a package.xml
+
+    try:
+        root = ET.parse(manifest).getroot()
+    except (OSError, ET.ParseError):
+        return None, False
+    name = root.findtext("name")
+    if name is None:
+        return None, False
+    return name.strip(" \n\r\t"), root.find("./export/metapackage") is not None
+
+
+class PackageIndex:
+    """Where packages and their files are, for one run. Crawls lazily, each directory once."""
+
+    def __init__(self, environ: Mapping[str, str] | None = None):
+        env = os.environ if environ is None else environ
+        self.ros_paths: list[str] = ros_paths(env)
+        self.workspaces: list[str] = catkin_workspaces(env)
+        self.warnings: list[str] = []
+        self._located: dict[str, str] = {}
+        self._uncrawled = list(self.ros_paths)  # crawled in precedence order, on demand
+        self._files: dict[str, dict[str, list[str]]] = {}  # dir -> file name -> paths, os.walk order
+        self._nodes: dict[tuple[str, str], str] = {}
+        self._catkin: dict[tuple[str, tuple[str, ...], str | None, bool], list[str]] = {}
+        self._source_spaces: dict[str, list[str]] = {}
+        self._source_packages: dict[str, list[tuple[str, str]]] = {}
+
+    # -- packages ---------------------------------------------------------------------------
+
+    def _crawl(self, path: str) -> None:
+        """Register the packages under one ROS path entry (rospkg's list_by_path rules)."""
+        found: set[str] = set()
+        for d, dirs, files in _walk(os.path.abspath(path)):
+            if "CATKIN_IGNORE" in files:
+                del dirs[:]
+                continue
+            if PACKAGE_FILE in files:
+                name, is_meta = _package_name(os.path.join(d, PACKAGE_FILE))
+                if name is None:
+                    self.warnings.append("ignoring unreadable package manifest %s" % os.path.join(d, PACKAGE_FILE))
+                    del dirs[:]
+                    continue
+                # rospkg's RosPack lists packages, not metapackages (those are "stacks").
+                if not is_meta:
+                    self._register(name, d, found)
+                    del dirs[:]
+                    continue
+            if MANIFEST_FILE in files:
+                self._register(os.path.basename(d), d, found)
+                del dirs[:]
+                continue
+            if PACKAGE_FILE in files or "rospack_nosubdirs" in files or d.startswith(SYSTEM_SHARE + "/"):
+                del dirs[:]
+                continue
+            # rospkg removes hidden dirs with a list comprehension that mutates the list it
+            # iterates: the entry right after each removed one survives. Same result here.
+            i = 0
+            while i < len(dirs):
+                if dirs[i][0] == ".":
+                    del dirs[i]
+                i += 1
+
+    def _register(self, name: str, d: str, found: set[str]) -> None:
+        # first path entry wins; inside one entry the first directory in walk order wins
+        if name not in found:
+            found.add(name)
+            self._located.setdefault(name, d)
+
+    def get_path(self, pkg: str) -> str:
+        """The directory of package `pkg`; raises PackageNotFound."""
+        while pkg not in self._located and self._uncrawled:
+            self._crawl(self._uncrawled.pop(0))
+        try:
+            return self._located[pkg]
+        except KeyError:
+            raise PackageNotFound(pkg, self.ros_paths) from None
+
+    def packages(self) -> dict[str, str]:
+        """Every package on the path: name -> directory."""
+        while self._uncrawled:
+            self._crawl(self._uncrawled.pop(0))
+        return dict(self._located)
+
+    # -- catkin spaces ------------------------------------------------------------------------
+
+    def _source_space_paths(self, workspace: str) -> list[str]:
+        """The source spaces a devel space's `.catkin` file lists (';'-separated, unique by realpath)."""
+        if workspace not in self._source_spaces:
+            result: list[str] = []
+            if workspace != SYSTEM_PREFIX:
+                try:
+                    with open(os.path.join(workspace, CATKIN_MARKER)) as f:
+                        data = f.read()
+                except OSError:
+                    data = ""
+                reals = set()
+                if data:
+                    for p in data.split(";"):
+                        r = os.path.realpath(p)
+                        if r not in reals:
+                            result.append(p)
+                            reals.add(r)
+            self._source_spaces[workspace] = result
+        return self._source_spaces[workspace]
+
+    def _packages_in_source(self, source: str) -> list[tuple[str, str]]:
+        """(name, relative dir) of the packages in a source space (catkin_pkg's crawl rules)."""
+        if source not in self._source_packages:
+            result = []
+            for d, dirs, files in _walk(source):
+                if _CATKIN_IGNORE_MARKERS.intersection(dirs) or _CATKIN_IGNORE_MARKERS.intersection(files):
+                    del dirs[:]
+                    continue
+                if PACKAGE_FILE in files:
+                    name, _meta = _package_name(os.path.join(d, PACKAGE_FILE))
+                    if name is not None:
+                        result.append((name, os.path.relpath(d, source)))
+                    del dirs[:]
+                    continue
+                if d.startswith(SYSTEM_SHARE + "/"):
+                    del dirs[:]
+                    continue
+                dirs[:] = [x for x in dirs if not x.startswith(".")]
+            self._source_packages[source] = result
+        return self._source_packages[source]
+
+    def catkin_dirs(self, pkg: str, subdirs: tuple[str, ...], path: str | None = None,
+                    first_match_only: bool = False) -> list[str]:
+        """catkin's find_in_workspaces(subdirs, project=pkg, path, first_matching_workspace_only=True).
+
+        `libexec` implies `lib` before it, as in catkin.
+        """
+        key = (pkg, subdirs, path, first_match_only)
+        if key in self._catkin:
+            return self._catkin[key]
+        search = list(subdirs)
+        if "libexec" in search:
+            search.insert(search.index("libexec"), "lib")
+        found: list[str] = []
+        for ws in self.workspaces:
+            for cand in self._workspace_candidates(ws, pkg, search, path):
+                if os.path.exists(cand):
+                    found.append(cand)
+                    if first_match_only:
+                        break
+            if found:
+                break
+        self._catkin[key] = found
+        return found
+
+    def _workspace_candidates(self, ws: str, pkg: str, search: list[str], path: str | None) -> Iterator[str]:
+        for sub in search:
+            cand = os.path.join(ws, sub, pkg)
+            yield os.path.join(cand, path) if path else cand
+            if sub == "share":
+                # a devel space also answers with the package's source dir
+                for source in self._source_space_paths(ws):
+                    rels = [rel for name, rel in self._packages_in_source(source) if name == pkg]
+                    if rels:
+                        cand = source if rels[0] == os.curdir else os.path.join(source, rels[0])
+                        yield os.path.join(cand, path) if path else cand
+
+    # -- files inside packages ------------------------------------------------------------
+
+    def _named(self, directory: str, name: str) -> list[str]:
+        """Paths of the non-directory entries called `name` under `directory`, in os.walk order
+        with hidden dirs pruned (roslib's _find_resource walk). One walk per directory per run."""
+        index = self._files.get(directory)
+        if index is None:
+            index = {}
+            for d, dirs, files in _walk(directory):
+                for f in files:
+                    index.setdefault(f, []).append(os.path.join(d, f))
+                dirs[:] = [x for x in dirs if not x.startswith(".")]
+            self._files[directory] = index
+        return index.get(name, [])
+
+    def _resource_dirs(self, pkg: str) -> list[str]:
+        """Where roslib's find_resource looks, in order: catkin lib/libexec/share dirs, then the package."""
+        pkg_path = self.get_path(pkg)  # the package must exist, even when a catkin space has it
+        return self.catkin_dirs(pkg, ("libexec", "share")) + [pkg_path]
+
+    def find_node(self, pkg: str, node_type: str) -> str:
+        """The executable for `<node pkg= type=>`: first file named `type` with user r+x bits."""
+        key = (pkg, node_type)
+        cached = self._nodes.get(key)
+        if cached is not None:
+            return cached
+        for d in self._resource_dirs(pkg):
+            for candidate in self._named(d, node_type):
+                try:
+                    mode = os.stat(candidate).st_mode
+                except OSError:
+                    continue  # a dangling symlink is no executable
+                if mode & _USER_RX == _USER_RX:
+                    found = os.path.abspath(candidate)
+                    self._nodes[key] = found
+                    return found
+        raise ExecutableNotFound(pkg, node_type)
+
+    def find_launch_file(self, pkg: str, filename: str) -> str | None:
+        """`launch PKG FILE`: the one file called FILE in the package (or its catkin dirs).
+
+        None when there is none; raises PackageNotFound for an unknown package and
+        MultipleResources when the name is ambiguous, as roslaunch does.
+        """
+        matches: list[str] = []
+        for d in self._resource_dirs(pkg):
+            for m in self._named(d, filename):
+                m = os.path.abspath(m)
+                if m not in matches:
+                    matches.append(m)
+        if len(matches) > 1:
+            raise MultipleResources(pkg, filename, matches)
+        return matches[0] if matches else None
+
+    def find_resource(self, pkg: str, rel: str = "") -> str:
+        """What `$(find pkg)rel` resolves to, `rel` being the text up to the next space.
+
+        roslaunch's order: an executable `basename(rel)` in the first catkin lib/libexec dir
+        of the package, an executable `<pkg dir>/rel`, an existing `<catkin share>/pkg/rel`,
+        else `<pkg dir>/rel` whether it exists or not. Raises PackageNotFound.
+        """
+        path = rel.replace("\\", "/")
+        if path.startswith("/"):
+            path = path[1:]
+        if path:
+            libexec = self.catkin_dirs(pkg, ("libexec",))
+            if libexec:
+                hit = _executable_file(os.path.join(libexec[0], os.path.basename(path)))
+                if hit:
+                    return hit
+            hit = _executable_file(os.path.join(self.get_path(pkg), path))
+            if hit:
+                return hit
+            share = self.catkin_dirs(pkg, ("share",), path=path, first_match_only=True)
+            if share:
+                return share[0]
+        pkg_path = self.get_path(pkg)
+        return os.path.join(pkg_path, path) if path else pkg_path
+
+
+def _executable_file(path: str) -> str | None:
+    return path if os.path.isfile(path) and os.access(path, os.X_OK) else None

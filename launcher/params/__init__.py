@@ -1,0 +1,1 @@
+"""Parameters: value typing, ROS YAML load/dump, and the parameter tree (import-free package)."""

@@ -1,0 +1,205 @@
+"""ROS YAML: rosparam's dialect of YAML (angles, binary) for loading and dumping parameters.
+
+rosparam extends PyYAML's safe loader with `deg(...)`/`rad(...)` plain scalars and the
+`!degrees`/`!radians` tags, and wraps `!!binary` data. We do the same on a private
+loader class (never on PyYAML's global ones), use libyaml when it is installed, and
+evaluate angle expressions with a small arithmetic evaluator instead of Python's `eval`.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import operator
+import re
+from typing import Any
+
+import yaml
+
+from launcher.errors import LaunchError
+
+
+class RosYamlError(LaunchError, ValueError):
+    """Invalid ROS YAML; `line` is the line in the YAML file (or launch file, for inline YAML)."""
+
+    def __init__(self, message: str, filename: str | None = None, line: int | None = None):
+        super().__init__(message, filename, line)
+
+
+class _AngleError(Exception):
+    """An angle expression rosparam would refuse (raised inside construction, mapped later)."""
+
+    def __init__(self, message: str, line: int):
+        super().__init__(message)
+        self.line = line
+
+
+# -- angle expressions -------------------------------------------------------------------
+
+_BINOPS = {
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv, ast.Mod: operator.mod, ast.Pow: operator.pow,
+}
+_UNARY = {ast.UAdd: operator.pos, ast.USub: operator.neg}
+# rosparam evaluates with its module globals, where `math` is importable: `math.<name>` works.
+# (minus the integer combinatorics, which can run for hours on a big argument)
+_MATH_NAMES = {n: getattr(math, n) for n in dir(math)
+               if not n.startswith("_") and n not in ("factorial", "comb", "perm", "prod", "lcm", "gcd", "isqrt")}
+
+
+def _pow(a: Any, b: Any) -> Any:
+    # integer powers whose result would be astronomically large are done in floats, so
+    # `10**10**10` is an overflow error instead of a hang
+    if isinstance(a, int) and isinstance(b, int) and b > 0 and a.bit_length() * b > 4096:
+        return math.pow(a, b)
+    return operator.pow(a, b)
+
+
+def _evaluate(node: ast.AST) -> Any:
+    if isinstance(node, ast.Expression):
+        return _evaluate(node.body)
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
+        return node.value
+    if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
+        left, right = _evaluate(node.left), _evaluate(node.right)
+        if isinstance(node.op, ast.Pow):
+            return _pow(left, right)
+        return _BINOPS[type(node.op)](left, right)
+    if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
+        return _UNARY[type(node.op)](_evaluate(node.operand))
+    if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "math"
+            and node.attr in _MATH_NAMES and not callable(_MATH_NAMES[node.attr])):
+        return _MATH_NAMES[node.attr]
+    if (isinstance(node, ast.Call) and not node.keywords and isinstance(node.func, ast.Attribute)
+            and isinstance(node.func.value, ast.Name) and node.func.value.id == "math"
+            and callable(_MATH_NAMES.get(node.func.attr))):
+        return _MATH_NAMES[node.func.attr](*[_evaluate(a) for a in node.args])
+    raise ValueError("unsupported expression")
+
+
+def radians_value(text: str) -> float:
+    """rosparam's `rad(expr)` / `!radians expr`: `pi` is math.pi, arithmetic only."""
+    value = text.strip()
+    expr = value.replace("pi", "math.pi")  # rosparam's textual substitution, quirks included
+    if expr.startswith("rad("):
+        expr = expr[4:-1]
+    try:
+        return float(_evaluate(ast.parse(expr.strip(), mode="eval")))
+    except (SyntaxError, ValueError, TypeError, ArithmeticError, RecursionError, MemoryError):
+        raise ValueError("invalid radian expression: %s" % value) from None
+
+
+def degrees_value(text: str) -> float:
+    """rosparam's `deg(number)` / `!degrees number`, in radians."""
+    expr = text
+    if expr.startswith("deg("):
+        expr = expr.strip()[4:-1]
+    try:
+        return float(expr) * math.pi / 180.0
+    except ValueError:
+        raise ValueError("invalid degree value: %s" % text) from None
+
+
+def _construct_radians(loader: Any, node: yaml.Node) -> float:
+    try:
+        return radians_value(loader.construct_scalar(node))
+    except ValueError as e:
+        raise _AngleError(str(e), node.start_mark.line) from None
+
+
+def _construct_degrees(loader: Any, node: yaml.Node) -> float:
+    try:
+        return degrees_value(loader.construct_scalar(node))
+    except ValueError as e:
+        raise _AngleError(str(e), node.start_mark.line) from None
+
+
+def _construct_binary(loader: Any, node: yaml.Node) -> bytes:
+    return loader.construct_yaml_binary(node)
+
+
+# -- loader classes --------------------------------------------------------------------
+
+_DEG = re.compile(r"^deg\([^\)]*\)$")
+_RAD = re.compile(r"^rad\([^\)]*\)$")
+
+
+def _ros_flavour(base: type) -> type:
+    cls = type("Ros" + base.__name__, (base,), {})
+    cls.add_constructor("tag:yaml.org,2002:binary", _construct_binary)
+    cls.add_constructor("!radians", _construct_radians)
+    cls.add_constructor("!degrees", _construct_degrees)
+    cls.add_implicit_resolver("!degrees", _DEG, list("deg("))
+    cls.add_implicit_resolver("!radians", _RAD, list("rad("))
+    return cls
+
+
+_PY_ROS = _ros_flavour(yaml.SafeLoader)
+_C_ROS = _ros_flavour(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
+_C_PLAIN = getattr(yaml, "CSafeLoader", None)
+
+
+def _loaders(angles: bool) -> tuple[type, ...]:
+    """Loaders to try in order: libyaml first (fast), then PyYAML's (the reference's) to decide
+    any input libyaml refuses and to word the error as rosparam would."""
+    if angles:
+        return (_C_ROS, _PY_ROS) if _C_ROS else (_PY_ROS,)
+    return (_C_PLAIN, yaml.SafeLoader) if _C_PLAIN else (yaml.SafeLoader,)
+
+
+def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, angles: bool = True) -> Any:
+    """Parse one YAML document the way rosparam does.
+
+    `first_line` is the line of `filename` where `text` starts (inline YAML in a launch file),
+    so error lines point into that file. `angles=False` is PyYAML's plain safe loader, which
+    is what roslaunch uses for `type="yaml"` params before any `<rosparam>` was processed.
+    Raises RosYamlError.
+    """
+    loaders = _loaders(angles)
+    for i, loader in enumerate(loaders):
+        try:
+            return yaml.load(text, Loader=loader)
+        except (yaml.YAMLError, _AngleError, RecursionError, MemoryError) as e:
+            if i + 1 < len(loaders):
+                continue
+            raise _yaml_error(e, text, filename, first_line) from None
+    raise AssertionError("unreachable")
+
+
+def _yaml_error(e: BaseException, text: str, filename: str | None, first_line: int) -> RosYamlError:
+    offset = first_line - 1
+    if isinstance(e, _AngleError):
+        return RosYamlError(str(e), filename, e.line + 1 + offset)
+    if isinstance(e, yaml.MarkedYAMLError):
+        parts = []
+        if e.context:
+            where = ""
+            if e.context_mark is not None:
+                where = " (line %d, column %d)" % (e.context_mark.line + 1 + offset, e.context_mark.column + 1)
+            parts.append(e.context + where)
+        problem = e.problem or "invalid YAML"
+        line = None
+        if e.problem_mark is not None:
+            line = e.problem_mark.line + 1 + offset
+            problem += " (line %d, column %d)" % (line, e.problem_mark.column + 1)
+        parts.append(problem)
+        if e.note:
+            parts.append(e.note)
+        return RosYamlError("invalid YAML: " + ": ".join(parts), filename, line)
+    if isinstance(e, yaml.reader.ReaderError):
+        line = text.count("\n", 0, max(e.position, 0)) + 1 + offset
+        what = e.reason
+        if isinstance(e.character, int):
+            what = "unacceptable character #x%04x: %s" % (e.character, e.reason)
+        return RosYamlError("invalid YAML: %s" % what, filename, line)
+    if isinstance(e, (RecursionError, MemoryError)):
+        return RosYamlError("invalid YAML: nested too deeply", filename, first_line)
+    return RosYamlError("invalid YAML: %s" % e, filename, first_line)
+
+
+# -- dumping ---------------------------------------------------------------------------------
+
+def dump_yaml(value: Any) -> str:
+    """YAML text of `value` as roslaunch `--dump-params` and `rosparam dump` print it
+    (PyYAML's safe block style; bytes become `!!binary`)."""
+    return yaml.dump(value, Dumper=yaml.SafeDumper, default_flow_style=False)

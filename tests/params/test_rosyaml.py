@@ -1,0 +1,246 @@
+"""ROS YAML: rosparam's angle syntax, binary data, errors with lines, dumping like roslaunch."""
+
+from __future__ import annotations
+
+import glob
+import json
+import math
+import os
+import subprocess
+
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from launcher.errors import LaunchError
+from launcher.params import rosyaml
+from launcher.params.rosyaml import RosYamlError, degrees_value, dump_yaml, load_yaml, radians_value
+
+COMPAT = "/work/shared/compat"
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("a: deg(90)", math.pi / 2),
+    ("a: deg(-180)", -math.pi),
+    ("a: deg(0.5)", 0.5 * math.pi / 180),
+    ("a: rad(pi)", math.pi),
+    ("a: rad(2*pi/3)", 2 * math.pi / 3),
+    ("a: rad(-pi/4)", -math.pi / 4),
+    ("a: rad(1.5)", 1.5),
+    ("a: !degrees 45", math.pi / 4),
+    ("a: !degrees deg(45)", math.pi / 4),
+    ("a: !radians pi", math.pi),
+    ("a: !radians 2**3", 8.0),
+    ("a: !radians rad(pi/2)", math.pi / 2),
+    ("a: !radians math.sqrt(4)", 2.0),
+    ("a: !radians (1+1)*pi", 2 * math.pi),
+])
+def test_angles(text, expected):
+    assert load_yaml(text)["a"] == pytest.approx(expected, rel=0, abs=0)
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("a: 'deg(90)'", "deg(90)"),          # quoted: no implicit resolution
+    ("a: degrees(90)", "degrees(90)"),
+    ("a: rad(math.sqrt(4))", "rad(math.sqrt(4))"),  # ')' inside: rosparam's pattern does not match
+    ("a: xdeg(90)", "xdeg(90)"),
+])
+def test_not_angles(text, expected):
+    assert load_yaml(text)["a"] == expected
+
+
+def test_angles_in_lists_and_nested_maps():
+    data = load_yaml("list: [deg(0), deg(90), rad(pi)]\nnested:\n  yaw: !degrees 45\n")
+    assert data["list"] == [0.0, math.pi / 2, math.pi]
+    assert data["nested"]["yaw"] == math.pi / 4
+
+
+def test_angles_disabled_is_plain_safe_load():
+    assert load_yaml("a: deg(90)", angles=False) == {"a": "deg(90)"}
+    with pytest.raises(RosYamlError):
+        load_yaml("a: !degrees 90", angles=False)
+
+
+@pytest.mark.parametrize("text,line", [
+    ("a: 1\nb: rad(pi/0)\n", 2),
+    ("a: 1\n\nb: !degrees pi\n", 3),
+    ("a: !radians __import__('os').getcwd()", 1),
+    ("a: !radians open('/etc/passwd')", 1),
+    ("a: !radians (1).__class__", 1),
+    ("a: !radians 10**10**10", 1),
+    ("a: !radians lambda: 1", 1),
+    ("a: !radians [1, 2]", 1),
+])
+def test_bad_angles_are_errors_with_line(text, line):
+    with pytest.raises(RosYamlError) as err:
+        load_yaml(text, filename="f.yaml")
+    assert err.value.line == line
+    assert str(err.value).startswith("f.yaml:%d: " % line)
+
+
+def test_radians_evaluator_is_not_eval():
+    with pytest.raises(ValueError):
+        radians_value("__import__('os').system('true')")
+    with pytest.raises(ValueError):
+        radians_value("math.factorial(10**9)")
+    assert radians_value("  rad(pi/2)  ") == math.pi / 2
+    assert degrees_value("deg(180)") == math.pi
+
+
+def test_pi_substitution_quirk_matches_rosparam():
+    # rosparam replaces every 'pi' textually, so 'pi' inside a longer word breaks the expression
+    with pytest.raises(ValueError):
+        radians_value("spin")
+
+
+def test_binary_is_bytes_and_dumps_as_binary():
+    data = load_yaml("blob: !!binary aGVsbG8=")
+    assert data == {"blob": b"hello"}
+    assert dump_yaml(data) == "blob: !!binary |\n  aGVsbG8=\n"
+
+
+def test_merge_keys():
+    text = "base: &b {x: 1, y: 2}\nderived:\n  <<: *b\n  y: 3\n"
+    assert load_yaml(text)["derived"] == {"x": 1, "y": 3}
+
+
+def test_yaml_1_1_scalars_like_pyyaml():
+    data = load_yaml("a: yes\nb: off\nc: 0x1F\nd: 1_000\ne: 1e3\nf: .inf\ng: ~\nh: 2001-12-14\n")
+    assert data["a"] is True and data["b"] is False and data["c"] == 31 and data["d"] == 1000
+    assert data["e"] == "1e3" and data["f"] == math.inf and data["g"] is None
+    assert str(data["h"]) == "2001-12-14"
+
+
+def test_error_line_is_offset_by_first_line():
+    text = "a: 1\nb: 2\nc: [unclosed\nd: {\n"
+    with pytest.raises(RosYamlError) as err:
+        load_yaml(text, filename="robot.launch", first_line=20)
+    assert isinstance(err.value, LaunchError) and isinstance(err.value, ValueError)
+    assert err.value.filename == "robot.launch"
+    assert 22 <= err.value.line <= 24
+    assert "robot.launch:%d:" % err.value.line in str(err.value)
+
+
+def test_error_in_file_points_at_problem_line():
+    with pytest.raises(RosYamlError) as err:
+        load_yaml("ok: 1\nbad: : x\n", filename="p.yaml")
+    assert err.value.line == 2
+    assert "mapping values are not allowed here" in err.value.message
+
+
+def test_unprintable_character_error_has_line():
+    with pytest.raises(RosYamlError) as err:
+        load_yaml("a: 1\nb: \x07\n", filename="p.yaml")
+    assert err.value.line == 2
+    assert "#x0007" in err.value.message
+
+
+def test_deep_nesting_is_an_error_not_a_crash():
+    with pytest.raises(RosYamlError):
+        load_yaml("[" * 20000)
+
+
+def test_multiple_documents_are_an_error():
+    with pytest.raises(RosYamlError):
+        load_yaml("a: 1\n---\nb: 2\n")
+
+
+def test_global_pyyaml_loaders_untouched():
+    load_yaml("a: deg(90)")
+    assert yaml.safe_load("a: deg(90)") == {"a": "deg(90)"}
+
+
+def test_dump_like_roslaunch_dump_params():
+    value = {"/b": 1.0, "/a": "h\xe9llo \u2713", "/c": [1, True, None], "/d": {"x": "1"}, "/e": float("nan")}
+    assert dump_yaml(value) == (
+        '/a: "h\\xE9llo \\u2713"\n/b: 1.0\n/c:\n- 1\n- true\n- null\n/d:\n  x: \'1\'\n/e: .nan\n')
+    assert dump_yaml({}) == "{}\n"
+
+
+# -- libyaml vs PyYAML: the fast path must never change a result --------------------------
+
+yaml_scalars = st.one_of(
+    st.sampled_from(["1", "1.5", "-2", "deg(90)", "rad(pi/2)", "!degrees 30", "!radians pi", "yes", "~",
+                     "'q'", '"d\\n"', "0x1f", "1e3", ".nan", "2001-01-01", "!!binary aGk=", "a b", "&a 1", "*a",
+                     "[]", "{}", "|\n  lit\n", ">\n  fold\n", "x: y", "- z", "\t", "#c", "?", "%", "@", "`"]),
+    st.text(alphabet=st.characters(min_codepoint=9, max_codepoint=0x2FF), max_size=8))
+
+
+@st.composite
+def yaml_docs(draw):
+    lines = []
+    for _ in range(draw(st.integers(1, 8))):
+        indent = " " * draw(st.sampled_from([0, 0, 2, 4]))
+        key = draw(st.sampled_from(["a", "b", "<<", "k k", "'q'", "- ", ""]))
+        lines.append("%s%s: %s" % (indent, key, draw(yaml_scalars)) if key != "- " else indent + "- " + draw(yaml_scalars))
+    return "\n".join(lines)
+
+
+def _outcome(loader, text):
+    try:
+        return ("ok", repr(yaml.load(text, Loader=loader)))
+    except Exception as e:  # noqa: BLE001 - any failure counts as "refused"
+        return ("error", type(e).__name__ if not isinstance(e, yaml.YAMLError) else "YAMLError")
+
+
+@pytest.mark.skipif(rosyaml._C_ROS is None, reason="libyaml not available")
+@settings(max_examples=300, deadline=None)
+@given(yaml_docs())
+def test_libyaml_agrees_with_pyyaml(text):
+    py = _outcome(rosyaml._PY_ROS, text)
+    ours = ("ok", repr(load_yaml(text))) if py[0] == "ok" else None
+    if py[0] == "ok":
+        assert ours == py
+    else:
+        with pytest.raises(RosYamlError):
+            load_yaml(text)
+
+
+# -- against rosparam itself -------------------------------------------------------------------
+
+REF_SCRIPT = r"""
+import json, sys, yaml
+import rosparam  # registers rosparam's constructors on PyYAML's SafeLoader, as roslaunch does
+out = []
+for path in json.loads(sys.argv[1]):
+    with open(path) as f:
+        text = f.read()
+    try:
+        out.append(["ok", repr(yaml.safe_load(text))])
+    except Exception as e:
+        out.append(["error", None])
+print(json.dumps(out))
+"""
+
+
+def test_matches_rosparam_on_corpus_yaml_files(ros_env, tmp_path):
+    files = sorted(glob.glob(COMPAT + "/pkgs/**/*.yaml", recursive=True))
+    extra = {
+        "angles.yaml": "a: deg(30)\nb: rad(pi/3)\nc: !degrees 10\nd: !radians 2*pi\ne: [deg(1), 'deg(1)']\n",
+        "bin.yaml": "b: !!binary aGVsbG8=\n",
+        "merge.yaml": "x: &x {a: 1}\ny: {<<: *x, b: 2}\n",
+        "bad.yaml": "a: [1,\n",
+        "badangle.yaml": "a: !degrees pi\n",
+        "scalars.yaml": "a: yes\nb: 0o17\nc: 017\nd: 1_0\ne: +.5\nf: -.inf\ng: 1:30\nh: 2001-12-14 21:59:43.10 -5\n",
+    }
+    for name, text in extra.items():
+        (tmp_path / name).write_text(text)
+        files.append(str(tmp_path / name))
+    assert len(files) > 6
+    env = dict(os.environ, PATH=ros_env["path"])
+    ref = json.loads(subprocess.run([ros_env["python"], "-c", REF_SCRIPT, json.dumps(files)], env=env,
+                                    capture_output=True, text=True, check=True, timeout=120).stdout)
+    for path, (status, rrepr) in zip(files, ref):
+        text = open(path).read()
+        if status == "error":
+            with pytest.raises(RosYamlError):
+                load_yaml(text, filename=path)
+        else:
+            # rosparam wraps binary data in xmlrpc Binary; we keep plain bytes
+            expected = rrepr.replace("<xmlrpc.client.Binary", "<bin") if rrepr else rrepr
+            got = repr(load_yaml(text, filename=path))
+            if "Binary" in (rrepr or ""):
+                assert "b'hello'" in got
+            else:
+                assert got == expected, path
