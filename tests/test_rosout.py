@@ -1,0 +1,108 @@
+"""rosout's line format, log rotation and settings, without a master."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from launcher.rosout import (RosoutLogFile, file_logging_disabled, format_log_line, format_stamp,
+                             service_md5)
+
+
+@pytest.fixture(scope="module")
+def typestore():
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS1_NOETIC)
+
+
+def _log(typestore, **fields):
+    t = typestore.types
+    values = dict(level=2, name="/talker_py", msg="hello info 1", file="pylog.py",
+                  function="<module>", line=5, topics=["/chatter", "/rosout"])
+    values.update(fields)
+    stamp = t["builtin_interfaces/msg/Time"](sec=1795240437, nanosec=829590082)
+    header = t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="")
+    return t["rosgraph_msgs/msg/Log"](header=header, **values)
+
+
+def test_line_is_the_reference_line(typestore):
+    # This line was written by Debian's rosout for the same message from a rospy node.
+    assert format_log_line(_log(typestore)) == (
+        b"1795240437.829590082 INFO /talker_py [pylog.py:5(<module>)] "
+        b"[topics: /chatter, /rosout] hello info 1\n")
+
+
+@pytest.mark.parametrize("level, word", [(1, b"DEBUG"), (2, b"INFO"), (4, b"WARN"), (8, b"ERROR"),
+                                         (16, b"FATAL"), (3, b"\x03"), (65, b"A")])
+def test_levels_including_unknown_ones_printed_as_a_raw_byte(typestore, level, word):
+    assert format_log_line(_log(typestore, level=level)).split(b" ")[1] == word
+
+
+def test_omit_topics_and_empty_topics(typestore):
+    assert format_log_line(_log(typestore), omit_topics=True) == (
+        b"1795240437.829590082 INFO /talker_py [pylog.py:5(<module>)] hello info 1\n")
+    assert b"[topics: ] hello" in format_log_line(_log(typestore, topics=[]))
+
+
+def test_text_is_written_as_utf8_unchanged(typestore):
+    line = format_log_line(_log(typestore, msg="température\tok\nsecond line"))
+    assert line.endswith("température\tok\nsecond line\n".encode())
+
+
+def test_stamp_pads_nanoseconds():
+    assert format_stamp(12, 5) == "12.000000005"
+    assert format_stamp(0, 0) == "0.000000000"
+
+
+@pytest.mark.parametrize("value, disabled", [
+    (None, False), ("", False), ("0", False), ("false", False), ("OFF", False), ("No", False),
+    ("1", True), ("true", True), ("yes", True)])
+def test_file_logging_switch(value, disabled):
+    env = {} if value is None else {"ROSOUT_DISABLE_FILE_LOGGING": value}
+    assert file_logging_disabled(env) is disabled
+
+
+def test_startup_marker(tmp_path):
+    f = RosoutLogFile(str(tmp_path / "run" / "rosout.log"))
+    f.open()
+    f.close()
+    text = (tmp_path / "run" / "rosout.log").read_text()
+    assert text.startswith("\n\n") and text.endswith("  Node Startup\n")
+    float(text.split()[0])
+
+
+def test_rotation_keeps_every_line_and_the_newest_backups(tmp_path):
+    path = str(tmp_path / "rosout.log")
+    f = RosoutLogFile(path, max_size=100, max_backups=3)
+    f.open()
+    lines = [b"line %04d %s\n" % (i, b"x" * 30) for i in range(40)]
+    for line in lines:
+        f.write(line)
+    f.close()
+    names = sorted(os.listdir(tmp_path))
+    assert names == ["rosout.log", "rosout.log.1", "rosout.log.2", "rosout.log.3"]
+    # Oldest backup first, then newer ones, then the live file: an unbroken tail of the lines.
+    tail = b"".join(open(os.path.join(tmp_path, n), "rb").read()
+                    for n in ["rosout.log.3", "rosout.log.2", "rosout.log.1", "rosout.log"])
+    assert b"".join(lines).endswith(tail)
+    assert len(tail) > 300 and f.lines == 40
+    # A file rotates once it passes the limit, as rosout.cpp does (check after the write).
+    for n in names[1:]:
+        assert os.path.getsize(os.path.join(tmp_path, n)) > 100
+
+
+def test_logger_service_md5s_match_roscpp(typestore):
+    from rosbags.typesys import get_types_from_msg
+    from launcher.rosout import _LOGGER_SERVICE_TYPES
+    types = {}
+    for name, text in _LOGGER_SERVICE_TYPES.items():
+        types.update(get_types_from_msg(text, name))
+    typestore.register(types)
+    # The values `rossrv md5 roscpp/GetLoggers` / `roscpp/SetLoggerLevel` print.
+    assert service_md5(typestore, "roscpp/msg/GetLoggers_Request",
+                       "roscpp/msg/GetLoggers_Response") == "32e97e85527d4678a8f9279894bb64b0"
+    assert service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request",
+                       "roscpp/msg/SetLoggerLevel_Response") == "51da076440d78ca1684d36c868df61ea"
+    with pytest.raises(NotImplementedError):
+        service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request", "roscpp/msg/Logger")
