@@ -1,0 +1,1 @@
+"""Node processes: spawning, watching, respawn, required, stop escalation, log directory."""

@@ -1,0 +1,148 @@
+"""The log directory: where it is, the run's directory and `latest` link, and the background disk checks."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import shutil
+import subprocess
+from typing import Callable, Mapping
+
+from launcher.process import console
+
+# roslaunch's threshold: 1 GiB, though it says "1GB".
+DEFAULT_THRESHOLD = 1073741824
+# Warn when the disk holding the logs has less than this free (or less than 5 %).
+LOW_DISK_BYTES = 1073741824
+LOW_DISK_FRACTION = 0.05
+# First check after start-up has settled (it must never compete with spawning),
+# then again at this interval while the launch runs.
+FIRST_CHECK_DELAY_S = 2.0
+RECHECK_INTERVAL_S = 600.0
+
+_SIZE_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)(i?[bB]?)\s*$")
+_UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
+
+
+def ros_home(environ: Mapping[str, str]) -> str:
+    """`$ROS_HOME`, default `~/.ros` (rospkg.get_ros_home)."""
+    return environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+
+
+def log_root(environ: Mapping[str, str]) -> str:
+    """`$ROS_LOG_DIR`, default `$ROS_HOME/log` (rospkg.get_log_dir)."""
+    return environ.get("ROS_LOG_DIR") or os.path.join(ros_home(environ), "log")
+
+
+def parse_size(text: str) -> int:
+    """`1GB`, `500MB`, `2G`, `1073741824` -> bytes (binary units, as roslaunch's 1GB is 2**30)."""
+    m = _SIZE_RE.match(str(text))
+    if not m:
+        raise ValueError("invalid size [%s]: expected a number with an optional unit (KB, MB, GB, TB)" % text)
+    return int(float(m.group(1)) * _UNITS[m.group(2).lower()])
+
+
+def format_size(n: int) -> str:
+    for unit, size in (("TB", 1 << 40), ("GB", 1 << 30), ("MB", 1 << 20), ("KB", 1 << 10)):
+        if n >= size:
+            value = n / size
+            return ("%d%s" % (value, unit)) if value == int(value) else ("%.1f%s" % (value, unit))
+    return "%dB" % n
+
+
+def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
+    """Create `<log root>/<run_id>` and point `<log root>/latest` at it (as rosgraph.roslogging does)."""
+    root = log_root(environ)
+    run_dir = os.path.join(root, run_id)
+    try:
+        os.makedirs(run_dir, exist_ok=True)
+    except OSError as e:
+        from launcher.errors import LaunchError
+        raise LaunchError("unable to create directory for log files [%s]: %s" % (run_dir, e.strerror)) from None
+    latest = os.path.join(root, "latest")
+    try:
+        if os.path.lexists(latest):
+            if not os.path.islink(latest):
+                console.printerrlog("INFO: cannot create a symlink to latest log directory")
+                return run_dir
+            # replace atomically: another launch may be reading it
+            tmp = latest + ".%d" % os.getpid()
+            os.symlink(run_dir, tmp)
+            os.replace(tmp, latest)
+        else:
+            os.symlink(run_dir, latest)
+    except OSError as e:
+        console.printerrlog("INFO: cannot create a symlink to latest log directory: %s" % e)
+    return run_dir
+
+
+def disk_usage_bytes(path: str) -> int:
+    """Apparent size of everything under `path` (what `du -sb` reports), at low priority."""
+    du = shutil.which("du")
+    if du:
+        argv = [du, "-sb", path]
+        nice = shutil.which("nice")
+        if nice:
+            argv = [nice, "-n", "19"] + argv
+        out = subprocess.run(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, check=False).stdout
+        try:
+            return int(out.split()[0])
+        except (IndexError, ValueError):
+            pass
+    total = 0
+    for dirpath, dirnames, filenames in os.walk(path):
+        for name in filenames + dirnames:
+            try:
+                total += os.lstat(os.path.join(dirpath, name)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def check_once(root: str, threshold: int) -> list[tuple[bool, str]]:
+    """One round of checks: [(is_warning, message)]. Blocking: run it in a thread."""
+    messages: list[tuple[bool, str]] = []
+    if os.path.isdir(root):
+        usage = disk_usage_bytes(root)
+        if usage > threshold:
+            messages.append((True, "WARNING: disk usage in log directory [%s] is over %s.\n"
+                                   "It's recommended that you use the 'rosclean' command."
+                             % (root, format_size(threshold))))
+        else:
+            messages.append((False, "Done checking log file disk usage. Usage is <%s." % format_size(threshold)))
+    try:
+        import psutil
+        du = psutil.disk_usage(root if os.path.exists(root) else os.path.dirname(root) or "/")
+    except (ImportError, OSError):
+        du = None
+    if du is not None and (du.free < LOW_DISK_BYTES or du.free < du.total * LOW_DISK_FRACTION):
+        messages.append((True, "WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
+                         % (root, format_size(du.free), format_size(du.total))))
+    return messages
+
+
+async def watch_log_disk(root: str, threshold: int, *, first_delay: float = FIRST_CHECK_DELAY_S,
+                         interval: float = RECHECK_INTERVAL_S,
+                         check: Callable[[str, int], list[tuple[bool, str]]] = check_once) -> None:
+    """Check the log directory in the background now and then, until cancelled.
+
+    roslaunch runs `du -sb` synchronously before anything starts; here the walk
+    runs in a worker thread at low priority once start-up is over, so a big log
+    directory never delays the nodes. Only warnings are repeated.
+    """
+    loop = asyncio.get_running_loop()
+    await asyncio.sleep(first_delay)
+    first = True
+    while True:
+        try:
+            messages = await loop.run_in_executor(None, check, root, threshold)
+        except Exception:  # a failing check must never take the launch down
+            messages = []
+        for is_warning, msg in messages:
+            if is_warning:
+                console.printerrlog(msg)
+            elif first:
+                console.printlog(msg)
+        first = False
+        await asyncio.sleep(interval)

@@ -1,0 +1,471 @@
+"""The supervisor: spawns node processes, notices each exit as it happens, respawns, and stops them all.
+
+Everything runs on the caller's asyncio loop. A child's exit is seen through a
+pidfd registered with the loop (no polling: roslaunch polls every 0.1 s), so
+a respawn follows a death within a few milliseconds. Each node runs in its own
+session/process group; every signal goes to the whole group, as roslaunch does.
+
+Stopping follows roslaunch's escalation per node, each on its own clock:
+SIGINT, then SIGTERM after `sigint_timeout`, then SIGKILL after
+`sigterm_timeout`. Unlike roslaunch (10 worker threads), all nodes are being
+stopped at once, except that SIGINTs are paced: at most `stop_concurrency`
+nodes may be in their first `stop_hold` seconds of stopping. Signalling 100
+roscpp nodes at the same instant on a small machine makes them all thrash
+(bench/BASELINE.md); pacing keeps the CPU busy without thrashing, while a node
+that ignores SIGINT only holds its pacing slot for `stop_hold`, so the total
+stays bounded by the slowest node rather than by the number of nodes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import signal
+import subprocess
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+from launcher.process import console
+
+DEFAULT_SIGINT_TIMEOUT = 15.0
+DEFAULT_SIGTERM_TIMEOUT = 2.0
+# Pacing of SIGINTs at shutdown (see module docstring; measured with bench.py shutdown --n 100).
+STOP_CONCURRENCY = 20
+STOP_HOLD_S = 0.5
+# After SIGKILL a process is gone at once unless stuck in the kernel; don't wait forever.
+KILL_WAIT_S = 2.0
+# Leftover members of a group whose leader exited are looked for at this period.
+GROUP_POLL_S = 0.02
+
+
+@dataclass
+class ProcessSpec:
+    """What to run for one node, fully resolved (see `launcher.command.node_command`)."""
+
+    name: str  # roslaunch's process name, e.g. "robot/driver-2"
+    argv: list[str]
+    env: dict[str, str]
+    cwd: str
+    stdout_path: str | None = None  # None: inherit the terminal (output="screen")
+    log_dir: str | None = None  # for the "log file:" hint after a death
+    respawn: bool = False
+    respawn_delay: float = 0.0
+    required: bool = False
+
+    @property
+    def log_name(self) -> str:
+        return self.name.replace("/", "-")
+
+
+@dataclass
+class NodeProcess:
+    """One supervised node: its spec and the state of its current OS process."""
+
+    spec: ProcessSpec
+    popen: subprocess.Popen | None = None
+    pid: int | None = None
+    pgid: int | None = None
+    pidfd: int | None = None
+    exit_code: int | None = None
+    spawn_count: int = 0
+    alive: bool = False  # the group leader runs
+    group_alive: bool = False  # the leader or anything left in its process group
+    stopping: bool = False
+    sigkilled: bool = False
+    respawn_handle: asyncio.TimerHandle | None = None
+    timers: list[asyncio.TimerHandle] = field(default_factory=list)
+    stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
+    group_poll: asyncio.TimerHandle | None = None
+    pacing_slot: bool = False  # holds one of the shutdown pacing slots
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def exit_description(self) -> str:
+        """roslaunch's words for how the process ended (LocalProcess.get_exit_description)."""
+        if self.exit_code is None:
+            text = "process has died without exit code [pid %s, cmd %s]." % (self.pid, " ".join(self.spec.argv))
+        elif self.exit_code != 0:
+            text = "process has died [pid %s, exit code %s, cmd %s]." % (self.pid, self.exit_code,
+                                                                         " ".join(self.spec.argv))
+        else:
+            text = "process has finished cleanly"
+        if self.spec.log_dir:
+            text += "\nlog file: %s*.log" % os.path.join(self.spec.log_dir, self.spec.log_name)
+        return text
+
+
+class SpawnError(Exception):
+    """A node's process could not be started; the message says why, in roslaunch's words."""
+
+
+def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
+    if e.errno == errno.ENOEXEC:
+        return "Unable to launch [%s]. \nIf it is a script, you may be missing a '#!' declaration at the top." % name
+    if e.errno in (errno.ENOENT, errno.EACCES):
+        return ("[%s] got a '%s' error while attempting to run:\n\n%s\n\n"
+                "Please make sure that all the executables in this command exist and have\n"
+                "executable permission. This is often caused by a bad launch-prefix."
+                % (name, e.strerror, " ".join(argv)))
+    return "unable to launch [%s]: %s" % (" ".join(argv), e.strerror)
+
+
+def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
+    """Start the node's process in a new session/process group. Raises SpawnError.
+
+    Signals the launcher handles are reset to their default disposition by exec
+    itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
+    restored by the launcher installing handlers before spawning (runtime.py).
+    """
+    stdout = None
+    if spec.stdout_path:
+        try:
+            # roslaunch: append when respawning, so earlier runs' output survives
+            stdout = open(spec.stdout_path, "ab" if append or spec.respawn else "wb")
+        except OSError as e:
+            raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
+    try:
+        if spec.cwd:
+            os.makedirs(spec.cwd, exist_ok=True)
+    except OSError:
+        pass
+    try:
+        return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
+                                close_fds=True, start_new_session=True)
+    except OSError as e:
+        raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
+    finally:
+        if stdout is not None:
+            stdout.close()
+
+
+def _ignore(signum, frame) -> None:
+    """Stands in for an inherited SIG_IGN: same effect here, but exec resets it in children."""
+
+
+def restore_default_signals_for_children() -> None:
+    """Make sure nodes start with SIGINT/SIGQUIT/SIGTERM/SIGHUP at their default disposition.
+
+    exec keeps a signal *ignored* but resets a *handled* one to default. A
+    launcher started as a background job inherits SIGINT and SIGQUIT ignored,
+    and would pass that on to every node (which then could not be stopped by
+    SIGINT). Replacing each inherited SIG_IGN with a do-nothing handler keeps
+    the launcher's own behaviour and gives the nodes their defaults.
+    """
+    for sig in (signal.SIGINT, signal.SIGQUIT, signal.SIGTERM, signal.SIGHUP):
+        try:
+            if signal.getsignal(sig) == signal.SIG_IGN:
+                signal.signal(sig, _ignore)
+        except (ValueError, OSError):  # not the main thread: the runtime handles it
+            pass
+
+
+def _group_exists(pgid: int) -> bool:
+    """Does the process group still have a live member? (Zombies don't count.)
+
+    An orphaned member that has exited stays a zombie until init reaps it,
+    which some inits do only now and then; waiting for that would stall a
+    shutdown for nothing. `killpg(pgid, 0)` answers the common case (no member
+    at all) with one syscall; only if it succeeds are the members looked up.
+    """
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return True
+    for entry in entries:
+        if not entry.isdigit():
+            continue
+        try:
+            with open("/proc/%s/stat" % entry, "rb") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(b")") + 2:].split()
+        # fields: state ppid pgrp ...
+        if int(fields[2]) == pgid and fields[0] != b"Z":
+            return True
+    return False
+
+
+def _signal_group(pgid: int | None, sig: int) -> None:
+    if pgid is None:
+        return
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+class Supervisor:
+    """Runs and watches a set of nodes on the running asyncio loop.
+
+    `done` is set when the launch should end on its own: a required node died
+    or could not start, or (with `exit_when_all_dead`, i.e. an external master,
+    as roslaunch) every node has exited and none will respawn.
+    """
+
+    def __init__(self, *, sigint_timeout: float = DEFAULT_SIGINT_TIMEOUT,
+                 sigterm_timeout: float = DEFAULT_SIGTERM_TIMEOUT, exit_when_all_dead: bool = True,
+                 watchdog=None, stop_concurrency: int = STOP_CONCURRENCY, stop_hold: float = STOP_HOLD_S,
+                 on_spawn: Callable[[NodeProcess], None] | None = None):
+        self.loop = asyncio.get_running_loop()
+        restore_default_signals_for_children()
+        self.sigint_timeout = sigint_timeout
+        self.sigterm_timeout = sigterm_timeout
+        self.exit_when_all_dead = exit_when_all_dead
+        self.watchdog = watchdog
+        self.stop_concurrency = max(1, stop_concurrency)
+        self.stop_hold = stop_hold
+        self.on_spawn = on_spawn
+        self.procs: list[NodeProcess] = []
+        self.done = asyncio.Event()
+        self.required_failed = False  # a required node exited non-zero / by signal, or could not start
+        self.shutdown_errors: list[str] = []
+        self.shutting_down = False
+        self._registrations_complete = False
+        self._any_died = False
+        self._pacing_active = 0
+        self._pacing_queue: deque[NodeProcess] = deque()
+
+    # ---- starting ---------------------------------------------------------------------------------
+
+    def start(self, spec: ProcessSpec) -> NodeProcess | None:
+        """Spawn a node now. A failure is reported by name and the rest carry on (unless required)."""
+        proc = NodeProcess(spec)
+        self.procs.append(proc)
+        if not self._spawn(proc):
+            self._failed_start(proc)
+            return None
+        return proc
+
+    def report_failed(self, name: str, message: str, required: bool = False) -> None:
+        """A node that could not even be prepared (e.g. missing executable): report it like a failed start."""
+        console.printerrlog(message)
+        if required:
+            self._required_gone(name, "could not be started")
+
+    def registrations_complete(self) -> None:
+        """Every node of the launch has been started (or failed to)."""
+        self._registrations_complete = True
+        self._check_all_dead()
+
+    def _spawn(self, proc: NodeProcess) -> bool:
+        try:
+            popen = spawn(proc.spec, append=proc.spawn_count > 0)
+        except SpawnError as e:
+            console.printerrlog(str(e))
+            return False
+        if proc.group_alive and proc.pgid is not None and not proc.alive:
+            # the previous run left processes in its group: keep them on the list to stop at shutdown
+            self.procs.append(NodeProcess(proc.spec, pid=proc.pid, pgid=proc.pgid, group_alive=True))
+        proc.spawn_count += 1
+        proc.popen = popen
+        proc.pid = proc.pgid = popen.pid
+        proc.exit_code = None
+        proc.alive = proc.group_alive = True
+        # recorded before anything else can fail, so a launcher killed now still leaves no orphan
+        if self.watchdog is not None:
+            self.watchdog.watch(popen.pid)
+        try:
+            proc.pidfd = os.pidfd_open(popen.pid)
+            self.loop.add_reader(proc.pidfd, self._on_exit, proc)
+        except OSError:
+            # pidfd unavailable (very old kernel): fall back to a waiter thread
+            proc.pidfd = None
+            self.loop.run_in_executor(None, popen.wait).add_done_callback(
+                lambda _f, p=proc, po=popen: self.loop.call_soon(self._on_exit, p, po))
+        console.printlog_bold("process[%s]: started with pid [%s]" % (proc.name, proc.pid))
+        if self.on_spawn is not None:
+            self.on_spawn(proc)
+        return True
+
+    def _failed_start(self, proc: NodeProcess) -> None:
+        if proc.spec.required:
+            self._required_gone(proc.name, "could not be started")
+        else:
+            self._any_died = True
+            self._check_all_dead()
+
+    # ---- watching ---------------------------------------------------------------------------------
+
+    def _on_exit(self, proc: NodeProcess, popen: subprocess.Popen | None = None) -> None:
+        if popen is not None and popen is not proc.popen:
+            return  # a stale notification from an earlier run of this node
+        if proc.pidfd is not None:
+            self.loop.remove_reader(proc.pidfd)
+            os.close(proc.pidfd)
+            proc.pidfd = None
+        rc = proc.popen.poll() if proc.popen is not None else None
+        if rc is None and proc.popen is not None:
+            rc = proc.popen.wait()
+        proc.exit_code = rc
+        proc.alive = False
+        self._check_group(proc)
+        if proc.stopping or self.shutting_down:
+            self._stopping_progress(proc)
+            return
+        self._any_died = True
+        desc = proc.exit_description()
+        if proc.spec.required:
+            console.printerrlog("=" * 80 + "REQUIRED process [%s] has died!\n%s\nInitiating shutdown!\n" % (proc.name, desc)
+                                + "=" * 80)
+            if proc.exit_code != 0:
+                self.required_failed = True
+            self.done.set()
+            return
+        if proc.exit_code:
+            console.printerrlog("[%s] %s" % (proc.name, desc))
+        else:
+            console.printlog_bold("[%s] %s" % (proc.name, desc))
+        if proc.spec.respawn:
+            self._schedule_respawn(proc)
+        else:
+            self._check_all_dead()
+
+    def _check_group(self, proc: NodeProcess) -> bool:
+        """Is anything left in the node's process group? Forget it in the guard when not."""
+        if proc.pgid is not None and proc.group_alive and not _group_exists(proc.pgid):
+            proc.group_alive = False
+            if self.watchdog is not None:
+                self.watchdog.forget(proc.pgid)
+        return proc.group_alive
+
+    def _schedule_respawn(self, proc: NodeProcess) -> None:
+        delay = max(0.0, proc.spec.respawn_delay)
+        if delay == 0.0:
+            self._respawn(proc)
+        else:
+            proc.respawn_handle = self.loop.call_later(delay, self._respawn, proc)
+
+    def _respawn(self, proc: NodeProcess) -> None:
+        proc.respawn_handle = None
+        if self.shutting_down or self.done.is_set():
+            return
+        console.printlog("[%s] restarting process" % proc.name)
+        if not self._spawn(proc):
+            self._check_all_dead()
+
+    def _check_all_dead(self) -> None:
+        if not (self.exit_when_all_dead and self._registrations_complete and self._any_died):
+            return
+        if any(p.alive or p.respawn_handle is not None for p in self.procs):
+            return
+        if not self.done.is_set():
+            console.printlog("all processes on machine have died, roslaunch will exit")
+            self.done.set()
+
+    def _required_gone(self, name: str, why: str) -> None:
+        console.printerrlog("=" * 80 + "REQUIRED process [%s] %s!\nInitiating shutdown!\n" % (name, why) + "=" * 80)
+        self.required_failed = True
+        self.done.set()
+
+    # ---- stopping ---------------------------------------------------------------------------------
+
+    async def shutdown(self) -> list[str]:
+        """Stop every node (reverse start order, paced SIGINTs, per-node escalation); return the errors."""
+        self.shutting_down = True
+        for p in self.procs:
+            if p.respawn_handle is not None:
+                p.respawn_handle.cancel()
+                p.respawn_handle = None
+        to_stop = []
+        for p in reversed(self.procs):
+            if p.alive or (p.group_alive and self._check_group(p)):
+                p.stopped = self.loop.create_future()
+                to_stop.append(p)
+        for p in to_stop:
+            console.printlog("[%s] killing on exit" % p.name)
+            self._pacing_queue.append(p)
+        self._pace()
+        if to_stop:
+            await asyncio.gather(*(p.stopped for p in to_stop))
+        if self.shutdown_errors:
+            console.printerrlog("Shutdown errors:\n" + "\n".join(" * %s" % e for e in self.shutdown_errors))
+        return self.shutdown_errors
+
+    def _pace(self) -> None:
+        while self._pacing_queue and self._pacing_active < self.stop_concurrency:
+            p = self._pacing_queue.popleft()
+            if p.stopped is None or p.stopped.done():
+                continue
+            self._pacing_active += 1
+            hold = self.loop.call_later(self.stop_hold, self._release_slot, p)
+            p.timers.append(hold)
+            p.stopping = True
+            p.pacing_slot = True
+            _signal_group(p.pgid, signal.SIGINT)
+            p.timers.append(self.loop.call_later(self.sigint_timeout, self._escalate_term, p))
+            if not p.alive:
+                self._stopping_progress(p)  # only leftovers of the group: watch them
+
+    def _release_slot(self, p: NodeProcess) -> None:
+        if p.pacing_slot:
+            p.pacing_slot = False
+            self._pacing_active -= 1
+            self._pace()
+
+    def _escalate_term(self, p: NodeProcess) -> None:
+        if p.stopped is None or p.stopped.done():
+            return
+        console.printerrlog("[%s] escalating to SIGTERM" % p.name)
+        _signal_group(p.pgid, signal.SIGTERM)
+        p.timers.append(self.loop.call_later(self.sigterm_timeout, self._escalate_kill, p))
+
+    def _escalate_kill(self, p: NodeProcess) -> None:
+        if p.stopped is None or p.stopped.done():
+            return
+        console.printerrlog("[%s] escalating to SIGKILL" % p.name)
+        self.shutdown_errors.append("process[%s, pid %s]: required SIGKILL. May still be running." % (p.name, p.pid))
+        p.sigkilled = True
+        _signal_group(p.pgid, signal.SIGKILL)
+        p.timers.append(self.loop.call_later(KILL_WAIT_S, self._give_up, p))
+
+    def _give_up(self, p: NodeProcess) -> None:
+        self._finish_stop(p)
+
+    def _stopping_progress(self, p: NodeProcess) -> None:
+        """The leader exited while stopping: done once its group is empty too."""
+        if p.stopped is None or p.stopped.done():
+            return
+        if p.alive:
+            return
+        if self._check_group(p):
+            if p.group_poll is None:
+                p.group_poll = self.loop.call_later(GROUP_POLL_S, self._poll_group, p)
+            return
+        self._finish_stop(p)
+
+    def _poll_group(self, p: NodeProcess) -> None:
+        p.group_poll = None
+        self._stopping_progress(p)
+
+    def _finish_stop(self, p: NodeProcess) -> None:
+        for t in p.timers:
+            t.cancel()
+        p.timers.clear()
+        if p.group_poll is not None:
+            p.group_poll.cancel()
+            p.group_poll = None
+        self._release_slot(p)
+        if p.stopped is not None and not p.stopped.done():
+            p.stopped.set_result(None)
+
+    def close(self) -> None:
+        """Drop loop registrations (after shutdown)."""
+        for p in self.procs:
+            if p.pidfd is not None:
+                try:
+                    self.loop.remove_reader(p.pidfd)
+                    os.close(p.pidfd)
+                except (OSError, ValueError):
+                    pass
+                p.pidfd = None

@@ -1,0 +1,153 @@
+"""The no-orphans guard: a forked helper that kills every node's process group if the launcher dies.
+
+Nodes run in their own sessions (so a Ctrl-C on the terminal reaches the
+launcher only, which then stops them in order), so nothing in the kernel ties
+them to the launcher: `PR_SET_PDEATHSIG` reaches direct children only, is tied
+to the parent *thread*, and a node's own children never see it. Instead the
+launcher forks this small helper at start-up and tells it, through a pipe, the
+process group of every node it spawns (`+pgid`) and of every group that is gone
+(`-pgid`). The pipe closes only when the launcher exits, however it exits; if
+groups are still recorded then, the helper sends them SIGTERM, waits briefly,
+then SIGKILL, including any process that left its group but stayed in the
+node's session.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+# How long the guard lets nodes handle SIGTERM before SIGKILL.
+TERM_GRACE_S = 0.4
+
+
+class Watchdog:
+    """The launcher's side of the guard (see module docstring)."""
+
+    def __init__(self, pid: int, wfd: int):
+        self.pid = pid
+        self._wfd: int | None = wfd
+
+    @classmethod
+    def start(cls) -> Watchdog | None:
+        """Fork the guard. Call before any thread exists (fork copies one thread only)."""
+        try:
+            rfd, wfd = os.pipe()
+        except OSError:
+            return None
+        pid = os.fork()
+        if pid == 0:  # the guard
+            code = 0
+            try:
+                os.close(wfd)
+                _serve(rfd)
+            except BaseException:
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(rfd)
+        return cls(pid, wfd)
+
+    def _send(self, line: str) -> None:
+        if self._wfd is None:
+            return
+        try:
+            os.write(self._wfd, line.encode())
+        except OSError:  # the guard is gone: nothing more it can do
+            self._close_fd()
+
+    def watch(self, pgid: int) -> None:
+        """Record a node's process group (right after spawning it)."""
+        self._send("+%d\n" % pgid)
+
+    def forget(self, pgid: int) -> None:
+        """The group is empty: never signal that id again."""
+        self._send("-%d\n" % pgid)
+
+    def _close_fd(self) -> None:
+        if self._wfd is not None:
+            try:
+                os.close(self._wfd)
+            except OSError:
+                pass
+            self._wfd = None
+
+    def close(self) -> None:
+        """Normal exit: let the guard go (it kills whatever is still recorded) and reap it."""
+        self._close_fd()
+        try:
+            os.waitpid(self.pid, 0)
+        except ChildProcessError:
+            pass
+
+
+def _serve(rfd: int) -> None:
+    """The guard's whole life: follow the pipe, then clean up what is left."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGTSTP):
+        signal.signal(sig, signal.SIG_IGN)
+    devnull = os.open(os.devnull, os.O_RDWR)
+    for fd in (0, 1, 2):
+        os.dup2(devnull, fd)
+    os.closerange(3, rfd)
+    os.closerange(rfd + 1, 65536)
+    groups: set[int] = set()
+    buf = b""
+    while True:
+        try:
+            chunk = os.read(rfd, 65536)
+        except InterruptedError:
+            continue
+        if not chunk:
+            break
+        buf += chunk
+        *lines, buf = buf.split(b"\n")
+        for line in lines:
+            if line[:1] == b"+":
+                groups.add(int(line[1:]))
+            elif line[:1] == b"-":
+                groups.discard(int(line[1:]))
+    if groups:
+        kill_groups(groups)
+
+
+def _members(groups: set[int]) -> list[int]:
+    """Pids whose process group or session is one of `groups` (a node's session id is its pgid)."""
+    pids = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open("/proc/%s/stat" % entry, "rb") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        fields = stat[stat.rfind(b")") + 2:].split()
+        # fields: state ppid pgrp session ...; zombies are dead already
+        if fields[0] != b"Z" and (int(fields[2]) in groups or int(fields[3]) in groups):
+            pids.append(int(entry))
+    return pids
+
+
+def kill_groups(groups: set[int]) -> None:
+    """SIGTERM every process of the groups (and their sessions), then SIGKILL what remains."""
+    own = os.getpid()
+    for sig, wait in ((signal.SIGTERM, TERM_GRACE_S), (signal.SIGKILL, 0.0)):
+        pids = [p for p in _members(groups) if p != own]
+        if not pids:
+            return
+        for pgid in groups:
+            try:
+                os.killpg(pgid, sig)
+            except OSError:
+                pass
+        for pid in pids:
+            try:
+                os.kill(pid, sig)
+            except OSError:
+                pass
+        deadline = time.monotonic() + wait
+        while wait and time.monotonic() < deadline:
+            if not any(p != own for p in _members(groups)):
+                return
+            time.sleep(0.02)

@@ -1,0 +1,289 @@
+"""The supervisor with real child processes: spawn, exit reports, respawn, required, stop escalation."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import sys
+import time
+
+import pytest
+
+from launcher.process.supervisor import ProcessSpec, Supervisor
+
+PY = sys.executable
+
+
+def py_node(code: str) -> list[str]:
+    return [PY, "-I", "-S", "-c", code]
+
+
+def spec(name: str, argv: list[str], tmp_path, **kw) -> ProcessSpec:
+    return ProcessSpec(name=name, argv=argv, env=dict(os.environ), cwd=str(tmp_path), **kw)
+
+
+async def wait_for(cond, timeout=10.0, period=0.005):
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not met within %.1fs" % timeout)
+        await asyncio.sleep(period)
+
+
+def pid_exists(pid: int) -> bool:
+    try:
+        with open("/proc/%d/stat" % pid) as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except OSError:
+        return False
+
+
+IGNORE_INT = "import signal,time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('ready', flush=True)\ntime.sleep(100)"
+IGNORE_BOTH = ("import signal,time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+               "signal.signal(signal.SIGTERM, signal.SIG_IGN)\nprint('ready', flush=True)\ntime.sleep(100)")
+
+
+def test_exit_reports_and_all_dead(tmp_path, capsys):
+    async def main():
+        sup = Supervisor()
+        sup.start(spec("ok-1", ["/bin/sh", "-c", "exit 0"], tmp_path))
+        sup.start(spec("bad-2", ["/bin/sh", "-c", "exit 3"], tmp_path, log_dir=str(tmp_path)))
+        sup.registrations_complete()
+        await asyncio.wait_for(sup.done.wait(), 10)
+        await sup.shutdown()
+        return sup
+    sup = asyncio.run(main())
+    out, err = capsys.readouterr()
+    assert "process[ok-1]: started with pid [" in out
+    assert "[ok-1] process has finished cleanly" in out
+    pid = sup.procs[1].pid
+    assert "[bad-2] process has died [pid %d, exit code 3, cmd /bin/sh -c exit 3].\nlog file: %s*.log" % (
+        pid, os.path.join(str(tmp_path), "bad-2")) in err
+    assert "all processes on machine have died, roslaunch will exit" in out
+    assert not sup.required_failed
+
+
+def test_signal_death_reports_negative_code(tmp_path, capsys):
+    async def main():
+        sup = Supervisor()
+        p = sup.start(spec("victim-1", ["sleep", "100"], tmp_path))
+        sup.registrations_complete()
+        os.kill(p.pid, signal.SIGKILL)
+        await asyncio.wait_for(sup.done.wait(), 10)
+        return p
+    p = asyncio.run(main())
+    assert "[victim-1] process has died [pid %d, exit code -9, cmd sleep 100]" % p.pid in capsys.readouterr().err
+
+
+def test_no_exit_while_core_runs(tmp_path):
+    """With our own master (exit_when_all_dead=False) the launch keeps running when nodes finish, as roslaunch."""
+    async def main():
+        sup = Supervisor(exit_when_all_dead=False)
+        p = sup.start(spec("ok-1", ["/bin/true"], tmp_path))
+        sup.registrations_complete()
+        await wait_for(lambda: not p.alive)
+        await asyncio.sleep(0.05)
+        return sup.done.is_set()
+    assert asyncio.run(main()) is False
+
+
+def test_missing_executable_reported_and_rest_carry_on(tmp_path, capsys):
+    async def main():
+        sup = Supervisor()
+        bad = sup.start(spec("ghost-1", [str(tmp_path / "nope")], tmp_path))
+        good = sup.start(spec("alive-2", ["sleep", "100"], tmp_path))
+        sup.registrations_complete()
+        alive = good.alive and pid_exists(good.pid)
+        await sup.shutdown()
+        return bad, good, alive, sup
+    bad, good, alive, sup = asyncio.run(main())
+    err = capsys.readouterr().err
+    assert bad is None and alive
+    assert "[ghost-1] got a 'No such file or directory' error while attempting to run" in err
+    assert "bad launch-prefix" in err
+    assert not sup.required_failed
+    assert not pid_exists(good.pid)
+
+
+def test_required_missing_executable_ends_launch_with_failure(tmp_path, capsys):
+    async def main():
+        sup = Supervisor()
+        sup.start(spec("need-1", [str(tmp_path / "nope")], tmp_path, required=True))
+        return sup
+    sup = asyncio.run(main())
+    assert sup.required_failed and sup.done.is_set()
+    assert "REQUIRED process [need-1] could not be started!" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("code,failed", [(0, False), (4, True)])
+def test_required_exit_ends_launch(tmp_path, capsys, code, failed):
+    async def main():
+        sup = Supervisor(exit_when_all_dead=False)
+        other = sup.start(spec("other-1", ["sleep", "100"], tmp_path))
+        sup.start(spec("req-2", ["/bin/sh", "-c", "sleep 0.1; exit %d" % code], tmp_path, required=True))
+        sup.registrations_complete()
+        await asyncio.wait_for(sup.done.wait(), 10)
+        await sup.shutdown()
+        return sup, other
+    sup, other = asyncio.run(main())
+    err = capsys.readouterr().err
+    assert "REQUIRED process [req-2] has died!" in err and "Initiating shutdown!" in err
+    assert sup.required_failed is failed
+    assert not pid_exists(other.pid)
+
+
+def test_respawn_immediately_and_with_delay(tmp_path, capsys):
+    async def main():
+        sup = Supervisor()
+        fast = sup.start(spec("fast-1", ["sleep", "100"], tmp_path, respawn=True))
+        slow = sup.start(spec("slow-2", ["sleep", "100"], tmp_path, respawn=True, respawn_delay=0.6))
+        sup.registrations_complete()
+        lat = []
+        for _ in range(5):
+            old = fast.pid
+            t0 = time.monotonic()
+            os.kill(old, signal.SIGKILL)
+            await wait_for(lambda: fast.pid != old and fast.alive, period=0.0005)
+            lat.append(time.monotonic() - t0)
+        old = slow.pid
+        t0 = time.monotonic()
+        os.kill(old, signal.SIGKILL)
+        await wait_for(lambda: slow.pid != old and slow.alive)
+        slow_delay = time.monotonic() - t0
+        fast_pid, slow_pid = fast.pid, slow.pid
+        await sup.shutdown()
+        return sorted(lat), slow_delay, fast.spawn_count, sup.done.is_set(), fast_pid, slow_pid
+    lat, slow_delay, count, done, fast_pid, slow_pid = asyncio.run(main())
+    assert count == 6
+    assert lat[2] < 0.1, lat  # median: an exit is noticed when it happens, not at a poll tick
+    assert 0.6 <= slow_delay < 2.0
+    assert not done  # respawning nodes never count as "all dead"
+    out = capsys.readouterr().out
+    assert out.count("[fast-1] restarting process") == 5
+    assert out.count("process[fast-1]: started with pid [") == 6
+    assert not pid_exists(fast_pid) and not pid_exists(slow_pid)
+
+
+def test_log_output_file_truncated_or_appended(tmp_path):
+    log = tmp_path / "n-1-stdout.log"
+    log.write_text("old\n")
+
+    async def main(respawn):
+        sup = Supervisor()
+        p = sup.start(spec("n-1", ["/bin/sh", "-c", "echo run $$"], tmp_path, stdout_path=str(log), respawn=respawn))
+        if respawn:
+            await wait_for(lambda: p.spawn_count >= 4)
+        else:
+            await wait_for(lambda: not p.alive)
+        await sup.shutdown()
+    asyncio.run(main(False))
+    assert log.read_text().startswith("run ") and log.read_text().count("run ") == 1
+    asyncio.run(main(True))
+    assert log.read_text().count("run ") >= 3  # respawn appends, as roslaunch's mode 'a'
+
+
+def test_cwd_and_env(tmp_path):
+    out = tmp_path / "out.txt"
+    work = tmp_path / "work"
+
+    async def main():
+        sup = Supervisor()
+        env = {"PATH": os.environ["PATH"], "MY_VAR": "hello"}
+        p = sup.start(ProcessSpec("e-1", ["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)], env,
+                                  str(work)))
+        await wait_for(lambda: not p.alive)
+        await sup.shutdown()
+    asyncio.run(main())
+    assert out.read_text().split() == [str(work), "hello"]
+
+
+def test_stop_escalation_sigint_sigterm_sigkill(tmp_path, capsys):
+    async def main():
+        sup = Supervisor(sigint_timeout=0.4, sigterm_timeout=0.3)
+        polite = sup.start(spec("polite-1", ["sleep", "100"], tmp_path))
+        int_only = sup.start(spec("noint-2", py_node(IGNORE_INT), tmp_path, stdout_path=str(tmp_path / "a")))
+        neither = sup.start(spec("stubborn-3", py_node(IGNORE_BOTH), tmp_path, stdout_path=str(tmp_path / "b")))
+        await wait_for(lambda: all((tmp_path / f).exists() and (tmp_path / f).read_text() for f in "ab"))
+        deaths = {}
+        for p in (polite, int_only, neither):
+            p.popen  # noqa: B018
+        t0 = time.monotonic()
+        task = asyncio.ensure_future(sup.shutdown())
+        while not task.done():
+            for p in (polite, int_only, neither):
+                if p.name not in deaths and not p.alive:
+                    deaths[p.name] = time.monotonic() - t0
+            await asyncio.sleep(0.005)
+        for p in (polite, int_only, neither):
+            deaths.setdefault(p.name, time.monotonic() - t0)
+        errors = task.result()
+        return deaths, errors, (polite, int_only, neither), time.monotonic() - t0
+    deaths, errors, procs, total = asyncio.run(main())
+    polite, int_only, neither = procs
+    assert polite.exit_code == -signal.SIGINT and deaths["polite-1"] < 0.3
+    assert int_only.exit_code == -signal.SIGTERM and 0.4 <= deaths["noint-2"] < 0.65
+    assert neither.exit_code == -signal.SIGKILL and 0.7 <= deaths["stubborn-3"] < 1.0
+    assert total < 1.2
+    err = capsys.readouterr().err
+    assert "[noint-2] escalating to SIGTERM" in err and "[noint-2] escalating to SIGKILL" not in err
+    assert "[stubborn-3] escalating to SIGKILL" in err
+    assert errors == ["process[stubborn-3, pid %d]: required SIGKILL. May still be running." % neither.pid]
+    assert "Shutdown errors:\n * process[stubborn-3, pid" in err
+
+
+def test_stop_reaches_whole_process_group(tmp_path):
+    """A node's children (same group) are signalled too, and shutdown waits until they are gone."""
+    pidfile = tmp_path / "child.pid"
+
+    async def main():
+        sup = Supervisor(sigint_timeout=0.5, sigterm_timeout=0.5)
+        # the shell exits at once on SIGINT; its background child ignores SIGINT and needs SIGTERM
+        grandchild = ("import os,signal,time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+                      "open(%r, 'w').write(str(os.getpid()))\ntime.sleep(100)" % str(pidfile))
+        code = ("import subprocess,sys,time\n"
+                "c = subprocess.Popen([sys.executable, '-c', %r])\n"
+                "time.sleep(100)" % grandchild)
+        p = sup.start(spec("parent-1", py_node(code), tmp_path))
+        await wait_for(lambda: pidfile.exists() and pidfile.read_text())
+        child = int(pidfile.read_text())
+        t0 = time.monotonic()
+        await sup.shutdown()
+        return p, child, time.monotonic() - t0
+    p, child, took = asyncio.run(main())
+    assert not pid_exists(child)
+    assert 0.5 <= took < 1.5  # waited for the SIGINT-ignoring grandchild, escalated to SIGTERM
+
+
+def test_pacing_keeps_every_node_on_its_own_clock(tmp_path):
+    """Nodes that ignore SIGINT hold a pacing slot only briefly: 8 of them with 2 slots stop in ~timeout + 3 holds."""
+    async def main():
+        sup = Supervisor(sigint_timeout=0.5, sigterm_timeout=0.5, stop_concurrency=2, stop_hold=0.1)
+        files = [tmp_path / ("r%d" % i) for i in range(8)]
+        procs = [sup.start(spec("s%d-%d" % (i, i + 1), py_node(IGNORE_INT), tmp_path, stdout_path=str(f)))
+                 for i, f in enumerate(files)]
+        await wait_for(lambda: all(f.read_text() for f in files))
+        t0 = time.monotonic()
+        await sup.shutdown()
+        return procs, time.monotonic() - t0
+    procs, took = asyncio.run(main())
+    assert all(p.exit_code == -signal.SIGTERM for p in procs)
+    # one node at a time through its whole escalation would take 8 x 0.5 s
+    assert 0.8 <= took < 1.6, took
+
+
+def test_inherited_ignored_sigint_is_not_passed_on(tmp_path):
+    out = tmp_path / "sig.txt"
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        async def main():
+            sup = Supervisor()
+            code = "import signal; open(%r,'w').write(str(signal.getsignal(signal.SIGINT) == signal.SIG_IGN))" % str(out)
+            p = sup.start(spec("sig-1", [PY, "-c", code], tmp_path))
+            await wait_for(lambda: not p.alive)
+            await sup.shutdown()
+        asyncio.run(main())
+    finally:
+        signal.signal(signal.SIGINT, old)
+    # Python maps a default SIGINT to KeyboardInterrupt; an inherited SIG_IGN stays SIG_IGN
+    assert out.read_text() == "False"

@@ -1,0 +1,107 @@
+"""No orphans: when the launcher is SIGKILLed, the guard kills every node and the nodes' children."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import textwrap
+
+from launcher.process.watchdog import Watchdog
+
+# A stand-in launcher: the real guard and supervisor, nodes with grandchildren
+# (one that ignores SIGTERM, one that moved to its own process group).
+LAUNCHER = textwrap.dedent(r"""
+    import asyncio, os, sys
+    from launcher.process.watchdog import Watchdog
+    from launcher.process.supervisor import ProcessSpec, Supervisor
+    wd = Watchdog.start()
+    tmp = sys.argv[1]
+    GRAND = ("import os,signal,sys,time\n"
+             "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+             "os.setpgid(0, 0)\n"
+             "open(os.path.join(sys.argv[1], 'g%d' % os.getpid()), 'w').close()\n"
+             "time.sleep(100)")
+    NODE = ("import subprocess,sys,time\n"
+            "subprocess.Popen([sys.executable, '-c', sys.argv[1], sys.argv[2]])\n"
+            "time.sleep(100)")
+    async def main():
+        sup = Supervisor(watchdog=wd)
+        for i in range(3):
+            sup.start(ProcessSpec("n%d-%d" % (i, i + 1), [sys.executable, "-c", NODE, GRAND, tmp],
+                                  dict(os.environ), tmp))
+        print("up", flush=True)
+        await asyncio.sleep(100)
+    asyncio.run(main())
+""")
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open("/proc/%d/stat" % pid) as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except OSError:
+        return False
+
+
+def descendants(root: int) -> set[int]:
+    kids: dict[int, list[int]] = {}
+    for e in os.listdir("/proc"):
+        if e.isdigit():
+            try:
+                with open("/proc/%s/stat" % e) as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            kids.setdefault(ppid, []).append(int(e))
+    out, todo = set(), [root]
+    while todo:
+        for c in kids.get(todo.pop(), []):
+            out.add(c)
+            todo.append(c)
+    return out
+
+
+def test_sigkill_of_launcher_leaves_no_process(tmp_path):
+    p = subprocess.Popen([sys.executable, "-c", LAUNCHER, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        while p.stdout.readline().strip() != "up":
+            assert p.poll() is None
+        deadline = time.monotonic() + 15
+        while len([f for f in os.listdir(tmp_path) if f.startswith("g")]) < 3:
+            assert time.monotonic() < deadline, "grandchildren did not start"
+            time.sleep(0.01)
+        grandchildren = {int(f[1:]) for f in os.listdir(tmp_path) if f.startswith("g")}
+        procs = descendants(p.pid) | grandchildren
+        assert len(procs) >= 3 + 3 + 1  # nodes, grandchildren, guard
+        os.kill(p.pid, signal.SIGKILL)
+        p.wait()
+        t0 = time.monotonic()
+        while any(alive(q) for q in procs):
+            assert time.monotonic() - t0 < 1.0, "left running: %s" % [q for q in procs if alive(q)]
+            time.sleep(0.01)
+    finally:
+        p.kill()
+        p.wait()
+        for f in os.listdir(tmp_path):
+            if f.startswith("g"):
+                try:
+                    os.kill(int(f[1:]), signal.SIGKILL)
+                except OSError:
+                    pass
+
+
+def test_normal_exit_releases_guard_quickly():
+    wd = Watchdog.start()
+    assert wd is not None and alive(wd.pid)
+    child = subprocess.Popen(["sleep", "100"], start_new_session=True)
+    wd.watch(child.pid)
+    wd.forget(child.pid)
+    t0 = time.monotonic()
+    wd.close()  # reaps the guard
+    assert time.monotonic() - t0 < 0.5
+    assert child.poll() is None  # a forgotten group is left alone
+    child.kill()
+    child.wait()
