@@ -1,0 +1,79 @@
+"""The command line, environment and working directory of a node process: one function for `--args` and the supervisor.
+
+What `launch --args NODE` prints is exactly what the supervisor runs (plus
+`__log:=` when it gives the node a log file), because both call `node_command`.
+The rules are roslaunch's (node_args.create_local_process_args and
+core.setup_env): launch-prefix split like a shell, the executable found in the
+package, `args` split like a shell, remaps `from:=to`, `__name:=`; the child
+environment is ours plus ROS_MASTER_URI, ROS_NAMESPACE (the node's namespace,
+never `__ns:=`) and the node's `<env>`s.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from launcher.config import Node
+from launcher.errors import LaunchError
+
+DEFAULT_MASTER_URI = "http://localhost:11311/"
+
+
+@dataclass(frozen=True)
+class NodeCommand:
+    """How to start one node."""
+
+    argv: list[str]
+    env: dict[str, str]
+    env_changes: list[tuple[str, str]] = field(default_factory=list)
+    cwd: str = ""
+
+    def format_args(self) -> str:
+        """The `--args` line: changed environment as KEY="value", then the command (roslaunch's format)."""
+        return " ".join(['%s="%s"' % kv for kv in self.env_changes] + self.argv)
+
+
+def ros_home(environ: Mapping[str, str]) -> str:
+    return environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+
+
+def node_env(node: Node, master_uri: str, environ: Mapping[str, str]) -> dict[str, str]:
+    env = dict(environ)
+    env["ROS_MASTER_URI"] = master_uri
+    env.pop("ROS_NAMESPACE", None)
+    ns = node.namespace[:-1] if node.namespace.endswith("/") else node.namespace
+    if ns:
+        env["ROS_NAMESPACE"] = ns
+    for name, value in node.env_args:
+        env[name] = value
+    return env
+
+
+def _split(text: str, what: str, node: Node) -> list[str]:
+    try:
+        return shlex.split(text)
+    except ValueError as e:
+        raise LaunchError("node [%s]: cannot split %s [%s] like a shell: %s" % (node.full_name, what, text, e),
+                          node.filename or None, node.line or None) from None
+
+
+def node_command(node: Node, *, master_uri: str, environ: Mapping[str, str], packages: Any,
+                 log_file: str | None = None) -> NodeCommand:
+    """The command of `node`. Raises LaunchError naming the node if its executable cannot be found."""
+    try:
+        exe = packages.find_node(node.package, node.type)
+    except LaunchError as e:
+        raise LaunchError("node [%s] (%s/%s): %s" % (node.full_name, node.package, node.type, e.message),
+                          node.filename or None, node.line or None) from None
+    prefix = _split(node.launch_prefix, "launch-prefix", node) if node.launch_prefix else []
+    args = _split(node.args, "args", node) if node.args else []
+    argv = prefix + [exe] + args + ["%s:=%s" % r for r in node.remap_args] + ["__name:=%s" % node.name]
+    if log_file:
+        argv.append("__log:=%s" % log_file)
+    env = node_env(node, master_uri, environ)
+    changes = [(k, v) for k, v in env.items() if environ.get(k) != v]
+    cwd = os.path.dirname(exe) if node.cwd == "node" else ros_home(environ)
+    return NodeCommand(argv=argv, env=env, env_changes=changes, cwd=cwd)

@@ -1,0 +1,145 @@
+"""The introspection options: `--nodes --args --find-node --dump-params --files --ros-args` (print and exit).
+
+Each is a function of the loaded `LaunchConfig` only; output is roslaunch's,
+byte for byte where the compat goldens pin it. Where roslaunch exits 0 after
+an error (`--dump-params`, `--find-node`) or dies with a traceback (`--args`
+for a missing executable, `--dump-params` with a `binfile`), we print a clean
+message and exit 1.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any, Mapping
+
+from launcher.errors import LaunchError
+
+NO_FILE = "you must specify at least one input file"
+
+
+def _warn(msg: str) -> None:
+    sys.stderr.write("warning: %s\n" % msg)
+
+
+def resolve_node_name(name: str, argv: list[str], environ: Mapping[str, str]) -> str:
+    """A node name given on the command line, resolved as roslaunch does (rosgraph's script_resolve_name)."""
+    from launcher.names import SEP, make_global_ns, ns_join
+    from launcher.xml.arguments import root_namespace
+    ns = root_namespace(argv, environ)
+    if not name:
+        return ns
+    if name[0] == SEP:
+        return name
+    if name[0] == "~":
+        return ns_join(make_global_ns(ns_join(ns, "roslaunch")), name[1:])
+    return ns + name
+
+
+def master_uri(argv: list[str], environ: Mapping[str, str]) -> str:
+    """ROS_MASTER_URI as a node started by `launch` sees it: `__master:=`, then the environment, then the default."""
+    from launcher.command import DEFAULT_MASTER_URI
+    for token in argv:
+        if token.startswith("__master:="):
+            return token[len("__master:="):]
+    return environ.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
+
+
+def _full_name(node: Any) -> str | None:
+    from launcher.names import ns_join
+    return ns_join(node.namespace, node.name) if node.name else None
+
+
+def _find(config: Any, name: str, files: list[str]) -> Any:
+    matches = [n for n in config.nodes + config.tests if _full_name(n) == name]
+    if len(matches) > 1:
+        raise LaunchError("ERROR: multiple nodes named [%s] in [%s].\nPlease fix the launch files as duplicate "
+                          "names are not allowed." % (name, ", ".join(files)))
+    return matches[0] if matches else None
+
+
+def main(opts: Any) -> int:
+    """Run the one introspection option `opts` asks for; returns the exit status."""
+    environ = os.environ
+    from launcher.packages import PackageIndex
+    from launcher.xml import load, resolve_launch_arguments
+    packages = PackageIndex(environ)
+    files, argv = resolve_launch_arguments(list(opts.positional or []), packages)
+    if not files:
+        raise LaunchError(NO_FILE)
+    out = sys.stdout
+
+    if opts.ros_args:
+        from launcher.xml import load_arg_docs
+        docs = load_arg_docs(files, argv, environ=environ, packages=packages)
+        out.write(format_ros_args(docs))
+        return 0
+
+    if opts.dump_params:
+        config = load(files, argv, environ=environ, packages=packages, core=False, warn=_warn)
+        out.write(dump_params(config))
+        return 0
+
+    config = load(files, argv, environ=environ, packages=packages, warn=_warn)
+
+    if opts.node_args:
+        name = resolve_node_name(opts.node_args, argv, environ)
+        node = _find(config, name, files)
+        if node is None:
+            names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
+            raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s"
+                              % (name, ", ".join(files), "\n".join(" * %s" % n for n in names)))
+        from launcher.command import node_command
+        cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
+        out.write(cmd.format_args() + "\n")
+        return 0
+
+    if opts.find_node:
+        name = resolve_node_name(opts.find_node, argv, environ)
+        node = _find(config, name, files)
+        if node is None:
+            raise LaunchError("ERROR: cannot find node named [%s]. Run \n\tlaunch --nodes <files>\nto see list "
+                              "of node names." % name)
+        out.write(node.filename + "\n")
+        return 0
+
+    if opts.files:
+        out.write("".join(f + "\n" for f in config.files))
+        return 0
+
+    # --nodes
+    names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
+    out.write("\n".join(names) + "\n")
+    return 0
+
+
+def format_ros_args(docs: dict[str, tuple[str | None, str | None]]) -> str:
+    if not docs:
+        return "No arguments.\n"
+    required = sorted((name, doc or "undocumented") for name, (doc, default) in docs.items() if not default)
+    optional = sorted((name, doc or "undocumented", default) for name, (doc, default) in docs.items() if default)
+    lines = []
+    if required:
+        lines.append("Required Arguments:")
+        lines += ["  %s: %s" % r for r in required]
+    if optional:
+        lines.append("Optional Arguments:")
+        lines += ['  %s (default "%s"): %s' % (name, default, doc) for name, doc, default in optional]
+    return "\n".join(lines) + "\n"
+
+
+def dump_params(config: Any) -> str:
+    """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
+    for p in config.params.values():
+        if isinstance(p.value, (bytes, bytearray)):
+            raise LaunchError("cannot print parameter [%s] as YAML: it is binary data (binfile=)" % p.key,
+                              p.filename or None, p.line or None)
+    data = {k: p.value for k, p in config.params.items()}
+    try:
+        from launcher.params.rosyaml import dump_yaml
+    except ImportError:  # pragma: no cover - params package not installed
+        import yaml
+
+        def dump_yaml(value: Any) -> str:
+            return yaml.safe_dump(value)
+    return dump_yaml(data) + "\n"

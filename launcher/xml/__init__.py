@@ -1,0 +1,52 @@
+"""roslaunch XML: `load(files, argv)` turns launch files into a `LaunchConfig` (see loader.py)."""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+
+if TYPE_CHECKING:
+    from launcher.config import LaunchConfig
+
+
+def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
+         packages: Any = None, core: bool = True, args_only: bool = False,
+         warn: Callable[[str], None] | None = None) -> LaunchConfig:
+    """Load launch files, in order, with command-line `name:=value` args (incl. `__ns:=`).
+
+    `core=False` leaves out roscore's implicit `/rosout` node (as `--dump-params`
+    does); `args_only=True` evaluates `<arg>` tags only (`--ros-args`); `warn`
+    is called with each warning as it happens (they are also in `config.warnings`).
+    Raises LaunchError.
+    """
+    from launcher.xml.loader import XmlLoader
+    if environ is None:
+        environ = os.environ
+    if packages is None:
+        from launcher.packages import PackageIndex
+        packages = PackageIndex(environ)
+    loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=args_only, core=core, warn=warn)
+    for f in files:
+        loader.load_file(f)
+    return loader.config()
+
+
+def load_arg_docs(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
+                  packages: Any = None) -> dict[str, tuple[str | None, str | None]]:
+    """The top-level `<arg>`s of the last file: name -> (doc, default), for `--ros-args`."""
+    from launcher.xml.loader import XmlLoader
+    if environ is None:
+        environ = os.environ
+    if packages is None:
+        from launcher.packages import PackageIndex
+        packages = PackageIndex(environ)
+    loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=True)
+    for f in files:
+        loader.load_file(f)
+    return dict(loader.root_scope.arg_docs) if loader.root_scope is not None else {}
+
+
+def resolve_launch_arguments(positional: list[str], packages: Any) -> tuple[list[str], list[str]]:
+    """`[pkg] file.launch... name:=value...` -> (files, argv). Raises LaunchError."""
+    from launcher.xml.arguments import resolve_launch_arguments as _resolve
+    return _resolve(positional, packages)

@@ -1,0 +1,731 @@
+"""The launch XML tags: `launch node test include group arg param rosparam remap env machine`.
+
+`XmlLoader` walks the documents in document order, exactly as roslaunch's
+XmlLoader does (same scopes, same checks, same quirks), and collects a
+`LaunchConfig`. Every problem is a `LaunchError` with the file and line of the
+element at fault and the chain of `<include>`s that led there; things
+roslaunch silently accepts (unknown tags and attributes, a parameter under
+another parameter) are accepted with a warning that says where they are.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from typing import Any, Callable, Iterable, Mapping
+
+from launcher.config import LaunchConfig, Machine, Node, Param
+from launcher.errors import LaunchError
+from launcher.names import (SEP, canonicalize_name, is_legal_name, is_private, make_global_ns,
+                            namespaces_of, ns_join)
+from launcher.xml.document import element_text, read_launch
+from launcher.xml.scope import Scope, ScopeError
+from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
+
+# roslaunch's per-tag attribute lists; anything else is warned about
+NODE_ATTRS = frozenset(("pkg", "type", "machine", "name", "args", "output", "respawn", "respawn_delay", "cwd",
+                        "ns", "clear_params", "launch-prefix", "required", "if", "unless"))
+TEST_ATTRS = NODE_ATTRS | {"test-name", "time-limit", "retry"}
+PARAM_ATTRS = frozenset(("name", "value", "type", "textfile", "binfile", "command", "if", "unless"))
+ROSPARAM_ATTRS = frozenset(("command", "ns", "file", "param", "subst_value", "if", "unless"))
+ARG_ATTRS = frozenset(("name", "value", "default", "doc", "if", "unless"))
+MACHINE_ATTRS = frozenset(("name", "address", "env-loader", "ssh-port", "user", "password", "default",
+                           "timeout", "if", "unless"))
+REMAP_ATTRS = frozenset(("from", "to", "if", "unless"))
+ENV_ATTRS = frozenset(("name", "value", "if", "unless"))
+INCLUDE_ATTRS = frozenset(("file", "ns", "clear_params", "pass_all_args", "if", "unless"))
+GROUP_ATTRS = frozenset(("ns", "clear_params", "if", "unless"))
+LAUNCH_ATTRS = frozenset(("deprecated", "if", "unless"))
+
+TEST_TIME_LIMIT_DEFAULT = 60.0
+MACHINE_TIMEOUT_DEFAULT = 10.0
+COMMAND_PARAM_TIMEOUT = 60.0  # seconds a <param command=...> may run
+CORE_NODE_NAMES = ("/rosout",)  # roscore.xml's node, which every launch but --dump-params loads
+
+_MULTISLASH = re.compile("//+")
+
+
+class _Abort(Exception):
+    """Internal: a problem at an element, turned into a LaunchError by `_fail`."""
+
+
+class XmlLoader:
+    """One load: files + command-line args -> LaunchConfig."""
+
+    def __init__(self, *, environ: Mapping[str, str], packages: Any, argv: Iterable[str] = (),
+                 args_only: bool = False, core: bool = True,
+                 warn: Callable[[str], None] | None = None):
+        from launcher.xml.arguments import load_mappings, root_namespace
+        self.environ = environ
+        self.packages = packages
+        self.argv = list(argv)
+        self.cli_args = load_mappings(self.argv, warn=self._warn_plain)
+        self.root_ns = root_namespace(self.argv, environ)
+        self.args_only = args_only
+        self._warn_cb = warn
+        self.nodes: list[Node] = []
+        self.tests: list[Node] = []
+        self.params: dict[str, Param] = {}
+        self.clear_params: list[str] = []
+        self.machines: dict[str, Machine] = {}
+        self.files: list[str] = []
+        self.warnings: list[str] = []
+        self.rosparam_commands: list[tuple[str, str, str | None]] = []
+        self.node_names: set[str] = set(CORE_NODE_NAMES) if core else set()
+        self.root_scope: Scope | None = None
+        # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
+        self._ros_yaml = False
+
+    # ------------------------------------------------------------------ output
+    def config(self) -> LaunchConfig:
+        kw: dict[str, Any] = {}
+        if "rosparam_commands" in LaunchConfig.__dataclass_fields__:
+            kw["rosparam_commands"] = tuple(self.rosparam_commands)
+        seen: dict[str, None] = {}
+        for f in self.files:
+            seen.setdefault(os.path.abspath(f))
+        return LaunchConfig(nodes=tuple(self.nodes), tests=tuple(self.tests), params=self.params,
+                            clear_params=tuple(self.clear_params), machines=self.machines,
+                            files=tuple(seen), warnings=tuple(self.warnings), **kw)
+
+    # ------------------------------------------------------------------ errors
+    def _warn_plain(self, msg: str) -> None:
+        self.warnings.append(msg)
+        if self._warn_cb:
+            self._warn_cb(msg)
+
+    def _warn(self, scope: Scope, el: Any, msg: str) -> None:
+        line = getattr(el, "sourceline", None)
+        where = "%s:%d: " % (scope.source, line) if line else "%s: " % scope.source
+        text = where + msg
+        for f, ln in scope.include_chain:
+            text += "\n  included from %s:%d" % (f, ln)
+        self._warn_plain(text)
+
+    def _fail(self, scope: Scope, el: Any, msg: str) -> LaunchError:
+        return LaunchError(msg, scope.source, getattr(el, "sourceline", None), scope.include_chain)
+
+    def _sub(self, text: str | None, scope: Scope, el: Any) -> str | None:
+        """Resolve substitution args, turning their errors into located LaunchErrors."""
+        if not text or "$" not in text:
+            return text
+        try:
+            return resolve(text, scope)
+        except ArgNotSet as e:
+            raise self._fail(scope, el, "arg '%s' is not set: [%s] requires the '%s' arg to be set "
+                             "(declare it with <arg> or pass %s:=value)"
+                             % (e.name, scope.filename, e.name, e.name)) from None
+        except SubstitutionError as e:
+            raise self._fail(scope, el, "%s" % e) from None
+        except LaunchError as e:
+            if e.filename:
+                raise
+            raise self._fail(scope, el, e.message) from None
+
+    def _attr(self, el: Any, name: str, scope: Scope) -> str | None:
+        return self._sub(el.get(name), scope, el)
+
+    def _reqd(self, el: Any, name: str, scope: Scope) -> str:
+        v = el.get(name)
+        if v is None:
+            raise self._fail(scope, el, "<%s> tag is missing required attribute: '%s'" % (el.tag, name))
+        return self._sub(v, scope, el)  # type: ignore[return-value]
+
+    def _check_attrs(self, el: Any, scope: Scope, allowed: frozenset[str]) -> None:
+        for a in el.attrib:
+            if a not in allowed:
+                self._warn(scope, el, "unknown <%s> attribute '%s' (ignored)" % (el.tag, a))
+
+    def _bool(self, v: str | None, default: bool, label: str, scope: Scope, el: Any) -> bool:
+        if v is None:
+            return default
+        low = v.lower()
+        if low == "true":
+            return True
+        if low == "false":
+            return False
+        if not v:
+            raise self._fail(scope, el, "bool value for %s must be non-empty" % label)
+        raise self._fail(scope, el, "invalid bool value for %s: %s" % (label, v))
+
+    def _if_unless(self, el: Any, scope: Scope) -> bool:
+        """True if the element is to be processed (its if/unless say so)."""
+        attrib = el.attrib
+        if "if" not in attrib and "unless" not in attrib:
+            return True
+        if_val = self._attr(el, "if", scope)
+        unless_val = self._attr(el, "unless", scope)
+        if if_val is not None and unless_val is not None:
+            raise self._fail(scope, el, "cannot set both 'if' and 'unless' on the same tag")
+        if if_val is not None:
+            return self._condition(if_val, "if", scope, el)
+        return not self._condition(unless_val or "", "unless", scope, el)
+
+    def _condition(self, v: str, label: str, scope: Scope, el: Any) -> bool:
+        low = v.lower().strip()
+        if low in ("true", "1"):
+            return True
+        if low in ("false", "0"):
+            return False
+        raise self._fail(scope, el, "invalid value for %s=: [%s] is not a 'bool' type "
+                                    "(use true, false, 1 or 0)" % (label, v))
+
+    # ------------------------------------------------------------------ files
+    def load_file(self, filename: str) -> None:
+        launch = read_launch(filename)
+        self.files.append(filename)
+        scope = Scope(self.root_ns, filename, environ=self.environ,
+                      find_package=self._find_package, find_resource=self._find_resource,
+                      args=dict(self.cli_args))
+        self.root_scope = scope
+        self._launch_tag(launch, scope)
+        if not self.args_only:
+            for m in launch.iterdescendants("master"):
+                self._warn(scope, m, "ignoring defunct <master /> tag")
+        self._recurse(launch, scope, None)
+
+    def _launch_tag(self, launch: Any, scope: Scope) -> None:
+        self._check_attrs(launch, scope, LAUNCH_ATTRS)
+        if not self._if_unless(launch, scope):
+            return
+        deprecated = launch.get("deprecated")
+        if deprecated:
+            self._warn(scope, launch, "DEPRECATED: %s" % deprecated)
+
+    def _find_package(self, pkg: str) -> str:
+        return self.packages.get_path(pkg)
+
+    def _find_resource(self, pkg: str, rel: str) -> str:
+        return self.packages.find_resource(pkg, rel)
+
+    # ------------------------------------------------------------------ walk
+    def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        for el in parent_el:
+            tag = el.tag
+            if not isinstance(tag, str):
+                continue  # comments, processing instructions
+            if tag == "arg":
+                self._arg_tag(el, scope)
+            elif self.args_only:
+                continue
+            elif tag == "node":
+                if self._if_unless(el, scope):
+                    self._node_tag(el, scope, default_machine, is_test=False)
+            elif tag == "param":
+                if self._if_unless(el, scope):
+                    self._param_tag(el, scope)
+            elif tag == "group":
+                if self._if_unless(el, scope):
+                    self._check_attrs(el, scope, GROUP_ATTRS)
+                    child = self._ns_clear_params(el, scope, "group")
+                    child.params = list(child.params)
+                    default_machine = self._recurse(el, child, default_machine)
+            elif tag == "include":
+                if self._if_unless(el, scope):
+                    default_machine = self._include_tag(el, scope, default_machine)
+            elif tag == "remap":
+                if self._if_unless(el, scope):
+                    src, dst = self._remap_tag(el, scope)
+                    self._add_remap(scope, src, dst, el)
+            elif tag == "rosparam":
+                if self._if_unless(el, scope):
+                    self._rosparam_tag(el, scope)
+            elif tag == "env":
+                if self._if_unless(el, scope):
+                    self._env_tag(el, scope)
+            elif tag == "test":
+                if self._if_unless(el, scope):
+                    self._node_tag(el, scope, default_machine, is_test=True)
+            elif tag == "machine":
+                if self._if_unless(el, scope):
+                    m, is_default = self._machine_tag(el, scope)
+                    if is_default:
+                        default_machine = m
+            elif tag == "master":
+                pass  # warned about once per file
+            else:
+                self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+        return default_machine
+
+    # ------------------------------------------------------------------ ns + clear_params
+    def _ns_clear_params(self, el: Any, scope: Scope, kind: str, node_name: str | None = None,
+                         include_file: str | None = None) -> Scope:
+        if "ns" in el.attrib:
+            ns = self._attr(el, "ns", scope)
+            if not ns:
+                raise self._fail(scope, el, "<%s> tag has an empty 'ns' attribute" % el.tag)
+        else:
+            ns = None
+        try:
+            child = scope.include_child(ns, include_file) if include_file is not None else scope.child(ns)
+        except ScopeError as e:
+            raise self._fail(scope, el, str(e)) from None
+        clear = self._attr(el, "clear_params", scope)
+        if clear and self._bool(clear, False, "clear_params", scope, el):
+            if kind == "node":
+                if not node_name:
+                    raise self._fail(scope, el, "<%s> tag must have a 'name' attribute to use 'clear_params' "
+                                                "attribute" % el.tag)
+                self.clear_params.append(make_global_ns(ns_join(child.ns, node_name)))
+            else:
+                if not ns:
+                    raise self._fail(scope, el, "'ns' attribute must be set in order to use 'clear_params'")
+                self.clear_params.append(child.ns)
+        return child
+
+    # ------------------------------------------------------------------ <arg>
+    def _arg_tag(self, el: Any, scope: Scope) -> None:
+        if not self._if_unless(el, scope):
+            return
+        self._check_attrs(el, scope, ARG_ATTRS)
+        name = self._reqd(el, "name", scope)
+        value = self._attr(el, "value", scope)
+        default = self._attr(el, "default", scope)
+        doc = self._attr(el, "doc", scope)
+        if value is not None and default is not None:
+            raise self._fail(scope, el, "<arg> tag must have one and only one of value/default.")
+        try:
+            scope.add_arg(name, default=default, value=value, doc=doc)
+        except ScopeError as e:
+            raise self._fail(scope, el, str(e)) from None
+
+    # ------------------------------------------------------------------ <remap>, <env>
+    def _remap_tag(self, el: Any, scope: Scope) -> tuple[str, str]:
+        self._check_attrs(el, scope, REMAP_ATTRS)
+        if el.get("from") is None or el.get("to") is None:
+            raise self._fail(scope, el, "<remap> tag is missing required from/to attributes")
+        return self._attr(el, "from", scope) or "", self._attr(el, "to", scope) or ""
+
+    def _add_remap(self, scope: Scope, src: str, dst: str, el: Any, err_scope: Scope | None = None) -> None:
+        try:
+            scope.add_remap(src, dst)
+        except ScopeError as e:
+            raise self._fail(err_scope or scope, el, "Invalid <remap> tag: %s" % e) from None
+
+    def _env_tag(self, el: Any, scope: Scope) -> None:
+        self._check_attrs(el, scope, ENV_ATTRS)
+        if el.get("name") is None or el.get("value") is None:
+            raise self._fail(scope, el, "<env> tag is missing required name/value attributes")
+        name = self._attr(el, "name", scope)
+        value = self._attr(el, "value", scope)
+        if not name:
+            raise self._fail(scope, el, "Invalid <env> tag: 'name' attribute must be non-empty")
+        scope.env_args.append((name, value or ""))
+
+    # ------------------------------------------------------------------ <param>
+    def _param_tag(self, el: Any, scope: Scope, force_local: bool = False) -> None:
+        self._check_attrs(el, scope, PARAM_ATTRS)
+        ptype = (el.get("type") or "auto").lower().strip()
+        vals = [self._attr(el, a, scope) for a in ("value", "textfile", "binfile", "command")]
+        if sum(v is not None for v in vals) != 1:
+            raise self._fail(scope, el, "<param> tag must have one and only one of value/textfile/binfile/command.")
+        raw_name = el.get("name")
+        if raw_name is None:
+            raise self._fail(scope, el, "<param> tag is missing required attribute: 'name'")
+        name = self._sub(raw_name.strip(), scope, el) or ""
+        value = self._param_value(el, scope, name, ptype, *vals)
+        if is_private(name) or force_local:
+            scope.add_param(name, value, scope.source, el.sourceline or 0)
+        else:
+            self._add_param(ns_join(scope.ns, name), value, scope, el)
+
+    def _convert(self, text: str, ptype: str, scope: Scope, el: Any, what: str) -> Any:
+        if ptype == "yaml":
+            return self._yaml(text, scope, el, inline=True, what=what)
+        from launcher.params.values import convert_value
+        try:
+            return convert_value(text, ptype)
+        except ValueError as e:
+            raise self._fail(scope, el, "Invalid <param> tag: %s" % e) from None
+
+    def _param_value(self, el: Any, scope: Scope, name: str, ptype: str, value: str | None,
+                     textfile: str | None, binfile: str | None, command: str | None) -> Any:
+        if value is not None:
+            return self._convert(value.strip(), ptype, scope, el, "value")
+        if textfile is not None:
+            try:
+                with open(textfile, "r", encoding="utf-8") as f:
+                    text = f.read()
+            except (OSError, UnicodeDecodeError) as e:
+                raise self._fail(scope, el, "Invalid <param> tag: cannot read textfile [%s]: %s"
+                                 % (textfile, getattr(e, "strerror", None) or e)) from None
+            return self._convert(text, ptype, scope, el, "textfile")
+        if binfile is not None:
+            try:
+                with open(binfile, "rb") as f:
+                    return f.read()
+            except OSError as e:
+                raise self._fail(scope, el, "Invalid <param> tag: cannot read binfile [%s]: %s"
+                                 % (binfile, e.strerror or e)) from None
+        assert command is not None
+        return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, "command")
+
+    def _run_command(self, command: str, name: str, scope: Scope, el: Any) -> str:
+        import shlex
+        import subprocess
+        try:
+            argv = shlex.split(command)
+        except ValueError as e:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: cannot split command [%s]: %s"
+                             % (name, command, e)) from None
+        if not argv:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: the command is empty" % name)
+        try:
+            p = subprocess.run(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               timeout=COMMAND_PARAM_TIMEOUT, env=dict(self.environ))
+        except FileNotFoundError:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: no such command [%s]"
+                             % (name, argv[0])) from None
+        except subprocess.TimeoutExpired:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: command [%s] did not finish "
+                                        "within %g seconds" % (name, command, COMMAND_PARAM_TIMEOUT)) from None
+        except OSError as e:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: cannot run [%s]: %s"
+                             % (name, command, e.strerror or e)) from None
+        err = p.stderr.decode("utf-8", "replace")
+        if p.returncode != 0:
+            msg = "Cannot load command parameter [%s]: command [%s] returned with code [%s]" % (
+                name, command, p.returncode)
+            if err.strip():
+                msg += "\nstderr of the command:\n" + err.rstrip()
+            raise self._fail(scope, el, msg)
+        if err:
+            sys.stderr.write(err)  # roslaunch lets the command's stderr through
+        try:
+            return p.stdout.decode("utf-8")
+        except UnicodeDecodeError:
+            raise self._fail(scope, el, "Cannot load command parameter [%s]: the output of [%s] is not UTF-8"
+                             % (name, command)) from None
+
+    def _add_param(self, key: str, value: Any, scope: Scope, el: Any) -> None:
+        key = canonicalize_name(key)
+        params = self.params
+        if key != SEP:
+            for parent in namespaces_of(key)[1:]:
+                if parent[:-1] in params:
+                    self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent[:-1]))
+        params[key] = Param(key, value, scope.source, el.sourceline or 0)
+
+    # ------------------------------------------------------------------ YAML
+    def _yaml(self, text: str, scope: Scope, el: Any, *, inline: bool, what: str,
+              yaml_file: str | None = None) -> Any:
+        if not self._ros_yaml and what != "rosparam":
+            import yaml
+            loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+            try:
+                return yaml.load(text, Loader=loader)
+            except yaml.YAMLError as e:
+                line = None
+                mark = getattr(e, "problem_mark", None)
+                if mark is not None:
+                    line = (el.sourceline or 1) + mark.line if inline else mark.line + 1
+                msg = str(e).replace("\n", " ")
+                raise LaunchError("Invalid <param> tag: invalid YAML: %s" % msg, scope.source,
+                                  line or el.sourceline, scope.include_chain) from None
+        from launcher.params.rosyaml import RosYamlError, load_yaml
+        try:
+            if yaml_file:
+                return load_yaml(text, filename=yaml_file)
+            return load_yaml(text, filename=scope.source, first_line=el.sourceline or 1)
+        except RosYamlError as e:
+            msg = getattr(e, "message", None) or str(e)
+            if yaml_file:
+                chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
+                raise LaunchError("invalid YAML: %s" % msg, yaml_file, getattr(e, "line", None), chain) from None
+            raise LaunchError("invalid YAML in <%s>: %s" % (el.tag, msg), scope.source,
+                              getattr(e, "line", None) or el.sourceline, scope.include_chain) from None
+
+    # ------------------------------------------------------------------ <rosparam>
+    def _rosparam_tag(self, el: Any, scope: Scope) -> None:
+        self._check_attrs(el, scope, ROSPARAM_ATTRS)
+        cmd, ns, file_, param, subst = (self._attr(el, a, scope) for a in
+                                        ("command", "ns", "file", "param", "subst_value"))
+        subst_value = self._bool(subst, False, "subst_value", scope, el)
+        param = ns_join(ns or "", param or "")
+        cmd = cmd or "load"
+        if cmd not in ("load", "dump", "delete"):
+            raise self._fail(scope, el, "error loading <rosparam> tag: command must be 'load', 'dump', or 'delete'")
+        if file_ is not None:
+            if cmd == "load" and not os.path.isfile(file_):
+                raise self._fail(scope, el, "error loading <rosparam> tag: file does not exist [%s]" % file_)
+            if cmd == "delete":
+                raise self._fail(scope, el, "error loading <rosparam> tag: 'file' attribute is invalid with "
+                                            "'delete' command.")
+        full_param = ns_join(scope.ns, param) if param else scope.ns
+        if cmd == "dump":
+            self.rosparam_commands.append(("dump", full_param, file_))
+            return
+        if cmd == "delete":
+            self.rosparam_commands.append(("delete", full_param, None))
+            return
+        if file_:
+            try:
+                with open(file_, "r", encoding="utf-8") as f:
+                    text = f.read()
+            except (OSError, UnicodeDecodeError) as e:
+                raise self._fail(scope, el, "error loading <rosparam> tag: cannot read [%s]: %s"
+                                 % (file_, getattr(e, "strerror", None) or e)) from None
+        else:
+            text = element_text(el)
+        if subst_value:
+            text = self._sub(text, scope, el) or ""
+        self._ros_yaml = True
+        data = self._yaml(text, scope, el, inline=not file_, what="rosparam", yaml_file=file_ or None)
+        if data is None:
+            data = {}
+        if not param and not isinstance(data, dict):
+            raise self._fail(scope, el, "error loading <rosparam> tag: 'param' attribute must be set for "
+                                        "non-dictionary values")
+        self._unroll(full_param, data, scope, el)
+
+    def _unroll(self, key: str, value: Any, scope: Scope, el: Any) -> None:
+        if not key:
+            raise self._fail(scope, el, "no parameter name specified")
+        if key == SEP and not isinstance(value, dict):
+            raise self._fail(scope, el, "Cannot load non-dictionary types into global namespace '/'")
+        if isinstance(value, dict):
+            for k, v in value.items():
+                if not isinstance(k, str):
+                    raise self._fail(scope, el, "error loading <rosparam> tag: parameter names must be strings, "
+                                                "not %r (quote the key in the YAML)" % (k,))
+                self._unroll(ns_join(key, k), v, scope, el)
+        else:
+            self._add_param(key, value, scope, el)
+
+    # ------------------------------------------------------------------ <node>, <test>
+    def _node_tag(self, el: Any, scope: Scope, default_machine: Machine | None, is_test: bool) -> None:
+        a = self._attr
+        test_name = None
+        time_limit: float | None = None
+        retry = 0
+        if is_test:
+            self._check_attrs(el, scope, TEST_ATTRS)
+            name = a(el, "name", scope)
+            for bad in ("respawn", "respawn_delay", "output"):
+                if bad in el.attrib:
+                    raise self._fail(scope, el, "Invalid <test> tag: <test> tags cannot have '%s' attribute" % bad)
+            test_name = self._reqd(el, "test-name", scope)
+            tl = a(el, "time-limit", scope)
+            rt = a(el, "retry", scope)
+            if tl:
+                try:
+                    time_limit = float(tl)
+                except ValueError:
+                    raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a number: [%s]" % tl) from None
+                if time_limit <= 0.0:
+                    raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a positive number")
+            if rt:
+                try:
+                    retry = int(rt)
+                except ValueError:
+                    raise self._fail(scope, el, "Invalid <test> tag: 'retry' must be a number: [%s]" % rt) from None
+            if not name:
+                name = test_name
+        else:
+            self._check_attrs(el, scope, NODE_ATTRS)
+            name = self._reqd(el, "name", scope)
+        if not is_legal_name(name):
+            self._warn(scope, el, "illegal <%s> name '%s' (see http://ros.org/wiki/Names); this will likely "
+                                  "cause problems with other ROS tools" % (el.tag, name))
+        child = self._ns_clear_params(el, scope, "node", node_name=name)
+        try:
+            param_scope = child.child(name)
+        except ScopeError as e:
+            raise self._fail(scope, el, "Invalid <%s> tag: %s" % (el.tag, e)) from None
+        param_scope.params = []
+        pkg = self._reqd(el, "pkg", scope)
+        node_type = self._reqd(el, "type", scope)
+        machine, args, output, respawn_s, respawn_delay_s, cwd, launch_prefix, required_s = (
+            a(el, x, scope) for x in ("machine", "args", "output", "respawn", "respawn_delay", "cwd",
+                                      "launch-prefix", "required"))
+        if not machine and default_machine is not None:
+            machine = default_machine.name
+        required = self._bool(required_s, False, "required", scope, el)
+        respawn = self._bool(respawn_s, False, "respawn", scope, el)
+        if respawn_delay_s is None:
+            respawn_delay = 0.0
+        elif not respawn_delay_s:
+            raise self._fail(scope, el, "Invalid <%s> tag: value for respawn_delay must be non-empty" % el.tag)
+        else:
+            try:
+                respawn_delay = float(respawn_delay_s)
+            except ValueError:
+                raise self._fail(scope, el, "Invalid <%s> tag: invalid float value for respawn_delay: %s"
+                                 % (el.tag, respawn_delay_s)) from None
+
+        # children: remaps and env build on the enclosing scope; params go under the node's name
+        remap_scope: Scope | None = None
+        env_scope: Scope | None = None
+        for c in el:
+            ctag = c.tag
+            if not isinstance(ctag, str):
+                continue
+            if ctag == "remap":
+                if self._if_unless(c, scope):
+                    src, dst = self._remap_tag(c, scope)
+                    if remap_scope is None:
+                        remap_scope = scope.child("")
+                    self._add_remap(remap_scope, src, dst, c, err_scope=scope)
+            elif ctag == "param":
+                if self._if_unless(c, param_scope):
+                    self._param_tag(c, param_scope, force_local=True)
+            elif ctag == "rosparam":
+                if self._if_unless(c, param_scope):
+                    self._rosparam_tag(c, param_scope)
+            elif ctag == "env":
+                if env_scope is None:
+                    env_scope = scope.child("")
+                if self._if_unless(c, env_scope):
+                    self._env_tag(c, env_scope)
+            else:
+                self._warn(scope, c, "unrecognized <%s> child tag of <%s> (ignored)" % (ctag, el.tag))
+
+        # launch-level ~params declared earlier in this scope, then the node's own
+        for key, value, pfile, pline in list(scope.params) + param_scope.params:
+            if key.startswith("~"):
+                key = key[1:]
+            full = canonicalize_name(param_scope.ns + key)
+            self.params[full] = Param(full, value, pfile, pline)
+
+        if respawn and required:
+            raise self._fail(scope, el, "Invalid <%s> tag: respawn and required cannot both be set to true" % el.tag)
+        if name and SEP in name:
+            raise self._fail(scope, el, "Invalid <%s> tag: node name cannot contain a namespace" % el.tag)
+        if not pkg.strip():
+            raise self._fail(scope, el, "Invalid <%s> tag: package must be non-empty" % el.tag)
+        if not node_type.strip():
+            raise self._fail(scope, el, "Invalid <%s> tag: type must be non-empty" % el.tag)
+        if is_test:
+            output = "log"
+        elif output not in ("log", "screen", None):
+            raise self._fail(scope, el, "Invalid <node> tag: output must be one of 'log', 'screen' (got '%s')" % output)
+        if cwd == "ros_home":
+            cwd = "ROS_HOME"
+        if cwd not in ("ROS_HOME", "node", None):
+            raise self._fail(scope, el, "Invalid <%s> tag: cwd must be one of 'ROS_HOME', 'node' (got '%s')"
+                             % (el.tag, cwd))
+        namespace = child.ns
+        if "//" in namespace:
+            namespace = _MULTISLASH.sub("/", namespace)
+        remaps = tuple(remap_scope.remap_args()) if remap_scope is not None else tuple(scope.remap_args())
+        env_args = tuple((env_scope or scope).env_args)
+        node = Node(package=pkg, type=node_type, name=name or "", namespace=namespace, args=args or "",
+                    remap_args=remaps, env_args=env_args, respawn=respawn, respawn_delay=respawn_delay,
+                    required=required, output=output, cwd=cwd, launch_prefix=launch_prefix or None,
+                    machine_name=machine or None, filename=scope.filename or scope.source,
+                    line=el.sourceline or 0, test_name=test_name,
+                    time_limit=(time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None, retry=retry)
+        if is_test:
+            self.tests.append(node)
+            return
+        if name:
+            full = ns_join(node.namespace, name)
+            if full in self.node_names:
+                raise self._fail(scope, el, "roslaunch file contains multiple nodes named [%s].\nPlease check all "
+                                            "<node> 'name' attributes to make sure they are unique.\nAlso check "
+                                            "that $(anon id) use different ids." % full)
+            self.node_names.add(full)
+        self.nodes.append(node)
+
+    # ------------------------------------------------------------------ <machine>
+    def _machine_tag(self, el: Any, scope: Scope) -> tuple[Machine, bool]:
+        a = self._attr
+        for old in ("ros-root", "ros-package-path", "ros-ip", "ros-hostname"):
+            if a(el, old, scope):
+                raise self._fail(scope, el, "<machine>: ros-* attributes are not supported since ROS Fuerte.\n"
+                                            "Please use env-loader instead")
+        self._check_attrs(el, scope, MACHINE_ATTRS)
+        name = self._reqd(el, "name", scope)
+        address = self._reqd(el, "address", scope)
+        env_loader, ssh_port_s, user, password, default, timeout_s = (
+            a(el, x, scope) for x in ("env-loader", "ssh-port", "user", "password", "default", "timeout"))
+        try:
+            ssh_port = int(ssh_port_s or "22")
+        except ValueError:
+            raise self._fail(scope, el, "Invalid <machine> tag: ssh-port must be an integer: [%s]" % ssh_port_s) from None
+        default = (default or "false").lower()
+        if default not in ("true", "false", "never"):
+            raise self._fail(scope, el, "Invalid value for 'default' attribute of <machine>: %s "
+                                        "(use true, false or never)" % default)
+        for c in el:
+            if not isinstance(c.tag, str):
+                continue
+            if c.tag == "env":
+                raise self._fail(scope, c, "<machine>: <env> tag is not supported since ROS Fuerte.\n"
+                                           "Please use env-loader instead")
+            self._warn(scope, c, "unrecognized <%s> tag in <machine> tag (ignored)" % c.tag)
+        if timeout_s:
+            try:
+                timeout = float(timeout_s)
+            except ValueError:
+                raise self._fail(scope, el, "Invalid <machine> tag: 'timeout' must be a number: [%s]" % timeout_s) from None
+        elif timeout_s == "":
+            raise self._fail(scope, el, "Invalid <machine> tag: 'timeout' cannot be empty")
+        else:
+            timeout = MACHINE_TIMEOUT_DEFAULT
+        if timeout <= 0.0:
+            raise self._fail(scope, el, "Invalid <machine> tag: 'timeout' must be a positive number: [%s]" % timeout_s)
+        if not env_loader:
+            env_loader = "/opt/ros/%s/env.sh" % self.environ.get("ROS_DISTRO", "noetic")
+        m = Machine(name=name, address=address, env_loader=env_loader, ssh_port=ssh_port, user=user or None,
+                    password=password, assignable=default != "never", timeout=timeout,
+                    filename=scope.source, line=el.sourceline or 0)
+        old_m = self.machines.get(name)
+        if old_m is not None:
+            if _machine_key(old_m) != _machine_key(m):
+                raise self._fail(scope, el, "Machine [%s] already added and does not match duplicate entry "
+                                            "(first defined at %s:%d)" % (name, old_m.filename, old_m.line))
+        else:
+            self.machines[name] = m
+        return m, default == "true"
+
+    # ------------------------------------------------------------------ <include>
+    def _include_tag(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._check_attrs(el, scope, INCLUDE_ATTRS)
+        inc_file = self._reqd(el, "file", scope)
+        pass_all = False
+        if "pass_all_args" in el.attrib:
+            pass_all = self._bool(self._attr(el, "pass_all_args", scope), False, "pass_all_args", scope, el)
+        child = self._ns_clear_params(el, scope, "include", include_file=inc_file)
+        if pass_all:
+            for k, v in scope.args.items():
+                child.add_arg(k, value=v)
+            child.pass_all_args = True
+        # the include's own <arg>/<env> children are evaluated in the including file
+        child.filename = scope.filename
+        for c in el:
+            if not isinstance(c.tag, str):
+                continue
+            ctag = c.tag.lower()
+            if ctag == "env":
+                if self._if_unless(c, child):
+                    self._env_tag(c, child)
+            elif ctag == "arg":
+                self._arg_tag(c, child)
+            else:
+                self._warn(scope, c, "unrecognized <%s> tag in <include> tag (ignored: roslaunch does not "
+                                     "support it there)" % c.tag)
+        child.filename = inc_file
+        try:
+            child.start_include()
+        except ScopeError as e:
+            raise self._fail(scope, el, "%s for include of [%s]" % (e, inc_file)) from None
+        chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
+        child.source = inc_file
+        child.include_chain = chain
+        launch = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
+        if launch is None:
+            raise self._fail(scope, el, "included file [%s] does not exist" % inc_file)
+        self.files.append(inc_file)
+        self._launch_tag(launch, child)
+        default_machine = self._recurse(launch, child, default_machine)
+        if not pass_all:
+            unused = child.unused_include_args()
+            if unused:
+                raise self._fail(scope, el, "unused args [%s] for include of [%s]" % (", ".join(unused), inc_file))
+        return default_machine
+
+
+def _machine_key(m: Machine) -> tuple:
+    return (m.name, m.address, m.env_loader, m.ssh_port, m.user, m.password, m.assignable, m.timeout)

@@ -1,0 +1,279 @@
+"""Substitution args in launch attributes: `$(arg) $(env) $(optenv) $(anon) $(dirname) $(find) $(eval)`.
+
+The algorithm is roslaunch's (substitution_args.py), because users depend on
+its corner cases: `$(...)` commands are collected by the same little state
+machine, the value of each replaces every copy of its text, `$(find)` runs in a
+second pass over the already substituted string (so an arg whose value
+contains `$(find pkg)` is expanded too), and `$(eval ...)` must be the whole
+attribute. `$(eval)` runs in a sandbox: roslaunch's names, a small set of pure
+builtins, no attribute starting with `_`, no `format` (it reaches attributes).
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import math
+from typing import Any, Callable, Mapping
+
+from launcher.errors import LaunchError
+from launcher.names import anonymous_name
+
+VALID_COMMANDS = ("find", "env", "optenv", "dirname", "anon", "arg")
+_FIRST_PASS = ("env", "optenv", "dirname", "anon", "arg")
+
+
+class SubstitutionError(Exception):
+    """A `$(...)` that cannot be evaluated; the loader adds file and line."""
+
+
+class ArgNotSet(SubstitutionError):
+    """`$(arg name)` for an arg that has no value; `.name` is the arg."""
+
+    def __init__(self, name: str):
+        self.name = name
+        super().__init__(name)
+
+
+class SubstitutionScope:
+    """What a substitution can see: the scope's args and anon names, the file, the environment, packages."""
+
+    __slots__ = ("args", "anon", "filename", "environ", "find_package", "find_resource")
+
+    def __init__(self, args: Mapping[str, str], anon: dict[str, str], filename: str | None,
+                 environ: Mapping[str, str], find_package: Callable[[str], str],
+                 find_resource: Callable[[str, str], str]):
+        self.args = args
+        self.anon = anon
+        self.filename = filename
+        self.environ = environ
+        self.find_package = find_package
+        self.find_resource = find_resource
+
+
+def collect_commands(text: str) -> list[str]:
+    """The bodies of the `$(...)` in `text`, in order (roslaunch's `_collect_args` state machine)."""
+    out = []
+    buf: list[str] = []
+    state = 0  # 0 outside, 1 after '$', 2 after '$(', 3 inside
+    for c in text:
+        if c == "$":
+            if state == 0:
+                state = 1
+            elif state == 1:
+                pass
+            else:
+                raise SubstitutionError("Dollar signs '$' cannot be inside of substitution args [%s]" % text)
+        elif c == "(":
+            if state == 1:
+                state = 2
+            elif state != 0:
+                raise SubstitutionError("Invalid left parenthesis '(' in substitution args [%s]" % text)
+        elif c == ")":
+            if state == 3:
+                out.append("".join(buf))
+                buf = []
+            state = 0
+        elif state == 1:
+            state = 0
+        elif state == 2:
+            state = 3
+        if state == 3:
+            buf.append(c)
+    return out
+
+
+def resolve(text: str | None, scope: SubstitutionScope) -> str | None:
+    """`text` with every substitution arg replaced; None stays None."""
+    if not text or "$" not in text:
+        return text
+    if text.startswith("$(eval ") and text.endswith(")"):
+        return evaluate(text[7:-1], scope)
+    resolved = text
+    for body in collect_commands(text):
+        words = body.split()
+        if not words or words[0] not in VALID_COMMANDS:
+            raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
+                                    % (body, list(VALID_COMMANDS)))
+        cmd, args = words[0], words[1:]
+        if cmd == "find":
+            continue
+        resolved = resolved.replace("$(%s)" % body, _first_pass(cmd, body, args, scope))
+    if "$" in resolved:
+        for body in collect_commands(resolved):
+            words = body.split()
+            if not words or words[0] not in VALID_COMMANDS:
+                raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
+                                        % (body, list(VALID_COMMANDS)))
+            if words[0] == "find":
+                resolved = _find(resolved, body, words[1:], scope)
+    return resolved
+
+
+def _first_pass(cmd: str, body: str, args: list[str], scope: SubstitutionScope) -> str:
+    if cmd == "arg":
+        if not args:
+            raise SubstitutionError("$(arg var) must specify a variable name [%s]" % body)
+        if len(args) > 1:
+            raise SubstitutionError("$(arg var) may only specify one arg [%s]" % body)
+        return _arg(args[0], scope)
+    if cmd == "env":
+        if len(args) != 1:
+            raise SubstitutionError("$(env var) command only accepts one argument [%s]" % body)
+        return _env(args[0], scope)
+    if cmd == "optenv":
+        if not args:
+            raise SubstitutionError("$(optenv var) must specify an environment variable [%s]" % body)
+        return scope.environ.get(args[0], " ".join(args[1:]))
+    if cmd == "anon":
+        if not args:
+            raise SubstitutionError("$(anon var) must specify a name [%s]" % body)
+        if len(args) > 1:
+            raise SubstitutionError("$(anon var) may only specify one name [%s]" % body)
+        return _anon(args[0], scope)
+    # dirname
+    return _dirname(scope)
+
+
+def _arg(name: str, scope: SubstitutionScope) -> str:
+    try:
+        return scope.args[name]
+    except KeyError:
+        raise ArgNotSet(name) from None
+
+
+def _env(name: str, scope: SubstitutionScope) -> str:
+    try:
+        return scope.environ[name]
+    except KeyError:
+        raise SubstitutionError("environment variable '%s' is not set" % name) from None
+
+
+def _anon(id_: str, scope: SubstitutionScope) -> str:
+    name = scope.anon.get(id_)
+    if name is None:
+        name = scope.anon[id_] = anonymous_name(id_)
+    return name
+
+
+def _dirname(scope: SubstitutionScope) -> str:
+    import os.path
+    if not scope.filename:
+        raise SubstitutionError("Cannot substitute $(dirname), no file/directory information available.")
+    return os.path.abspath(os.path.dirname(scope.filename))
+
+
+def _find(resolved: str, body: str, args: list[str], scope: SubstitutionScope) -> str:
+    if len(args) != 1:
+        raise SubstitutionError("$(find pkg) command only accepts one argument [%s]" % body)
+    cmd = "$(%s)" % body
+    i = resolved.find(cmd)
+    before, after = resolved[:i], resolved[i + len(cmd):]
+    # the path that follows, up to the first space, decides between executable, share file and source dir
+    j = after.find(" ")
+    path, rest = (after, "") if j < 0 else (after[:j], after[j:])
+    path = path.replace("\\", "/")
+    if path.startswith("/"):
+        path = path[1:]
+    if path:
+        return before + scope.find_resource(args[0], path) + rest
+    return before + scope.find_package(args[0]) + rest
+
+
+# ---------------------------------------------------------------------------
+# $(eval ...)
+
+# Builtins roslaunch's eval can reach that compute values only: no I/O, no
+# introspection (getattr, vars, type, ...), no code execution.
+_SAFE_BUILTINS = {name: getattr(builtins, name)
+                  for name in ("abs", "all", "any", "bin", "bool", "chr", "dict", "divmod", "enumerate",
+                               "filter", "float", "frozenset", "hex", "int", "isinstance", "len", "list",
+                               "map", "max", "min", "oct", "ord", "pow", "range", "repr", "reversed",
+                               "round", "set", "slice", "sorted", "str", "sum", "tuple", "zip", "complex")}
+_MATH = {k: v for k, v in vars(math).items() if not k.startswith("_")}
+_CONSTANTS = {"true": True, "false": False, "True": True, "False": False, "None": None}
+_FORBIDDEN_ATTRS = {"format", "format_map", "mro", "gi_frame", "gi_code", "cr_frame", "f_globals",
+                    "f_locals", "f_builtins", "func_globals", "tb_frame"}
+
+
+def auto_value(text: str) -> Any:
+    """roslaunch's 'auto' typing of a string (int, float, bool or str), as $(eval) sees arg values."""
+    try:
+        if "." in text:
+            return float(text)
+        if "_" not in text:
+            return int(text)
+    except ValueError:
+        pass
+    low = text.lower()
+    if low == "true":
+        return True
+    if low == "false":
+        return False
+    return text
+
+
+class _Names(dict):
+    """Name lookup for eval: functions first, then args auto-typed (as roslaunch's _DictWrapper)."""
+
+    def __init__(self, functions: dict[str, Any], args: Mapping[str, str]):
+        super().__init__()
+        self._functions = functions
+        self._args = args
+
+    def __getitem__(self, key: str) -> Any:
+        try:
+            return self._functions[key]
+        except KeyError:
+            return auto_value(self._args[key])
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._functions or key in self._args
+
+
+def _check_expression(expr: str) -> ast.Expression:
+    if "__" in expr:
+        raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
+    try:
+        tree = ast.parse(expr.strip(), mode="eval")
+    except SyntaxError as e:
+        raise SubstitutionError("invalid $(eval) expression [%s]: %s" % (expr, e.msg)) from None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and (node.attr.startswith("_") or node.attr in _FORBIDDEN_ATTRS):
+            raise SubstitutionError("$(eval ...) may not use the attribute '%s'" % node.attr)
+        if isinstance(node, ast.Name) and node.id.startswith("_"):
+            raise SubstitutionError("$(eval ...) may not use the name '%s'" % node.id)
+    return tree
+
+
+def evaluate(expr: str, scope: SubstitutionScope) -> str:
+    """`$(eval expr)`: str() of the Python expression, with roslaunch's names and nothing dangerous."""
+    tree = _check_expression(expr)
+
+    def arg(name: str) -> Any:
+        return auto_value(_arg(name, scope))
+
+    def env(name: str) -> str:
+        return _env(name, scope)
+
+    def optenv(name: str, default: str = "") -> str:
+        return scope.environ.get(name, default)
+
+    def anon(id_: str) -> str:
+        return _anon(id_, scope)
+
+    def dirname() -> str:
+        return _dirname(scope)
+
+    functions: dict[str, Any] = dict(_SAFE_BUILTINS)
+    functions.update(_MATH)
+    functions.update(_CONSTANTS)
+    functions.update(arg=arg, env=env, optenv=optenv, anon=anon, dirname=dirname, find=scope.find_package)
+    code = compile(tree, "<eval>", "eval")
+    try:
+        value = eval(code, {"__builtins__": {}}, _Names(functions, scope.args))  # noqa: S307 (sandboxed above)
+    except (SubstitutionError, LaunchError):
+        raise
+    except Exception as e:  # the user's expression failed: report it, never a traceback
+        raise SubstitutionError("$(eval %s) failed: %s: %s" % (expr, type(e).__name__, e)) from None
+    return str(value)
