@@ -97,6 +97,9 @@ class LaunchConfig:
     machines: dict[str, Machine] = field(default_factory=dict)
     files: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    # <rosparam command="delete|dump">, in document order, to run before params are set
+    # (as roslaunch's setup executables): ("delete", key, None) or ("dump", key, file)
+    rosparam_commands: tuple[tuple[str, str, str | None], ...] = ()
 
     def find_node(self, full_name: str) -> Node | None:
         for n in self.nodes + self.tests:
