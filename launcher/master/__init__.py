@@ -1,0 +1,145 @@
+"""The embedded ROS master: Master API + Parameter Server API over XML-RPC, on the caller's event loop."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+from typing import Any, Mapping
+
+from launcher.params.tree import ParamTree, copy_tree
+
+DEFAULT_MASTER_PORT = 11311
+
+
+def address_override(environ: Mapping[str, str]) -> str | None:
+    """ROS_HOSTNAME, else ROS_IP (rosgraph.network.get_address_override, environment part)."""
+    if "ROS_HOSTNAME" in environ:
+        return environ["ROS_HOSTNAME"]
+    if "ROS_IP" in environ:
+        return environ["ROS_IP"]
+    return None
+
+
+def bind_address(environ: Mapping[str, str]) -> str:
+    """Where to listen: all interfaces, or loopback when ROS_IP/ROS_HOSTNAME is a loopback name."""
+    override = address_override(environ)
+    ipv6 = environ.get("ROS_IPV6") == "on"
+    if override and (override == "localhost" or override.startswith("127.") or override == "::1"):
+        if ipv6:
+            return "::1"
+        return override if override.startswith("127.") else "127.0.0.1"
+    return "::" if ipv6 else "0.0.0.0"
+
+
+def advertised_host(environ: Mapping[str, str]) -> str:
+    """The host name put in URIs (rosgraph.network.get_host_name)."""
+    host = address_override(environ)
+    if host:
+        return host
+    try:
+        host = socket.gethostname()
+    except OSError:
+        host = ""
+    if not host or host == "localhost" or host.startswith("127."):
+        host = _local_address(environ)
+    return host
+
+
+def _local_address(environ: Mapping[str, str]) -> str:
+    # the address of the interface that routes outwards (no packet is sent by a UDP connect)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.connect(("192.0.2.1", 9))
+            addr = s.getsockname()[0]
+            if addr and not addr.startswith("0."):
+                return addr
+    except OSError:
+        pass
+    return "::1" if environ.get("ROS_IPV6") == "on" else "127.0.0.1"
+
+
+class Master:
+    """A ROS master on the running asyncio loop.
+
+    `host` is the bind address (default: rosgraph's rule from ROS_IP /
+    ROS_HOSTNAME); `port` 0 picks a free one. The advertised URI uses the
+    host name as rosmaster does, or `uri_host` when given.
+    """
+
+    def __init__(self, host: str | None = None, port: int = DEFAULT_MASTER_PORT, *,
+                 uri_host: str | None = None, environ: Mapping[str, str] | None = None,
+                 notify_timeout: float = 15.0):
+        self._environ = os.environ if environ is None else environ
+        self.host = host if host is not None else bind_address(self._environ)
+        self.port = port
+        self._uri_host = uri_host
+        self._notify_timeout = notify_timeout
+        self.uri: str = ""
+        self.shutdown_requested = asyncio.Event()
+        self.shutdown_reason = ""
+        self._server = None
+        self._notifier = None
+        from launcher.master.api import MasterApi  # noqa: F401 - fail early if broken
+        self._api: Any = None
+        self._tree = ParamTree()
+
+    @property
+    def params(self) -> ParamTree:
+        return self._tree
+
+    @property
+    def api(self) -> Any:
+        """The MasterApi (registrations, topic types); None before start()."""
+        return self._api
+
+    async def start(self) -> None:
+        """Listen and serve; OSError if the port is taken."""
+        from launcher.master.api import MasterApi
+        from launcher.master.notify import Notifier
+        from launcher.xmlrpc import XmlRpcServer
+
+        self._notifier = Notifier(timeout=self._notify_timeout)
+        self._api = MasterApi(self._notifier, self._tree)
+        self._api.on_shutdown = self._on_shutdown
+        self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True)
+        try:
+            await self._server.start()
+        except OSError:
+            await self._notifier.close()
+            self._server = None
+            raise
+        self.port = self._server.port
+        host = self._uri_host or advertised_host(self._environ)
+        if ":" in host and not host.startswith("["):
+            host = "[%s]" % host  # an IPv6 literal in a URI
+        self.uri = "http://%s:%d/" % (host, self.port)
+        self._api.uri = self.uri
+
+    def _on_shutdown(self, reason: str) -> None:
+        self.shutdown_reason = reason
+        self.shutdown_requested.set()
+
+    def set_param(self, key: str, value: Any) -> None:
+        """Set a parameter in-process; parameter subscribers are notified."""
+        from launcher.master.api import resolve
+        self._require_started()
+        self._api.set_param(resolve(key, "/"), copy_tree(value))
+
+    def delete_param(self, key: str) -> None:
+        """Delete a parameter in-process (KeyError if not set); subscribers get `{}`."""
+        from launcher.master.api import resolve
+        self._require_started()
+        self._api.delete_param(resolve(key, "/"))
+
+    def _require_started(self) -> None:
+        if self._api is None:
+            raise RuntimeError("Master.start() has not been called")
+
+    async def stop(self) -> None:
+        """Stop serving and drop queued callbacks."""
+        if self._server is not None:
+            await self._server.stop()
+            self._server = None
+        if self._notifier is not None:
+            await self._notifier.close()
