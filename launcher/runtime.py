@@ -1,0 +1,494 @@
+"""Running a launch: config -> master (running or embedded) -> parameters -> rosout -> supervised nodes -> shutdown."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import socket
+import sys
+import time
+import urllib.parse
+import uuid
+from typing import Any, Mapping
+
+from launcher.errors import LaunchError
+from launcher.process import console
+
+_CALLER_ID = "/roslaunch"
+# How long to wait for an answer from a master that accepted the connection.
+PROBE_TIMEOUT_S = 3.0
+PARAM_TIMEOUT_S = 30.0
+
+
+class _Stop(Exception):
+    """Shutdown was requested while starting up."""
+
+
+def run(opts: Any) -> int:
+    """`launch [pkg] file.launch ...`: run until SIGINT/SIGTERM, a required exit, or (external master) all exits."""
+    from launcher.process.watchdog import Watchdog
+    # The guard is forked first, while this process has a single thread.
+    watchdog = Watchdog.start()
+    pid_fn = getattr(opts, "pid_fn", None)
+    try:
+        if pid_fn:
+            try:
+                with open(pid_fn, "w") as f:
+                    f.write(str(os.getpid()))
+            except OSError as e:
+                raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
+        launch = Launch(opts, watchdog)
+        launch.load()
+        return asyncio.run(launch.main())
+    finally:
+        if watchdog is not None:
+            watchdog.close()
+        if pid_fn:
+            try:
+                os.unlink(pid_fn)
+            except OSError:
+                pass
+
+
+def summary(config: Any, params: Mapping[str, Any]) -> str:
+    """roslaunch's SUMMARY block (ROSLaunchConfig.summary(local=True))."""
+    text = "\nSUMMARY\n========"
+    if config.clear_params:
+        text += "\n\nCLEAR PARAMETERS\n" + "\n".join(sorted(" * %s" % p for p in config.clear_params))
+    if params:
+        text += "\n\nPARAMETERS\n" + "\n".join(sorted(" * %s: %s" % (k, _summary_value(v)) for k, v in params.items()))
+    text += "\n\nNODES\n"
+    namespaces: dict[str, list[Any]] = {}
+    for n in config.nodes:
+        namespaces.setdefault(n.namespace, []).append(n)
+    for ns in sorted(namespaces):
+        text += "  %s\n" % ns + "\n".join(sorted("    %s (%s/%s)" % (n.name, n.package, n.type)
+                                                for n in namespaces[ns]))
+        text += "\n"
+    return text
+
+
+def _summary_value(value: Any) -> str:
+    """roslaunch's strip_string: at most 20 characters, `<...>` for unprintable ones."""
+    try:
+        value = str(value)
+    except Exception:  # noqa: BLE001 - as roslaunch
+        return "<...>"
+    if len(value) > 20:
+        value = value[:17] + "..."
+    for i, char in enumerate(value):
+        if ord(char) < 32 or ord(char) > 126:
+            value = value.rstrip()
+            if i >= len(value):
+                break
+            return "<...>"
+    return value
+
+
+def _is_local_host(host: str, environ: Mapping[str, str]) -> bool:
+    if host in ("localhost", "::1") or host.startswith("127."):
+        return True
+    names = {socket.gethostname()}
+    for key in ("ROS_HOSTNAME", "ROS_IP"):
+        if environ.get(key):
+            names.add(environ[key])
+    if host in names:
+        return True
+    try:
+        import psutil
+        local = {a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs}
+        resolved = {ai[4][0] for ai in socket.getaddrinfo(host, None)}
+    except (OSError, ImportError):
+        return False
+    return bool(local & resolved)
+
+
+class Launch:
+    """One `launch` run; the steps are methods so that the order reads like roslaunch's."""
+
+    def __init__(self, opts: Any, watchdog: Any = None):
+        self.opts = opts
+        self.watchdog = watchdog
+        self.environ = dict(os.environ)
+        self.config: Any = None
+        self.argv: list[str] = []
+        self.packages: Any = None
+        self.master: Any = None  # the embedded master, when we run it
+        self.rosout: Any = None
+        self.supervisor: Any = None
+        self.run_id = ""
+        self.run_log_dir = ""
+        self.master_uri = ""
+        self._stop = None
+        self._counter = 0
+        self._log_file: Any = None
+        self._tasks: list[asyncio.Task] = []
+
+    # ---- loading (synchronous; LaunchError -> the CLI prints it, exit 1) -------------------------------
+
+    def load(self) -> None:
+        from launcher.introspect import master_uri
+        from launcher.packages import PackageIndex
+        from launcher.xml import load, resolve_launch_arguments
+        opts = self.opts
+        self.packages = PackageIndex(self.environ)
+        files, self.argv = resolve_launch_arguments(list(opts.positional or []), self.packages)
+        if not files:
+            raise LaunchError("you must specify at least one input file")
+        self.config = load(files, self.argv, environ=self.environ, packages=self.packages,
+                           warn=lambda msg: console.printerrlog("WARNING: %s" % msg))
+        self.master_uri = master_uri(self.argv, self.environ)
+        if opts.port:
+            if not 0 < opts.port < 65536:
+                raise LaunchError("invalid port assignment: %s" % opts.port)
+            from launcher.master import advertised_host
+            self.master_uri = "http://%s:%d/" % (advertised_host(self.environ), opts.port)
+        if getattr(opts, "log_check_threshold", None):
+            from launcher.process.logdir import parse_size
+            try:
+                self.log_threshold = parse_size(opts.log_check_threshold)
+            except ValueError as e:
+                raise LaunchError("--log-check-threshold: %s" % e) from None
+        self._check_nodes()
+
+    def _check_nodes(self) -> None:
+        for node in self.config.nodes:
+            if self.opts.required and node.respawn:
+                raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"
+                                  % node.full_name, node.filename or None, node.line or None)
+            if node.respawn and node.required:
+                raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
+                                  node.filename or None, node.line or None)
+            if node.machine_name:
+                machine = self.config.machines.get(node.machine_name)
+                if machine is not None and not (machine.is_local or _is_local_host(machine.address, self.environ)):
+                    if not getattr(self.opts, "local", False):
+                        raise LaunchError(
+                            "node [%s] is assigned to machine [%s] at [%s]: launching nodes on other machines is "
+                            "not supported (use --local to skip them)" % (node.full_name, machine.name,
+                                                                           machine.address),
+                            node.filename or None, node.line or None)
+
+    def _remote(self, node: Any) -> bool:
+        if not node.machine_name:
+            return False
+        machine = self.config.machines.get(node.machine_name)
+        return machine is not None and not (machine.is_local or _is_local_host(machine.address, self.environ))
+
+    # ---- the run ---------------------------------------------------------------------------------------
+
+    async def main(self) -> int:
+        loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        # Handlers (not SIG_IGN) for the signals nodes must get at their default: exec resets handled
+        # signals, so nodes start with SIGINT at SIG_DFL even if we inherited it ignored.
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            loop.add_signal_handler(sig, self._on_signal, sig)
+        status = 0
+        try:
+            status = await self._run()
+        except _Stop:
+            pass
+        finally:
+            await self._teardown()
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                loop.remove_signal_handler(sig)
+        if self.supervisor is not None and self.supervisor.required_failed:
+            status = 1
+        return status
+
+    def _on_signal(self, sig: int) -> None:
+        if not self._stop.is_set():
+            self._stop.set()
+
+    def _check_stop(self) -> None:
+        if self._stop.is_set():
+            raise _Stop()
+
+    async def _run(self) -> int:
+        from launcher.process.supervisor import Supervisor
+        opts = self.opts
+        external = await self._find_master()
+        self._check_stop()
+        self.run_id = await self._decide_run_id(external)
+        self._setup_log_dir()
+        if not opts.no_summary:
+            console.printlog(summary(self.config, self._summary_params()))
+        if not external:
+            await self._start_master()
+        console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
+        await self._set_run_id(external)
+        if not external:
+            await self._start_rosout()
+        self._check_stop()
+        await self._rosparam_commands()
+        await self._load_parameters()
+        self._check_stop()
+        self.supervisor = Supervisor(sigint_timeout=opts.sigint_timeout, sigterm_timeout=opts.sigterm_timeout,
+                                     exit_when_all_dead=external, watchdog=self.watchdog)
+        self._launch_nodes()
+        self.supervisor.registrations_complete()
+        if not opts.skip_log_check:
+            from launcher.process.logdir import log_root, watch_log_disk
+            self._tasks.append(asyncio.ensure_future(watch_log_disk(log_root(self.environ), self.log_threshold)))
+        waiters = [asyncio.ensure_future(self._stop.wait()), asyncio.ensure_future(self.supervisor.done.wait())]
+        if self.master is not None:
+            waiters.append(asyncio.ensure_future(self.master.shutdown_requested.wait()))
+        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+        for w in waiters:
+            w.cancel()
+        if self.master is not None and self.master.shutdown_requested.is_set():
+            console.printlog("shutdown request: %s" % self.master.shutdown_reason)
+        return 0
+
+    log_threshold = 1073741824
+
+    # ---- master ----------------------------------------------------------------------------------------
+
+    async def _probe(self) -> bool:
+        from launcher.xmlrpc import call
+        try:
+            await call(self.master_uri, "getPid", _CALLER_ID, timeout=PROBE_TIMEOUT_S)
+            return True
+        except (OSError, asyncio.TimeoutError, ValueError):
+            return False
+        except Exception:  # noqa: BLE001 - anything answering XML-RPC with a fault is still a master
+            return True
+
+    async def _find_master(self) -> bool:
+        """True if a master already answers at the master URI (it is then used, as roslaunch does)."""
+        if await self._probe():
+            return True
+        if self.opts.wait:
+            console.printlog("master has not been started, waiting for it at %s ..." % self.master_uri)
+            while not await self._probe():
+                self._check_stop()
+                try:
+                    await asyncio.wait_for(self._stop.wait(), 0.1)
+                except asyncio.TimeoutError:
+                    pass
+            return True
+        host = urllib.parse.urlsplit(self.master_uri).hostname or ""
+        if not _is_local_host(host, self.environ):
+            raise LaunchError("unable to contact ROS master at [%s]; it is not on this machine, so it cannot be "
+                              "started here" % self.master_uri)
+        return False
+
+    async def _start_master(self) -> None:
+        from launcher.master import Master
+        port = urllib.parse.urlsplit(self.master_uri).port or 11311
+        console.printlog("auto-starting new master")
+        master = Master(port=port, environ=self.environ)
+        try:
+            await master.start()
+        except OSError as e:
+            raise LaunchError("unable to start the master on port %d: %s" % (port, e.strerror or e)) from None
+        self.master = master
+        from launcher.core import ros_version_params
+        rosversion, rosdistro = ros_version_params(self.environ)
+        master.set_param("/rosversion", rosversion)
+        master.set_param("/rosdistro", rosdistro)
+
+    def _summary_params(self) -> dict[str, Any]:
+        params = {k: p.value for k, p in self.config.params.items()}
+        from launcher.core import ros_version_params
+        rosversion, rosdistro = ros_version_params(self.environ)
+        params.setdefault("/rosversion", rosversion)
+        params.setdefault("/rosdistro", rosdistro)
+        return params
+
+    async def _decide_run_id(self, external: bool) -> str:
+        if external:
+            from launcher.xmlrpc import call
+            try:
+                code, _msg, value = await call(self.master_uri, "getParam", _CALLER_ID, "/run_id",
+                                               timeout=PARAM_TIMEOUT_S)
+            except Exception:  # noqa: BLE001
+                code, value = 0, None
+            if code == 1 and value:
+                if self.opts.run_id and self.opts.run_id != value:
+                    raise LaunchError("run_id on parameter server does not match declared run_id: %s vs %s"
+                                      % (value, self.opts.run_id))
+                return str(value)
+        return self.opts.run_id or str(uuid.uuid1())
+
+    async def _set_run_id(self, external: bool) -> None:
+        if self.master is not None:
+            self.master.set_param("/run_id", self.run_id)
+            console.printlog_bold("setting /run_id to %s" % self.run_id)
+            return
+        from launcher.xmlrpc import call
+        code, _msg, has = await call(self.master_uri, "hasParam", _CALLER_ID, "/run_id", timeout=PARAM_TIMEOUT_S)
+        if code == 1 and not has:
+            console.printlog_bold("setting /run_id to %s" % self.run_id)
+            await call(self.master_uri, "setParam", _CALLER_ID, "/run_id", self.run_id, timeout=PARAM_TIMEOUT_S)
+
+    async def _start_rosout(self) -> None:
+        try:
+            from launcher.rosout import Rosout
+        except ImportError as e:
+            console.printerrlog("no built-in rosout available (%s): /rosout is not served" % e)
+            return
+        rosout = Rosout(self.master_uri, self.run_log_dir, environ=self.environ)
+        try:
+            await rosout.start()
+        except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector
+            console.printerrlog("could not start the built-in rosout: %s" % e)
+            return
+        self.rosout = rosout
+        # roslaunch runs rosout as process "rosout-1"; keep node numbering (and log file names) the same
+        self._counter += 1
+        console.printlog("started core service [/rosout]")
+
+    # ---- logs ------------------------------------------------------------------------------------------
+
+    def _setup_log_dir(self) -> None:
+        from launcher.process.logdir import make_run_log_dir
+        self.run_log_dir = make_run_log_dir(self.environ, self.run_id)
+        path = os.path.join(self.run_log_dir, "roslaunch-%s-%d.log" % (socket.gethostname(), os.getpid()))
+        try:
+            self._log_file = open(path, "a", buffering=1)
+        except OSError:
+            self._log_file = None
+            return
+        console.add_handler(self._log_line)
+        console.printlog("... logging to %s" % path)
+
+    def _log_line(self, msg: str) -> None:
+        if self._log_file is not None:
+            now = time.time()
+            self._log_file.write("[%s.%03d] %s\n" % (time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(now)),
+                                                     int(now * 1000) % 1000, msg))
+
+    # ---- parameters ------------------------------------------------------------------------------------
+
+    async def _rosparam_commands(self) -> None:
+        """`<rosparam command="delete|dump">`, in document order, before the parameters are set."""
+        for command, key, filename in getattr(self.config, "rosparam_commands", ()):
+            try:
+                if command == "delete":
+                    await self._delete_param(key)
+                elif command == "dump" and filename:
+                    from launcher.params.rosyaml import dump_yaml
+                    value = await self._get_param(key)
+                    with open(filename, "w") as f:
+                        f.write(dump_yaml(value))
+            except (KeyError, OSError, LaunchError) as e:
+                console.printerrlog("rosparam %s %s failed: %s" % (command, key, e))
+
+    async def _delete_param(self, key: str) -> None:
+        if self.master is not None:
+            try:
+                self.master.delete_param(key)
+            except KeyError:
+                pass
+            return
+        from launcher.xmlrpc import call
+        await call(self.master_uri, "deleteParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+
+    async def _get_param(self, key: str) -> Any:
+        if self.master is not None:
+            return self.master.params.get(key)
+        from launcher.xmlrpc import call
+        code, msg, value = await call(self.master_uri, "getParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+        if code != 1:
+            raise LaunchError(msg)
+        return value
+
+    async def _load_parameters(self) -> None:
+        """Clear the `clear_params` namespaces, then set every parameter, before any node starts."""
+        params = [(p.key, p.value) for p in self.config.params.values()]
+        clear = list(self.config.clear_params)
+        if self.master is not None:
+            tree = self.master.params
+            for ns in clear:
+                try:
+                    if tree.has(ns):
+                        self.master.delete_param(ns)
+                except KeyError:
+                    pass
+            for key, value in params:
+                self.master.set_param(key, value)
+            return
+        if not params and not clear:
+            return
+        from launcher.xmlrpc import call
+        # one round trip: deletes first, then sets (the master runs a multicall in order)
+        calls = [{"methodName": "deleteParam", "params": [_CALLER_ID, ns]} for ns in clear]
+        calls += [{"methodName": "setParam", "params": [_CALLER_ID, k, v]} for k, v in params]
+        try:
+            results = await call(self.master_uri, "system.multicall", calls, timeout=PARAM_TIMEOUT_S)
+        except Exception as e:  # noqa: BLE001
+            raise LaunchError("cannot set the launch's parameters on the master at [%s]: %s"
+                              % (self.master_uri, e)) from None
+        for (key, _value), result in zip(params, results[len(clear):]):
+            if isinstance(result, dict):
+                raise LaunchError("Failed to set parameter [%s]: %s" % (key, result.get("faultString")))
+            code, msg, _ = result[0]
+            if code != 1:
+                raise LaunchError("Failed to set parameter: %s" % msg)
+
+    # ---- nodes -----------------------------------------------------------------------------------------
+
+    def _launch_nodes(self) -> None:
+        from launcher.command import node_command
+        from launcher.names import ns_join
+        from launcher.process.supervisor import ProcessSpec
+        opts = self.opts
+        for node in self.config.nodes:
+            if self._stop.is_set():
+                break
+            if self._remote(node):
+                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)" % node.full_name)
+                continue
+            self._counter += 1
+            name = "%s-%d" % (ns_join(node.namespace, node.name), self._counter)
+            name = name.lstrip("/")
+            log_name = name.replace("/", "-")
+            required = node.required or opts.required
+            try:
+                cmd = node_command(node, master_uri=self.master_uri, environ=self.environ, packages=self.packages,
+                                   log_file=os.path.join(self.run_log_dir, log_name + ".log"))
+            except LaunchError as e:
+                self.supervisor.report_failed(
+                    name, "ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e),
+                    required=required)
+                continue
+            output = node.output or "log"
+            if opts.screen:
+                output = "screen"
+            elif getattr(opts, "log", False):
+                output = "log"
+            spec = ProcessSpec(
+                name=name, argv=cmd.argv, env=cmd.env, cwd=cmd.cwd,
+                stdout_path=os.path.join(self.run_log_dir, log_name + "-stdout.log") if output == "log" else None,
+                log_dir=self.run_log_dir, respawn=node.respawn, respawn_delay=node.respawn_delay,
+                required=required)
+            self.supervisor.start(spec)
+
+    # ---- shutdown --------------------------------------------------------------------------------------
+
+    async def _teardown(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        if self.supervisor is not None:
+            await self.supervisor.shutdown()
+            self.supervisor.close()
+        if self.rosout is not None:
+            console.printlog("[rosout-1] killing on exit")
+            try:
+                await self.rosout.stop()
+            except Exception as e:  # noqa: BLE001 - the master must still stop
+                console.printerrlog("error stopping rosout: %s" % e)
+        if self.master is not None:
+            console.printlog("[master] killing on exit")
+            await self.master.stop()
+        console.printlog("shutting down processing monitor...")
+        console.printlog("... shutting down processing monitor complete")
+        console.printlog_bold("done")
+        if self._log_file is not None:
+            console.remove_handler(self._log_line)
+            self._log_file.close()
+            self._log_file = None
+        sys.stdout.flush()
