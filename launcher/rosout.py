@@ -178,10 +178,8 @@ class Rosout:
 
     async def start(self) -> None:
         """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout."""
-        from rosbags.typesys import Stores, get_typestore  # heavy; only when rosout runs
-        from launcher.slave import SlaveNode
-
-        from rosbags.typesys import get_types_from_msg
+        # rosbags is heavy: imported only when rosout runs, not on every `launch`.
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         self._typestore = get_typestore(Stores.ROS1_NOETIC)
         types: dict[str, Any] = {}
@@ -199,8 +197,9 @@ class Rosout:
         await self._start_node(mtype)
 
     async def _start_node(self, mtype: TopicType) -> None:
-        from launcher.slave import SlaveNode
-        self.node = SlaveNode(self.name, self.master_uri, host=self.host)
+        from launcher.slave import SlaveNode, default_host
+        self.node = SlaveNode(self.name, self.master_uri,
+                              host=self.host or default_host(self.environ))
         await self.node.start()
         try:
             self._agg = await self.node.advertise("/rosout_agg", mtype)
