@@ -497,6 +497,160 @@ CASES = [
     Case("test_bad_time_limit", {MAIN: L('<test test-name="t" pkg="p" type="t" time-limit="-1"/>')}, error=True),
     Case("test_missing_test_name", {MAIN: L('<test pkg="p" type="t"/>')}, error=True),
 
+    # ---------------------------------------------------------------- more scoping and quirks
+    Case("remap_redefined_moves_to_end", {MAIN: L("""
+  <remap from="a" to="a1"/>
+  <remap from="b" to="b2"/>
+  <node pkg="p" type="t" name="n">
+    <remap from="a" to="a3"/>
+  </node>
+  <group>
+    <remap from="a" to="a4"/>
+    <node pkg="p" type="t" name="m"/>
+  </group>""")},
+         nodes=["/n", "/m"],
+         fields={"/n": {"remap_args": [["b", "b2"], ["a", "a3"]]}, "/m": {"remap_args": [["b", "b2"], ["a", "a4"]]}}),
+    Case("remap_to_invalid_name", {MAIN: L('<remap from="a" to="1"/>')}, error=True),
+    Case("node_bool_and_enum_spellings", {MAIN: L("""
+  <node pkg="p" type="t" name="a" respawn="True" cwd="ros_home"/>
+  <node pkg="p" type="t" name="b" required="TRUE" respawn="false"/>""")},
+         nodes=["/a", "/b"],
+         fields={"/a": {"respawn": True, "cwd": "ROS_HOME"}, "/b": {"required": True, "respawn": False}}),
+    # unlike if=/unless= and type="bool", node flags take only true/false
+    Case("node_bool_1_is_invalid", {MAIN: L('<node pkg="p" type="t" name="b" required="1"/>')}, error=True),
+    Case("node_output_case", {MAIN: L('<node pkg="p" type="t" name="a" output="SCREEN"/>')}, error=True),
+    Case("node_empty_ns", {MAIN: L('<group ns="g"><node pkg="p" type="t" name="a" ns=""/></group>')},
+         error=True),
+    Case("node_if_false_drops_its_params", {MAIN: L("""
+  <node pkg="p" type="t" name="off" if="false"><param name="x" value="1"/></node>
+  <node pkg="p" type="t" name="on"><param name="x" value="1" unless="true"/><param name="y" value="2"/></node>""")},
+         nodes=["/on"], params={"/on/y": 2}),
+    Case("node_launch_prefix_and_args_from_args", {MAIN: L("""
+  <arg name="debug" default="gdb -ex run --args"/>
+  <node pkg="p" type="t" name="n" launch-prefix="$(arg debug)" args="$(optenv SPEC_UNSET a  b)"/>""")},
+         nodes=["/n"], fields={"/n": {"launch_prefix": "gdb -ex run --args", "args": "a b"}}),
+    Case("anon_node_names_are_generated", {MAIN: L('<node pkg="p" type="t" name="$(anon talker)"/>')},
+         nodes=None),
+    Case("cli_private_and_unknown_args_ignored", {MAIN: L("""
+  <arg name="a" default="x"/>
+  <param name="a" value="$(arg a)"/>""")},
+         argv=["_a:=private", "b:=undeclared", "a:=  cli  "], params={"/a": "cli"}),
+    Case("cli_ns_with_group_and_global", {MAIN: L("""
+  <group ns="g"><node pkg="p" type="t" name="n"/></group>
+  <group ns="/abs"><node pkg="p" type="t" name="m"/></group>
+  <param name="/glob" value="1"/>""")},
+         argv=["__ns:=/top"], nodes=["/top/g/n", "/abs/m"], params={"/glob": 1}),
+    Case("ros_namespace_relative", {MAIN: L('<node pkg="p" type="t" name="n"/>')},
+         env={"ROS_NAMESPACE": "rel"}, nodes=["/rel/n"]),
+    Case("arg_doc_and_default_resolved_lazily", {MAIN: L("""
+  <arg name="a" default="1" doc="the a"/>
+  <arg name="b" default="$(arg a)0"/>
+  <param name="b" value="$(arg b)"/>""")},
+         argv=["a:=7"], params={"/b": 70}),
+    Case("arg_default_uses_later_arg", {MAIN: L("""
+  <arg name="b" default="$(arg a)"/>
+  <arg name="a" default="1"/>""")}, error=True),
+    Case("eval_args_are_typed_like_params", {MAIN: L("""
+  <arg name="i" default="3"/>
+  <arg name="f" default="0.5"/>
+  <arg name="b" default="true"/>
+  <arg name="s" default="1_0"/>
+  <param name="sum" value="$(eval i + f)"/>
+  <param name="neg" value="$(eval not b)"/>
+  <param name="s" value="$(eval s + 'x')"/>""")},
+         params={"/sum": 3.5, "/neg": False, "/s": "1_0x"}),
+    Case("eval_undefined_name", {MAIN: L('<param name="x" value="$(eval nope + 1)"/>')}, error=True),
+    Case("include_dirname_is_included_files_dir", {
+        MAIN: L('<include file="$(dirname)/sub/inc.launch"/>'),
+        "launch/sub/inc.launch": L('<param name="d" value="$(dirname)"/>')},
+         params={"/d": "@PKG@/launch/sub"}),
+    Case("include_env_child_and_nested_ns", {
+        MAIN: L("""
+  <group ns="outer">
+    <include file="$(dirname)/inc.launch" ns="inner">
+      <env name="SPEC_INC" value="yes"/>
+    </include>
+  </group>
+  <node pkg="p" type="t" name="after"/>"""),
+        "launch/inc.launch": L('<node pkg="p" type="t" name="n"/><param name="p" value="1"/>')},
+         nodes=["/outer/inner/n", "/after"], params={"/outer/inner/p": 1},
+         fields={"/outer/inner/n": {"env_args": [["SPEC_INC", "yes"]]}, "/after": {"env_args": []}}),
+    Case("include_clear_params_needs_ns", {
+        MAIN: L('<include file="$(dirname)/inc.launch" clear_params="true"/>'),
+        "launch/inc.launch": "<launch/>"}, error=True),
+    Case("include_pass_all_args_with_unused", {
+        MAIN: L("""
+  <arg name="a" default="1"/>
+  <arg name="extra" default="2"/>
+  <include file="$(dirname)/inc.launch" pass_all_args="true"/>"""),
+        "launch/inc.launch": L('<arg name="a"/><param name="a" value="$(arg a)"/>')},
+         params={"/a": 1}),
+    Case("include_args_evaluated_in_parent", {
+        MAIN: L("""
+  <arg name="x" default="parent"/>
+  <include file="$(dirname)/inc.launch"><arg name="y" value="$(arg x)-$(dirname)"/></include>"""),
+        "launch/inc.launch": L('<arg name="y"/><param name="y" value="$(arg y)"/>')},
+         params={"/y": "parent-@PKG@/launch"}),
+    Case("include_same_file_twice", {
+        MAIN: L("""
+  <include file="$(dirname)/inc.launch" ns="one"/>
+  <include file="$(dirname)/inc.launch" ns="two"/>"""),
+        "launch/inc.launch": L('<node pkg="p" type="t" name="n"/>')},
+         nodes=["/one/n", "/two/n"]),
+    Case("include_of_non_launch_root", {
+        MAIN: L('<include file="$(dirname)/inc.xml"/>'),
+        "launch/inc.xml": '<launch><param name="x" value="1"/></launch>'},
+         params={"/x": 1}),
+    Case("rosparam_load_into_node_ns_and_param", {
+        MAIN: L("""
+  <node pkg="p" type="t" name="n">
+    <rosparam command="load" file="$(find spec_pkg)/c.yaml" ns="sub"/>
+    <rosparam command="load" file="$(find spec_pkg)/c.yaml" param="as_param"/>
+  </node>
+  <group ns="g">
+    <rosparam command="load" file="$(find spec_pkg)/c.yaml" param="/abs"/>
+  </group>"""),
+        "c.yaml": "k: 1\n"},
+         nodes=["/n"], params={"/n/sub/k": 1, "/n/as_param/k": 1, "/abs/k": 1}),
+    Case("rosparam_multi_document_file", {
+        MAIN: L('<rosparam command="load" file="$(find spec_pkg)/c.yaml"/>'),
+        "c.yaml": "a: 1\n---\nb: 2\n"}, error=True),
+    Case("rosparam_subst_value_in_file", {
+        MAIN: L("""
+  <arg name="v" default="5"/>
+  <rosparam command="load" file="$(find spec_pkg)/c.yaml" subst_value="true"/>"""),
+        "c.yaml": "v: $(arg v)\n"},
+         params={"/v": 5}),
+    Case("rosparam_list_and_nested_values_types", {MAIN: L("""
+  <rosparam>
+    ints: [1, -2, 0x1F, 0o7]
+    floats: [1.0, .5, 1e3, -.inf]
+    strs: ['1', "two", 1_000x]
+    bools: [yes, No, on, OFF, true]
+    nothing: ~
+  </rosparam>""")},
+         params={"/ints": [1, -2, 31, "0o7"], "/floats": [1.0, 0.5, "1e3", -math.inf],
+                 "/strs": ["1", "two", "1_000x"], "/bools": [True, False, True, False, True], "/nothing": None}),
+    Case("param_in_group_with_private_ns", {MAIN: L("""
+  <group ns="g">
+    <param name="~p" value="1"/>
+    <node pkg="p" type="t" name="n"/>
+  </group>
+  <node pkg="p" type="t" name="outside"/>""")},
+         nodes=["/g/n", "/outside"], params={"/g/n/p": 1}),
+    Case("param_yaml_type_dict_unrolled", {MAIN: L("""
+  <param name="d" type="yaml" value="{a: 1, b: {c: 2}}"/>
+  <param name="l" type="yaml" value="[{a: 1}]"/>""")},
+         # unlike <rosparam>, a yaml-typed <param> keeps its dict as one value
+         params={"/d": {"a": 1, "b": {"c": 2}}, "/l": [{"a": 1}]}),
+    Case("deprecated_launch_attribute", {MAIN: '<launch deprecated="use other.launch"><param name="x" value="1"/></launch>'},
+         params={"/x": 1}),
+    Case("machine_attributes", {MAIN: L("""
+  <machine name="m1" address="127.0.0.1" user="me" ssh-port="2222" timeout="5.5" default="never"/>
+  <node pkg="p" type="t" name="n"/>""")},
+         nodes=["/n"], fields={"/n": {"machine_name": None}}),
+    Case("machine_bad_ssh_port", {MAIN: L('<machine name="m1" address="h" ssh-port="x"/>')}, error=True),
+    Case("machine_missing_address", {MAIN: L('<machine name="m1"/>')}, error=True),
     # ---------------------------------------------------------------- documents
     Case("empty_launch", {MAIN: "<launch/>"}, params={}, nodes=[]),
     Case("launch_nested_in_other_root", {MAIN: '<root><launch><param name="x" value="1"/></launch></root>'},
