@@ -172,16 +172,41 @@ def cpp_logger(ros_env, tmp_path_factory) -> str:
     return exe
 
 
-@pytest.fixture
-def graph(ros_env, tmp_path):
-    """A real master (Debian's rosmaster) on a free loopback port, and the env for nodes."""
+class MasterThread:
+    """The launcher's own embedded master, on its own loop in a thread."""
+
+    def __init__(self, port: int):
+        from launcher.master import Master
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+
+        async def start() -> Any:
+            master = Master("127.0.0.1", port, uri_host="127.0.0.1")
+            await master.start()
+            return master
+        self.master = asyncio.run_coroutine_threadsafe(start(), self.loop).result(30)
+
+    def stop(self) -> None:
+        asyncio.run_coroutine_threadsafe(self.master.stop(), self.loop).result(30)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+
+
+@pytest.fixture(params=["rosmaster", "launcher-master"])
+def graph(request, ros_env, tmp_path):
+    """A master on a free loopback port (Debian's rosmaster, or ours), and the env for nodes."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("ROS_")}
     env.update(PATH=ros_env["path"], ROS_MASTER_URI="http://127.0.0.1:%d/" % port,
                ROS_HOSTNAME="127.0.0.1", ROS_LOG_DIR=str(tmp_path / "ros_log"),
                ROS_HOME=str(tmp_path / "ros_home"), PYTHONUNBUFFERED="1")
     procs = Procs(env)
-    procs.start(["rosmaster", "--core", "-p", str(port)])
+    embedded = None
+    if request.param == "rosmaster":
+        procs.start(["rosmaster", "--core", "-p", str(port)])
+    else:
+        embedded = MasterThread(port)
     master = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])
     wait_for(lambda: _master_up(master), what="rosmaster")
     py = tmp_path / "py_logger.py"
@@ -193,6 +218,8 @@ def graph(ros_env, tmp_path):
         yield g
     finally:
         procs.kill_all()
+        if embedded is not None:
+            embedded.stop()
 
 
 def _master_up(master: xmlrpc.client.ServerProxy) -> bool:
