@@ -128,6 +128,15 @@ def _mutate_bytes(data, raw: bytes) -> bytes:
     return raw
 
 
+def _event(name: str) -> None:
+    """Count outcomes in hypothesis' statistics (--hypothesis-show-statistics), outside it a no-op."""
+    from hypothesis.errors import InvalidArgument
+    try:
+        event(name)
+    except InvalidArgument:
+        pass
+
+
 def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
     from launcher.command import node_command
     from launcher.params.rosyaml import dump_yaml
@@ -138,9 +147,9 @@ def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
             config = load([path], argv, environ=env, packages=packages, core=False)
         except LaunchError as e:
             assert str(e)
-            event("load refused")
+            _event("load refused")
             return
-        event("loaded")
+        _event("loaded")
         dump_yaml({k: p.value for k, p in config.params.items()})
         for node in list(config.nodes) + list(config.tests):
             try:
@@ -149,7 +158,7 @@ def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
                 assert str(e)
                 continue
             assert cmd.argv and all(isinstance(a, str) for a in cmd.argv)
-            event("node command computed")
+            _event("node command computed")
 
 
 FUZZ_SETTINGS = settings(max_examples=200, deadline=None, database=None,
