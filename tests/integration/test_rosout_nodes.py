@@ -478,3 +478,21 @@ def test_rosgraph_encodes_headers_like_us(graph):
     # Field order carries no meaning (rosgraph sorts); lengths and layout must be identical.
     assert decode_header(theirs[4:]) == fields
     assert theirs == encode_header(dict(sorted(fields.items())))
+
+
+def test_load_from_several_publishers_loses_nothing(graph, rosout, cpp_logger):
+    """A short version of benchmarks/rosout_load.py: 3 roscpp nodes x 2000 msg/s for 1 s, plus a
+    rospy node, all at once; every line reaches rosout.log, in each node's order."""
+    path = rosout.rosout.log_path
+    names = ["load_%d" % i for i in range(3)]
+    for name in names:
+        graph.procs.start([cpp_logger, "__name:=" + name, "2000", "2000"])
+    graph.procs.start([graph.python, graph.py_logger, "__name:=py_load", "300"])
+    nodes = ["/" + n for n in names] + ["/py_load"]
+    start_go(graph, path, nodes)
+    wait_for(lambda: all(lines_of(path, n, "done") for n in nodes), timeout=60,
+             what="every node's last line")
+    for node, count in [(n, 2000) for n in nodes[:3]] + [("/py_load", 300)]:
+        got = [l.rsplit("] ", 1)[1] for l in lines_of(path, node)]
+        assert [g for g in got if g.startswith("load ")] == ["load %d" % i for i in range(count)]
+    assert rosout.call(lambda: rosout.rosout.undecodable) == 0
