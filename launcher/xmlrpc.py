@@ -21,7 +21,7 @@ from xml.parsers import expat
 from xmlrpc.client import Binary, DateTime
 
 __all__ = [
-    "Fault", "XmlRpcError", "loads_request", "loads_response", "dumps_request",
+    "Encoded", "encode_value", "Fault", "XmlRpcError", "loads_request", "loads_response", "dumps_request",
     "dumps_response", "dumps_fault", "XmlRpcServer", "call", "multicall",
 ]
 
@@ -50,17 +50,37 @@ class XmlRpcError(ValueError):
 # encoding
 # ---------------------------------------------------------------------------
 
-_ESCAPE_NEEDED = re.compile(r"[&<>]")
-
-
 def _escape(s: str) -> str:
-    if _ESCAPE_NEEDED.search(s) is None:
-        return s
-    return s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    if "&" in s or "<" in s or ">" in s:
+        return s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return s
+
+
+class Encoded(str):
+    """A `<value>...</value>` fragment that is already encoded: sent verbatim.
+
+    Lets a server cache the encoding of large, rarely changing replies
+    (getSystemState, getParamNames) piece by piece.
+    """
+
+    __slots__ = ()
+
+
+def encode_value(value: Any) -> Encoded:
+    """`value` as an Encoded fragment (raises OverflowError/TypeError if it cannot be sent)."""
+    out: list[str] = []
+    _encode_value(value, out)
+    return Encoded("".join(out))
+
+
+def _enc_encoded(v: Encoded, out: list[str]) -> None:
+    out.append(v)
 
 
 def _enc_str(v: str, out: list[str]) -> None:
-    out.append("<value><string>" + _escape(v) + "</string></value>")
+    if "&" in v or "<" in v or ">" in v:
+        v = v.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    out.append("<value><string>" + v + "</string></value>")
 
 
 def _enc_int(v: int, out: list[str]) -> None:
@@ -95,30 +115,40 @@ def _enc_pydatetime(v: datetime.datetime, out: list[str]) -> None:
 
 
 def _enc_list(v: list | tuple, out: list[str]) -> None:
-    out.append("<value><array><data>")
+    append = out.append
+    append("<value><array><data>")
     for item in v:
-        enc = _ENCODERS.get(type(item))
+        t = type(item)
+        if t is str:  # the common case inline: names, URIs, messages
+            if "&" in item or "<" in item or ">" in item:
+                item = item.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+            append("<value><string>" + item + "</string></value>")
+            continue
+        enc = _ENCODERS.get(t)
         if enc is None:
             enc = _encoder_for(item)
         enc(item, out)
-    out.append("</data></array></value>")
+    append("</data></array></value>")
 
 
 def _enc_dict(v: dict, out: list[str]) -> None:
-    out.append("<value><struct>")
+    append = out.append
+    append("<value><struct>")
     for key, item in v.items():
         if type(key) is not str:
             if isinstance(key, str):
                 key = str(key)
             else:
                 raise TypeError("dictionary key must be string")
-        out.append("<member><name>%s</name>" % _escape(key))
+        if "&" in key or "<" in key or ">" in key:
+            key = _escape(key)
+        append("<member><name>" + key + "</name>")
         enc = _ENCODERS.get(type(item))
         if enc is None:
             enc = _encoder_for(item)
         enc(item, out)
-        out.append("</member>")
-    out.append("</struct></value>")
+        append("</member>")
+    append("</struct></value>")
 
 
 def _enc_none(v: None, out: list[str]) -> None:
@@ -131,6 +161,7 @@ _ENCODERS: dict[type, Callable[[Any, list[str]], None]] = {
     bytes: _enc_bytes, bytearray: _enc_bytes, Binary: _enc_binary,
     DateTime: _enc_datetime, datetime.datetime: _enc_pydatetime,
     list: _enc_list, tuple: _enc_list, dict: _enc_dict, type(None): _enc_none,
+    Encoded: _enc_encoded,
 }
 
 
@@ -317,8 +348,71 @@ def _parse(data: bytes) -> _Unmarshaller:
     return u
 
 
+# The shape nearly every call has (flat scalar params, as rospy, roscpp and the
+# ROS tools send them) is read with two regular expressions; anything else
+# (arrays, structs, entities, other encodings, CR characters, ...) goes through
+# expat. The fast path accepts nothing expat would read differently.
+_FAST_CALL = re.compile(
+    r"(?:<\?xml version=(['\"])1\.0\1(?:\s+encoding=(['\"])(?:utf-8|UTF-8)\2)?\s*\?>)?\s*"
+    r"<methodCall>\s*<methodName>([^<&\s]+)</methodName>\s*(?:<params>(.*)</params>\s*|<params/>\s*)?"
+    r"</methodCall>\s*\Z", re.S)
+_FAST_PARAM = re.compile(
+    r"\s*<param>\s*<value>(?:<(string|int|i4|double|boolean)>([^<&]*)</\1>|([^<&]*))</value>\s*</param>")
+_FAST_SPACE = re.compile(r"\s*\Z")
+
+
+def _loads_request_fast(data: bytes) -> tuple[str, list[Any]] | None:
+    """The common flat request, or None when expat must decide."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    if "\r" in text:
+        return None  # XML turns CR/LF into LF: expat's business
+    m = _FAST_CALL.match(text)
+    if m is None:
+        return None
+    body = m.group(4)
+    params: list[Any] = []
+    if body:
+        pos = 0
+        end = len(body)
+        match = _FAST_PARAM.match
+        while pos < end:
+            pm = match(body, pos)
+            if pm is None:
+                if _FAST_SPACE.match(body, pos):
+                    break
+                return None
+            tag = pm.group(1)
+            if tag is None:
+                params.append(pm.group(3))
+            else:
+                value = pm.group(2)
+                if tag == "string":
+                    params.append(value)
+                elif tag == "boolean":
+                    if value == "1":
+                        params.append(True)
+                    elif value == "0":
+                        params.append(False)
+                    else:
+                        return None
+                else:
+                    try:
+                        params.append(float(value) if tag == "double" else int(value))
+                    except ValueError:
+                        return None
+            pos = pm.end()
+    return m.group(3), params
+
+
 def loads_request(data: bytes) -> tuple[str, list[Any]]:
     """Parse a methodCall: `(method_name, params)`; raises XmlRpcError if it is not one."""
+    if len(data) < 4096:
+        fast = _loads_request_fast(data)
+        if fast is not None:
+            return fast
     u = _parse(data)
     if u.kind != "methodCall" or u.method is None:
         raise XmlRpcError("not an XML-RPC methodCall")
@@ -416,6 +510,18 @@ def _http_response(status: int, reason: str, body: bytes, keep_alive: bool,
         b"" if keep_alive else b"Connection: close\r\n",
         b"\r\n", body,
     ))
+
+
+def _header_values(low_head: bytes, marker: bytes) -> list[bytes]:
+    """Stripped values of every header line starting with `marker` (b"\\r\\nname:")."""
+    out = []
+    i = low_head.find(marker)
+    while i >= 0:
+        start = i + len(marker)
+        end = low_head.find(b"\r\n", start)
+        out.append(low_head[start:end if end >= 0 else len(low_head)].strip())
+        i = low_head.find(marker, start)
+    return out
 
 
 class _HttpError(Exception):
@@ -528,46 +634,43 @@ class _Connection(asyncio.Protocol):
             self._handle(body, keep_alive)
 
     def _parse_head(self, head: bytes) -> tuple[bytes, int, bool, bool]:
-        lines = head.split(b"\r\n")
-        request_line = lines[0].split()
+        """(path, content length, keep-alive, expects 100-continue) of a request head."""
+        low = head.lower()  # header names are case-insensitive; only these few matter here
+        nl = low.find(b"\r\n")
+        request_line = (head if nl < 0 else head[:nl]).split()
         if len(request_line) != 3 or not request_line[2].startswith(b"HTTP/1."):
             raise _HttpError(400, "Bad Request")
         method, target, version = request_line
-        if len(lines) - 1 > self.server.max_header_count:
+        if low.count(b"\r\n") > self.server.max_header_count:
             raise _HttpError(431, "Request Header Fields Too Large")
         if method != b"POST":
             raise _HttpError(501, "Unsupported method (%s)" % method.decode("latin-1")[:16])
+        if b"\r\ntransfer-encoding:" in low:
+            raise _HttpError(501, "Transfer-Encoding not supported")
+        values = _header_values(low, b"\r\ncontent-length:")
+        if not values:
+            raise _HttpError(411, "Length Required")
+        try:
+            lengths = {int(v) for v in values}
+        except ValueError:
+            raise _HttpError(400, "Bad Request") from None
+        if len(lengths) != 1:
+            raise _HttpError(400, "Bad Request")
+        length = lengths.pop()
+        if length < 0:
+            raise _HttpError(400, "Bad Request")
+        if length > self.server.max_request_size:
+            raise _HttpError(413, "Request Entity Too Large")
         keep_alive = version == b"HTTP/1.1"
-        length = -1
-        expect_continue = False
-        for line in lines[1:]:
-            name, sep, value = line.partition(b":")
-            if not sep:
-                raise _HttpError(400, "Bad Request")
-            name = name.strip().lower()
-            if name == b"content-length":
-                try:
-                    n = int(value.strip())
-                except ValueError:
-                    raise _HttpError(400, "Bad Request") from None
-                if n < 0 or (length >= 0 and n != length):
-                    raise _HttpError(400, "Bad Request")
-                length = n
-            elif name == b"connection":
-                v = value.strip().lower()
+        if b"\r\nconnection:" in low:
+            for v in _header_values(low, b"\r\nconnection:"):
                 if b"close" in v:
                     keep_alive = False
                 elif b"keep-alive" in v:
                     keep_alive = True
-            elif name == b"transfer-encoding":
-                raise _HttpError(501, "Transfer-Encoding not supported")
-            elif name == b"expect":
-                expect_continue = value.strip().lower() == b"100-continue"
-        if length < 0:
-            raise _HttpError(411, "Length Required")
-        if length > self.server.max_request_size:
-            raise _HttpError(413, "Request Entity Too Large")
-        target = target.split(b"?", 1)[0]
+        expect_continue = b"\r\nexpect:" in low and b"100-continue" in _header_values(low, b"\r\nexpect:")
+        if b"?" in target:
+            target = target.split(b"?", 1)[0]
         if target.startswith(b"http://"):  # absolute-form request target
             target = b"/" + target[7:].partition(b"/")[2]
         return target, length, keep_alive, expect_continue
@@ -588,7 +691,7 @@ class _Connection(asyncio.Protocol):
             f = _exception_fault(e)
             self._reply_body(dumps_fault(f.faultCode, f.faultString), keep_alive)
             return
-        if inspect.isawaitable(result):
+        if type(result) is not tuple and inspect.isawaitable(result):
             self.busy = True
             task = asyncio.ensure_future(result)
             task.add_done_callback(lambda t: self._async_done(t, keep_alive))

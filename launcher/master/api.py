@@ -15,7 +15,7 @@ from typing import Any, Callable
 from launcher.master import registry as reg
 from launcher.master.notify import Notifier
 from launcher.params.tree import ParamTree, copy_tree
-from launcher.xmlrpc import Fault
+from launcher.xmlrpc import Encoded, Fault, encode_value
 
 SEP = "/"
 ANYTYPE = "*"
@@ -189,6 +189,7 @@ class MasterApi:
         self.params = params if params is not None else ParamTree()
         self.registry = reg.Registry(self._bumped)
         self.topic_types: dict[str, str] = {}
+        self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None
         self.pid = os.getpid()
         V = None  # noqa: N806 - "no validation" in the tables below
@@ -357,7 +358,11 @@ class MasterApi:
         return 1, key, self.params.has(key)
 
     def getParamNames(self, caller_id: str) -> tuple:  # noqa: N802
-        return 1, "Parameter names", self.params.names()
+        tree = self.params
+        cache = self._names_cache
+        if cache is None or cache[0] != id(tree.root) or cache[1] != tree.shape_version:
+            cache = self._names_cache = (id(tree.root), tree.shape_version, encode_value(tree.names()))
+        return 1, "Parameter names", cache[2]
 
     def registerService(self, caller_id: str, service: str, service_api: str, caller_api: str) -> tuple:  # noqa: N802
         self.registry.register(reg.SERVICES, service, caller_id, caller_api, service_api)
@@ -411,5 +416,5 @@ class MasterApi:
 
     def getSystemState(self, caller_id: str) -> tuple:  # noqa: N802
         r = self.registry
-        return 1, "current system state", [r.publishers.get_state(), r.subscribers.get_state(),
-                                           r.services.get_state()]
+        return 1, "current system state", [r.publishers.get_state_encoded(), r.subscribers.get_state_encoded(),
+                                           r.services.get_state_encoded()]

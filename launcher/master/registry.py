@@ -8,6 +8,8 @@ re-registered with a new API bumping the old one.
 
 from __future__ import annotations
 
+from launcher.xmlrpc import Encoded, encode_value
+
 PUBLICATIONS = 1
 SUBSCRIPTIONS = 2
 SERVICES = 3
@@ -33,12 +35,19 @@ class NodeRef:
 class Registrations:
     """key (topic, service or parameter key) -> [(caller_id, caller_api)] in registration order."""
 
-    __slots__ = ("kind", "map", "service_api_map")
+    __slots__ = ("kind", "map", "service_api_map", "_frags", "_state")
 
     def __init__(self, kind: int):
         self.kind = kind
         self.map: dict[str, list[tuple[str, str]]] = {}
         self.service_api_map: dict[str, tuple[str, str]] = {}
+        # encoded getSystemState pieces, per key and whole (dropped when a key changes)
+        self._frags: dict[str, str] = {}
+        self._state: Encoded | None = None
+
+    def _changed(self, key: str) -> None:
+        self._frags.pop(key, None)
+        self._state = None
 
     def __contains__(self, key: str) -> bool:
         return key in self.map
@@ -56,17 +65,35 @@ class Registrations:
     def get_state(self) -> list[list]:
         return [[key, [node for node, _ in providers]] for key, providers in self.map.items()]
 
+    def get_state_encoded(self) -> Encoded:
+        """get_state() as an XML-RPC array, rebuilt only for the keys that changed."""
+        state = self._state
+        if state is None:
+            frags = self._frags
+            parts = ["<value><array><data>"]
+            for key, providers in self.map.items():
+                frag = frags.get(key)
+                if frag is None:
+                    frag = frags[key] = encode_value([key, [node for node, _ in providers]])
+                parts.append(frag)
+            parts.append("</data></array></value>")
+            state = self._state = Encoded("".join(parts))
+        return state
+
     def register(self, key: str, caller_id: str, caller_api: str, service_api: str | None = None) -> None:
         if service_api:
             # a service has exactly one provider: the newest registration wins
             self.map[key] = [(caller_id, caller_api)]
             self.service_api_map[key] = (caller_id, service_api)
+            self._changed(key)
             return
         providers = self.map.get(key)
         if providers is None:
             self.map[key] = [(caller_id, caller_api)]
+            self._changed(key)
         elif (caller_id, caller_api) not in providers:
             providers.append((caller_id, caller_api))
+            self._changed(key)
 
     def unregister(self, key: str, caller_id: str, caller_api: str | None,
                    service_api: str | None = None) -> tuple[int, str, int]:
@@ -75,6 +102,7 @@ class Registrations:
                 return 1, "[%s] is no longer the current service api handle for [%s]" % (service_api, key), 0
             del self.service_api_map[key]
             del self.map[key]
+            self._changed(key)
             return 1, "Unregistered [%s] as provider of [%s]" % (caller_id, key), 1
         providers = self.map.get(key)
         entry = (caller_id, caller_api)
@@ -82,6 +110,7 @@ class Registrations:
             providers.remove(entry)
             if not providers:
                 del self.map[key]
+            self._changed(key)
             return 1, "Unregistered [%s] as provider of [%s]" % (caller_id, key), 1
         return 1, "[%s] is not a known provider of [%s]" % (caller_id, key), 0
 
@@ -89,9 +118,12 @@ class Registrations:
         """Drop every registration of `caller_id` (no notifications: the node was replaced)."""
         dead = []
         for key, providers in self.map.items():
-            providers[:] = [p for p in providers if p[0] != caller_id]
-            if not providers:
-                dead.append(key)
+            kept = [p for p in providers if p[0] != caller_id]
+            if len(kept) != len(providers):
+                providers[:] = kept
+                self._changed(key)
+                if not providers:
+                    dead.append(key)
         for key in dead:
             del self.map[key]
         for key in [k for k, v in self.service_api_map.items() if v[0] == caller_id]:

@@ -17,10 +17,14 @@ SEP = "/"
 class ParamTree:
     """rosmaster's ParamDictionary semantics, without locks (one event loop owns it)."""
 
-    __slots__ = ("root",)
+    __slots__ = ("root", "shape_version")
 
     def __init__(self, root: dict | None = None):
         self.root: dict[str, Any] = {} if root is None else root
+        # bumped whenever the set of names may have changed (not when a leaf just gets a new
+        # scalar value): lets a server cache what it derives from names() (change the tree
+        # through these methods only)
+        self.shape_version = 0
 
     @staticmethod
     def _parts(key: str) -> list[str]:
@@ -52,6 +56,7 @@ class ParamTree:
             if type(value) is not dict:
                 raise TypeError("cannot set root of parameter tree to non-dictionary")
             self.root = value
+            self.shape_version += 1
             return
         parts = self._parts(key)
         if not parts:
@@ -62,8 +67,13 @@ class ParamTree:
             if type(nxt) is not dict:
                 # a scalar in the way silently becomes a namespace, as in rosmaster
                 nxt = d[part] = {}
+                self.shape_version += 1
             d = nxt
-        d[parts[-1]] = value
+        last = parts[-1]
+        old = d.get(last, d)  # d itself stands for "missing"
+        if old is d or type(old) is dict or type(value) is dict:
+            self.shape_version += 1
+        d[last] = value
 
     def delete(self, key: str) -> None:
         """Remove `key` and everything below it; KeyError if not set (and always for `/`)."""
@@ -80,6 +90,7 @@ class ParamTree:
         if type(d) is not dict or parts[-1] not in d:
             raise KeyError(key)
         del d[parts[-1]]
+        self.shape_version += 1
 
     def names(self) -> list[str]:
         """Every leaf as a global name, depth first in insertion order; empty namespaces are not listed."""
