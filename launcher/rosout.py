@@ -218,8 +218,11 @@ class Rosout:
         await self.node.shutdown_requested.wait()
         log.info("/rosout was asked to shut down (%s); restarting it", self.node.shutdown_reason)
         old, self._watch = self.node, None
-        await old.stop()
-        await self._start_node(mtype)
+        try:
+            await old.stop()
+            await self._start_node(mtype)
+        except Exception as exc:  # a background task: report, never raise into the void
+            log.error("could not restart /rosout: %s", exc)
 
     def _logger_services(self) -> list[ServiceServer]:
         ts = self._typestore

@@ -135,9 +135,10 @@ class SlaveNode:
         await self._xmlrpc.start()
         self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
 
-    async def _master(self, method: str, *params: Any) -> Any:
+    async def _master(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
         from launcher.xmlrpc import call
-        code, status, value = await call(self.master_uri, method, self.name, *params, timeout=10.0)
+        code, status, value = await call(self.master_uri, method, self.name, *params,
+                                         timeout=timeout)
         if code != 1:
             raise RuntimeError("master refused %s%r: %s" % (method, params, status))
         return value
@@ -173,15 +174,17 @@ class SlaveNode:
         for sub in self.subscriptions.values():
             await sub.drain()
         calls = []
+        # Shutdown must not hang on a master that stopped answering: a short timeout.
+        quick = {"timeout": 3.0}
         for topic, sub in self.subscriptions.items():
-            calls.append(self._master("unregisterSubscriber", topic, self.uri))
+            calls.append(self._master("unregisterSubscriber", topic, self.uri, **quick))
         for topic in self.publications:
-            calls.append(self._master("unregisterPublisher", topic, self.uri))
+            calls.append(self._master("unregisterPublisher", topic, self.uri, **quick))
         for name in self.tcpros.services:
             calls.append(self._master("unregisterService", name,
-                                      "rosrpc://%s:%d" % (self.host, self.tcpros.port)))
+                                      "rosrpc://%s:%d" % (self.host, self.tcpros.port), **quick))
         for key in self.param_callbacks:
-            calls.append(self._master("unsubscribeParam", self.uri, key))
+            calls.append(self._master("unsubscribeParam", self.uri, key, **quick))
         # A master that is already gone must not stop us from closing our own sockets.
         for result in await asyncio.gather(*calls, return_exceptions=True):
             if isinstance(result, BaseException):

@@ -271,6 +271,8 @@ class Publication:
     def publish(self, payload: bytes | memoryview) -> None:
         """Send one serialized message to every connected subscriber."""
         self.messages_published += 1
+        if not self.links and not self.latch:
+            return  # nobody listening: don't even build the frame
         frame = encode_frame(payload)
         if self.latch:
             self.last = frame
