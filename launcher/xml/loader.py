@@ -60,17 +60,17 @@ class XmlLoader:
         self.environ = environ
         self.packages = packages
         self.argv = list(argv)
+        self._warn_cb = warn
+        self.warnings: list[str] = []
         self.cli_args = load_mappings(self.argv, warn=self._warn_plain)
         self.root_ns = root_namespace(self.argv, environ)
         self.args_only = args_only
-        self._warn_cb = warn
         self.nodes: list[Node] = []
         self.tests: list[Node] = []
         self.params: dict[str, Param] = {}
         self.clear_params: list[str] = []
         self.machines: dict[str, Machine] = {}
         self.files: list[str] = []
-        self.warnings: list[str] = []
         self.rosparam_commands: list[tuple[str, str, str | None]] = []
         self.node_names: set[str] = set(CORE_NODE_NAMES) if core else set()
         self.root_scope: Scope | None = None
@@ -113,15 +113,22 @@ class XmlLoader:
         try:
             return resolve(text, scope)
         except ArgNotSet as e:
-            raise self._fail(scope, el, "arg '%s' is not set: [%s] requires the '%s' arg to be set "
-                             "(declare it with <arg> or pass %s:=value)"
-                             % (e.name, scope.filename, e.name, e.name)) from None
+            raise self._fail(scope, el, self._arg_not_set(e.name, scope)) from None
         except SubstitutionError as e:
             raise self._fail(scope, el, "%s" % e) from None
         except LaunchError as e:
             if e.filename:
                 raise
             raise self._fail(scope, el, e.message) from None
+
+    def _arg_not_set(self, name: str, scope: Scope) -> str:
+        if name not in scope.arg_names:
+            return ("arg '%s' is not defined: declare it with <arg name=\"%s\" default=\"...\"/> before using "
+                    "$(arg %s)" % (name, name, name))
+        if scope.include_chain:
+            return ("arg '%s' is required by this included file: pass it with <arg name=\"%s\" value=\"...\"/> "
+                    "inside the <include>" % (name, name))
+        return "arg '%s' is required: pass %s:=value on the command line" % (name, name)
 
     def _attr(self, el: Any, name: str, scope: Scope) -> str | None:
         return self._sub(el.get(name), scope, el)
@@ -330,19 +337,24 @@ class XmlLoader:
         else:
             self._add_param(ns_join(scope.ns, name), value, scope, el)
 
-    def _convert(self, text: str, ptype: str, scope: Scope, el: Any, what: str) -> Any:
+    def _convert(self, text: str, ptype: str, scope: Scope, el: Any, name: str) -> Any:
         if ptype == "yaml":
-            return self._yaml(text, scope, el, inline=True, what=what)
+            # rosparam's angle tags exist only once a <rosparam> has been processed (an import side effect)
+            return self._yaml(text, scope, el, angles=self._ros_yaml, what="<param> [%s]" % name)
         from launcher.params.values import convert_value
         try:
             return convert_value(text, ptype)
         except ValueError as e:
-            raise self._fail(scope, el, "Invalid <param> tag: %s" % e) from None
+            if ptype in ("int", "double"):
+                msg = "value [%s] is not of type %s" % (text.strip(), ptype)
+            else:
+                msg = str(e)
+            raise self._fail(scope, el, "Invalid <param> tag [%s]: %s" % (name, msg)) from None
 
     def _param_value(self, el: Any, scope: Scope, name: str, ptype: str, value: str | None,
                      textfile: str | None, binfile: str | None, command: str | None) -> Any:
         if value is not None:
-            return self._convert(value.strip(), ptype, scope, el, "value")
+            return self._convert(value.strip(), ptype, scope, el, name)
         if textfile is not None:
             try:
                 with open(textfile, "r", encoding="utf-8") as f:
@@ -350,7 +362,7 @@ class XmlLoader:
             except (OSError, UnicodeDecodeError) as e:
                 raise self._fail(scope, el, "Invalid <param> tag: cannot read textfile [%s]: %s"
                                  % (textfile, getattr(e, "strerror", None) or e)) from None
-            return self._convert(text, ptype, scope, el, "textfile")
+            return self._convert(text, ptype, scope, el, name)
         if binfile is not None:
             try:
                 with open(binfile, "rb") as f:
@@ -359,7 +371,7 @@ class XmlLoader:
                 raise self._fail(scope, el, "Invalid <param> tag: cannot read binfile [%s]: %s"
                                  % (binfile, e.strerror or e)) from None
         assert command is not None
-        return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, "command")
+        return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, name)
 
     def _run_command(self, command: str, name: str, scope: Scope, el: Any) -> str:
         import shlex
@@ -408,33 +420,20 @@ class XmlLoader:
         params[key] = Param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
-    def _yaml(self, text: str, scope: Scope, el: Any, *, inline: bool, what: str,
+    def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
               yaml_file: str | None = None) -> Any:
-        if not self._ros_yaml and what != "rosparam":
-            import yaml
-            loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-            try:
-                return yaml.load(text, Loader=loader)
-            except yaml.YAMLError as e:
-                line = None
-                mark = getattr(e, "problem_mark", None)
-                if mark is not None:
-                    line = (el.sourceline or 1) + mark.line if inline else mark.line + 1
-                msg = str(e).replace("\n", " ")
-                raise LaunchError("Invalid <param> tag: invalid YAML: %s" % msg, scope.source,
-                                  line or el.sourceline, scope.include_chain) from None
         from launcher.params.rosyaml import RosYamlError, load_yaml
         try:
             if yaml_file:
-                return load_yaml(text, filename=yaml_file)
-            return load_yaml(text, filename=scope.source, first_line=el.sourceline or 1)
+                return load_yaml(text, filename=yaml_file, angles=angles)
+            return load_yaml(text, filename=scope.source, first_line=el.sourceline or 1, angles=angles)
         except RosYamlError as e:
-            msg = getattr(e, "message", None) or str(e)
             if yaml_file:
+                # the line is the YAML file's own; the chain says which tag loaded it
                 chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
-                raise LaunchError("invalid YAML: %s" % msg, yaml_file, getattr(e, "line", None), chain) from None
-            raise LaunchError("invalid YAML in <%s>: %s" % (el.tag, msg), scope.source,
-                              getattr(e, "line", None) or el.sourceline, scope.include_chain) from None
+                raise LaunchError(e.message, yaml_file, e.line, chain) from None
+            line = e.line if (e.line and el.tag == "rosparam") else el.sourceline
+            raise LaunchError("%s: %s" % (what, e.message), scope.source, line, scope.include_chain) from None
 
     # ------------------------------------------------------------------ <rosparam>
     def _rosparam_tag(self, el: Any, scope: Scope) -> None:
@@ -471,7 +470,7 @@ class XmlLoader:
         if subst_value:
             text = self._sub(text, scope, el) or ""
         self._ros_yaml = True
-        data = self._yaml(text, scope, el, inline=not file_, what="rosparam", yaml_file=file_ or None)
+        data = self._yaml(text, scope, el, angles=True, what="<rosparam>", yaml_file=file_ or None)
         if data is None:
             data = {}
         if not param and not isinstance(data, dict):
