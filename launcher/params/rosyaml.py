@@ -199,7 +199,100 @@ def _yaml_error(e: BaseException, text: str, filename: str | None, first_line: i
 
 # -- dumping ---------------------------------------------------------------------------------
 
+# A string PyYAML writes as a bare plain scalar or single-quoted, with nothing to escape or
+# wrap: no spaces, quotes, indicators or non-ASCII, and no leading '-' or '.'.
+_SIMPLE_STRING = re.compile(r"[A-Za-z0-9_/][A-Za-z0-9_./-]*\Z")
+_STR_TAG = "tag:yaml.org,2002:str"
+_resolver = None
+
+
+def _plain_scalar(value: Any) -> str | None:
+    """`value` as PyYAML's safe dumper writes it inline, or None when it takes more care."""
+    global _resolver
+    kind = type(value)
+    if kind is str:
+        if not value:
+            return "''"
+        if len(value) > 100 or not _SIMPLE_STRING.match(value):
+            return None
+        if _resolver is None:
+            _resolver = yaml.resolver.Resolver()
+        # a string that would read back as another type (123, true, 1_000, null) is quoted
+        if _resolver.resolve(yaml.ScalarNode, value, (True, False)) == _STR_TAG:
+            return value
+        return "'%s'" % value
+    if kind is bool:
+        return "true" if value else "false"
+    if kind is int:
+        return str(value)
+    if kind is float:
+        if value != value:
+            return ".nan"
+        if value in (math.inf, -math.inf):
+            return ".inf" if value > 0 else "-.inf"
+        text = repr(value).lower()
+        if "." not in text and "e" in text:
+            text = text.replace("e", ".0e", 1)
+        return text
+    if value is None:
+        return "null"
+    return None
+
+
+def _entry(key: Any, value: Any) -> str | None:
+    """One top-level `key: value` entry, for the common shapes; None for everything else."""
+    # (an empty key is no simple key for PyYAML: it writes "? ''")
+    k = _plain_scalar(key) if type(key) is str and key else None
+    if k is None:
+        return None
+    v = _plain_scalar(value)
+    if v is not None:
+        return "%s: %s\n" % (k, v)
+    if type(value) is list:
+        if not value:
+            return "%s: []\n" % k
+        items = [_plain_scalar(x) for x in value]
+        if None in items:
+            return None
+        return "%s:\n%s" % (k, "".join("- %s\n" % i for i in items))
+    return None
+
+
+def _shares_containers(value: Any) -> bool:
+    """Whether a list/dict object occurs twice: PyYAML would write anchors and aliases."""
+    seen: set[int] = set()
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, (list, dict)):
+            if id(v) in seen:
+                return True
+            seen.add(id(v))
+            stack.extend(v.values() if isinstance(v, dict) else v)
+    return False
+
+
+def _pyyaml_dump(value: Any) -> str:
+    return yaml.dump(value, Dumper=yaml.SafeDumper, default_flow_style=False)
+
+
 def dump_yaml(value: Any) -> str:
     """YAML text of `value` as roslaunch `--dump-params` and `rosparam dump` print it
-    (PyYAML's safe block style; bytes become `!!binary`)."""
-    return yaml.dump(value, Dumper=yaml.SafeDumper, default_flow_style=False)
+    (PyYAML's safe block style; bytes become `!!binary`).
+
+    PyYAML's pure-Python emitter is the reference, but it costs ~50 us per scalar (a
+    quarter of a second for a big launch), and libyaml's emitter differs in places. So
+    the entries of a top-level mapping that are plain scalars or flat lists of them are
+    written here, exactly as PyYAML writes them; every other entry goes through PyYAML.
+    """
+    if type(value) is not dict or not value or _shares_containers(value):
+        return _pyyaml_dump(value)
+    try:
+        items = sorted(value.items())  # safe_dump's sort_keys=True
+    except TypeError:
+        return _pyyaml_dump(value)
+    out = []
+    for key, v in items:
+        text = _entry(key, v)
+        out.append(text if text is not None else _pyyaml_dump({key: v}))
+    return "".join(out)
