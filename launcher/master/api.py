@@ -263,7 +263,7 @@ class MasterApi:
 
     def _notify_params(self, updates: list) -> None:
         for subscribers, key, value, sub_key in updates:
-            if type(value) is dict and value:
+            if type(value) is dict:
                 value = copy_tree(value)  # later sets below it must not change what is sent
             for caller_id, caller_api in subscribers:
                 self.notifier.param_update(caller_api, key, value,

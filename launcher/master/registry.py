@@ -35,7 +35,7 @@ class NodeRef:
 class Registrations:
     """key (topic, service or parameter key) -> [(caller_id, caller_api)] in registration order."""
 
-    __slots__ = ("kind", "map", "service_api_map", "_frags", "_state")
+    __slots__ = ("kind", "map", "service_api_map", "_frags", "_state", "_had_services")
 
     def __init__(self, kind: int):
         self.kind = kind
@@ -44,6 +44,7 @@ class Registrations:
         # encoded getSystemState pieces, per key and whole (dropped when a key changes)
         self._frags: dict[str, str] = {}
         self._state: Encoded | None = None
+        self._had_services = False  # rosmaster's wording differs until a first service registers
 
     def _changed(self, key: str) -> None:
         self._frags.pop(key, None)
@@ -85,6 +86,7 @@ class Registrations:
             # a service has exactly one provider: the newest registration wins
             self.map[key] = [(caller_id, caller_api)]
             self.service_api_map[key] = (caller_id, service_api)
+            self._had_services = True
             self._changed(key)
             return
         providers = self.map.get(key)
@@ -98,6 +100,8 @@ class Registrations:
     def unregister(self, key: str, caller_id: str, caller_api: str | None,
                    service_api: str | None = None) -> tuple[int, str, int]:
         if service_api:
+            if not self.service_api_map and not self._had_services:
+                return 1, "[%s] is not a provider of [%s]" % (caller_id, key), 0
             if self.service_api_map.get(key) != (caller_id, service_api):
                 return 1, "[%s] is no longer the current service api handle for [%s]" % (service_api, key), 0
             del self.service_api_map[key]

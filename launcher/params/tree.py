@@ -35,7 +35,9 @@ class ParamTree:
         val: Any = self.root
         if key == SEP:
             return val
-        for part in key.split(SEP):
+        # like rosmaster, the first segment is skipped: it is "" for a global key (and a
+        # relative key, which only a relative caller id can produce, reads from the root)
+        for part in key.split(SEP)[1:]:
             if not part:
                 continue
             if type(val) is not dict:
@@ -60,7 +62,7 @@ class ParamTree:
             return
         parts = self._parts(key)
         if not parts:
-            raise KeyError(key)
+            raise IndexError("no name in key [%s]" % key)  # "//": what rosmaster raises too
         d = self.root
         for part in parts[:-1]:
             nxt = d.get(part)
@@ -81,7 +83,7 @@ class ParamTree:
             raise KeyError("cannot delete root of parameter tree")
         parts = self._parts(key)
         if not parts:
-            raise KeyError(key)
+            raise IndexError("no name in key [%s]" % key)
         d: Any = self.root
         for part in parts[:-1]:
             if type(d) is not dict or part not in d:
