@@ -30,6 +30,16 @@ _LOGGER_SERVICE_TYPES = {
     "roscpp/msg/SetLoggerLevel_Response": "",
 }
 _EMPTY_MD5 = "d41d8cd98f00b204e9800998ecf8427e"
+# rosgraph_msgs/Log seen as bytes: a ROS 1 `string` and a `uint8[]` are the same on the wire
+# (length, then bytes), so this type reads a Log whose strings are not UTF-8 (roscpp sends any
+# bytes) and lets us write them out untouched, as rosout.cpp does, instead of losing the line.
+_RAW_LOG = "launcher_rosout/msg/RawLog"
+_RAW_LOG_TYPES = {
+    "launcher_rosout/msg/RawString": "uint8[] data",
+    "launcher_rosout/msg/RawHeader": "uint32 seq\ntime stamp\nuint8[] frame_id",
+    _RAW_LOG: "launcher_rosout/RawHeader header\nbyte level\nuint8[] name\nuint8[] msg\n"
+              "uint8[] file\nuint8[] function\nuint32 line\nlauncher_rosout/RawString[] topics",
+}
 # What our Python loggers are called in roscpp's level words, and back.
 _PY_TO_ROS_LEVEL = {logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warn",
                     logging.ERROR: "error", logging.CRITICAL: "fatal"}
@@ -43,17 +53,23 @@ def format_stamp(sec: int, nsec: int) -> str:
     return "%d.%09d" % (sec, nsec)
 
 
+def _bytes(value: Any) -> bytes:
+    # A str from rosgraph_msgs/Log, or a uint8 array from the byte-level RawLog view.
+    return value.encode("utf-8") if isinstance(value, str) else value.tobytes()
+
+
 def format_log_line(msg: Any, omit_topics: bool = False) -> bytes:
     """One rosout.log line for a rosgraph_msgs/Log, byte for byte as rosout.cpp writes it."""
     stamp = msg.header.stamp
     # rosout.cpp streams an unknown level as the raw uint8_t, i.e. as one byte.
     level = _LEVEL_NAMES.get(msg.level) or bytes([msg.level & 0xFF])
     parts = [format_stamp(stamp.sec, stamp.nanosec).encode(), b" ", level, b" ",
-             msg.name.encode("utf-8"), b" [", msg.file.encode("utf-8"), b":",
-             str(msg.line).encode(), b"(", msg.function.encode("utf-8"), b")] "]
+             _bytes(msg.name), b" [", _bytes(msg.file), b":", str(msg.line).encode(), b"(",
+             _bytes(msg.function), b")] "]
     if not omit_topics:
-        parts += [b"[topics: ", ", ".join(msg.topics).encode("utf-8"), b"] "]
-    parts += [msg.msg.encode("utf-8"), b"\n"]
+        topics = [_bytes(t if isinstance(t, str) else t.data) for t in msg.topics]
+        parts += [b"[topics: ", b", ".join(topics), b"] "]
+    parts += [_bytes(msg.msg), b"\n"]
     return b"".join(parts)
 
 
@@ -96,6 +112,7 @@ class RosoutLogFile:
         self.size = 0
         self.backups = 0
         self.lines = 0
+        self.failing = False
         self.handle: BinaryIO | None = None
 
     def open(self) -> None:
@@ -109,18 +126,34 @@ class RosoutLogFile:
     def write(self, line: bytes, *, counted: bool = True) -> None:
         if self.handle is None:
             return
-        self.handle.write(line)
+        try:
+            self.handle.write(line)
+        except OSError as exc:
+            self._report(exc, "writing to")
+            return
+        self.failing = False
         self.size += len(line)
         if counted:
             self.lines += 1
         if self.size > self.max_size:
             self.rotate()
 
+    def _report(self, exc: OSError, doing: str) -> None:
+        # Like rosout.cpp, carry on after a failed write (a full disk may free up), but say so
+        # once per run of failures rather than once per message.
+        if not self.failing:
+            log.error("Error %s rosout log file '%s': %s", doing, self.path, exc)
+        self.failing = True
+
     def rotate(self) -> None:
         """Shift rosout.log -> .1 -> .2 ..., dropping the oldest, and start an empty rosout.log."""
         log.info("rosout log file %s reached max size, rotating log files", self.path)
         assert self.handle is not None
-        self.handle.close()
+        try:
+            self.handle.close()
+        except OSError as exc:
+            self._report(exc, "closing")
+        self.handle = None
         if self.backups == self.max_backups:
             try:
                 os.remove("%s.%d" % (self.path, self.max_backups))
@@ -133,19 +166,32 @@ class RosoutLogFile:
             except OSError as exc:
                 log.error("rotating rosout log file %s: %s", src, exc)
         self.backups = min(self.backups + 1, self.max_backups)
-        self.handle = open(self.path, "wb")
         self.size = 0
+        try:
+            self.handle = open(self.path, "wb")
+        except OSError as exc:  # as rosout.cpp: no file from here on, but keep republishing
+            log.error("Error opening rosout log file '%s': %s", self.path, exc)
 
     def flush(self) -> None:
         if self.handle is not None:
-            self.handle.flush()
+            try:
+                self.handle.flush()
+            except OSError as exc:
+                self._report(exc, "flushing")
 
     def close(self) -> None:
         if self.handle is not None:
-            self.handle.flush()
-            os.fsync(self.handle.fileno())
-            self.handle.close()
-            self.handle = None
+            try:
+                self.handle.flush()
+                os.fsync(self.handle.fileno())
+            except OSError as exc:
+                self._report(exc, "flushing")
+            finally:
+                try:
+                    self.handle.close()
+                except OSError:
+                    pass  # the error was reported above; the data that could be kept is kept
+                self.handle = None
 
 
 class Rosout:
@@ -183,7 +229,7 @@ class Rosout:
 
         self._typestore = get_typestore(Stores.ROS1_NOETIC)
         types: dict[str, Any] = {}
-        for name, text in _LOGGER_SERVICE_TYPES.items():
+        for name, text in {**_LOGGER_SERVICE_TYPES, **_RAW_LOG_TYPES}.items():
             types.update(get_types_from_msg(text, name))
         self._typestore.register(types)
         definition, md5sum = self._typestore.generate_msgdef(_LOG_TYPE_RB)
@@ -268,10 +314,13 @@ class Rosout:
             return
         try:
             msg = self._typestore.deserialize_ros1(payload, _LOG_TYPE_RB)
-        except Exception as exc:
-            self.undecodable += 1
-            log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
-            return
+        except Exception:
+            try:  # most likely text that is not UTF-8: keep its bytes as they are
+                msg = self._typestore.deserialize_ros1(payload, _RAW_LOG)
+            except Exception as exc:
+                self.undecodable += 1
+                log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
+                return
         self.file.write(format_log_line(msg, self.omit_topics))
         if not self._flush_pending:
             # One flush per burst of messages, not per line: same durability as rosout.cpp's

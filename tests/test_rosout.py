@@ -106,3 +106,41 @@ def test_logger_service_md5s_match_roscpp(typestore):
                        "roscpp/msg/SetLoggerLevel_Response") == "51da076440d78ca1684d36c868df61ea"
     with pytest.raises(NotImplementedError):
         service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request", "roscpp/msg/Logger")
+
+
+def test_text_that_is_not_utf8_is_kept_as_bytes(typestore):
+    """roscpp may send any bytes; rosout.cpp writes them as they are, and so do we."""
+    from rosbags.typesys import get_types_from_msg
+    from launcher.rosout import _RAW_LOG, _RAW_LOG_TYPES
+    types = {}
+    for name, text in _RAW_LOG_TYPES.items():
+        types.update(get_types_from_msg(text, name))
+    typestore.register(types)
+    wire = bytes(typestore.serialize_ros1(_log(typestore, msg="h\u00e9llo", topics=["/t\u00e9"]),
+                                          "rosgraph_msgs/msg/Log"))
+    wire = wire.replace("h\u00e9llo".encode(), b"h\xff\xfello").replace("/t\u00e9".encode(), b"/t\xfe\xfe")
+    with pytest.raises(Exception):
+        typestore.deserialize_ros1(wire, "rosgraph_msgs/msg/Log")
+    raw = typestore.deserialize_ros1(wire, _RAW_LOG)
+    assert format_log_line(raw) == (b"1795240437.829590082 INFO /talker_py [pylog.py:5(<module>)] "
+                                    b"[topics: /t\xfe\xfe] h\xff\xfello\n")
+
+
+def test_a_failing_disk_is_reported_once_and_writing_resumes(tmp_path, caplog):
+    f = RosoutLogFile(str(tmp_path / "rosout.log"))
+    f.open()
+
+    class Full:
+        def write(self, data):
+            raise OSError(28, "No space left on device")
+
+    good, f.handle = f.handle, Full()
+    with caplog.at_level("ERROR", logger="launcher.rosout"):
+        f.write(b"lost 1\n")
+        f.write(b"lost 2\n")
+    assert [r.getMessage().count("No space left") for r in caplog.records] == [1]
+    f.handle = good
+    f.write(b"kept\n")
+    f.close()
+    assert (tmp_path / "rosout.log").read_bytes().endswith(b"Node Startup\nkept\n")
+    assert f.lines == 1

@@ -23,6 +23,7 @@ pytestmark = pytest.mark.integration
 # then either the four-level demo or `count` numbered lines at `rate` per second.
 CPP_LOGGER = r"""
 #include <ros/ros.h>
+#include <rosgraph_msgs/Log.h>
 #include <algorithm>
 #include <cstdlib>
 int main(int argc, char** argv) {
@@ -35,7 +36,21 @@ int main(int argc, char** argv) {
     ROS_INFO("waiting");
     ros::WallDuration(0.05).sleep();
   }
-  if (count == 0) {
+  if (count < 0) {
+    // rosconsole turns bytes that are not UTF-8 into '?', but a node may publish any bytes on
+    // /rosout itself; rosout.cpp writes them as they are.
+    ros::Publisher pub = nh.advertise<rosgraph_msgs::Log>("/rosout", 10);
+    while (ros::ok() && pub.getNumSubscribers() == 0) ros::WallDuration(0.01).sleep();
+    rosgraph_msgs::Log raw;
+    raw.header.stamp = ros::Time::now();
+    raw.level = rosgraph_msgs::Log::INFO;
+    raw.name = ros::this_node::getName();
+    raw.msg = "raw \xff\xfe bytes";
+    raw.file = "cpp_logger.cpp";
+    raw.function = "main";
+    raw.topics.push_back("/t\xfe");
+    pub.publish(raw);
+  } else if (count == 0) {
     ROS_INFO("hello info %d", 1);
     ROS_WARN("warn: two");
     ROS_ERROR("error three");
@@ -240,7 +255,7 @@ def rosout(graph):
 
 def log_lines(path: str) -> list[str]:
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8", errors="surrogateescape") as f:
             return f.read().splitlines()
     except FileNotFoundError:
         return []
@@ -495,4 +510,17 @@ def test_load_from_several_publishers_loses_nothing(graph, rosout, cpp_logger):
     for node, count in [(n, 2000) for n in nodes[:3]] + [("/py_load", 300)]:
         got = [l.rsplit("] ", 1)[1] for l in lines_of(path, node)]
         assert [g for g in got if g.startswith("load ")] == ["load %d" % i for i in range(count)]
+    assert rosout.call(lambda: rosout.rosout.undecodable) == 0
+
+
+def test_text_that_is_not_utf8_reaches_rosout_log_unchanged(graph, rosout, cpp_logger):
+    path = rosout.rosout.log_path
+    graph.procs.start([cpp_logger, "__name:=raw_bytes", "-1"])
+    start_go(graph, path, ["/raw_bytes"])
+    wait_for(lambda: len([l for l in lines_of(path, "/raw_bytes") if "waiting" not in l]) >= 2,
+             what="the lines of /raw_bytes")
+    with open(path, "rb") as f:
+        raw = [l for l in f.read().split(b"\n") if b" /raw_bytes " in l and b"waiting" not in l]
+    assert any(l.endswith(b" [topics: /t\xfe] raw \xff\xfe bytes") for l in raw), raw
+    assert any(l.endswith(b"] done") for l in raw)
     assert rosout.call(lambda: rosout.rosout.undecodable) == 0
