@@ -1,0 +1,175 @@
+"""Substitution args: the `$(...)` parser, each command, the second `$(find)` pass, and the `$(eval)` sandbox."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from launcher.errors import LaunchError
+from launcher.xml.substitution import (ArgNotSet, SubstitutionError, SubstitutionScope, auto_value,
+                                       collect_commands, resolve)
+
+
+def scope(args=None, env=None, filename="/work/launch/a.launch", packages=None):
+    packages = packages or {"pkg": "/pkgs/pkg"}
+
+    def find_package(name):
+        if name not in packages:
+            raise LaunchError("Resource not found: %s" % name)
+        return packages[name]
+
+    def find_resource(name, rel):
+        return os.path.join(find_package(name), rel)
+
+    return SubstitutionScope(dict(args or {}), {}, filename, dict(env or {}), find_package, find_resource)
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("$(arg a)", ["arg a"]),
+    ("x $(arg a) y $(env B)", ["arg a", "env B"]),
+    ("$$(arg a)", ["arg a"]),          # a repeated dollar stays a dollar
+    ("$ (arg a)", []),                 # '(' must follow '$' at once
+    ("$(arg a", []),                   # unterminated: nothing collected
+    ("cost: 5$", []),
+    ("$( arg  a )", [" arg  a "]),
+])
+def test_collect_commands(text, expected):
+    assert collect_commands(text) == expected
+
+
+def test_nested_dollar_is_an_error():
+    with pytest.raises(SubstitutionError, match="Dollar signs"):
+        collect_commands("$(arg $(arg a))")
+
+
+def test_arg_env_optenv_dirname():
+    s = scope(args={"a": "A"}, env={"E": "env value"})
+    assert resolve("$(arg a)-$(env E)", s) == "A-env value"
+    assert resolve("$(optenv NOPE)", s) == ""
+    assert resolve("$(optenv NOPE fall  back words)", s) == "fall back words"
+    assert resolve("$(optenv E ignored)", s) == "env value"
+    assert resolve("$(dirname)/x", s) == "/work/launch/x"
+    assert resolve("$( arg  a )", s) == "A"
+
+
+def test_every_copy_of_a_command_is_replaced():
+    assert resolve("$(arg a)/$(arg a)", scope(args={"a": "x"})) == "x/x"
+
+
+def test_undefined_arg_and_env():
+    with pytest.raises(ArgNotSet) as e:
+        resolve("$(arg missing)", scope())
+    assert e.value.name == "missing"
+    with pytest.raises(SubstitutionError, match="NOPE"):
+        resolve("$(env NOPE)", scope())
+
+
+@pytest.mark.parametrize("text,match", [
+    ("$(foo bar)", "Unknown substitution command"),
+    ("$(env)", "only accepts one argument"),
+    ("$(env A B)", "only accepts one argument"),
+    ("$(anon)", "must specify a name"),
+    ("$(anon a b)", "only specify one name"),
+    ("$(arg)", "must specify a variable name"),
+    ("$(arg a b)", "may only specify one arg"),
+    ("$(find)", "only accepts one argument"),
+    ("x=$(eval 1 + 1)", "Unknown substitution command"),  # eval must be the whole attribute
+])
+def test_bad_commands(text, match):
+    with pytest.raises(SubstitutionError, match=match):
+        resolve(text, scope(args={"a": "1"}, env={"A": "1", "B": "2"}))
+
+
+def test_anon_is_stable_within_a_scope_and_distinct_between_ids():
+    s = scope()
+    a1 = resolve("$(anon a)", s)
+    assert resolve("$(anon a)", s) == a1
+    assert resolve("$(anon b)", s) != a1
+    assert a1.startswith("a_") and "-" not in a1 and "." not in a1
+
+
+def test_find_uses_the_path_up_to_the_first_space():
+    seen = []
+
+    def find_resource(pkg, rel):
+        seen.append((pkg, rel))
+        return "/share/%s/%s" % (pkg, rel)
+
+    s = SubstitutionScope({}, {}, None, {}, lambda p: "/src/" + p, find_resource)
+    assert resolve("$(find pkg)/a/b.yaml --flag", s) == "/share/pkg/a/b.yaml --flag"
+    assert seen == [("pkg", "a/b.yaml")]
+    assert resolve("$(find pkg)", s) == "/src/pkg"
+    assert resolve("$(find pkg)/", s) == "/src/pkg"  # roslaunch drops the lone slash
+    assert resolve("$(find  pkg )/x", s) == "/share/pkg/x"
+
+
+def test_find_runs_after_args_so_an_arg_may_hold_a_find():
+    s = scope(args={"where": "$(find pkg)"})
+    assert resolve("$(arg where)/f", s) == "/pkgs/pkg/f"
+
+
+def test_find_of_a_missing_package_raises_launch_error():
+    with pytest.raises(LaunchError, match="nope"):
+        resolve("$(find nope)", scope())
+
+
+def test_dirname_without_a_file():
+    with pytest.raises(SubstitutionError, match="dirname"):
+        resolve("$(dirname)", scope(filename=None))
+
+
+@pytest.mark.parametrize("value,expected", [
+    ("7", 7), ("-3", -3), ("7.5", 7.5), (".5", 0.5), ("1e3", "1e3"), ("1_000", "1_000"),
+    ("true", True), ("FALSE", False), ("yes", "yes"), ("", ""),
+])
+def test_auto_value(value, expected):
+    got = auto_value(value)
+    assert got == expected and type(got) is type(expected)
+
+
+@pytest.mark.parametrize("expr,expected", [
+    ("a + b", "7"),
+    ("arg('a') * 2", "6"),
+    ("ratio * 4", "2.0"),
+    ("name.upper() + '_' + str(a)", "BOT_3"),
+    ("flag and a < b", "True"),
+    ("true or false", "True"),
+    ("round(sqrt(2), 3)", "1.414"),
+    ("pi > 3", "True"),
+    ("len(list(map(str, range(a))))", "3"),
+    ("[1, 2][0]", "1"),
+    ("optenv('NOPE', 'd') + env('E')", "dx"),
+    ("find('pkg') + '/x'", "/pkgs/pkg/x"),
+    ("dirname()", "/work/launch"),
+    ("7 // 2", "3"),
+])
+def test_eval(expr, expected):
+    s = scope(args={"a": "3", "b": "4", "ratio": "0.5", "name": "bot", "flag": "true"}, env={"E": "x"})
+    assert resolve("$(eval %s)" % expr, s) == expected
+
+
+@pytest.mark.parametrize("expr", [
+    "__import__('os').getcwd()",
+    "().__class__",
+    "open('/etc/passwd').read()",
+    "getattr(find, '_' + '_globals_' + '_')",
+    "'{0._' '_class_' '_}'.format(1)",
+    "eval('1')",
+    "exec('x=1')",
+    "globals()",
+    "vars()",
+    "type(1)",
+    "compile('1', 'x', 'eval')",
+    "(lambda: 1).func_globals",
+    "[x for x in ().gi_frame]",
+])
+def test_eval_sandbox_refuses_escapes(expr):
+    with pytest.raises(SubstitutionError):
+        resolve("$(eval %s)" % expr, scope())
+
+
+def test_eval_errors_are_substitution_errors_not_tracebacks():
+    for expr in ("1/0", "undefined_name + 1", "1 +", "arg('missing')"):
+        with pytest.raises(SubstitutionError):
+            resolve("$(eval %s)" % expr, scope())
