@@ -239,22 +239,38 @@ def _plain_scalar(value: Any) -> str | None:
     return None
 
 
-def _entry(key: Any, value: Any) -> str | None:
-    """One top-level `key: value` entry, for the common shapes; None for everything else."""
+def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
+    """One `key: value` entry of a block mapping at `indent`, for values made of plain
+    scalars, lists of them and string-keyed mappings of those; None for anything else."""
     # (an empty key is no simple key for PyYAML: it writes "? ''")
     k = _plain_scalar(key) if type(key) is str and key else None
     if k is None:
         return None
+    pad = " " * indent
     v = _plain_scalar(value)
     if v is not None:
-        return "%s: %s\n" % (k, v)
-    if type(value) is list:
+        return "%s%s: %s\n" % (pad, k, v)
+    kind = type(value)
+    if kind is list:
         if not value:
-            return "%s: []\n" % k
+            return "%s%s: []\n" % (pad, k)
         items = [_plain_scalar(x) for x in value]
         if None in items:
             return None
-        return "%s:\n%s" % (k, "".join("- %s\n" % i for i in items))
+        # PyYAML writes a sequence inside a mapping "indentless": dashes under the key
+        return "%s%s:\n%s" % (pad, k, "".join("%s- %s\n" % (pad, i) for i in items))
+    if kind is dict:
+        if not value:
+            return "%s%s: {}\n" % (pad, k)
+        if not all(type(x) is str for x in value):
+            return None
+        out = ["%s%s:\n" % (pad, k)]
+        for sub in sorted(value):
+            text = _entry(sub, value[sub], indent + 2)
+            if text is None:
+                return None
+            out.append(text)
+        return "".join(out)
     return None
 
 

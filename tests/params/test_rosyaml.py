@@ -290,3 +290,11 @@ def test_dump_yaml_matches_every_compat_golden():
         assert dump_yaml(yaml.safe_load(text)) + "\n" == text, path
         checked += 1
     assert checked > 50
+
+
+def test_dump_yaml_nested_fast_path_shapes():
+    value = {"/a": {"b": [1, 2.5, "x"], "c": {"d": "yes", "e": {}, "f": [], "g": {"h": None}}, "i": True},
+             "/z": [], "/y": {}}
+    expected = rosyaml._pyyaml_dump(value)
+    assert dump_yaml(value) == expected
+    assert expected.startswith("/a:\n  b:\n  - 1\n  - 2.5\n  - x\n  c:\n    d: 'yes'\n")
