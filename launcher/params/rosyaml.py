@@ -155,15 +155,53 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     is what roslaunch uses for `type="yaml"` params before any `<rosparam>` was processed.
     Raises RosYamlError.
     """
+    key = (text, angles)
+    if key in _parsed:
+        return _fresh_copy(_parsed[key])
     loaders = _loaders(angles)
     for i, loader in enumerate(loaders):
         try:
-            return yaml.load(text, Loader=loader)
+            value = yaml.load(text, Loader=loader)
         except (yaml.YAMLError, _AngleError, RecursionError, MemoryError) as e:
             if i + 1 < len(loaders):
                 continue
             raise _yaml_error(e, text, filename, first_line) from None
+        if len(text) <= _MEMO_TEXT_MAX and len(_parsed) < _MEMO_ENTRIES:
+            _parsed[key] = value
+            return _fresh_copy(value)
+        return value
     raise AssertionError("unreachable")
+
+
+# Big launch trees repeat the same small YAML (inline <rosparam>, type="yaml" values, files
+# included many times): parse each text once per run. Callers get their own copy, so
+# nobody can alter what another caller received.
+_MEMO_TEXT_MAX = 64 * 1024
+_MEMO_ENTRIES = 4096
+_parsed: dict[tuple[str, bool], Any] = {}
+
+
+def _fresh_copy(value: Any, memo: dict[int, Any] | None = None) -> Any:
+    """Deep copy of parsed YAML (dicts, lists, scalars); objects shared through YAML
+    aliases stay shared in the copy, as they were in the parse."""
+    kind = type(value)
+    if kind is not dict and kind is not list:
+        return value  # scalars (str, int, float, bool, None, bytes, date) are immutable
+    if memo is None:
+        memo = {}
+    found = memo.get(id(value))
+    if found is not None:
+        return found
+    if kind is dict:
+        copy: Any = {}
+        memo[id(value)] = copy
+        for k, v in value.items():
+            copy[k] = _fresh_copy(v, memo)
+    else:
+        copy = []
+        memo[id(value)] = copy
+        copy.extend(_fresh_copy(v, memo) for v in value)
+    return copy
 
 
 def _yaml_error(e: BaseException, text: str, filename: str | None, first_line: int) -> RosYamlError:

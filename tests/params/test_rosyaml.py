@@ -298,3 +298,27 @@ def test_dump_yaml_nested_fast_path_shapes():
     expected = rosyaml._pyyaml_dump(value)
     assert dump_yaml(value) == expected
     assert expected.startswith("/a:\n  b:\n  - 1\n  - 2.5\n  - x\n  c:\n    d: 'yes'\n")
+
+
+def test_repeated_text_gives_independent_equal_values():
+    text = "a: {b: [1, 2]}\nc: &x [3]\nd: *x\n"
+    first = load_yaml(text)
+    first["a"]["b"].append(99)
+    first["c"].append(4)
+    second = load_yaml(text)
+    assert second == {"a": {"b": [1, 2]}, "c": [3], "d": [3]}
+    assert second["c"] is second["d"]  # alias sharing survives the copy, as in a fresh parse
+    assert second["a"] is not first["a"]
+
+
+def test_repeated_bad_text_keeps_failing_with_its_own_location():
+    for first_line in (1, 10):
+        with pytest.raises(RosYamlError) as err:
+            load_yaml("a: [1\n", filename="f%d.yaml" % first_line, first_line=first_line)
+        assert err.value.filename == "f%d.yaml" % first_line and err.value.line >= first_line
+
+
+def test_angles_flag_is_part_of_the_memo():
+    assert load_yaml("a: deg(90)", angles=False) == {"a": "deg(90)"}
+    assert load_yaml("a: deg(90)") == {"a": math.pi / 2}
+    assert load_yaml("a: deg(90)", angles=False) == {"a": "deg(90)"}
