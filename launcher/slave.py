@@ -43,11 +43,13 @@ class Subscription:
         self.connecting: dict[str, asyncio.Task] = {}
         self.closed = False
 
-    def update(self, publisher_uris: list[str]) -> None:
-        """Follow the master's list of publishers: connect to new ones, drop the ones that left."""
+    def update(self, publisher_uris: list[str], *, additive: bool = False) -> None:
+        """Follow the master's list of publishers: connect to new ones, drop the ones that left
+        (unless `additive`: the list may be older than a publisherUpdate already applied)."""
         if self.closed:
             return
-        wanted = set(publisher_uris)
+        wanted = set(publisher_uris) if not additive else set(publisher_uris) | set(
+            self.links) | set(self.connecting)
         for uri in list(self.links):
             if uri not in wanted:
                 self.links.pop(uri).close()
@@ -156,7 +158,7 @@ class SlaveNode:
         sub = Subscription(self, topic, mtype, callback)
         self.subscriptions[topic] = sub
         publishers = await self._master("registerSubscriber", topic, mtype.name, self.uri)
-        sub.update(list(publishers))
+        sub.update(list(publishers), additive=True)
         return sub
 
     async def advertise_service(self, srv: ServiceServer) -> None:

@@ -105,6 +105,10 @@ def test_publisher_update_connects_and_disconnects():
         assert await call(sub_node.uri, "getSubscriptions", "/x") == [
             1, "subscriptions", [["/chat", "std_msgs/String"]]]
 
+        # registerSubscriber's reply may predate a publisherUpdate: it only ever adds.
+        sub.update([], additive=True)
+        assert list(sub.links) == [pub_node.uri]
+
         # The publisher left the graph: the link goes, on both sides.
         await call(sub_node.uri, "publisherUpdate", "/master", "/chat", [])
         await _wait_for(lambda: not pub.links and not sub.links)
