@@ -322,6 +322,12 @@ def test_node_logs_reach_rosout_log_and_rosout_agg(graph, rosout, cpp_logger, ki
         return rows if len(rows) >= 5 else []
     rows = wait_for(agg_rows, what="/rosout_agg rows from rostopic echo")
     echo_file.close()
+    # `rosnode info` sees both connections, described the way it describes roscpp's.
+    info = graph.procs.run(["rosnode", "info", "/rosout"])
+    assert re.search(r"\* topic: /rosout_agg\n    \* to: /rostopic_\S+\n    \* direction: outbound "
+                     r"\(\d+ - 127\.0\.0\.1:\d+\) \[\d+\]\n    \* transport: TCPROS\n", info), info
+    assert re.search(r"\* topic: /rosout\n    \* to: %s \(http://127\.0\.0\.1:\d+/\)\n    \* "
+                     r"direction: inbound \(\d+ - 127\.0\.0\.1:\d+\) \[\d+\]\n" % node, info), info
     levels = {"2": "INFO", "4": "WARN", "8": "ERROR", "16": "FATAL"}
     for m, row in zip(matches, rows):
         stamp_ns = int(m.group(1).replace(".", ""))
