@@ -74,6 +74,10 @@ def run_core(opts: Any) -> int:
     """Run master + rosout until SIGINT/SIGTERM or a `shutdown` call; exit status."""
     environ = dict(os.environ)
     port = master_port(opts, environ)
+    uri_port = master_port(None, environ)
+    if environ.get("ROS_MASTER_URI") and uri_port != port:
+        print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),
+              file=sys.stderr)
     run_id = getattr(opts, "run_id", None) or str(uuid.uuid1())
     try:
         return asyncio.run(_core(port, run_id, environ))
@@ -140,7 +144,15 @@ async def _start_rosout(master_uri: str, directory: str) -> Any:
             return None
         raise
     rosout = Rosout(master_uri, directory)
-    await rosout.start()
+    try:
+        await rosout.start()
+    except Exception as e:  # noqa: BLE001 - the master keeps serving without rosout
+        print("failed to start the built-in rosout: %s" % e, file=sys.stderr)
+        try:
+            await rosout.stop()
+        except Exception:  # noqa: BLE001
+            pass
+        return None
     print("started core service [/rosout]")
     return rosout
 
