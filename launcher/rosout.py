@@ -256,6 +256,10 @@ class Rosout:
                 log.error("Error opening rosout log file '%s': %s", self.file.path, exc)
                 self.file = None
         await self._start_node(mtype)
+        # rosbags compiles a deserializer on first use (~80 ms of Python); do it on a worker
+        # thread now rather than on the event loop when the first node logs, mid-launch.
+        asyncio.get_running_loop().run_in_executor(None, self._typestore.get_msgdef,
+                                                   _LOG_TYPE_RB)
 
     async def _start_node(self, mtype: TopicType) -> None:
         from launcher.slave import SlaveNode, default_host
