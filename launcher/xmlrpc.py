@@ -359,6 +359,8 @@ _FAST_CALL = re.compile(
 _FAST_PARAM = re.compile(
     r"\s*<param>\s*<value>(?:<(string|int|i4|double|boolean)>([^<&]*)</\1>|([^<&]*))</value>\s*</param>")
 _FAST_SPACE = re.compile(r"\s*\Z")
+# what expat refuses in character data: the fast path must refuse it too
+_NOT_XML_TEXT = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]|]]>")
 
 
 def _loads_request_fast(data: bytes) -> tuple[str, list[Any]] | None:
@@ -367,8 +369,8 @@ def _loads_request_fast(data: bytes) -> tuple[str, list[Any]] | None:
         text = data.decode("utf-8")
     except UnicodeDecodeError:
         return None
-    if "\r" in text:
-        return None  # XML turns CR/LF into LF: expat's business
+    if "\r" in text or _NOT_XML_TEXT.search(text) is not None:
+        return None  # XML turns CR/LF into LF, and some text is not XML at all: expat's business
     m = _FAST_CALL.match(text)
     if m is None:
         return None

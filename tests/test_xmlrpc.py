@@ -340,3 +340,56 @@ def test_port_taken_raises_oserror():
         finally:
             await a.stop()
     asyncio.run(scenario())
+
+
+# ---------------------------------------------------------------------------
+# the fast request path reads exactly what expat reads
+# ---------------------------------------------------------------------------
+
+flat_values = st.one_of(st.integers(X.MININT, X.MAXINT), st.booleans(), st.floats(allow_nan=False),
+                        st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=30))
+
+
+def _expat_only(body: bytes):
+    u = X._parse(body)
+    return u.method, u.stack
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(flat_values, max_size=5), st.sampled_from(["getParam", "system.multicall", "a_b.c"]))
+def test_fast_path_agrees_with_expat_for_stdlib_requests(params, method):
+    body = xmlrpc.client.dumps(tuple(params), method).encode()
+    try:
+        want = _expat_only(body)
+    except X.XmlRpcError:
+        with pytest.raises(X.XmlRpcError):
+            X.loads_request(body)
+        return
+    assert X.loads_request(body) == want
+
+
+@pytest.mark.parametrize("body", [
+    # XmlRpc++ (roscpp): untyped strings, <i4>, no prolog
+    b"<?xml version=\"1.0\"?>\r\n<methodCall><methodName>getParam</methodName>\r\n<params><param><value>/node</value>"
+    b"</param><param><value>/p</value></param></params></methodCall>\r\n",
+    b"<methodCall><methodName>setParam</methodName><params><param><value>/n</value></param><param><value>/p"
+    b"</value></param><param><value><i4>7</i4></value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value>a\r\nb</value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value><string>&lt;&amp;&#65;</string></value>"
+    b"</param></params></methodCall>",
+    b"<?xml version='1.0' encoding='iso-8859-1'?><methodCall><methodName>f</methodName><params><param><value>"
+    b"\xe9</value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value> <int>3</int> </value></param></params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params><param><value><boolean>true</boolean></value></param>"
+    b"</params></methodCall>",
+    b"<methodCall><methodName>f</methodName><params/></methodCall>",
+    b"<methodCall><methodName>f</methodName></methodCall>",
+])
+def test_fast_path_agrees_with_expat_on_other_shapes(body):
+    try:
+        want = _expat_only(body)
+    except X.XmlRpcError:
+        with pytest.raises(X.XmlRpcError):
+            X.loads_request(body)
+        return
+    assert X.loads_request(body) == want
