@@ -36,6 +36,7 @@ class Case:
     clear: list[str] | None = None             # clear_params, any order
     error: bool = False
     deviation: str | None = None               # why we knowingly differ from roslaunch here
+    relation: str | None = None                # Python condition on p = {key: normalised value}
 
 
 def L(body: str) -> str:
@@ -651,6 +652,55 @@ CASES = [
          nodes=["/n"], fields={"/n": {"machine_name": None}}),
     Case("machine_bad_ssh_port", {MAIN: L('<machine name="m1" address="h" ssh-port="x"/>')}, error=True),
     Case("machine_missing_address", {MAIN: L('<machine name="m1"/>')}, error=True),
+    # ---------------------------------------------------------------- ideas from rosmon's tests
+    Case("anon_same_id_same_name_other_id_differs", {MAIN: L("""
+  <param name="t1" value="$(anon rviz-1)"/>
+  <param name="t2" value="$(anon rviz-1)"/>
+  <param name="t3" value="$(anon rviz-2)"/>""")},
+         relation="p['/t1'] == p['/t2'] != p['/t3'] and p['/t1'][1].startswith('rviz_1_')"),
+    Case("anon_node_name_clash", {MAIN: L("""
+  <node name="$(anon foo)" pkg="p" type="t"/>
+  <node name="$(anon foo)" pkg="p" type="t"/>""")}, error=True),
+    Case("eval_functions", {MAIN: L("""
+  <arg name="foo" default="test"/>
+  <arg name="radius" default="2.0"/>
+  <arg name="input" default="false"/>
+  <param name="circ" value="$(eval 2.* pi * arg('radius'))"/>
+  <param name="cat" value="$(eval arg('foo') + env('SPEC_SET') + 'bar' + find('spec_pkg'))"/>
+  <param name="cat2" value="$(eval foo + optenv('SPEC_NOPE', 'x'))"/>
+  <param name="lower_bool" value="$(eval input == true)"/>
+  <param name="int" value="$(eval 2 * 20)"/>""")},
+         env={"SPEC_SET": "E"},
+         params={"/circ": 2.0 * math.pi * 2.0, "/cat": "testEbar@PKG@", "/cat2": "testx", "/lower_bool": False,
+                 "/int": 40}),
+    Case("eval_syntax_error", {MAIN: L('<param name="x" value="$(eval )))"/>')}, error=True),
+    Case("param_yaml_scalar_and_command_types", {MAIN: L("""
+  <param name="ys" type="yaml" value="true"/>
+  <param name="yd" type="yaml" value="test_param: true"/>
+  <param name="yc" type="yaml" command="echo test_param: true"/>
+  <param name="n" command="echo -n hello_world"/>
+  <param name="ml" command="printf 'hello\\nworld'"/>""")},
+         params={"/ys": True, "/yd": {"test_param": True}, "/yc": {"test_param": True}, "/n": "hello_world",
+                 "/ml": "hello\nworld"}),
+    Case("param_yaml_command_invalid", {MAIN: L('<param name="y" type="yaml" command="echo invalid: {{ yaml}} here"/>')},
+         error=True),
+    Case("param_value_and_command", {MAIN: L('<param name="x" value="abc" command="echo test"/>')}, error=True),
+    # roslaunch does not check <param> names (the master would refuse it at run time)
+    Case("param_odd_name_accepted", {MAIN: L('<param name="%*" value="abc"/>')}, params={"/%*": "abc"}),
+    Case("rosparam_explicit_tags_and_subst_list", {MAIN: L("""
+  <arg name="whitelist" default="[3, 2]"/>
+  <rosparam param="whitelist" subst_value="True">$(arg whitelist)</rosparam>
+  <rosparam>
+    t:
+      s: !!str 1
+      f: !!float 1
+      i: !!int "7"
+  </rosparam>""")},
+         params={"/whitelist": [3, 2], "/t/s": "1", "/t/f": 1.0, "/t/i": 7}),
+    Case("group_root_ns_and_absolute_node_ns", {MAIN: L("""
+  <group ns="/"><param name="param1" value="hello"/></group>
+  <node name="n" pkg="p" type="t" ns="/racecar"><param name="pp" value="hello again"/></node>""")},
+         nodes=["/racecar/n"], params={"/param1": "hello", "/racecar/n/pp": "hello again"}),
     # ---------------------------------------------------------------- documents
     Case("empty_launch", {MAIN: "<launch/>"}, params={}, nodes=[]),
     Case("launch_nested_in_other_root", {MAIN: '<root><launch><param name="x" value="1"/></launch></root>'},
@@ -736,6 +786,8 @@ def _check(case: Case, result: dict, pkg: str, who: str) -> None:
             assert got[attr] == _norm(value), "%s: %s.%s" % (who, name, attr)
     if case.clear is not None:
         assert sorted(result["clear"]) == sorted(case.clear), who
+    if case.relation:
+        assert eval(case.relation, {}, {"p": result["params"]}), "%s: %s" % (who, case.relation)  # noqa: S307
 
 
 def _ours(path: str, env: dict[str, str], argv: list[str]) -> dict:
