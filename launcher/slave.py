@@ -6,7 +6,7 @@ import asyncio
 import logging
 import os
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from launcher.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
@@ -17,7 +17,7 @@ log = logging.getLogger("launcher.slave")
 _LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 
 
-def default_host(environ: dict[str, str] | None = None) -> str:
+def default_host(environ: Mapping[str, str] | None = None) -> str:
     """The address other nodes use to reach us, chosen the way rospy/roscpp choose it."""
     env = os.environ if environ is None else environ
     return env.get("ROS_HOSTNAME") or env.get("ROS_IP") or socket.gethostname()
