@@ -17,10 +17,9 @@ from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, Param
 from launcher.errors import LaunchError
-from launcher.names import (SEP, canonicalize_name, is_legal_name, is_private, make_global_ns,
-                            namespaces_of, ns_join)
+from launcher.names import SEP, is_legal_name, is_private, make_global_ns, ns_join
 from launcher.xml.document import element_text, read_launch
-from launcher.xml.scope import Scope, ScopeError
+from launcher.xml.scope import Scope, ScopeError, canonical
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists; anything else is warned about
@@ -131,7 +130,10 @@ class XmlLoader:
         return "arg '%s' is required: pass %s:=value on the command line" % (name, name)
 
     def _attr(self, el: Any, name: str, scope: Scope) -> str | None:
-        return self._sub(el.get(name), scope, el)
+        v = el.get(name)
+        if not v or "$" not in v:
+            return v
+        return self._sub(v, scope, el)
 
     def _reqd(self, el: Any, name: str, scope: Scope) -> str:
         v = el.get(name)
@@ -411,12 +413,15 @@ class XmlLoader:
                              % (name, command)) from None
 
     def _add_param(self, key: str, value: Any, scope: Scope, el: Any) -> None:
-        key = canonicalize_name(key)
+        key = canonical(key)
         params = self.params
-        if key != SEP:
-            for parent in namespaces_of(key)[1:]:
-                if parent[:-1] in params:
-                    self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent[:-1]))
+        # a parameter under another parameter is only a config error in roslaunch: warn
+        i = key.find(SEP, 1)
+        while i > 0:
+            parent = key[:i]
+            if parent in params:
+                self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
+            i = key.find(SEP, i + 1)
         params[key] = Param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
@@ -584,7 +589,7 @@ class XmlLoader:
         for key, value, pfile, pline in list(scope.params) + param_scope.params:
             if key.startswith("~"):
                 key = key[1:]
-            full = canonicalize_name(param_scope.ns + key)
+            full = canonical(param_scope.ns + key)
             self.params[full] = Param(full, value, pfile, pline)
 
         if respawn and required:
@@ -607,7 +612,7 @@ class XmlLoader:
         namespace = child.ns
         if "//" in namespace:
             namespace = _MULTISLASH.sub("/", namespace)
-        remaps = tuple(remap_scope.remap_args()) if remap_scope is not None else tuple(scope.remap_args())
+        remaps = (remap_scope or scope).remap_args()
         env_args = tuple((env_scope or scope).env_args)
         node = Node(package=pkg, type=node_type, name=name or "", namespace=namespace, args=args or "",
                     remap_args=remaps, env_args=env_args, respawn=respawn, respawn_delay=respawn_delay,

@@ -13,6 +13,13 @@ from __future__ import annotations
 from typing import Any, Callable, Mapping
 
 from launcher.names import PRIV_NAME, SEP, canonicalize_name, is_legal_name, make_global_ns, ns_join
+
+
+def canonical(name: str) -> str:
+    """canonicalize_name, skipping the work for names that are already canonical (nearly all)."""
+    if "//" in name or (len(name) > 1 and name[-1] == SEP):
+        return canonicalize_name(name)
+    return name
 from launcher.xml.substitution import SubstitutionScope
 
 
@@ -28,7 +35,7 @@ def global_ns(ns: str) -> str:
 
 
 class Scope(SubstitutionScope):
-    __slots__ = ("ns", "parent", "remaps", "params", "env_args", "arg_docs", "arg_names",
+    __slots__ = ("ns", "parent", "remaps", "_remap_cache", "params", "env_args", "arg_docs", "arg_names",
                  "include_args", "include_arg_docs", "pass_all_args", "args_passed",
                  "source", "include_chain")
 
@@ -39,6 +46,7 @@ class Scope(SubstitutionScope):
         self.ns = global_ns(ns)
         self.parent: Scope | None = None
         self.remaps: list[tuple[str, str]] = []
+        self._remap_cache: tuple[tuple[str, str], ...] | None = None
         self.params: list[tuple[str, Any, str, int]] = []  # (key, value, file, line) of ~params
         self.env_args: list[tuple[str, str]] = []
         self.arg_docs: dict[str, tuple[str | None, str | None]] = {}
@@ -71,6 +79,7 @@ class Scope(SubstitutionScope):
         c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
         c.parent = self
         c.remaps = []
+        c._remap_cache = None
         c.params = self.params if self.params else []
         c.env_args = self.env_args[:]
         c.arg_docs = dict(self.arg_docs)
@@ -93,13 +102,13 @@ class Scope(SubstitutionScope):
 
     # -- private params -------------------------------------------------
     def add_param(self, key: str, value: Any, filename: str, line: int) -> None:
-        key = canonicalize_name(key)
+        key = canonical(key)
         self.params[:] = [p for p in self.params if p[0] != key]
         self.params.append((key, value, filename, line))
 
     # -- remaps ---------------------------------------------------------
     def add_remap(self, src: str, dst: str) -> None:
-        src, dst = canonicalize_name(src), canonicalize_name(dst)
+        src, dst = canonical(src), canonical(dst)
         if not src or not dst:
             raise ScopeError("remap from/to attributes cannot be empty")
         if not is_legal_name(src):
@@ -108,14 +117,21 @@ class Scope(SubstitutionScope):
             raise ScopeError("remap to [%s] is not a valid ROS name" % dst)
         self.remaps = [r for r in self.remaps if r[0] != src]
         self.remaps.append((src, dst))
+        self._remap_cache = None
 
-    def remap_args(self) -> list[tuple[str, str]]:
+    def remap_args(self) -> tuple[tuple[str, str], ...]:
         """Inherited remaps first (minus those redefined here), then this scope's, in order."""
+        # a scope's parents do not change while it is alive (document order), so cache until our own change
+        if self._remap_cache is not None:
+            return self._remap_cache
         if self.parent is None:
-            return self.remaps[:]
-        own = {r[0] for r in self.remaps}
-        out = [r for r in self.parent.remap_args() if r[0] not in own]
-        out.extend(self.remaps)
+            out = tuple(self.remaps)
+        elif not self.remaps:
+            out = self.parent.remap_args()
+        else:
+            own = {r[0] for r in self.remaps}
+            out = tuple([r for r in self.parent.remap_args() if r[0] not in own] + self.remaps)
+        self._remap_cache = out
         return out
 
     # -- args -------------------------------------------------------------

@@ -11,9 +11,9 @@ builtins, no attribute starting with `_`, no `format` (it reaches attributes).
 
 from __future__ import annotations
 
-import ast
 import builtins
 import math
+import re
 from typing import Any, Callable, Mapping
 
 from launcher.errors import LaunchError
@@ -51,8 +51,18 @@ class SubstitutionScope:
         self.find_resource = find_resource
 
 
+_SIMPLE_COMMAND = re.compile(r"\$\(([^$()]+)\)")
+
+
 def collect_commands(text: str) -> list[str]:
     """The bodies of the `$(...)` in `text`, in order (roslaunch's `_collect_args` state machine)."""
+    # fast path: every '$' and every '(' opens a well-formed `$(...)`; the state machine
+    # would collect exactly what the regex does
+    n = text.count("$(")
+    if n == text.count("$") == text.count("("):
+        found = _SIMPLE_COMMAND.findall(text)
+        if len(found) == n:
+            return found
     out = []
     buf: list[str] = []
     state = 0  # 0 outside, 1 after '$', 2 after '$(', 3 inside
@@ -214,7 +224,9 @@ def auto_value(text: str) -> Any:
 
 
 class _Names(dict):
-    """Name lookup for eval: functions first, then args auto-typed (as roslaunch's _DictWrapper)."""
+    """Name lookup for eval: this call's functions, the fixed names, then args auto-typed (roslaunch's _DictWrapper)."""
+
+    __slots__ = ("_functions", "_args")
 
     def __init__(self, functions: dict[str, Any], args: Mapping[str, str]):
         super().__init__()
@@ -222,33 +234,57 @@ class _Names(dict):
         self._args = args
 
     def __getitem__(self, key: str) -> Any:
-        try:
-            return self._functions[key]
-        except KeyError:
-            return auto_value(self._args[key])
+        f = self._functions.get(key, _MISSING)
+        if f is not _MISSING:
+            return f
+        f = _STATIC_NAMES.get(key, _MISSING)
+        if f is not _MISSING:
+            return f
+        return auto_value(self._args[key])
 
     def __contains__(self, key: object) -> bool:
-        return key in self._functions or key in self._args
+        return key in self._functions or key in _STATIC_NAMES or key in self._args
 
 
-def _check_expression(expr: str) -> ast.Expression:
+_MISSING = object()
+_STATIC_NAMES: dict[str, Any] = {**_SAFE_BUILTINS, **_MATH, **_CONSTANTS}
+_COMPILED: dict[str, Any] = {}
+
+
+def _unsafe_names(code: Any) -> str | None:
+    """The first name or attribute in `code` (or its nested code) that the sandbox refuses."""
+    for name in code.co_names:
+        if name[0] == "_" or name in _FORBIDDEN_ATTRS:
+            return name
+    for const in code.co_consts:
+        if hasattr(const, "co_names"):
+            bad = _unsafe_names(const)
+            if bad:
+                return bad
+    return None
+
+
+def _compile(expr: str) -> Any:
+    code = _COMPILED.get(expr)
+    if code is not None:
+        return code
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
     try:
-        tree = ast.parse(expr.strip(), mode="eval")
+        code = compile(expr.strip(), "<eval>", "eval")
     except SyntaxError as e:
         raise SubstitutionError("invalid $(eval) expression [%s]: %s" % (expr, e.msg)) from None
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Attribute) and (node.attr.startswith("_") or node.attr in _FORBIDDEN_ATTRS):
-            raise SubstitutionError("$(eval ...) may not use the attribute '%s'" % node.attr)
-        if isinstance(node, ast.Name) and node.id.startswith("_"):
-            raise SubstitutionError("$(eval ...) may not use the name '%s'" % node.id)
-    return tree
+    # every global name and attribute an expression can touch is in co_names (of it or its nested code)
+    bad = _unsafe_names(code)
+    if bad:
+        raise SubstitutionError("$(eval ...) may not use '%s'" % bad)
+    _COMPILED[expr] = code
+    return code
 
 
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
     """`$(eval expr)`: str() of the Python expression, with roslaunch's names and nothing dangerous."""
-    tree = _check_expression(expr)
+    code = _compile(expr)
 
     def arg(name: str) -> Any:
         return auto_value(_arg(name, scope))
@@ -265,11 +301,8 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
     def dirname() -> str:
         return _dirname(scope)
 
-    functions: dict[str, Any] = dict(_SAFE_BUILTINS)
-    functions.update(_MATH)
-    functions.update(_CONSTANTS)
-    functions.update(arg=arg, env=env, optenv=optenv, anon=anon, dirname=dirname, find=scope.find_package)
-    code = compile(tree, "<eval>", "eval")
+    functions = {"arg": arg, "env": env, "optenv": optenv, "anon": anon, "dirname": dirname,
+                 "find": scope.find_package}
     try:
         value = eval(code, {"__builtins__": {}}, _Names(functions, scope.args))  # noqa: S307 (sandboxed above)
     except (SubstitutionError, LaunchError):
