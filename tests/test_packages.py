@@ -23,7 +23,9 @@ def make_pkg(root, rel, name=None, meta=False, manifest=False):
     else:
         export = "<export><metapackage/></export>" if meta else ""
         (d / "package.xml").write_text(
-            '<?xml version="1.0"?>\n<package format="2">\n  <name>\n  %s  </name>%s\n</package>\n'
+            '<?xml version="1.0"?>\n<package format="2">\n  <name>\n  %s  </name>\n  <version>0.0.1</version>\n'
+            '  <description>d</description>\n  <maintainer email="m@example.com">m</maintainer>\n'
+            '  <license>BSD</license>%s\n</package>\n'
             % (name or os.path.basename(rel), export))
     return d
 
@@ -350,3 +352,49 @@ def test_matches_rospkg_and_roslib_on_compat_corpus(ros_env):
         except PackageNotFound:
             ours = "NOPKG"
         assert ours == ref["nodes"]["%s/%s" % (pkg, typ)], (pkg, typ)
+
+
+CATKIN_REF = r"""
+import json, sys
+from catkin.find_in_workspaces import find_in_workspaces
+out = []
+for dirs, project, path, first in json.loads(sys.argv[1]):
+    out.append(find_in_workspaces(dirs, project=project, path=path, first_matching_workspace_only=True,
+                                  first_match_only=first))
+print(json.dumps(out))
+"""
+
+
+def test_catkin_dirs_match_catkin_find_in_workspaces(ros_env, tmp_path):
+    # a devel space whose .catkin lists two source spaces, an install space, and a plain prefix
+    src1, src2 = tmp_path / "src1", tmp_path / "src2"
+    make_pkg(src1, "zz_a")
+    make_pkg(src1, "group/zz_b")
+    make_pkg(src2, "zz_c")
+    (src2 / "ignored").mkdir()
+    (src2 / "ignored/CATKIN_IGNORE").write_text("")
+    make_pkg(src2, "ignored/zz_d")
+    devel = tmp_path / "devel"
+    devel.mkdir()
+    (devel / ".catkin").write_text("%s;%s;%s" % (src1, src2, src1))
+    make_exe(devel / "lib/zz_a/tool")
+    install = tmp_path / "install"
+    (install / "share/zz_b/cfg").mkdir(parents=True)
+    (install / ".catkin").write_text("")
+    make_exe(install / "lib/zz_c/other")
+    plain = tmp_path / "plain"
+    (plain / "share/zz_a").mkdir(parents=True)
+    env = {"CMAKE_PREFIX_PATH": os.pathsep.join(str(p) for p in (plain, devel, install)), "ROS_PACKAGE_PATH": ""}
+    queries = []
+    for project in ("zz_a", "zz_b", "zz_c", "zz_d", "zz_none"):
+        for dirs in (["libexec", "share"], ["libexec"], ["share"]):
+            queries.append([dirs, project, None, False])
+        queries.append([["share"], project, "cfg", True])
+        queries.append([["share"], project, "package.xml", True])
+    ref = json.loads(subprocess.run([ros_env["python"], "-c", CATKIN_REF, json.dumps(queries)],
+                                    env=dict(os.environ, PATH=ros_env["path"], **env), capture_output=True,
+                                    text=True, check=True, timeout=120).stdout)
+    ix = PackageIndex(environ=env)
+    for (dirs, project, path, first), expected in zip(queries, ref):
+        ours = ix.catkin_dirs(project, tuple(dirs), path=path, first_match_only=first)
+        assert ours == expected, (dirs, project, path)
