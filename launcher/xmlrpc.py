@@ -359,18 +359,24 @@ _FAST_CALL = re.compile(
 _FAST_PARAM = re.compile(
     r"\s*<param>\s*<value>(?:<(string|int|i4|double|boolean)>([^<&]*)</\1>|([^<&]*))</value>\s*</param>")
 _FAST_SPACE = re.compile(r"\s*\Z")
-# what expat refuses in character data: the fast path must refuse it too
-_NOT_XML_TEXT = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff]|]]>")
+# what expat refuses in character data (C0 controls but TAB/LF, U+FFFE, U+FFFF, "]]>") and CR,
+# which XML turns into LF: requests with any of these go to expat
+_CONTROL_BYTES = bytes(c for c in range(32) if c not in (9, 10))
+
+
+def _plain_xml_text(data: bytes) -> bool:
+    return (len(data.translate(None, _CONTROL_BYTES)) == len(data) and b"]]>" not in data
+            and b"\xef\xbf\xbe" not in data and b"\xef\xbf\xbf" not in data)
 
 
 def _loads_request_fast(data: bytes) -> tuple[str, list[Any]] | None:
     """The common flat request, or None when expat must decide."""
+    if not _plain_xml_text(data):
+        return None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:
         return None
-    if "\r" in text or _NOT_XML_TEXT.search(text) is not None:
-        return None  # XML turns CR/LF into LF, and some text is not XML at all: expat's business
     m = _FAST_CALL.match(text)
     if m is None:
         return None
@@ -614,11 +620,19 @@ class _Connection(asyncio.Protocol):
             if end > server.max_header_size:
                 self._http_error(431, "Request Header Fields Too Large")
                 return
-            try:
-                path, length, keep_alive, expect_continue = self._parse_head(bytes(buf[:end]))
-            except _HttpError as e:
-                self._http_error(e.status, e.reason)
-                return
+            head = bytes(buf[:end])
+            parsed = server._head_cache.get(head)
+            if parsed is None:
+                # clients repeat the same few heads (only Content-Length moves): parse each once
+                try:
+                    parsed = self._parse_head(head)
+                except _HttpError as e:
+                    self._http_error(e.status, e.reason)
+                    return
+                if len(server._head_cache) >= 1024:
+                    server._head_cache.clear()
+                server._head_cache[head] = parsed
+            path, length, keep_alive, expect_continue = parsed
             body_start = end + 4
             if len(buf) < body_start + length:
                 if expect_continue and len(buf) == body_start:
@@ -797,6 +811,7 @@ class XmlRpcServer:
         self.max_connections = max_connections
         self._server: asyncio.base_events.Server | None = None
         self._connections: set[_Connection] = set()
+        self._head_cache: dict[bytes, tuple[bytes, int, bool, bool]] = {}
         self._loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
 
     def _protocol(self) -> asyncio.Protocol:
