@@ -884,3 +884,32 @@ def test_expectations_are_roslaunchs(ros_env, tmp_path):
         except AssertionError as e:
             failures.append("%s: %s" % (case.id, str(e)[:600]))
     assert not failures, "\n".join(failures)
+
+
+# ------------------------------------------------------------------------------ import-order quirk
+
+YAML_BEFORE_ROSPARAM = L("""
+  <param name="first" type="yaml" value="deg(90)"/>
+  <param name="first_rad" type="yaml" value="rad(pi)"/>
+  <rosparam param="r">deg(180)</rosparam>
+  <param name="after" type="yaml" value="deg(90)"/>""")
+YAML_BEFORE_ROSPARAM_PARAMS = {"/first": "deg(90)", "/first_rad": "rad(pi)", "/r": math.pi, "/after": math.pi / 2}
+
+
+def test_yaml_param_angles_only_after_a_rosparam(tmp_path):
+    """roslaunch registers rosparam's angle syntax when it first meets a <rosparam> tag, so a
+    type="yaml" param before it keeps `deg(90)` as a string and one after it gets radians."""
+    case = Case("yaml_before_rosparam", {MAIN: YAML_BEFORE_ROSPARAM}, params=YAML_BEFORE_ROSPARAM_PARAMS)
+    path, env, pkg = _write_case(case, tmp_path)
+    _check(case, _ours(path, env, []), pkg, "launcher")
+
+
+def test_yaml_param_angles_quirk_is_roslaunchs(ros_env, tmp_path):
+    import yaml
+    case = Case("yaml_before_rosparam", {MAIN: YAML_BEFORE_ROSPARAM})
+    path, env, _pkg = _write_case(case, tmp_path)
+    env["PATH"] = ros_env["path"]
+    proc = subprocess.run(["roslaunch", "--dump-params", path], env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert yaml.safe_load(proc.stdout) == YAML_BEFORE_ROSPARAM_PARAMS
