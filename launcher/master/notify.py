@@ -101,8 +101,11 @@ class Notifier:
             if self._queues.get(api) is q:
                 del self._queues[api]
                 del self._workers[api]
-            for key in [k for k, v in self._pending_pub.items() if k[0] == api] if q else ():
-                del self._pending_pub[key]
+            if q:  # cancelled with callbacks still queued: forget them
+                for item in q:
+                    if item.topic is not None:
+                        self._pending_pub.pop((api, item.topic), None)
+                q.clear()
 
     def pending(self) -> int:
         """Callbacks queued or in flight (for tests and shutdown)."""

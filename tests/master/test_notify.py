@@ -1,0 +1,107 @@
+"""The Notifier: per-node ordering, superseded publisherUpdates, time-outs, cancellation."""
+
+from __future__ import annotations
+
+import asyncio
+
+from launcher import xmlrpc
+from launcher.master.notify import Notifier
+
+
+class SlowNode:
+    """A node's slave API on loopback that records calls; `delay` seconds before each answer."""
+
+    def __init__(self, delay=0.0, answer=(1, "", 0)):
+        self.delay = delay
+        self.answer = answer
+        self.calls = []
+        self.server = xmlrpc.XmlRpcServer(self.dispatch, "127.0.0.1", 0)
+
+    def dispatch(self, method, params):
+        self.calls.append((method, params))
+
+        async def reply():
+            await asyncio.sleep(self.delay)
+            return list(self.answer)
+        return reply()
+
+    async def __aenter__(self):
+        await self.server.start()
+        self.uri = "http://127.0.0.1:%d/" % self.server.port
+        return self
+
+    async def __aexit__(self, *exc):
+        await self.server.stop()
+
+
+async def _until(cond, timeout=5.0):
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not cond():
+        assert asyncio.get_running_loop().time() < deadline, "condition not reached"
+        await asyncio.sleep(0.01)
+
+
+def test_calls_to_one_node_keep_their_order_and_queued_publisher_updates_coalesce():
+    async def scenario():
+        n = Notifier(timeout=5)
+        async with SlowNode(delay=0.2) as node:
+            n.publisher_update(node.uri, "/t", ["a"])          # sent at once
+            await _until(lambda: len(node.calls) == 1)
+            n.param_update(node.uri, "/p/", 1)                  # queued behind it
+            n.publisher_update(node.uri, "/t", ["a", "b"])     # queued
+            n.publisher_update(node.uri, "/t", ["a", "b", "c"])  # supersedes the queued one
+            n.publisher_update(node.uri, "/u", ["x"])          # another topic: kept
+            await _until(lambda: n.pending() == 0)
+            assert node.calls == [
+                ("publisherUpdate", ["/master", "/t", ["a"]]),
+                ("paramUpdate", ["/master", "/p/", 1]),
+                ("publisherUpdate", ["/master", "/t", ["a", "b", "c"]]),
+                ("publisherUpdate", ["/master", "/u", ["x"]]),
+            ]
+        await n.close()
+    asyncio.run(scenario())
+
+
+def test_a_hanging_node_only_delays_itself():
+    async def scenario():
+        n = Notifier(timeout=0.5)
+        async with SlowNode(delay=30) as hung, SlowNode() as fine:
+            n.shutdown_node(hung.uri, "/x", "why")
+            n.param_update(hung.uri, "/p/", 2)
+            n.param_update(fine.uri, "/p/", 3)
+            await _until(lambda: len(fine.calls) == 1, timeout=0.4)  # not behind the hung node
+            await _until(lambda: len(hung.calls) == 2, timeout=3)      # time-out, then the next call
+            assert hung.calls[0] == ("shutdown", ["/master", "[/x] Reason: why"])
+        await n.close()
+        assert n.pending() == 0
+    asyncio.run(scenario())
+
+
+def test_results_reach_the_callback_and_close_cancels_everything():
+    async def scenario():
+        n = Notifier(timeout=5)
+        results = []
+        async with SlowNode(answer=(-1, "not subscribed", 0)) as node:
+            n.param_update(node.uri, "/p/", 1, results.append)
+            await _until(lambda: results)
+            assert results == [[-1, "not subscribed", 0]]
+            node.delay = 30
+            for i in range(5):
+                n.param_update(node.uri, "/p/", i)
+            await _until(lambda: len(node.calls) == 2)
+            await n.close()
+            assert n.pending() == 0
+            n.param_update(node.uri, "/p/", 9)  # after close: dropped
+            assert n.pending() == 0
+    asyncio.run(scenario())
+
+
+def test_unreachable_and_non_http_apis_are_skipped():
+    async def scenario():
+        n = Notifier(timeout=1)
+        n.publisher_update("rosrpc://127.0.0.1:1", "/t", [])
+        assert n.pending() == 0
+        n.publisher_update("http://127.0.0.1:1/", "/t", [])  # nothing listens: fails fast, logged
+        await _until(lambda: n.pending() == 0)
+        await n.close()
+    asyncio.run(scenario())
