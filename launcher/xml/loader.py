@@ -324,20 +324,40 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ <param>
     def _param_tag(self, el: Any, scope: Scope, force_local: bool = False) -> None:
-        self._check_attrs(el, scope, PARAM_ATTRS)
-        ptype = (el.get("type") or "auto").lower().strip()
-        vals = [self._attr(el, a, scope) for a in ("value", "textfile", "binfile", "command")]
-        if sum(v is not None for v in vals) != 1:
+        attrib = el.attrib
+        for a in attrib:
+            if a not in PARAM_ATTRS:
+                self._warn(scope, el, "unknown <param> attribute '%s' (ignored)" % a)
+        ptype = attrib.get("type")
+        ptype = ptype.lower().strip() if ptype else "auto"
+        value = attrib.get("value")
+        textfile = attrib.get("textfile")
+        binfile = attrib.get("binfile")
+        command = attrib.get("command")
+        if (value is not None) + (textfile is not None) + (binfile is not None) + (command is not None) != 1:
             raise self._fail(scope, el, "<param> tag must have one and only one of value/textfile/binfile/command.")
-        raw_name = el.get("name")
+        raw_name = attrib.get("name")
         if raw_name is None:
             raise self._fail(scope, el, "<param> tag is missing required attribute: 'name'")
-        name = self._sub(raw_name.strip(), scope, el) or ""
-        value = self._param_value(el, scope, name, ptype, *vals)
-        if is_private(name) or force_local:
-            scope.add_param(name, value, scope.source, el.sourceline or 0)
+        name = raw_name.strip()
+        if "$" in name:
+            name = self._sub(name, scope, el) or ""
+        if value is not None:
+            if "$" in value:
+                value = self._sub(value, scope, el)
+            value = value.strip()  # type: ignore[union-attr]
+            if ptype == "auto":
+                from launcher.params.values import convert_value
+                typed = convert_value(value, "auto")
+            else:
+                typed = self._convert(value, ptype, scope, el, name)
         else:
-            self._add_param(ns_join(scope.ns, name), value, scope, el)
+            typed = self._param_value(el, scope, name, ptype, None, self._sub(textfile, scope, el),
+                                      self._sub(binfile, scope, el), self._sub(command, scope, el))
+        if force_local or name[:1] == "~":
+            scope.add_param(name, typed, scope.source, el.sourceline or 0)
+        else:
+            self._add_param(ns_join(scope.ns, name), typed, scope, el)
 
     def _convert(self, text: str, ptype: str, scope: Scope, el: Any, name: str) -> Any:
         if ptype == "yaml":
