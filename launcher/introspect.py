@@ -128,12 +128,22 @@ def format_ros_args(docs: dict[str, tuple[str | None, str | None]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _has_binary(value: Any) -> bool:
+    if isinstance(value, (bytes, bytearray)):
+        return True
+    if isinstance(value, dict):
+        return any(_has_binary(v) for v in value.values())
+    if isinstance(value, list):
+        return any(_has_binary(v) for v in value)
+    return False
+
+
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
     for p in config.params.values():
-        if isinstance(p.value, (bytes, bytearray)):
-            raise LaunchError("cannot print parameter [%s] as YAML: it is binary data (binfile=)" % p.key,
-                              p.filename or None, p.line or None)
+        if _has_binary(p.value):
+            raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or !!binary), "
+                              "which roslaunch cannot print either" % p.key, p.filename or None, p.line or None)
     data = {k: p.value for k, p in config.params.items()}
     try:
         from launcher.params.rosyaml import dump_yaml

@@ -40,7 +40,8 @@ LAUNCH_ATTRS = frozenset(("deprecated", "if", "unless"))
 TEST_TIME_LIMIT_DEFAULT = 60.0
 MACHINE_TIMEOUT_DEFAULT = 10.0
 COMMAND_PARAM_TIMEOUT = 60.0  # seconds a <param command=...> may run
-CORE_NODE_NAMES = ("/rosout",)  # roscore.xml's node, which every launch but --dump-params loads
+CORE_NODE_NAMES = ("/rosout",)
+MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-params loads
 
 _MULTISLASH = re.compile("//+")
 
@@ -736,6 +737,11 @@ class XmlLoader:
         except ScopeError as e:
             raise self._fail(scope, el, "%s for include of [%s]" % (e, inc_file)) from None
         chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
+        if len(chain) > MAX_INCLUDE_DEPTH:
+            raise self._fail(scope, el, "includes are nested more than %d deep" % MAX_INCLUDE_DEPTH)
+        real = os.path.realpath(inc_file)
+        if any(os.path.realpath(f) == real for f, _ in chain):
+            raise self._fail(scope, el, "include cycle: [%s] includes itself" % inc_file)
         child.source = inc_file
         child.include_chain = chain
         launch = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None

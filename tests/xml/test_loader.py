@@ -558,3 +558,14 @@ def test_multiple_files_share_nodes_and_params_but_not_args(ld):
     assert {k: p.value for k, p in c.params.items()} == {"/a": "A", "/common": "b", "/b": "B"}
     assert names(c) == ["/na", "/nb"]
     assert "multiple nodes named [/na]" in ld.error([a, a]).message
+
+
+def test_include_cycle_is_an_error_not_a_crash(ld):
+    ld.write("a.launch", '<launch>\n<include file="$(dirname)/b.launch"/>\n</launch>')
+    ld.write("b.launch", '<launch>\n\n<include file="$(dirname)/a.launch"/>\n</launch>')
+    e = ld.error([str(ld.launch / "a.launch")])
+    assert "cycle" in e.message and e.filename.endswith("b.launch") and e.line == 3
+    # the same file included twice side by side is fine
+    ld.write("leaf.launch", '<launch><param name="p" value="1"/></launch>')
+    assert ld.params('<launch><include file="$(dirname)/leaf.launch"/><include file="$(dirname)/leaf.launch"/>'
+                     '</launch>') == {"/p": 1}
