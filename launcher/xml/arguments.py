@@ -75,7 +75,7 @@ def resolve_launch_arguments(positional: list[str], packages: Any) -> tuple[list
                               % (words[1], words[0], words[0]))
     else:
         files = words
-    missing = [f for f in files if not os.path.isfile(f)]
+    missing = [f for f in files if f != "-" and not os.path.isfile(f)]
     if missing:
         if len(words) == 1:
             raise LaunchError("[%s] is not a launch file name" % missing[0])

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import os
+import re
 
 from lxml import etree
 
 from launcher.errors import LaunchError
 
 _PARSER = None
+_LXML_POSITION = re.compile(r"(, line \d+, column \d+|\s*\([^()]*, line \d+\))$")
 
 
 def _parser() -> etree.XMLParser:
@@ -23,23 +25,23 @@ def _parser() -> etree.XMLParser:
 def read_launch(filename: str, include_chain: tuple[tuple[str, int], ...] = ()) -> etree._Element:
     """The `<launch>` element of `filename` (which may be anywhere in the document, but only once)."""
     try:
-        with open(filename, "rb") as f:
-            data = f.read()
+        if filename == "-":  # roslaunch reads launch XML from stdin for '-'
+            import sys
+            data = sys.stdin.buffer.read()
+        else:
+            with open(filename, "rb") as f:
+                data = f.read()
     except OSError as e:
         raise LaunchError("cannot read launch file [%s]: %s" % (filename, e.strerror or e),
                           include_chain=include_chain) from None
     if not data.strip():
         raise LaunchError("Invalid roslaunch XML syntax: the file is empty", filename, None, include_chain)
     try:
-        root = etree.fromstring(data, _parser(), base_url=filename)
+        root = etree.fromstring(data, _parser(), base_url=None if filename == "-" else filename)
     except etree.XMLSyntaxError as e:
         msg = e.msg or str(e)
-        # lxml appends "(<file>, line N)"; we print file:line ourselves
-        cut = msg.rfind(", line ")
-        if cut > 0 and msg.endswith(")"):
-            paren = msg.rfind("(", 0, cut)
-            if paren > 0:
-                msg = msg[:paren].rstrip()
+        # lxml appends ", line N, column M" (or "(<file>, line N)"); we print file:line ourselves
+        msg = _LXML_POSITION.sub("", msg)
         raise LaunchError("Invalid roslaunch XML syntax: %s" % msg, filename, e.lineno or None,
                           include_chain) from None
     launches = [root] if root.tag == "launch" else []
