@@ -28,6 +28,7 @@ __all__ = [
 MAXINT = 2**31 - 1
 MININT = -(2**31)
 MAX_DEPTH = 200  # nested arrays/structs; deeper values are refused when parsed
+MAX_RESPONSE_SIZE = 64 * 1024 * 1024  # what `call` accepts from a server
 
 
 class Fault(Exception):
@@ -873,18 +874,37 @@ async def _call(uri: str, method: str, params: tuple) -> Any:
             raise XmlRpcError("bad HTTP response from %s" % uri)
         status = int(parts[1]) if parts[1].isdigit() else 0
         length = -1
-        while True:
+        for _ in range(200):  # a bounded number of header lines
             line = await reader.readline()
             if line in (b"\r\n", b"\n", b""):
                 break
             name, _, value = line.partition(b":")
             if name.strip().lower() == b"content-length" and value.strip().isdigit():
                 length = int(value.strip())
-        data = await (reader.readexactly(length) if length >= 0 else reader.read())
+        if length > MAX_RESPONSE_SIZE:
+            raise XmlRpcError("reply from %s is too large (%d bytes)" % (uri, length))
+        if length >= 0:
+            data = await reader.readexactly(length)
+        else:  # no Content-Length: the body ends with the connection (bounded all the same)
+            chunks: list[bytes] = []
+            size = 0
+            while size <= MAX_RESPONSE_SIZE:
+                more = await reader.read(MAX_RESPONSE_SIZE + 1 - size)
+                if not more:
+                    break
+                chunks.append(more)
+                size += len(more)
+            data = b"".join(chunks)
+            if size > MAX_RESPONSE_SIZE:
+                raise XmlRpcError("reply from %s is too large" % uri)
         if status != 200:
             raise XmlRpcError("HTTP %d from %s" % (status, uri))
         return loads_response(data)
     except asyncio.IncompleteReadError:
         raise XmlRpcError("connection closed by %s before the reply was complete" % uri) from None
+    except ValueError as e:  # a header line longer than the stream's limit
+        if isinstance(e, XmlRpcError):
+            raise
+        raise XmlRpcError("bad HTTP response from %s: %s" % (uri, e)) from None
     finally:
         writer.close()

@@ -393,3 +393,28 @@ def test_fast_path_agrees_with_expat_on_other_shapes(body):
             X.loads_request(body)
         return
     assert X.loads_request(body) == want
+
+
+@pytest.mark.parametrize("reply", [
+    b"HTTP/1.1 200 OK\r\nContent-Length: 999999999999\r\n\r\n",
+    b"HTTP/1.1 200 OK\r\nX-Long: " + b"a" * 100000 + b"\r\n\r\n",
+    b"NOT HTTP\r\n\r\n",
+    b"HTTP/1.1 200 OK\r\nContent-Length: 50\r\n\r\n<methodResponse>",
+    b"HTTP/1.1 200 OK\r\n\r\n<methodResponse><params><param><value>unterminated",
+], ids=["huge-length", "long-header", "not-http", "short-body", "bad-xml-until-eof"])
+def test_client_survives_hostile_servers(reply):
+    async def scenario():
+        async def serve(reader, writer):
+            await reader.read(65536)
+            writer.write(reply)
+            await writer.drain()
+            writer.close()
+        srv = await asyncio.start_server(serve, "127.0.0.1", 0)
+        port = srv.sockets[0].getsockname()[1]
+        try:
+            with pytest.raises(X.XmlRpcError):
+                await X.call("http://127.0.0.1:%d/" % port, "getPid", "/x", timeout=5)
+        finally:
+            srv.close()
+            await srv.wait_closed()
+    asyncio.run(scenario())
