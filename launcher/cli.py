@@ -72,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         if not opts.positional:
             parser.error("you must specify at least one input file")
         from launcher import runtime
-        return runtime.run(opts)
+        # a real command line (argv from sys.argv) may end the process as soon as all is stopped
+        return runtime.run(opts, exit_process=argv is None)
     except LaunchError as e:
         print(str(e), file=sys.stderr)
         return 1

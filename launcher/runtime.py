@@ -25,8 +25,13 @@ class _Stop(Exception):
     """Shutdown was requested while starting up."""
 
 
-def run(opts: Any) -> int:
-    """`launch [pkg] file.launch ...`: run until SIGINT/SIGTERM, a required exit, or (external master) all exits."""
+def run(opts: Any, *, exit_process: bool = False) -> int:
+    """`launch [pkg] file.launch ...`: run until SIGINT/SIGTERM, a required exit, or (external master) all exits.
+
+    With `exit_process` (the `launch` command itself), the process ends here
+    once everything is stopped and flushed, skipping the interpreter's
+    tear-down (tens of ms that a user waiting for the prompt would notice).
+    """
     from launcher.process.watchdog import Watchdog
     # The guard is forked first, while this process has a single thread.
     watchdog = Watchdog.start()
@@ -40,7 +45,7 @@ def run(opts: Any) -> int:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
         launch = Launch(opts, watchdog)
         launch.load()
-        return asyncio.run(launch.main())
+        status = asyncio.run(launch.main())
     finally:
         if watchdog is not None:
             watchdog.close()
@@ -49,6 +54,14 @@ def run(opts: Any) -> int:
                 os.unlink(pid_fn)
             except OSError:
                 pass
+    if exit_process:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(status)
+    return status
 
 
 def summary(config: Any, params: Mapping[str, Any]) -> str:

@@ -7,7 +7,7 @@ import os
 import re
 import shutil
 import subprocess
-from typing import Callable, Mapping
+from typing import Awaitable, Callable, Mapping
 
 from launcher.process import console
 
@@ -77,19 +77,17 @@ def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
     return run_dir
 
 
-def disk_usage_bytes(path: str) -> int:
-    """Apparent size of everything under `path` (what `du -sb` reports), at low priority."""
+def _du_argv(path: str) -> list[str] | None:
     du = shutil.which("du")
-    if du:
-        argv = [du, "-sb", path]
-        nice = shutil.which("nice")
-        if nice:
-            argv = [nice, "-n", "19"] + argv
-        out = subprocess.run(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, check=False).stdout
-        try:
-            return int(out.split()[0])
-        except (IndexError, ValueError):
-            pass
+    if not du:
+        return None
+    argv = [du, "-sb", path]
+    nice = shutil.which("nice")
+    # low priority: the check must never compete with the nodes
+    return [nice, "-n", "19"] + argv if nice else argv
+
+
+def _walk_size(path: str) -> int:
     total = 0
     for dirpath, dirnames, filenames in os.walk(path):
         for name in filenames + dirnames:
@@ -100,44 +98,77 @@ def disk_usage_bytes(path: str) -> int:
     return total
 
 
-def check_once(root: str, threshold: int) -> list[tuple[bool, str]]:
-    """One round of checks: [(is_warning, message)]. Blocking: run it in a thread."""
+async def disk_usage_bytes(path: str) -> int:
+    """Apparent size of everything under `path` (what roslaunch's `du -sb` reports).
+
+    `du` runs as a low-priority child that is killed if the launch ends first
+    (a cancelled check never delays the shutdown); without `du`, a walk in a
+    worker thread.
+    """
+    argv = _du_argv(path)
+    if argv is None:
+        return await asyncio.get_running_loop().run_in_executor(None, _walk_size, path)
+    proc = await asyncio.create_subprocess_exec(*argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                                stdin=subprocess.DEVNULL)
+    try:
+        out, _ = await proc.communicate()
+    except asyncio.CancelledError:
+        try:
+            proc.kill()
+        except ProcessLookupError:
+            pass
+        raise
+    try:
+        return int(out.split()[0])
+    except (IndexError, ValueError):
+        return 0
+
+
+def disk_space_warning(root: str) -> str | None:
+    """A warning if the disk holding `root` is nearly full (psutil; statvfs, cheap)."""
+    try:
+        import psutil
+        du = psutil.disk_usage(root if os.path.exists(root) else os.path.dirname(root) or "/")
+    except (ImportError, OSError):
+        return None
+    if du.free < LOW_DISK_BYTES or du.free < du.total * LOW_DISK_FRACTION:
+        return ("WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
+                % (root, format_size(du.free), format_size(du.total)))
+    return None
+
+
+async def check_once(root: str, threshold: int) -> list[tuple[bool, str]]:
+    """One round of checks: [(is_warning, message)]."""
     messages: list[tuple[bool, str]] = []
     if os.path.isdir(root):
-        usage = disk_usage_bytes(root)
+        usage = await disk_usage_bytes(root)
         if usage > threshold:
             messages.append((True, "WARNING: disk usage in log directory [%s] is over %s.\n"
                                    "It's recommended that you use the 'rosclean' command."
                              % (root, format_size(threshold))))
         else:
             messages.append((False, "Done checking log file disk usage. Usage is <%s." % format_size(threshold)))
-    try:
-        import psutil
-        du = psutil.disk_usage(root if os.path.exists(root) else os.path.dirname(root) or "/")
-    except (ImportError, OSError):
-        du = None
-    if du is not None and (du.free < LOW_DISK_BYTES or du.free < du.total * LOW_DISK_FRACTION):
-        messages.append((True, "WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
-                         % (root, format_size(du.free), format_size(du.total))))
+    warning = disk_space_warning(root)
+    if warning:
+        messages.append((True, warning))
     return messages
 
 
 async def watch_log_disk(root: str, threshold: int, *, first_delay: float = FIRST_CHECK_DELAY_S,
                          interval: float = RECHECK_INTERVAL_S,
-                         check: Callable[[str, int], list[tuple[bool, str]]] = check_once) -> None:
+                         check: Callable[[str, int], Awaitable[list[tuple[bool, str]]]] = check_once) -> None:
     """Check the log directory in the background now and then, until cancelled.
 
     roslaunch runs `du -sb` synchronously before anything starts; here the walk
-    runs in a worker thread at low priority once start-up is over, so a big log
-    directory never delays the nodes. Only warnings are repeated.
+    runs at low priority once start-up is over, so a big log directory never
+    delays the nodes. Only warnings are repeated.
     """
-    loop = asyncio.get_running_loop()
     await asyncio.sleep(first_delay)
     first = True
     while True:
         try:
-            messages = await loop.run_in_executor(None, check, root, threshold)
-        except Exception:  # a failing check must never take the launch down
+            messages = await check(root, threshold)
+        except Exception:  # noqa: BLE001 - a failing check must never take the launch down
             messages = []
         for is_warning, msg in messages:
             if is_warning:
