@@ -29,6 +29,8 @@ MAXINT = 2**31 - 1
 MININT = -(2**31)
 MAX_DEPTH = 200  # nested arrays/structs; deeper values are refused when parsed
 MAX_RESPONSE_SIZE = 64 * 1024 * 1024  # what `call` accepts from a server
+LARGE_REQUEST = 256 * 1024  # request bodies above this are parsed off the event loop
+MULTICALL_CHUNK = 500  # calls of a system.multicall run between two turns of the event loop
 
 
 class Fault(Exception):
@@ -467,6 +469,24 @@ def multicall(dispatch: Dispatch, calls: Any) -> Any:
     """
     if not isinstance(calls, list):
         raise Fault(1, "system.multicall expects an array of calls")
+    if len(calls) > MULTICALL_CHUNK:
+        return _multicall_chunked(dispatch, calls)
+    return _multicall_part(dispatch, calls)
+
+
+async def _multicall_chunked(dispatch: Dispatch, calls: list) -> list[Any]:
+    """A long multicall in slices, letting other clients in between (still in order for its caller)."""
+    results: list[Any] = []
+    for start in range(0, len(calls), MULTICALL_CHUNK):
+        part = _multicall_part(dispatch, calls[start:start + MULTICALL_CHUNK])
+        if inspect.isawaitable(part):
+            part = await part
+        results.extend(part)
+        await asyncio.sleep(0)
+    return results
+
+
+def _multicall_part(dispatch: Dispatch, calls: list) -> Any:
     results: list[Any] = []
     pending: list[tuple[int, Awaitable]] = []
     for call_ in calls:
@@ -694,6 +714,12 @@ class _Connection(asyncio.Protocol):
 
     def _handle(self, body: bytes, keep_alive: bool) -> None:
         server = self.server
+        if len(body) > LARGE_REQUEST:
+            # parsed in a worker thread, so that other clients are served meanwhile
+            self.busy = True
+            task = asyncio.ensure_future(self._handle_large(body))
+            task.add_done_callback(lambda t: self._async_done(t, keep_alive))
+            return
         try:
             method, params = loads_request(body)
         except XmlRpcError as e:
@@ -714,6 +740,20 @@ class _Connection(asyncio.Protocol):
             task.add_done_callback(lambda t: self._async_done(t, keep_alive))
             return
         self._reply_body(self._encode(result), keep_alive)
+
+    async def _handle_large(self, body: bytes) -> Any:
+        server = self.server
+        try:
+            method, params = await asyncio.get_running_loop().run_in_executor(None, loads_request, body)
+        except XmlRpcError as e:
+            raise Fault(1, "<class 'xml.parsers.expat.ExpatError'>:%s" % e) from None
+        if method == "system.multicall" and server.multicall:
+            result = multicall(server.dispatch, params[0] if len(params) == 1 else None)
+        else:
+            result = server.dispatch(method, params)
+        if inspect.isawaitable(result):
+            result = await result
+        return result
 
     @staticmethod
     def _encode(result: Any) -> bytes:

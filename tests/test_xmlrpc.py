@@ -418,3 +418,25 @@ def test_client_survives_hostile_servers(reply):
             srv.close()
             await srv.wait_closed()
     asyncio.run(scenario())
+
+
+def test_large_requests_and_long_multicalls_do_not_starve_other_clients(server):
+    calls = [{"methodName": "echo", "params": ["x" * 20, i]} for i in range(60000)]
+    body = xmlrpc.client.dumps((calls,), "system.multicall").encode()
+    assert len(body) > X.LARGE_REQUEST
+    import threading
+    result = {}
+
+    def big():
+        result["r"] = xmlrpc.client.ServerProxy(server.uri).system.multicall(calls)
+    t = threading.Thread(target=big)
+    t.start()
+    served = 0
+    while t.is_alive():
+        t0 = time.time()
+        assert _alive(server)
+        assert time.time() - t0 < 0.5
+        served += 1
+    t.join()
+    assert served >= 2  # the small calls were answered while the big one ran
+    assert len(result["r"]) == 60000 and result["r"][59999] == [["x" * 20, 59999]]
