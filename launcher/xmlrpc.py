@@ -15,6 +15,7 @@ import base64
 import datetime
 import inspect
 import re
+import socket
 import urllib.parse
 from typing import Any, Awaitable, Callable, Iterable
 from xml.parsers import expat
@@ -757,8 +758,6 @@ class _Connection(asyncio.Protocol):
 
     @staticmethod
     def _encode(result: Any) -> bytes:
-        if type(result) is bytes and result.startswith(b"<?xml"):
-            return result  # a pre-encoded response (cached replies)
         try:
             return dumps_response(result)
         except Exception as e:  # noqa: BLE001 - e.g. an int outside int32, as rosmaster faults
@@ -832,7 +831,7 @@ class XmlRpcServer:
 
     `dispatch(method, params)` returns the reply value, or an awaitable of it;
     raising `Fault` answers with that fault, any other exception with fault 1.
-    A `bytes` reply starting with `<?xml` is sent as an already encoded body.
+    Parts of a reply may be `Encoded` fragments (sent as they are).
     """
 
     def __init__(self, dispatch: Dispatch, host: str | None = "0.0.0.0", port: int = 0, *,
@@ -861,8 +860,23 @@ class XmlRpcServer:
     async def start(self) -> None:
         """Listen; raises OSError when the port is taken."""
         self._loop = asyncio.get_running_loop()
-        self._server = await self._loop.create_server(self._protocol, self.host, self.port,
-                                                      reuse_address=True, backlog=1024)
+        if self.host == "::":
+            # every address, IPv4 included, on one dual-stack socket (as Python's socketserver
+            # gives rospy/rosmaster under ROS_IPV6=on); asyncio would make it IPv6-only
+            sock = socket.socket(socket.AF_INET6, socket.SOCK_STREAM)
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+                sock.bind(("::", self.port))
+                sock.listen(1024)
+                sock.setblocking(False)
+            except OSError:
+                sock.close()
+                raise
+            self._server = await self._loop.create_server(self._protocol, sock=sock)
+        else:
+            self._server = await self._loop.create_server(self._protocol, self.host, self.port,
+                                                          reuse_address=True, backlog=1024)
         self.port = self._server.sockets[0].getsockname()[1]
 
     async def stop(self) -> None:

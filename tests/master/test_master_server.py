@@ -320,3 +320,25 @@ def test_uri_honours_ros_hostname_and_ros_ip():
     assert uri.startswith("http://127.0.0.1:") and host == "127.0.0.1"
     uri, host = asyncio.run(scenario({}))
     assert uri.startswith("http://%s:" % socket.gethostname()) and host == "0.0.0.0"
+
+
+def test_ros_ipv6_binds_one_dual_stack_socket():
+    if not socket.has_ipv6:
+        pytest.skip("no IPv6 here")
+
+    async def scenario():
+        m = Master(port=0, environ={"ROS_IPV6": "on", "ROS_HOSTNAME": "localhost"})
+        try:
+            await m.start()
+        except OSError as e:
+            pytest.skip("cannot bind IPv6: %s" % e)
+        loop = asyncio.get_running_loop()
+        try:
+            answers = []
+            for host in ("127.0.0.1", "[::1]"):
+                px = xmlrpc.client.ServerProxy("http://%s:%d/" % (host, m.port))
+                answers.append((await loop.run_in_executor(None, px.getPid, "/x"))[0])
+            return answers
+        finally:
+            await m.stop()
+    assert asyncio.run(scenario()) == [1, 1]
