@@ -327,7 +327,7 @@ def test_ros_ipv6_binds_one_dual_stack_socket():
         pytest.skip("no IPv6 here")
 
     async def scenario():
-        m = Master(port=0, environ={"ROS_IPV6": "on", "ROS_HOSTNAME": "localhost"})
+        m = Master(port=0, environ={"ROS_IPV6": "on"})
         try:
             await m.start()
         except OSError as e:
