@@ -27,7 +27,7 @@ class RosYamlError(LaunchError, ValueError):
 
 
 class _AngleError(Exception):
-    """An angle expression rosparam would refuse (raised inside construction, mapped later)."""
+    """A value rosparam would refuse, found while constructing (raised inside PyYAML, mapped later)."""
 
     def __init__(self, message: str, line: int):
         super().__init__(message)
@@ -124,8 +124,24 @@ _DEG = re.compile(r"^deg\([^\)]*\)$")
 _RAD = re.compile(r"^rad\([^\)]*\)$")
 
 
+def _construct_object(self: Any, node: yaml.Node, deep: bool = False) -> Any:
+    # PyYAML's constructors let Python errors out for bad explicitly tagged scalars
+    # (`!!int a`, `!!float`): turn them into a located error like any other bad YAML
+    try:
+        return yaml.constructor.BaseConstructor.construct_object(self, node, deep)
+    except (_AngleError, yaml.YAMLError, RecursionError, MemoryError):
+        raise
+    except Exception as e:  # noqa: BLE001 - any failure here means the input is bad YAML
+        raise _AngleError("invalid YAML: cannot construct %s: %s" % (node.tag, e), node.start_mark.line) from None
+
+
+def _guarded(base: type) -> type:
+    """`base` whose construction errors are located errors (PyYAML's own behaviour otherwise)."""
+    return type("Guarded" + base.__name__, (base,), {"construct_object": _construct_object})
+
+
 def _ros_flavour(base: type) -> type:
-    cls = type("Ros" + base.__name__, (base,), {})
+    cls = type("Ros" + base.__name__, (_guarded(base),), {})
     cls.add_constructor("tag:yaml.org,2002:binary", _construct_binary)
     cls.add_constructor("!radians", _construct_radians)
     cls.add_constructor("!degrees", _construct_degrees)
@@ -136,15 +152,24 @@ def _ros_flavour(base: type) -> type:
 
 _PY_ROS = _ros_flavour(yaml.SafeLoader)
 _C_ROS = _ros_flavour(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
-_C_PLAIN = getattr(yaml, "CSafeLoader", None)
+_C_PLAIN = _guarded(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
+_PY_PLAIN = _guarded(yaml.SafeLoader)
 
 
-def _loaders(angles: bool) -> tuple[type, ...]:
+# Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
+# differential fuzzing: tabs (PyYAML refuses them inside plain scalars and after ':'), byte
+# order marks and Unicode line breaks, the bare non-specific tag `!`, and a comment right
+# after a block scalar indicator. Such texts go to PyYAML directly.
+_LIBYAML_DIVERGES = re.compile("[\t\ufeff\x85\u2028\u2029]|!(?:\\s|\\Z)|[|>][-+0-9]*#")
+
+
+def _loaders(angles: bool, text: str) -> tuple[type, ...]:
     """Loaders to try in order: libyaml first (fast), then PyYAML's (the reference's) to decide
     any input libyaml refuses and to word the error as rosparam would."""
-    if angles:
-        return (_C_ROS, _PY_ROS) if _C_ROS else (_PY_ROS,)
-    return (_C_PLAIN, yaml.SafeLoader) if _C_PLAIN else (yaml.SafeLoader,)
+    c_loader, py_loader = (_C_ROS, _PY_ROS) if angles else (_C_PLAIN, _PY_PLAIN)
+    if c_loader is None or _LIBYAML_DIVERGES.search(text):
+        return (py_loader,)
+    return (c_loader, py_loader)
 
 
 def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, angles: bool = True) -> Any:
@@ -158,11 +183,11 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     key = (text, angles)
     if key in _parsed:
         return _fresh_copy(_parsed[key])
-    loaders = _loaders(angles)
+    loaders = _loaders(angles, text)
     for i, loader in enumerate(loaders):
         try:
             value = yaml.load(text, Loader=loader)
-        except (yaml.YAMLError, _AngleError, RecursionError, MemoryError) as e:
+        except Exception as e:  # noqa: BLE001 - whatever PyYAML raises, the text is not valid ROS YAML
             if i + 1 < len(loaders):
                 continue
             raise _yaml_error(e, text, filename, first_line) from None

@@ -322,3 +322,43 @@ def test_angles_flag_is_part_of_the_memo():
     assert load_yaml("a: deg(90)", angles=False) == {"a": "deg(90)"}
     assert load_yaml("a: deg(90)") == {"a": math.pi / 2}
     assert load_yaml("a: deg(90)", angles=False) == {"a": "deg(90)"}
+
+
+# -- raw-text differential: the libyaml fast path must agree with PyYAML's pure loader -------
+
+_YAML_PIECES = st.sampled_from(
+    list("ab01 :-[]{},#&*!|>'\"\n\t?%@`.~\\x")
+    + ["deg(", "rad(", ")", "pi", "!degrees ", "!radians ", "!!binary ", "<<: ", "- ", "\u00e9", "\u2028", "\x85",
+       "\ufeff", "\r", "\r\n", "\x00", "\x7f", "\U0001F600", "!!str ", "!!int ", "!!float ", "!!bool ",
+       "!!timestamp ", "!!map ", "!!seq ", "!!set ", "!!omap ", "!!pairs ", "null", "yes", "1e3", "0x", "---", "...",
+       "&a ", "*a", "? ", "%YAML 1.1\n", "%TAG ! tag:x,2000:\n", "!x ", "!<tag:yaml.org,2002:str> ", '"\\x41"',
+       "'it''s'", "|-\n  ", ">+\n  ", "  ", "\n  ", "\n- ", ": ", "#"])
+
+
+@settings(max_examples=1500, deadline=None)
+@given(st.lists(_YAML_PIECES, max_size=40).map("".join), st.booleans())
+def test_raw_text_same_as_pure_pyyaml(text, angles):
+    reference = rosyaml._PY_ROS if angles else yaml.SafeLoader  # what roslaunch parses with
+    try:
+        expected = ("ok", repr(yaml.load(text, Loader=reference)))
+    except Exception:  # noqa: BLE001 - any failure of the reference is a refusal
+        expected = ("error", None)
+    rosyaml._parsed.clear()
+    try:
+        got = ("ok", repr(load_yaml(text, angles=angles)))
+    except RosYamlError:
+        got = ("error", None)
+    assert got == expected
+
+
+@pytest.mark.parametrize("text", ["a:\tb", "a: b\tc", "a: 1\t# c", ">#", "a: |#\n  x"])
+def test_texts_libyaml_accepts_but_roslaunch_refuses(text):
+    with pytest.raises(RosYamlError):
+        load_yaml(text)
+
+
+@pytest.mark.parametrize("text", ["!!int a", "!!float", "!!int 0x", "x: [1, !!timestamp nope]", "a: !!bool maybe"])
+def test_bad_explicit_tags_are_yaml_errors(text):
+    with pytest.raises(RosYamlError) as err:
+        load_yaml(text, filename="t.yaml")
+    assert str(err.value).startswith("t.yaml:1: ")
