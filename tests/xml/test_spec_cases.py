@@ -701,6 +701,14 @@ CASES = [
   <group ns="/"><param name="param1" value="hello"/></group>
   <node name="n" pkg="p" type="t" ns="/racecar"><param name="pp" value="hello again"/></node>""")},
          nodes=["/racecar/n"], params={"/param1": "hello", "/racecar/n/pp": "hello again"}),
+    # ---------------------------------------------------------------- YAML that libyaml would accept
+    Case("rosparam_tab_after_colon", {MAIN: L('<rosparam>\na:\t1\n</rosparam>')}, error=True),
+    Case("rosparam_tab_in_plain_scalar", {MAIN: L('<rosparam>\na: x\ty\n</rosparam>')}, error=True),
+    Case("rosparam_bom_inside", {MAIN: L('<rosparam>\na: "x"\n\ufeffb: 2\n</rosparam>')}, params={"/a": "x", "/\ufeffb": 2}),  # (PyYAML keeps a BOM that is not at the start)
+    Case("rosparam_bad_explicit_int", {MAIN: L('<rosparam>\na: !!int x\n</rosparam>')}, error=True),
+    Case("param_yaml_bad_explicit_float", {MAIN: L('<param name="a" type="yaml" value="!!float"/>')}, error=True),
+    Case("rosparam_file_with_tabs", {MAIN: L('<rosparam command="load" file="$(find spec_pkg)/t.yaml"/>'),
+                                     "t.yaml": "a: 1\nb:\t2\n"}, error=True),
     # ---------------------------------------------------------------- documents
     Case("empty_launch", {MAIN: "<launch/>"}, params={}, nodes=[]),
     Case("launch_nested_in_other_root", {MAIN: '<root><launch><param name="x" value="1"/></launch></root>'},
