@@ -268,7 +268,12 @@ class XmlLoader:
         else:
             ns = None
         try:
-            child = scope.include_child(ns, include_file) if include_file is not None else scope.child(ns)
+            if include_file is not None:
+                child = scope.include_child(ns, include_file)
+            elif kind == "node":
+                child = scope.node_child(ns)
+            else:
+                child = scope.child(ns)
         except ScopeError as e:
             raise self._fail(scope, el, str(e)) from None
         clear = self._attr(el, "clear_params", scope)
@@ -555,7 +560,7 @@ class XmlLoader:
                                   "cause problems with other ROS tools" % (el.tag, name))
         child = self._ns_clear_params(el, scope, "node", node_name=name)
         try:
-            param_scope = child.child(name)
+            param_scope = child.node_child(name)
         except ScopeError as e:
             raise self._fail(scope, el, "Invalid <%s> tag: %s" % (el.tag, e)) from None
         param_scope.params = []

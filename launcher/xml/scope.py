@@ -92,6 +92,41 @@ class Scope(SubstitutionScope):
         c.include_chain = self.include_chain
         return c
 
+    def node_child(self, ns: str | None) -> Scope:
+        """A child for a <node>'s namespace and params: as child(), but sharing what a node's children never
+        change (args, arg declarations, env), which makes a 1000-node launch much cheaper."""
+        if ns:
+            if ns[0] == SEP:
+                child_ns = ns
+            elif ns == PRIV_NAME:
+                child_ns = PRIV_NAME
+            else:
+                child_ns = ns_join(self.ns, ns)
+        else:
+            child_ns = self.ns
+        c = Scope.__new__(Scope)
+        c.args = self.args
+        c.anon = dict(self.anon) if self.anon else {}
+        c.filename = self.filename
+        c.environ = self.environ
+        c.find_package = self.find_package
+        c.find_resource = self.find_resource
+        c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
+        c.parent = self
+        c.remaps = []
+        c._remap_cache = None
+        c.params = self.params if self.params else []
+        c.env_args = self.env_args
+        c.arg_docs = self.arg_docs
+        c.arg_names = self.arg_names
+        c.include_args = None
+        c.include_arg_docs = None
+        c.pass_all_args = False
+        c.args_passed = []
+        c.source = self.source
+        c.include_chain = self.include_chain
+        return c
+
     def include_child(self, ns: str | None, filename: str) -> Scope:
         c = self.child(ns)
         c.arg_names = []
