@@ -1,0 +1,209 @@
+"""Helpers for the `launch` run tests: scratch packages with real node scripts, a real master, a launcher process."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import xmlrpc.client
+
+ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+ROS_PYTHON = "/usr/bin/python3"
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>%s</name><version>0.0.1</version>'
+               '<description>test nodes</description><maintainer email="t@example.com">t</maintainer>'
+               '<license>BSD</license></package>\n')
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def poll(cond, timeout: float = 20.0, period: float = 0.02, what: str = "condition"):
+    """Wait until `cond()` is truthy (returns it), or fail after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = cond()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError("%s not met within %.1f s" % (what, timeout))
+        time.sleep(period)
+
+
+def make_package(root: str, name: str, scripts: dict[str, str]) -> str:
+    """A package dir with executable scripts (name -> source)."""
+    pkg = os.path.join(root, name)
+    os.makedirs(pkg, exist_ok=True)
+    with open(os.path.join(pkg, "package.xml"), "w") as f:
+        f.write(PACKAGE_XML % name)
+    for script, source in scripts.items():
+        path = os.path.join(pkg, script)
+        with open(path, "w") as f:
+            f.write(source)
+        os.chmod(path, 0o755)
+    return pkg
+
+
+def compile_roscpp(source_name: str, dest: str) -> str:
+    """Compile tests/integration/nodes/<source_name> against Debian's roscpp (cached by content)."""
+    src = os.path.join(HERE, "nodes", source_name)
+    with open(src, "rb") as f:
+        digest = hashlib.sha1(f.read()).hexdigest()[:12]
+    cache = os.path.join(os.environ.get("TMPDIR", "/tmp"), "launcher-test-build")
+    os.makedirs(cache, exist_ok=True)
+    exe = os.path.join(cache, "%s-%s" % (os.path.splitext(source_name)[0], digest))
+    if not os.path.exists(exe):
+        flags = subprocess.check_output(["pkg-config", "--cflags", "--libs", "roscpp"], text=True).split()
+        subprocess.run(["g++", "-O1", "-o", exe + ".tmp", src] + flags, check=True)
+        os.replace(exe + ".tmp", exe)
+    shutil.copy2(exe, dest)
+    return dest
+
+
+def ros_env(tmp: str, port: int, package_path: str) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(ROS_MASTER_URI="http://127.0.0.1:%d/" % port, ROS_HOME=os.path.join(tmp, "home"),
+               ROS_LOG_DIR=os.path.join(tmp, "log"), ROS_PACKAGE_PATH=package_path, ROS_IP="127.0.0.1")
+    env.pop("ROS_NAMESPACE", None)
+    env.pop("ROS_HOSTNAME", None)
+    return env
+
+
+def master_proxy(port: int) -> xmlrpc.client.ServerProxy:
+    return xmlrpc.client.ServerProxy("http://127.0.0.1:%d/" % port)
+
+
+def master_up(port: int) -> bool:
+    try:
+        return master_proxy(port).getPid("/test")[0] == 1
+    except OSError:
+        return False
+
+
+def get_param(port: int, key: str):
+    code, _msg, value = master_proxy(port).getParam("/test", key)
+    return value if code == 1 else None
+
+
+class RosMaster:
+    """Debian's real rosmaster on a free port."""
+
+    def __init__(self, tmp: str):
+        self.port = free_port()
+        env = dict(os.environ, PATH=ROS_PATH, ROS_HOME=os.path.join(tmp, "masterhome"))
+        self.proc = subprocess.Popen(["rosmaster", "--core", "-p", str(self.port)], env=env,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        poll(lambda: master_up(self.port), 20, what="rosmaster up")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+
+
+class Launcher:
+    """`python -m launcher ...` with output captured to files (a full pipe never blocks it)."""
+
+    def __init__(self, args: list[str], env: dict[str, str], tmp: str, ignore_sigint: bool = False):
+        self.out_path = os.path.join(tmp, "launch-%d.out" % time.monotonic_ns())
+        self.err_path = self.out_path[:-4] + ".err"
+        self._out = open(self.out_path, "wb")
+        self._err = open(self.err_path, "wb")
+        preexec = None
+        if ignore_sigint:  # as a background job of a non-interactive shell starts
+            def preexec():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.proc = subprocess.Popen([sys.executable, "-m", "launcher"] + args, env=env, stdout=self._out,
+                                     stderr=self._err, stdin=subprocess.DEVNULL, preexec_fn=preexec)
+        self.pid = self.proc.pid
+
+    @property
+    def stdout(self) -> str:
+        with open(self.out_path, errors="replace") as f:
+            return f.read()
+
+    @property
+    def stderr(self) -> str:
+        with open(self.err_path, errors="replace") as f:
+            return f.read()
+
+    def wait_output(self, pattern: str, timeout: float = 30.0, stream: str = "stdout") -> re.Match:
+        def found():
+            m = re.search(pattern, getattr(self, stream))
+            if m is None and self.proc.poll() is not None:
+                m = re.search(pattern, getattr(self, stream))
+                if m is None:
+                    raise AssertionError("launcher exited (%s) before %r appeared\nstdout:\n%s\nstderr:\n%s"
+                                         % (self.proc.returncode, pattern, self.stdout, self.stderr))
+            return m
+        return poll(found, timeout, what="%r in launcher %s" % (pattern, stream))
+
+    def started_pids(self) -> dict[str, int]:
+        """process name -> pid of its latest start."""
+        return {m.group(1): int(m.group(2))
+                for m in re.finditer(r"process\[([^\]]+)\]: started with pid \[(\d+)\]", self.stdout)}
+
+    def signal(self, sig: int) -> None:
+        self.proc.send_signal(sig)
+
+    def wait(self, timeout: float = 30.0) -> int:
+        return self.proc.wait(timeout)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._out.close()
+        self._err.close()
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        with open("/proc/%d/stat" % pid) as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def descendants(root: int) -> set[int]:
+    kids: dict[int, list[int]] = {}
+    for e in os.listdir("/proc"):
+        if e.isdigit():
+            try:
+                with open("/proc/%s/stat" % e) as f:
+                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            kids.setdefault(ppid, []).append(int(e))
+    out: set[int] = set()
+    todo = [root]
+    while todo:
+        for c in kids.get(todo.pop(), []):
+            out.add(c)
+            todo.append(c)
+    return out
+
+
+def write_launch(tmp: str, body: str, name: str = "test.launch") -> str:
+    path = os.path.join(tmp, name)
+    with open(path, "w") as f:
+        f.write('<?xml version="1.0"?>\n<launch>\n%s\n</launch>\n' % body)
+    return path

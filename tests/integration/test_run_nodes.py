@@ -1,0 +1,274 @@
+"""`launch` running real nodes: respawn, required, launch-prefix, output and log files, cwd, env, failures."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import time
+
+import pytest
+
+from running import (ROS_PATH, ROS_PYTHON, Launcher, RosMaster, compile_roscpp, free_port, make_package,
+                     master_proxy, pid_alive, poll, ros_env, write_launch)
+
+# rospy node: prints, then spins until SIGINT
+RospySpinner = """#!%s
+import rospy
+rospy.init_node("spinner")
+print("spinner %%s up" %% rospy.get_name(), flush=True)
+rospy.spin()
+""" % ROS_PYTHON
+
+# writes its environment, cwd and argv as lines KEY=VALUE into $REPORT_DIR/<__name>.txt, then exits 0
+Reporter = """#!/bin/sh
+name=$(for a in "$@"; do case $a in __name:=*) echo ${a#__name:=};; esac; done)
+{ echo "cwd=$(pwd)"; echo "args=$*"; env; } > "$REPORT_DIR/$name.txt.tmp"
+mv "$REPORT_DIR/$name.txt.tmp" "$REPORT_DIR/$name.txt"
+echo "reporter $name stdout line"
+"""
+
+Exiter = """#!/bin/sh
+sleep ${EXIT_AFTER:-0.2}
+exit ${EXIT_CODE:-0}
+"""
+
+
+@pytest.fixture
+def pkgs(tmp_path, ros_env):
+    pkg = make_package(str(tmp_path / "pkgs"), "run_tests",
+                       {"spinner": RospySpinner, "reporter": Reporter, "exiter": Exiter})
+    compile_roscpp("param_node.cpp", os.path.join(pkg, "param_cpp"))
+    return str(tmp_path / "pkgs")
+
+
+def lookup_node(port: int, name: str) -> str | None:
+    try:
+        code, _msg, uri = master_proxy(port).lookupNode("/test", name)
+    except OSError:  # our master is not up yet
+        return None
+    return uri if code == 1 else None
+
+
+def test_respawn_and_respawn_delay_with_real_nodes(tmp_path, pkgs):
+    port = free_port()
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="param_cpp" name="fast" respawn="true">
+        <param name="out" value="%s/fast.txt"/></node>
+      <node pkg="run_tests" type="spinner" name="slow" respawn="true" respawn_delay="1.5"/>
+    """ % tmp_path)
+    lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
+    try:
+        poll(lambda: lookup_node(port, "/fast") and lookup_node(port, "/slow"), 60, what="both registered")
+        pids = lp.started_pids()
+        fast_pid, slow_pid = pids["fast-2"], pids["slow-3"]  # rosout counts as process 1, as in roslaunch
+        old_uri = lookup_node(port, "/fast")
+        os.kill(fast_pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        new_fast = poll(lambda: lp.started_pids()["fast-2"] != fast_pid and lp.started_pids()["fast-2"], 10,
+                        period=0.005, what="fast respawned")
+        assert time.monotonic() - t0 < 0.5
+        poll(lambda: lookup_node(port, "/fast") not in (None, old_uri), 30, what="fast re-registered")
+        assert pid_alive(new_fast)
+        os.kill(slow_pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        poll(lambda: lp.started_pids()["slow-3"] != slow_pid, 10, period=0.01, what="slow respawned")
+        assert 1.4 <= time.monotonic() - t0 < 3.0
+        out, err = lp.stdout, lp.stderr
+        assert "[fast-2] process has died [pid %d, exit code -9, cmd " % fast_pid in err
+        assert out.count("[fast-2] restarting process") == 1 and out.count("[slow-3] restarting process") == 1
+        lp.signal(signal.SIGINT)
+        assert lp.wait(30) == 0
+    finally:
+        lp.close()
+
+
+@pytest.mark.parametrize("code,status", [(0, 0), (3, 1)])
+def test_required_node_exit_ends_launch(tmp_path, pkgs, code, status):
+    port = free_port()
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="spinner" name="bystander"/>
+      <node pkg="run_tests" type="exiter" name="boss" required="true">
+        <env name="EXIT_AFTER" value="1.5"/><env name="EXIT_CODE" value="%d"/></node>
+    """ % code)
+    lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
+    try:
+        assert lp.wait(60) == status
+        err = lp.stderr
+        assert "REQUIRED process [boss-3] has died!" in err and "Initiating shutdown!" in err
+        assert ("process has finished cleanly" if code == 0 else "exit code 3") in err
+        assert not pid_alive(lp.started_pids()["bystander-2"])
+    finally:
+        lp.close()
+
+
+def test_required_node_that_cannot_start_fails_the_launch(tmp_path, pkgs):
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="spinner" name="bystander"/>
+      <node pkg="run_tests" type="no_such_exe" name="needed" required="true"/>
+    """)
+    lp = Launcher([launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
+    try:
+        assert lp.wait(60) == 1
+        assert "cannot launch node of type [run_tests/no_such_exe]" in lp.stderr
+        assert "REQUIRED process [needed-3] could not be started!" in lp.stderr
+    finally:
+        lp.close()
+
+
+def test_missing_executable_is_reported_and_the_rest_run(tmp_path, pkgs):
+    port = free_port()
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="no_such_exe" name="ghost"/>
+      <node pkg="run_tests" type="spinner" name="survivor"/>
+    """)
+    lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
+    try:
+        poll(lambda: lookup_node(port, "/survivor"), 60, what="survivor registered")
+        err = lp.stderr
+        assert re.search(r"ERROR: cannot launch node of type \[run_tests/no_such_exe\]: .*node \[/ghost\].*"
+                         r"Cannot locate node of type \[no_such_exe\] in package \[run_tests\]", err)
+        # a bad launch-prefix fails at exec time: reported by name, too
+        assert lp.proc.poll() is None
+        lp.signal(signal.SIGINT)
+        assert lp.wait(30) == 0
+    finally:
+        lp.close()
+
+
+def test_bad_launch_prefix_is_reported_by_name(tmp_path, pkgs):
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="exiter" name="prefixed" launch-prefix="/no/such/wrapper --x"/>
+      <node pkg="run_tests" type="exiter" name="fine"/>
+    """)
+    rosmaster = RosMaster(str(tmp_path))
+    lp = Launcher([launch], ros_env(str(tmp_path), rosmaster.port, pkgs), str(tmp_path))
+    try:
+        # external master: when every node has ended, the launch ends (as roslaunch)
+        assert lp.wait(60) == 0
+        assert "[prefixed-1] got a 'No such file or directory' error while attempting to run:" in lp.stderr
+        assert "/no/such/wrapper --x " in lp.stderr
+        assert "[fine-2] process has finished cleanly" in lp.stdout
+        assert "all processes on machine have died, roslaunch will exit" in lp.stdout
+    finally:
+        lp.close()
+        rosmaster.stop()
+
+
+def test_prefix_env_cwd_output_and_log_files(tmp_path, pkgs):
+    rosmaster = RosMaster(str(tmp_path))
+    report = tmp_path / "report"
+    report.mkdir()
+    launch = write_launch(str(tmp_path), """
+      <env name="REPORT_DIR" value="%s"/>
+      <group ns="grp">
+        <node pkg="run_tests" type="reporter" name="logged" output="log" args="a 'b c'">
+          <remap from="in" to="out"/>
+          <env name="NODE_ENV" value="node-value"/>
+        </node>
+      </group>
+      <node pkg="run_tests" type="reporter" name="shown" output="screen" cwd="node"
+            launch-prefix="env PREFIX_ADDED=yes"/>
+    """ % report)
+    env = ros_env(str(tmp_path), rosmaster.port, pkgs)
+    lp = Launcher([launch], env, str(tmp_path))
+    try:
+        assert lp.wait(60) == 0
+        logged = dict(line.split("=", 1) for line in (report / "logged.txt").read_text().splitlines() if "=" in line)
+        shown = dict(line.split("=", 1) for line in (report / "shown.txt").read_text().splitlines() if "=" in line)
+        run_id = master_proxy(rosmaster.port).getParam("/test", "/run_id")[2]
+        run_dir = os.path.join(env["ROS_LOG_DIR"], run_id)
+        # environment: ROS_MASTER_URI, ROS_NAMESPACE, <env> (launch-wide and per node), launch-prefix
+        assert logged["ROS_MASTER_URI"] == env["ROS_MASTER_URI"]
+        assert logged["ROS_NAMESPACE"] == "/grp" and "ROS_NAMESPACE" not in shown
+        assert logged["NODE_ENV"] == "node-value" and "NODE_ENV" not in shown
+        assert shown["PREFIX_ADDED"] == "yes" and "PREFIX_ADDED" not in logged
+        # cwd: ROS_HOME by default, the executable's directory with cwd="node"
+        assert logged["cwd"] == env["ROS_HOME"]
+        assert shown["cwd"] == os.path.join(pkgs, "run_tests")
+        # args split like a shell, remaps, __name, __log in roslaunch's file naming
+        assert logged["args"] == "a b c in:=out __name:=logged __log:=%s/grp-logged-1.log" % run_dir
+        # output="log": stdout in <run_id>/<name>-<n>-stdout.log, not on the terminal; screen: the reverse
+        assert (open(os.path.join(run_dir, "grp-logged-1-stdout.log")).read()
+                == "reporter logged stdout line\n")
+        assert "reporter logged stdout line" not in lp.stdout
+        assert "reporter shown stdout line" in lp.stdout
+        assert not os.path.exists(os.path.join(run_dir, "shown-2-stdout.log"))
+        assert os.path.realpath(os.path.join(env["ROS_LOG_DIR"], "latest")) == os.path.realpath(run_dir)
+        assert "log file: %s/grp-logged-1*.log" % run_dir in lp.stdout
+    finally:
+        lp.close()
+        rosmaster.stop()
+
+
+def test_screen_option_overrides_output_log(tmp_path, pkgs):
+    report = tmp_path / "report"
+    report.mkdir()
+    launch = write_launch(str(tmp_path), """
+      <env name="REPORT_DIR" value="%s"/>
+      <node pkg="run_tests" type="reporter" name="logged" output="log"/>
+    """ % report)
+    rosmaster = RosMaster(str(tmp_path))
+    lp = Launcher(["--screen", launch], ros_env(str(tmp_path), rosmaster.port, pkgs), str(tmp_path))
+    try:
+        assert lp.wait(60) == 0
+        assert "reporter logged stdout line" in lp.stdout
+    finally:
+        lp.close()
+        rosmaster.stop()
+
+
+def test_nodes_that_exit_zero_with_external_master(tmp_path, pkgs):
+    rosmaster = RosMaster(str(tmp_path))
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="exiter" name="one"/>
+      <node pkg="run_tests" type="exiter" name="two"><env name="EXIT_AFTER" value="0.5"/></node>
+    """)
+    lp = Launcher([launch], ros_env(str(tmp_path), rosmaster.port, pkgs), str(tmp_path))
+    try:
+        assert lp.wait(60) == 0
+        out = lp.stdout
+        assert "[one-1] process has finished cleanly" in out and "[two-2] process has finished cleanly" in out
+        assert out.index("[two-2] process has finished cleanly") < out.index("all processes on machine have died")
+    finally:
+        lp.close()
+        rosmaster.stop()
+
+
+def test_embedded_master_keeps_running_after_nodes_finish(tmp_path, pkgs):
+    port = free_port()
+    launch = write_launch(str(tmp_path), '<node pkg="run_tests" type="exiter" name="one"/>')
+    lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
+    try:
+        lp.wait_output(r"\[one-2\] process has finished cleanly")
+        # roslaunch keeps its own master (and rosout) up: rosnode list still answers
+        r = subprocess.run(["rosnode", "list"], env=dict(ros_env(str(tmp_path), port, pkgs), PATH=ROS_PATH),
+                           capture_output=True, text=True, timeout=30)
+        assert "/rosout" in r.stdout.split()
+        assert lp.proc.poll() is None
+        lp.signal(signal.SIGTERM)
+        assert lp.wait(30) == 0
+    finally:
+        lp.close()
+
+
+def test_sigint_reaches_nodes_when_launcher_inherited_it_ignored(tmp_path, pkgs):
+    """A background job starts with SIGINT ignored; nodes must still get SIGINT at its default (real rospy)."""
+    port = free_port()
+    launch = write_launch(str(tmp_path), '<node pkg="run_tests" type="spinner" name="sp" output="screen"/>')
+    lp = Launcher(["--sigint-timeout", "10", launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path),
+                  ignore_sigint=True)
+    try:
+        lp.wait_output(r"spinner /sp up")
+        pid = lp.started_pids()["sp-2"]
+        with open("/proc/%d/status" % pid) as f:
+            ignored = int(re.search(r"SigIgn:\s*([0-9a-f]+)", f.read()).group(1), 16)
+        assert not ignored & (1 << (signal.SIGINT - 1))
+        t0 = time.monotonic()
+        lp.signal(signal.SIGINT)  # the launcher itself handles it despite the inherited SIG_IGN
+        assert lp.wait(30) == 0
+        assert time.monotonic() - t0 < 5  # rospy stopped on SIGINT, no escalation needed
+        assert "escalating" not in lp.stderr
+    finally:
+        lp.close()
