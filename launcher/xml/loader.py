@@ -591,6 +591,7 @@ class XmlLoader:
             ctag = c.tag
             if not isinstance(ctag, str):
                 continue
+            ctag = ctag.lower()  # roslaunch matches a node's child tags case-insensitively
             if ctag == "remap":
                 if self._if_unless(c, scope):
                     src, dst = self._remap_tag(c, scope)
