@@ -1,0 +1,41 @@
+"""runtime: roslaunch's summary block and value shortening, and where a launch's master can be started."""
+
+from __future__ import annotations
+
+from launcher.config import LaunchConfig, Node, Param
+from launcher.runtime import _is_local_host, _summary_value, summary
+
+
+def test_summary_matches_roslaunch_layout():
+    config = LaunchConfig(
+        nodes=(Node("refpkg", "quick.sh", "quitter"), Node("refpkg", "sleeper.sh", "n1", namespace="/robot/"),
+               Node("refpkg", "nothere", "missing")),
+        params={"/s": Param("/s", "hello"), "/a": Param("/a", 1)},
+        clear_params=("/robot/",))
+    text = summary(config, {"/s": "hello", "/a": 1, "/rosdistro": "Debian\n"})
+    # recorded from `roslaunch` 1.15.15 (same launch), plus the CLEAR PARAMETERS block of config.summary()
+    assert text == ("\nSUMMARY\n========\n\nCLEAR PARAMETERS\n * /robot/\n\nPARAMETERS\n * /a: 1\n"
+                    " * /rosdistro: Debian\n * /s: hello\n\nNODES\n  /\n    missing (refpkg/nothere)\n"
+                    "    quitter (refpkg/quick.sh)\n  /robot/\n    n1 (refpkg/sleeper.sh)\n")
+
+
+def test_summary_without_params():
+    assert summary(LaunchConfig(), {}) == "\nSUMMARY\n========\n\nNODES\n"
+
+
+def test_summary_value_shortening_as_roslaunch():
+    assert _summary_value("a" * 20) == "a" * 20
+    assert _summary_value("a" * 21) == "a" * 17 + "..."
+    assert _summary_value(2.5) == "2.5"
+    assert _summary_value(True) == "True"
+    assert _summary_value("1.15.15\n") == "1.15.15"  # trailing whitespace of command output
+    assert _summary_value("line1\nline2") == "<...>"
+    assert _summary_value("caf\u00e9") == "<...>"
+    assert _summary_value({"a": 1}) == "{'a': 1}"
+
+
+def test_local_hosts():
+    env = {"ROS_HOSTNAME": "myrobot"}
+    assert _is_local_host("localhost", env) and _is_local_host("127.0.0.1", env)
+    assert _is_local_host("myrobot", env)
+    assert not _is_local_host("192.0.2.77", env)  # TEST-NET-1: never a local address
