@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 
 from lxml import etree
@@ -62,7 +61,3 @@ def element_text(el: etree._Element) -> str:
         if child.tail:
             parts.append(child.tail)
     return "".join(parts)
-
-
-def abspath(filename: str) -> str:
-    return os.path.abspath(filename)

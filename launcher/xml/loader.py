@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, Param
 from launcher.errors import LaunchError
-from launcher.names import SEP, is_legal_name, is_private, make_global_ns, ns_join
+from launcher.names import SEP, is_legal_name, make_global_ns, ns_join
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.scope import Scope, ScopeError, canonical
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
@@ -79,15 +79,13 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ output
     def config(self) -> LaunchConfig:
-        kw: dict[str, Any] = {}
-        if "rosparam_commands" in LaunchConfig.__dataclass_fields__:
-            kw["rosparam_commands"] = tuple(self.rosparam_commands)
         seen: dict[str, None] = {}
         for f in self.files:
             seen.setdefault(os.path.abspath(f))
         return LaunchConfig(nodes=tuple(self.nodes), tests=tuple(self.tests), params=self.params,
                             clear_params=tuple(self.clear_params), machines=self.machines,
-                            files=tuple(seen), warnings=tuple(self.warnings), **kw)
+                            files=tuple(seen), warnings=tuple(self.warnings),
+                            rosparam_commands=tuple(self.rosparam_commands))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:

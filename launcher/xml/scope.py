@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any, Callable, Mapping
 
 from launcher.names import PRIV_NAME, SEP, canonicalize_name, is_legal_name, make_global_ns, ns_join
+from launcher.xml.substitution import SubstitutionScope
 
 
 def canonical(name: str) -> str:
@@ -20,7 +21,6 @@ def canonical(name: str) -> str:
     if "//" in name or (len(name) > 1 and name[-1] == SEP):
         return canonicalize_name(name)
     return name
-from launcher.xml.substitution import SubstitutionScope
 
 
 class ScopeError(ValueError):
