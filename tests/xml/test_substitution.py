@@ -173,3 +173,47 @@ def test_eval_errors_are_substitution_errors_not_tracebacks():
     for expr in ("1/0", "undefined_name + 1", "1 +", "arg('missing')"):
         with pytest.raises(SubstitutionError):
             resolve("$(eval %s)" % expr, scope())
+
+
+def _roslaunch_collect(text):
+    """roslaunch's _collect_args state machine, written out again as the oracle for our fast path."""
+    out, buf, state = [], [], 0
+    for c in text:
+        if c == "$":
+            if state == 0:
+                state = 1
+            elif state != 1:
+                raise SubstitutionError("$")
+        elif c == "(":
+            if state == 1:
+                state = 2
+            elif state != 0:
+                raise SubstitutionError("(")
+        elif c == ")":
+            if state == 3:
+                out.append("".join(buf))
+                buf = []
+            state = 0
+        elif state == 1:
+            state = 0
+        elif state == 2:
+            state = 3
+        if state == 3:
+            buf.append(c)
+    return out
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.lists(st.sampled_from(["$", "(", ")", "a", " ", "$(", "arg x", "env Y", ")", "$$"]), max_size=12))
+def test_collect_commands_matches_roslaunchs_state_machine(parts):
+    text = "".join(parts)
+    try:
+        expected = _roslaunch_collect(text)
+    except SubstitutionError:
+        with pytest.raises(SubstitutionError):
+            collect_commands(text)
+        return
+    assert collect_commands(text) == expected
