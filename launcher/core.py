@@ -79,10 +79,23 @@ def run_core(opts: Any) -> int:
         print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),
               file=sys.stderr)
     run_id = getattr(opts, "run_id", None) or str(uuid.uuid1())
+    pid_fn = getattr(opts, "pid_fn", None)
+    if pid_fn:
+        try:
+            with open(pid_fn, "w") as f:
+                f.write("%d" % os.getpid())
+        except OSError as e:
+            raise LaunchError("cannot write the pid file %s: %s" % (pid_fn, e.strerror or e)) from None
     try:
         return asyncio.run(_core(port, run_id, environ))
     except KeyboardInterrupt:
         return 0
+    finally:
+        if pid_fn:
+            try:
+                os.unlink(pid_fn)
+            except OSError:
+                pass
 
 
 async def _core(port: int, run_id: str, environ: dict[str, str]) -> int:

@@ -78,9 +78,8 @@ class Master:
         self.uri: str = ""
         self.shutdown_requested = asyncio.Event()
         self.shutdown_reason = ""
-        self._server = None
-        self._notifier = None
-        from launcher.master.api import MasterApi  # noqa: F401 - fail early if broken
+        self._server: Any = None
+        self._notifier: Any = None
         self._api: Any = None
         self._tree = ParamTree()
 

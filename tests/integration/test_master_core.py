@@ -258,3 +258,18 @@ def test_core_stops_cleanly(core, ros_env, how):
     assert time.monotonic() - t0 < 5
     with pytest.raises(OSError):
         master.getPid("/t")
+
+
+def test_pid_file_is_written_and_removed(ros_env, tmp_path):
+    port = free_port()
+    pid_fn = tmp_path / "core.pid"
+    env = dict(os.environ, ROS_HOME=str(tmp_path), ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
+    p = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port), "--pid", str(pid_fn)],
+                         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        wait_for(lambda: pid_fn.exists() and pid_fn.read_text() == str(p.pid), what="pid file")
+        wait_for(lambda: xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).getPid("/t")[2] == p.pid, what="master")
+    finally:
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(10) == 0
+    assert not pid_fn.exists()
