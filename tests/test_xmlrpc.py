@@ -440,3 +440,31 @@ def test_large_requests_and_long_multicalls_do_not_starve_other_clients(server):
     t.join()
     assert served >= 2  # the small calls were answered while the big one ran
     assert len(result["r"]) == 60000 and result["r"][59999] == [["x" * 20, 59999]]
+
+
+SEED_REQUESTS = [
+    xmlrpc.client.dumps(("/node", "/p", {"a": [1, 2.5, True, "x"], "b": xmlrpc.client.Binary(b"\x00\xff")}),
+                        "setParam").encode(),
+    xmlrpc.client.dumps(([{"methodName": "getPid", "params": ["/n"]}],), "system.multicall").encode(),
+    b"<methodCall><methodName>getParam</methodName><params><param><value>/n</value></param>"
+    b"<param><value><i4>7</i4></value></param></params></methodCall>",
+]
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.sampled_from(SEED_REQUESTS), st.lists(st.tuples(st.integers(0, 400), st.integers(0, 8), st.binary(max_size=8)),
+                                                max_size=4))
+def test_mutated_requests_only_ever_raise_xmlrpcerror(seed, edits):
+    data = bytearray(seed)
+    for pos, cut, insert in edits:
+        pos = min(pos, len(data))
+        data[pos:pos + cut] = insert
+    try:
+        method, params = X.loads_request(bytes(data))
+    except X.XmlRpcError:
+        return
+    assert isinstance(method, str) and isinstance(params, list)
+    try:
+        X.dumps_response(params)  # whatever was read can be answered (or refused cleanly)
+    except (OverflowError, TypeError):
+        pass
