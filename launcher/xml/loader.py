@@ -46,6 +46,17 @@ MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-par
 _MULTISLASH = re.compile("//+")
 
 
+def _auto_value(text: str) -> Any:
+    """`<param value=...>` with no type= (roslaunch's inference), via the params package."""
+    global _auto_value
+    from launcher.params.values import convert_value
+
+    def auto(text: str) -> Any:
+        return convert_value(text, "auto")
+    _auto_value = auto
+    return auto(text)
+
+
 class _Abort(Exception):
     """Internal: a problem at an element, turned into a LaunchError by `_fail`."""
 
@@ -351,8 +362,7 @@ class XmlLoader:
                 value = self._sub(value, scope, el)
             value = value.strip()  # type: ignore[union-attr]
             if ptype == "auto":
-                from launcher.params.values import convert_value
-                typed = convert_value(value, "auto")
+                typed = _auto_value(value)
             else:
                 typed = self._convert(value, ptype, scope, el, name)
         else:
@@ -594,7 +604,7 @@ class XmlLoader:
                 if self._if_unless(c, scope):
                     src, dst = self._remap_tag(c, scope)
                     if remap_scope is None:
-                        remap_scope = scope.child("")
+                        remap_scope = scope.node_child("")
                     self._add_remap(remap_scope, src, dst, c, err_scope=scope)
             elif ctag == "param":
                 if self._if_unless(c, param_scope):
@@ -604,7 +614,8 @@ class XmlLoader:
                     self._rosparam_tag(c, param_scope)
             elif ctag == "env":
                 if env_scope is None:
-                    env_scope = scope.child("")
+                    env_scope = scope.node_child("")
+                    env_scope.env_args = list(scope.env_args)
                 if self._if_unless(c, env_scope):
                     self._env_tag(c, env_scope)
             else:
