@@ -575,6 +575,7 @@ class _Connection(asyncio.Protocol):
         self.partial_since: float | None = None  # when the pending, incomplete request began
         self.last_activity = 0.0
         self.timer: asyncio.TimerHandle | None = None
+        self.eof = False
 
     # -- asyncio callbacks --------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -607,6 +608,13 @@ class _Connection(asyncio.Protocol):
             return
         if not self.busy:
             self._process()
+
+    def eof_received(self) -> bool:
+        """The client will send no more: answer what is pending, then close."""
+        self.eof = True
+        if self.busy:
+            return True  # keep the transport open for the asynchronous reply
+        return False
 
     def pause_writing(self) -> None:
         # a client that does not read its replies stops being read from
@@ -781,6 +789,9 @@ class _Connection(asyncio.Protocol):
         self._update_reading()
         if not self.closing:
             self._process()
+        if self.eof and not self.busy and not self.closing and self.transport is not None:
+            self.closing = True
+            self.transport.close()
 
     def _reply_body(self, body: bytes, keep_alive: bool) -> None:
         self._reply(_http_response(200, "OK", body, keep_alive), keep_alive)

@@ -468,3 +468,37 @@ def test_mutated_requests_only_ever_raise_xmlrpcerror(seed, edits):
         X.dumps_response(params)  # whatever was read can be answered (or refused cleanly)
     except (OverflowError, TypeError):
         pass
+
+
+def test_mutated_http_never_wedges_the_server(server):
+    rng = __import__("random").Random(5)
+    seed = _post(X.dumps_request("echo", ["x", 1]))
+    for _ in range(300):
+        data = bytearray(seed)
+        for _ in range(rng.randint(1, 4)):
+            pos = rng.randrange(len(data) + 1)
+            data[pos:pos + rng.randint(0, 6)] = bytes(rng.randrange(256) for _ in range(rng.randint(0, 6)))
+        with socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+            s.sendall(bytes(data) * rng.randint(1, 2))
+            s.shutdown(socket.SHUT_WR)
+            out = b""
+            while True:
+                c = s.recv(65536)
+                if not c:
+                    break
+                out += c
+        assert out == b"" or out.startswith(b"HTTP/1.1 "), out[:100]
+    assert _alive(server)
+
+
+def test_half_closed_client_still_gets_its_asynchronous_reply(server):
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+        s.sendall(_post(X.dumps_request("later", [0.05, "late"])))
+        s.shutdown(socket.SHUT_WR)
+        out = b""
+        while True:
+            c = s.recv(65536)
+            if not c:
+                break
+            out += c
+    assert out.startswith(b"HTTP/1.1 200") and b"late" in out
