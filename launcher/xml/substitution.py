@@ -264,6 +264,36 @@ def _unsafe_names(code: Any) -> str | None:
     return None
 
 
+_PLAIN_FIELD = re.compile(r"^\w*$")
+
+
+def _literal_formats_only(expr: str) -> bool:
+    """True if every `.format` in `expr` is called on a string literal whose fields are plain
+    (`'{}_link'.format(x)`, common in launch files); a field like `{0.attr}` would read attributes."""
+    import ast
+    import string
+    tree = ast.parse(expr.strip(), mode="eval")
+    formatter = string.Formatter()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in ("format", "format_map"):
+            if node.attr != "format" or not (isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
+                return False
+            todo = [node.value.value]
+            while todo:
+                try:
+                    parts = list(formatter.parse(todo.pop()))
+                except ValueError:
+                    return False
+                for _, field, spec, _ in parts:
+                    if field is not None and not _PLAIN_FIELD.match(field):
+                        return False
+                    if spec and "{" in spec:
+                        todo.append(spec)
+        elif isinstance(node, ast.Attribute) and node.attr[:1] == "_":
+            return False
+    return True
+
+
 def _compile(expr: str) -> Any:
     code = _COMPILED.get(expr)
     if code is not None:
@@ -276,6 +306,8 @@ def _compile(expr: str) -> Any:
         raise SubstitutionError("invalid $(eval) expression [%s]: %s" % (expr, e.msg)) from None
     # every global name and attribute an expression can touch is in co_names (of it or its nested code)
     bad = _unsafe_names(code)
+    if bad == "format" and _literal_formats_only(expr):
+        bad = None
     if bad:
         raise SubstitutionError("$(eval ...) may not use '%s'" % bad)
     _COMPILED[expr] = code

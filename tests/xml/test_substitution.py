@@ -143,6 +143,8 @@ def test_auto_value(value, expected):
     ("find('pkg') + '/x'", "/pkgs/pkg/x"),
     ("dirname()", "/work/launch"),
     ("7 // 2", "3"),
+    ("'{}_link/{:>3}'.format(name, a)", "bot_link/  3"),
+    ("'{n}'.format(n=name)", "bot"),
 ])
 def test_eval(expr, expected):
     s = scope(args={"a": "3", "b": "4", "ratio": "0.5", "name": "bot", "flag": "true"}, env={"E": "x"})
@@ -155,6 +157,12 @@ def test_eval(expr, expected):
     "open('/etc/passwd').read()",
     "getattr(find, '_' + '_globals_' + '_')",
     "'{0._' '_class_' '_}'.format(1)",
+    "'{0.real}'.format(1)",
+    "'{0[x]}'.format({'x': 1})",
+    "'{:{0.real}}'.format(1)",
+    "name.format(1)",
+    "str.format('{0.real}', 1)",
+    "'{}'.format_map({})",
     "eval('1')",
     "exec('x=1')",
     "globals()",
