@@ -542,6 +542,9 @@ def _http_response(status: int, reason: str, body: bytes, keep_alive: bool,
     ))
 
 
+_OK_HEAD = b"HTTP/1.1 200 OK\r\nServer: launcher-xmlrpc\r\nContent-Type: text/xml\r\nContent-Length: "
+
+
 def _header_values(low_head: bytes, marker: bytes) -> list[bytes]:
     """Stripped values of every header line starting with `marker` (b"\\r\\nname:")."""
     out = []
@@ -794,6 +797,10 @@ class _Connection(asyncio.Protocol):
             self.transport.close()
 
     def _reply_body(self, body: bytes, keep_alive: bool) -> None:
+        if keep_alive and not self.closing:
+            # the common reply, without formatting a head
+            self.transport.write(b"".join((_OK_HEAD, b"%d" % len(body), b"\r\n\r\n", body)))
+            return
         self._reply(_http_response(200, "OK", body, keep_alive), keep_alive)
 
     def _reply(self, data: bytes, keep_alive: bool) -> None:
