@@ -21,6 +21,9 @@ SEP = "/"
 ANYTYPE = "*"
 
 
+NO_CHECK = None  # an argument passed on as it is
+
+
 class ParameterInvalid(Exception):
     """An argument rejected by a validator (answered with -1)."""
 
@@ -192,11 +195,10 @@ class MasterApi:
         self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None
         self.pid = os.getpid()
-        V = None  # noqa: N806 - "no validation" in the tables below
         # method -> (function, number of XML-RPC args incl. caller_id, error value, validators)
         self.methods: dict[str, tuple[Callable, int, Any, tuple]] = {}
         for name, errval, validators in (
-            ("shutdown", 0, (V,)),
+            ("shutdown", 0, (NO_CHECK,)),
             ("getUri", "", ()),
             ("getPid", -1, ()),
             ("deleteParam", 0, (non_empty_str("key"),)),

@@ -64,13 +64,16 @@ def test_calls_to_one_node_keep_their_order_and_queued_publisher_updates_coalesc
 
 def test_a_hanging_node_only_delays_itself():
     async def scenario():
-        n = Notifier(timeout=0.5)
+        n = Notifier(timeout=2.0)
         async with SlowNode(delay=30) as hung, SlowNode() as fine:
             n.shutdown_node(hung.uri, "/x", "why")
             n.param_update(hung.uri, "/p/", 2)
             n.param_update(fine.uri, "/p/", 3)
-            await _until(lambda: len(fine.calls) == 1, timeout=0.4)  # not behind the hung node
-            await _until(lambda: len(hung.calls) == 2, timeout=3)      # time-out, then the next call
+            await _until(lambda: len(hung.calls) == 1)
+            t0 = asyncio.get_running_loop().time()
+            await _until(lambda: len(fine.calls) == 1, timeout=1.5)  # not behind the hung node's 2 s
+            await _until(lambda: len(hung.calls) == 2, timeout=5)      # time-out, then the next call
+            assert asyncio.get_running_loop().time() - t0 >= 1.5
             assert hung.calls[0] == ("shutdown", ["/master", "[/x] Reason: why"])
         await n.close()
         assert n.pending() == 0
