@@ -82,29 +82,29 @@ def catkin_workspaces(environ: Mapping[str, str]) -> list[str]:
 
 
 def _walk(top: str) -> Iterator[tuple[str, list[str], list[str]]]:
-    """`os.walk(top, followlinks=True)` (same order, callers may prune `dirs`), but a symlink
-    to a directory already walked is not walked again, so link cycles cannot run away."""
-    try:
-        seen = {os.path.realpath(top)}
-    except OSError:
-        return
-    stack: list[tuple[str, str]] = [(top, next(iter(seen)))]
+    """`os.walk(top, followlinks=True)` (same order, callers may prune `dirs`), except that a
+    symlink to a directory already entered through a symlink is not entered again, so link
+    cycles cannot run away. (A loop needs a symlink; remembering the targets of followed
+    symlinks by device and inode costs no extra system call: is_dir() has stat'ed them.)"""
+    followed: set[tuple[int, int]] = set()
+    stack = [top]
     while stack:
-        path, real = stack.pop()
+        path = stack.pop()
         dirs: list[str] = []
         files: list[str] = []
-        links: dict[str, str] = {}
+        targets: dict[str, tuple[int, int]] = {}
         try:
             with os.scandir(path) as it:
                 for entry in it:
                     try:
                         is_dir = entry.is_dir()
+                        if is_dir and entry.is_symlink():
+                            st = entry.stat()
+                            targets[entry.name] = (st.st_dev, st.st_ino)
                     except OSError:
                         is_dir = False
                     if is_dir:
                         dirs.append(entry.name)
-                        if entry.is_symlink():
-                            links[entry.name] = os.path.realpath(entry.path)
                     else:
                         files.append(entry.name)
         except OSError:
@@ -112,12 +112,12 @@ def _walk(top: str) -> Iterator[tuple[str, list[str], list[str]]]:
         yield path, dirs, files
         children = []
         for name in dirs:
-            child_real = links.get(name) or os.path.join(real, name)
-            if name in links:
-                if child_real in seen:
+            target = targets.get(name)
+            if target is not None:
+                if target in followed:
                     continue
-            seen.add(child_real)
-            children.append((os.path.join(path, name), child_real))
+                followed.add(target)
+            children.append(os.path.join(path, name))
         stack.extend(reversed(children))
 
 
