@@ -602,6 +602,16 @@ class _Connection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.closing:
             return
+        server = self.server
+        if not self.buf and not self.busy and not self.writing_paused:
+            # the usual case: this chunk is exactly one request whose head was seen before
+            end = data.find(b"\r\n\r\n")
+            if end >= 0:
+                parsed = server._head_cache.get(data[:end])
+                if parsed is not None and len(data) == end + 4 + parsed[1] and parsed[0] in RPC_PATHS:
+                    self.last_activity = server._loop.time()
+                    self._handle(data[end + 4:], parsed[2])
+                    return
         buf = self.buf
         if not buf and self.partial_since is None:
             self.partial_since = self.server._loop.time()
