@@ -37,6 +37,7 @@ class Case:
     error: bool = False
     deviation: str | None = None               # why we knowingly differ from roslaunch here
     relation: str | None = None                # Python condition on p = {key: normalised value}
+    commands: list[list[str | None]] | None = None  # <rosparam command=dump|delete>: [cmd, key, file]
 
 
 def L(body: str) -> str:
@@ -219,7 +220,24 @@ CASES = [
   <param name="keep" value="1"/>
   <rosparam command="delete" param="keep"/>
   <rosparam command="dump" file="/tmp/spec_never_written.yaml"/>''')},
-         params={"/keep": 1}),
+         params={"/keep": 1},
+         commands=[["delete", "/keep", None], ["dump", "/", "/tmp/spec_never_written.yaml"]]),
+    Case("rosparam_dump_delete_scoping", {MAIN: L('''
+  <group ns="ns1">
+    <node pkg="p" type="t" name="n">
+      <rosparam command="delete" param="ns2/param"/>
+      <rosparam command="dump" file="dump.yaml"/>
+      <rosparam command="delete" param="/abs"/>
+      <rosparam command="delete" param="~priv"/>
+    </node>
+    <rosparam command="dump" file="g.yaml" param="sub"/>
+    <rosparam command="delete" param="gone" if="false"/>
+  </group>''')},
+         nodes=["/ns1/n"],
+         commands=[["delete", "/ns1/n/ns2/param", None], ["dump", "/ns1/n/", "dump.yaml"],
+                   ["delete", "/abs", None],
+                   # ns_join keeps a private name as it is, so the key stays "~priv"
+                   ["delete", "~priv", None], ["dump", "/ns1/sub", "g.yaml"]]),
 
     # ---------------------------------------------------------------- args
     Case("arg_default_and_value", {MAIN: L('''
@@ -794,6 +812,8 @@ def _check(case: Case, result: dict, pkg: str, who: str) -> None:
             assert got[attr] == _norm(value), "%s: %s.%s" % (who, name, attr)
     if case.clear is not None:
         assert sorted(result["clear"]) == sorted(case.clear), who
+    if case.commands is not None:
+        assert result["commands"] == _expand(case.commands, pkg), who
     if case.relation:
         assert eval(case.relation, {}, {"p": result["params"]}), "%s: %s" % (who, case.relation)  # noqa: S307
 
@@ -813,6 +833,7 @@ def _ours(path: str, env: dict[str, str], argv: list[str]) -> dict:
         "nodes": [n.full_name for n in nodes],
         "fields": {n.full_name: {f: _norm(getattr(n, f, None)) for f in NODE_FIELDS} for n in nodes},
         "clear": list(config.clear_params),
+        "commands": [list(c) for c in getattr(config, "rosparam_commands", ())],
     }
 
 
@@ -863,7 +884,9 @@ for path, env, argv in json.loads(sys.stdin.read()):
                     "params": {k: norm(p.value) for k, p in config.params.items()},
                     "nodes": names,
                     "fields": {n.namespace + n.name: {f: norm(getattr(n, f, None)) for f in FIELDS} for n in nodes},
-                    "clear": list(config.clear_params)})
+                    "clear": list(config.clear_params),
+                    "commands": [[e.args[0], e.args[-1], e.args[1] if e.args[0] == "dump" else None]
+                                 for e in config.executables if e.command == "rosparam"]})
     except Exception as e:
         out.append({"error": "%%s: %%s" %% (type(e).__name__, e)})
 sys.stdout.write(json.dumps(out))
