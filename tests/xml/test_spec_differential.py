@@ -65,6 +65,16 @@ class Gen:
 
     def rosparam(self) -> str:
         a: dict[str, str] = {}
+        roll = self.r.random()
+        if roll < 0.15:
+            a = {"command": "delete", "param": self.r.choice(NAMES)}
+            a.update(self.cond())
+            return "<rosparam%s/>" % _attrs(a)
+        if roll < 0.2:
+            a = {"command": "dump", "file": "out.yaml"}
+            if self.r.random() < 0.5:
+                a["param"] = self.r.choice(NAMES)
+            return "<rosparam%s/>" % _attrs(a)
         if self.r.random() < 0.3:
             a["ns"] = self.r.choice(NS[1:5])
         if self.r.random() < 0.2:
@@ -236,7 +246,8 @@ def _ours(path, env):
             "nodes": [n.full_name for n in nodes],
             "fields": {n.full_name: {f: _norm(getattr(n, f, None)) for f in (TEST_FIELDS if n.is_test else FIELDS)}
                        for n in nodes},
-            "clear": sorted(config.clear_params)}
+            "clear": sorted(config.clear_params),
+            "commands": [list(c) for c in config.rosparam_commands]}
 
 
 REFERENCE_RUNNER = r"""
@@ -270,7 +281,9 @@ for path in paths:
                     "fields": {n.namespace + n.name: {f: norm(getattr(n, f, None))
                                                       for f in (TEST_FIELDS if hasattr(n, "test_name") else FIELDS)}
                                for n in nodes},
-                    "clear": sorted(config.clear_params)})
+                    "clear": sorted(config.clear_params),
+                    "commands": [[e.args[0], e.args[-1], e.args[1] if e.args[0] == "dump" else None]
+                                 for e in config.executables if e.command == "rosparam"]})
     except Exception as e:
         out.append({"error": "%%s: %%s" %% (type(e).__name__, e)})
 print(json.dumps(out))
@@ -299,7 +312,7 @@ def test_same_results_as_roslaunch(ros_env, corpus):
                                                             "error: %s" % ours["error"] if ours["error"] else "ok"))
             continue
         if ours["error"] is None:
-            for key in ("params", "nodes", "fields", "clear"):
+            for key in ("params", "nodes", "fields", "clear", "commands"):
                 if ours[key] != ref[key]:
                     detail = ""
                     if key == "fields":
