@@ -227,18 +227,21 @@ def corpus(tmp_path_factory):
         d.mkdir()
         (d / "inc.launch").write_text(INCLUDED)
         (d / "main.launch").write_text(Gen(rng).document())
-        files.append(str(d / "main.launch"))
+        # command-line args for some documents: overrides, undeclared names, empty values, __ns
+        argv = rng.sample(["v:=7", "flag:=false", "neg:= true ", "e3:=cli", "nobody:=1", "v:=", "__ns:=/cli"],
+                          rng.choice([0, 0, 1, 2]))
+        files.append((str(d / "main.launch"), argv))
     env = {k: v for k, v in os.environ.items()
            if not k.startswith("ROS_") and not k.startswith("SPEC_") and k != "CMAKE_PREFIX_PATH"}
     env.update(ROS_PACKAGE_PATH=str(root / "pkgs"), ROS_HOME=str(root / "home"), SPEC_DIFF_SET="set")
     return files, env
 
 
-def _ours(path, env):
+def _ours(path, env, argv=()):
     from launcher.packages import PackageIndex
     from launcher.xml import load
     try:
-        config = load([path], [], environ=env, packages=PackageIndex(env), core=False)
+        config = load([path], list(argv), environ=env, packages=PackageIndex(env), core=False)
     except LaunchError as e:
         return {"error": str(e)}
     nodes = list(config.nodes) + list(config.tests)
@@ -252,8 +255,17 @@ def _ours(path, env):
 
 REFERENCE_RUNNER = r"""
 import json, os, sys
-import rosparam
-import roslaunch.config, roslaunch.xmlloader, roslaunch.substitution_args
+import yaml
+import roslaunch.config, roslaunch.loader, roslaunch.xmlloader, roslaunch.substitution_args
+# each document must see a fresh process: roslaunch imports rosparam at the first <rosparam>,
+# which registers the angle syntax on PyYAML's SafeLoader for every later type="yaml" param
+PRISTINE = (dict(yaml.SafeLoader.yaml_constructors),
+            {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()})
+def fresh_yaml():
+    yaml.SafeLoader.yaml_constructors = dict(PRISTINE[0])
+    yaml.SafeLoader.yaml_implicit_resolvers = {k: list(v) for k, v in PRISTINE[1].items()}
+    sys.modules.pop("rosparam", None)
+    roslaunch.loader.rosparam = None
 FIELDS, TEST_FIELDS = %r
 def norm(value):
     if isinstance(value, bool): return ["bool", value]
@@ -267,8 +279,9 @@ def norm(value):
 paths, env = json.loads(sys.stdin.read())
 os.environ.clear(); os.environ.update(env)
 out = []
-for path in paths:
-    sys.argv = ["roslaunch", path]
+for path, argv in paths:
+    fresh_yaml()
+    sys.argv = ["roslaunch", path] + argv
     config = roslaunch.config.ROSLaunchConfig()
     try:
         roslaunch.xmlloader.XmlLoader().load(path, config, verbose=False)
@@ -292,7 +305,7 @@ print(json.dumps(out))
 
 def test_generator_makes_varied_documents(corpus):
     files, env = corpus
-    outcomes = [_ours(f, env)["error"] is None for f in files]
+    outcomes = [_ours(f, env, argv)["error"] is None for f, argv in files]
     # both valid and invalid documents, mostly valid, or the comparison says little
     assert 0.4 * len(files) < sum(outcomes) < len(files)
 
@@ -305,8 +318,9 @@ def test_same_results_as_roslaunch(ros_env, corpus):
     assert proc.returncode == 0, proc.stderr[-3000:]
     refs = json.loads(proc.stdout)
     mismatches = []
-    for path, ref in zip(files, refs):
-        ours = _ours(path, env)
+    for (path, argv), ref in zip(files, refs):
+        ours = _ours(path, env, argv)
+        path = "%s %s" % (path, " ".join(argv))
         if (ours["error"] is None) != (ref["error"] is None):
             mismatches.append("%s: roslaunch %s, ours %s" % (path, "error: %s" % ref["error"] if ref["error"] else "ok",
                                                             "error: %s" % ours["error"] if ours["error"] else "ok"))
