@@ -85,11 +85,15 @@ class XmlLoader:
         self.rosparam_commands: list[tuple[str, str, str | None]] = []
         self.node_names: set[str] = set(CORE_NODE_NAMES) if core else set()
         self.root_scope: Scope | None = None
+        # launch-level ~params, to warn about those that no later node picks up
+        self._private_params: dict[tuple[str, str, int], tuple[tuple[str, int], ...]] = {}
+        self._used_private: set[tuple[str, str, int]] = set()
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
 
     # ------------------------------------------------------------------ output
     def config(self) -> LaunchConfig:
+        self._late_warnings()
         seen: dict[str, None] = {}
         for f in self.files:
             seen.setdefault(os.path.abspath(f))
@@ -97,6 +101,22 @@ class XmlLoader:
                             clear_params=tuple(self.clear_params), machines=self.machines,
                             files=tuple(seen), warnings=tuple(self.warnings),
                             rosparam_commands=tuple(self.rosparam_commands))
+
+    def _late_warnings(self) -> None:
+        """What roslaunch silently ignores and can only be seen once everything is loaded."""
+        for (key, pfile, pline), chain in self._private_params.items():
+            if (key, pfile, pline) not in self._used_private:
+                text = ("%s:%d: private parameter [%s] is not set for any node: a launch-level ~param only "
+                        "applies to <node>s that follow it in the same scope" % (pfile, pline, key))
+                for f, ln in chain:
+                    text += "\n  included from %s:%d" % (f, ln)
+                self._warn_plain(text)
+        self._private_params.clear()
+        for n in self.nodes + self.tests:
+            if n.machine_name and n.machine_name not in self.machines:
+                self._warn_plain("%s:%d: <%s> [%s] uses machine [%s], which no <machine> tag declares (roslaunch "
+                                 "refuses to run it)" % (n.filename, n.line, "test" if n.is_test else "node",
+                                                         n.full_name, n.machine_name))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:
@@ -370,6 +390,8 @@ class XmlLoader:
                                       self._sub(binfile, scope, el), self._sub(command, scope, el))
         if force_local or name[:1] == "~":
             scope.add_param(name, typed, scope.source, el.sourceline or 0)
+            if not force_local:
+                self._private_params[(canonical(name), scope.source, el.sourceline or 0)] = scope.include_chain
         else:
             self._add_param(ns_join(scope.ns, name), typed, scope, el)
 
@@ -491,6 +513,9 @@ class XmlLoader:
                 raise self._fail(scope, el, "error loading <rosparam> tag: 'file' attribute is invalid with "
                                             "'delete' command.")
         full_param = ns_join(scope.ns, param) if param else scope.ns
+        if full_param[:1] == "~":
+            self._warn(scope, el, "<rosparam param=\"%s\"> outside a <node> sets parameters under the literal "
+                                  "name [%s] (as roslaunch does), not under a node" % (param, full_param))
         if cmd == "dump":
             self.rosparam_commands.append(("dump", full_param, file_))
             return
@@ -579,6 +604,8 @@ class XmlLoader:
                                       "launch-prefix", "required"))
         if not machine and default_machine is not None:
             machine = default_machine.name
+        if respawn_delay_s is not None and respawn_s is None and not is_test:
+            self._warn(scope, el, "respawn_delay has no effect without respawn=\"true\"")
         required = self._bool(required_s, False, "required", scope, el)
         respawn = self._bool(respawn_s, False, "respawn", scope, el)
         if respawn_delay_s is None:
@@ -622,6 +649,8 @@ class XmlLoader:
                 self._warn(scope, c, "unrecognized <%s> child tag of <%s> (ignored)" % (ctag, el.tag))
 
         # launch-level ~params declared earlier in this scope, then the node's own
+        for key, value, pfile, pline in scope.params:
+            self._used_private.add((key, pfile, pline))
         for key, value, pfile, pline in list(scope.params) + param_scope.params:
             if key.startswith("~"):
                 key = key[1:]

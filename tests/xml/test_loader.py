@@ -569,3 +569,20 @@ def test_include_cycle_is_an_error_not_a_crash(ld):
     ld.write("leaf.launch", '<launch><param name="p" value="1"/></launch>')
     assert ld.params('<launch><include file="$(dirname)/leaf.launch"/><include file="$(dirname)/leaf.launch"/>'
                      '</launch>') == {"/p": 1}
+
+
+def test_warnings_for_what_roslaunch_silently_ignores(ld):
+    c = ld.load("""
+        <launch>
+          <param name="~used" value="1"/>
+          <node name="a" pkg="tpkg" type="talker" machine="nowhere" respawn_delay="2"/>
+          <param name="~unused" value="1"/>
+          <rosparam param="~rp">{k: 1}</rosparam>
+        </launch>""")
+    main = str(ld.launch / "main.launch")
+    w = "\n".join(c.warnings)
+    assert "%s:4: private parameter [~unused] is not set for any node" % main in w
+    assert "[~used]" not in w
+    assert "%s:3: <node> [/a] uses machine [nowhere]" % main in w
+    assert "%s:3: respawn_delay has no effect" % main in w
+    assert "%s:5: <rosparam param=\"~rp\"> outside a <node>" % main in w
