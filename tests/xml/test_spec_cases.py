@@ -727,6 +727,13 @@ CASES = [
     Case("param_yaml_bad_explicit_float", {MAIN: L('<param name="a" type="yaml" value="!!float"/>')}, error=True),
     Case("rosparam_file_with_tabs", {MAIN: L('<rosparam command="load" file="$(find spec_pkg)/t.yaml"/>'),
                                      "t.yaml": "a: 1\nb:\t2\n"}, error=True),
+    Case("yaml_param_angles_need_a_prior_rosparam", {MAIN: L("""
+  <param name="first" type="yaml" value="deg(90)"/>
+  <group ns="g"><rosparam>x: 1</rosparam></group>
+  <param name="after" type="yaml" value="{a: rad(pi), b: !degrees 180}"/>""")},
+         params={"/first": "deg(90)", "/g/x": 1, "/after": {"a": math.pi, "b": math.pi}}),
+    Case("yaml_param_angle_tag_before_rosparam_is_an_error",
+         {MAIN: L('<param name="t" type="yaml" value="!degrees 90"/>')}, error=True),
     # ---------------------------------------------------------------- documents
     Case("empty_launch", {MAIN: "<launch/>"}, params={}, nodes=[]),
     Case("launch_nested_in_other_root", {MAIN: '<root><launch><param name="x" value="1"/></launch></root>'},
@@ -851,8 +858,17 @@ def test_case_ids_unique():
 
 REFERENCE_RUNNER = r"""
 import json, os, sys
-import rosparam  # imported once for all cases: type="yaml" angles behave as after a <rosparam>
-import roslaunch.config, roslaunch.xmlloader, roslaunch.core, roslaunch.substitution_args
+import yaml
+import roslaunch.config, roslaunch.loader, roslaunch.xmlloader, roslaunch.core, roslaunch.substitution_args
+# each case must see a fresh process: roslaunch imports rosparam at the first <rosparam>,
+# which registers the angle syntax on PyYAML's SafeLoader for every later type="yaml" param
+PRISTINE = (dict(yaml.SafeLoader.yaml_constructors),
+            {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()})
+def fresh_yaml():
+    yaml.SafeLoader.yaml_constructors = dict(PRISTINE[0])
+    yaml.SafeLoader.yaml_implicit_resolvers = {k: list(v) for k, v in PRISTINE[1].items()}
+    sys.modules.pop("rosparam", None)
+    roslaunch.loader.rosparam = None
 
 FIELDS = %r
 
@@ -872,6 +888,7 @@ for path, env, argv in json.loads(sys.stdin.read()):
     os.environ.clear(); os.environ.update(env)
     sys.argv = ["roslaunch", path] + argv
     roslaunch.substitution_args._rospack = None  # its package cache would outlive the case
+    fresh_yaml()
     config = roslaunch.config.ROSLaunchConfig()
     loader = roslaunch.xmlloader.XmlLoader()
     try:
