@@ -57,10 +57,6 @@ def _auto_value(text: str) -> Any:
     return auto(text)
 
 
-class _Abort(Exception):
-    """Internal: a problem at an element, turned into a LaunchError by `_fail`."""
-
-
 class XmlLoader:
     """One load: files + command-line args -> LaunchConfig."""
 
@@ -311,7 +307,11 @@ class XmlLoader:
                 if not node_name:
                     raise self._fail(scope, el, "<%s> tag must have a 'name' attribute to use 'clear_params' "
                                                 "attribute" % el.tag)
-                self.clear_params.append(make_global_ns(ns_join(child.ns, node_name)))
+                try:
+                    self.clear_params.append(make_global_ns(ns_join(child.ns, node_name)))
+                except ValueError:
+                    raise self._fail(scope, el, "Invalid <%s> tag: cannot clear the parameters of the private "
+                                                "name [%s]" % (el.tag, node_name)) from None
             else:
                 if not ns:
                     raise self._fail(scope, el, "'ns' attribute must be set in order to use 'clear_params'")
