@@ -140,8 +140,29 @@ def _guarded(base: type) -> type:
     return type("Guarded" + base.__name__, (base,), {"construct_object": _construct_object})
 
 
-def _ros_flavour(base: type) -> type:
-    cls = type("Ros" + base.__name__, (_guarded(base),), {})
+def _memo_resolve(self: Any, kind: type, value: Any, implicit: Any) -> str:
+    # Tag resolution runs a few regexes per scalar in Python; parameter files repeat the
+    # same keys and values a lot. The answer depends only on these arguments (no path
+    # resolvers are registered on these classes), so remember it per class.
+    if kind is not yaml.ScalarNode:
+        return yaml.resolver.BaseResolver.resolve(self, kind, value, implicit)
+    key = (value, implicit)
+    memo = type(self)._resolved
+    tag = memo.get(key)
+    if tag is None:
+        tag = yaml.resolver.BaseResolver.resolve(self, kind, value, implicit)
+        if len(memo) < 65536:
+            memo[key] = tag
+    return tag
+
+
+def _fast(base: type) -> type:
+    """libyaml-based `base` with memoised tag resolution. No construction guard: any error
+    on this path makes load_yaml retry with the guarded pure-Python loader."""
+    return type("Fast" + base.__name__, (base,), {"resolve": _memo_resolve, "_resolved": {}})
+
+
+def _with_ros_syntax(cls: type) -> type:
     cls.add_constructor("tag:yaml.org,2002:binary", _construct_binary)
     cls.add_constructor("!radians", _construct_radians)
     cls.add_constructor("!degrees", _construct_degrees)
@@ -150,10 +171,16 @@ def _ros_flavour(base: type) -> type:
     return cls
 
 
-_PY_ROS = _ros_flavour(yaml.SafeLoader)
-_C_ROS = _ros_flavour(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
-_C_PLAIN = _guarded(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
+def _ros_flavour(base: type) -> type:
+    return _with_ros_syntax(type("Ros" + base.__name__, (base,), {}))
+
+
+_PY_ROS = _ros_flavour(_guarded(yaml.SafeLoader))
 _PY_PLAIN = _guarded(yaml.SafeLoader)
+_C_ROS = _ros_flavour(_fast(yaml.CSafeLoader)) if hasattr(yaml, "CSafeLoader") else None
+_C_PLAIN = _fast(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
+if _C_ROS is not None:
+    _C_ROS._resolved = {}  # its own memo: its resolver table has the angle patterns
 
 
 # Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
