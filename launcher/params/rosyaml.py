@@ -218,7 +218,9 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
             if i + 1 < len(loaders):
                 continue
             raise _yaml_error(e, text, filename, first_line) from None
-        if len(text) <= _MEMO_TEXT_MAX and len(_parsed) < _MEMO_ENTRIES:
+        global _memo_chars
+        if len(text) <= _MEMO_TEXT_MAX and _memo_chars + len(text) <= _MEMO_CHARS:
+            _memo_chars += len(text)
             _parsed[key] = value
             return _fresh_copy(value)
         return value
@@ -229,7 +231,8 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
 # included many times): parse each text once per run. Callers get their own copy, so
 # nobody can alter what another caller received.
 _MEMO_TEXT_MAX = 64 * 1024
-_MEMO_ENTRIES = 4096
+_MEMO_CHARS = 8 * 1024 * 1024  # bounds the memo's memory to a few times this
+_memo_chars = 0
 _parsed: dict[tuple[str, bool], Any] = {}
 
 
