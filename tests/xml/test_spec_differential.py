@@ -230,7 +230,8 @@ def corpus(tmp_path_factory):
         # command-line args for some documents: overrides, undeclared names, empty values, __ns
         argv = rng.sample(["v:=7", "flag:=false", "neg:= true ", "e3:=cli", "nobody:=1", "v:=", "__ns:=/cli"],
                           rng.choice([0, 0, 1, 2]))
-        files.append((str(d / "main.launch"), argv))
+        extra = {"ROS_NAMESPACE": rng.choice(["/envns", "rel", "/a/b/"])} if rng.random() < 0.15 else {}
+        files.append((str(d / "main.launch"), argv, extra))
     env = {k: v for k, v in os.environ.items()
            if not k.startswith("ROS_") and not k.startswith("SPEC_") and k != "CMAKE_PREFIX_PATH"}
     env.update(ROS_PACKAGE_PATH=str(root / "pkgs"), ROS_HOME=str(root / "home"), SPEC_DIFF_SET="set")
@@ -277,9 +278,9 @@ def norm(value):
     if isinstance(value, dict): return ["dict", sorted([str(k), norm(v)] for k, v in value.items())]
     return ["other", repr(value)]
 paths, env = json.loads(sys.stdin.read())
-os.environ.clear(); os.environ.update(env)
 out = []
-for path, argv in paths:
+for path, argv, extra in paths:
+    os.environ.clear(); os.environ.update(env); os.environ.update(extra)
     fresh_yaml()
     sys.argv = ["roslaunch", path] + argv
     config = roslaunch.config.ROSLaunchConfig()
@@ -305,7 +306,7 @@ print(json.dumps(out))
 
 def test_generator_makes_varied_documents(corpus):
     files, env = corpus
-    outcomes = [_ours(f, env, argv)["error"] is None for f, argv in files]
+    outcomes = [_ours(f, dict(env, **extra), argv)["error"] is None for f, argv, extra in files]
     # both valid and invalid documents, mostly valid, or the comparison says little
     assert 0.4 * len(files) < sum(outcomes) < len(files)
 
@@ -318,9 +319,9 @@ def test_same_results_as_roslaunch(ros_env, corpus):
     assert proc.returncode == 0, proc.stderr[-3000:]
     refs = json.loads(proc.stdout)
     mismatches = []
-    for (path, argv), ref in zip(files, refs):
-        ours = _ours(path, env, argv)
-        path = "%s %s" % (path, " ".join(argv))
+    for (path, argv, extra), ref in zip(files, refs):
+        ours = _ours(path, dict(env, **extra), argv)
+        path = "%s %s %s" % (path, " ".join(argv), extra or "")
         if (ours["error"] is None) != (ref["error"] is None):
             mismatches.append("%s: roslaunch %s, ours %s" % (path, "error: %s" % ref["error"] if ref["error"] else "ok",
                                                             "error: %s" % ours["error"] if ours["error"] else "ok"))
