@@ -322,13 +322,18 @@ REF_SCRIPT = r"""
 import json, os, sys
 import rospkg, roslib.packages
 rp = rospkg.RosPack()
-out = {"packages": {n: rp.get_path(n) for n in rp.list()}, "nodes": {}}
+out = {"packages": {n: rp.get_path(n) for n in rp.list()}, "nodes": {}, "resources": {}}
 for pkg, typ in json.loads(sys.argv[1]):
     try:
         m = roslib.packages.find_node(pkg, typ, rospack=rp)
         out["nodes"]["%s/%s" % (pkg, typ)] = m[0] if m else None
     except rospkg.ResourceNotFound:
         out["nodes"]["%s/%s" % (pkg, typ)] = "NOPKG"
+for pkg, name in json.loads(sys.argv[2]):
+    try:
+        out["resources"]["%s/%s" % (pkg, name)] = roslib.packages.find_resource(pkg, name)
+    except rospkg.ResourceNotFound:
+        out["resources"]["%s/%s" % (pkg, name)] = "NOPKG"
 print(json.dumps(out))
 """
 
@@ -340,7 +345,11 @@ def test_matches_rospkg_and_roslib_on_compat_corpus(ros_env):
     env.update(ROS_PACKAGE_PATH=COMPAT + "/pkgs", CMAKE_PREFIX_PATH=COMPAT + "/ws", PATH=ros_env["path"])
     queries = [("compat_nodes", t) for t in ("talker", "deep_node", "ws_only", "both", "not_exec", "nope")]
     queries += [("pkg", "node1"), ("roslaunch", "roslaunch"), ("rospy", "talker.py"), ("zz_missing", "x")]
-    ref = json.loads(subprocess.run([ros_env["python"], "-c", REF_SCRIPT, json.dumps(queries)], env=env,
+    resources = [("compat_cases", "subst_find.launch"), ("roslaunch_compat", "test-arg.xml"),
+                 ("compat_nodes", "talker"), ("compat_nodes", "both"), ("compat_cases", "nope.launch"),
+                 ("compat_cases", "params.yaml"), ("zz_missing", "x.launch"), ("roslaunch", "roscore.xml")]
+    ref = json.loads(subprocess.run([ros_env["python"], "-c", REF_SCRIPT, json.dumps(queries), json.dumps(resources)],
+                                    env=env,
                                     capture_output=True, text=True, check=True, timeout=120).stdout)
     ix = PackageIndex(environ=env)
     assert ix.packages() == ref["packages"]
@@ -352,6 +361,16 @@ def test_matches_rospkg_and_roslib_on_compat_corpus(ros_env):
         except PackageNotFound:
             ours = "NOPKG"
         assert ours == ref["nodes"]["%s/%s" % (pkg, typ)], (pkg, typ)
+    for pkg, name in resources:
+        expected = ref["resources"]["%s/%s" % (pkg, name)]
+        try:
+            found = ix.find_launch_file(pkg, name)
+            got = [found] if found else []
+        except MultipleResources as e:
+            got = list(e.matches)
+        except PackageNotFound:
+            got = "NOPKG"
+        assert got == expected, (pkg, name)
 
 
 CATKIN_REF = r"""
