@@ -367,8 +367,18 @@ DIFF_INPUTS = ["1", "1.", "-.5e-3", "1__0", "0_1", "12345678901234567890", "1e40
                "yes", "on", "2001-12-14", "!!binary aGVsbG8=", "0o17", "0b11", "1:20", "'q'", "- a\n- b"]
 
 
+def _random_inputs(n: int = 600, seed: int = 7) -> list[str]:
+    """Seeded random strings built from the characters that matter to the conversions."""
+    import random
+    rng = random.Random(seed)
+    pieces = list("0123456789.-+_eExXoObB ") + ["\t", "\n", "nan", "inf", "true", "False", "yes", "0x", "1_0", "٣",
+                                                 "[", "]", "{", "}", ":", "'", '"', "deg(", "rad(", ")", "pi", "#"]
+    return ["".join(rng.choice(pieces) for _ in range(rng.randint(0, 6))) for _ in range(n)]
+
+
 def test_differential_against_roslaunch(ros_env):
-    pairs = [[t, p] for t in DIFF_INPUTS for p in ("auto", "int", "double", "bool", "str", "yaml")]
+    inputs = DIFF_INPUTS + _random_inputs()
+    pairs = [[t, p] for t in inputs for p in ("auto", "int", "double", "bool", "str", "yaml")]
     env = dict(os.environ, PATH=ros_env["path"])
     ref = json.loads(subprocess.run([ros_env["python"], "-c", REF_SCRIPT, json.dumps(pairs)], env=env,
                                     capture_output=True, text=True, check=True, timeout=120).stdout)
