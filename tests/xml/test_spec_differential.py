@@ -91,7 +91,7 @@ class Gen:
         for attr, values in (("ns", NS[1:]), ("args", ["--x 1", "'a b'  c", "$(arg v)"]), ("respawn", ["true", "false"]),
                              ("output", ["screen", "log"]), ("cwd", ["node", "ROS_HOME"]),
                              ("launch-prefix", ["nice", "gdb --args"]), ("clear_params", ["true", "false"]),
-                             ("respawn_delay", ["1", "2.5"]), ("required", ["false"])):
+                             ("respawn_delay", ["1", "2.5"]), ("required", ["false"]), ("machine", ["m1", "m2"])):
             if self.r.random() < 0.15:
                 a[attr] = self.r.choice(values)
         a.update(self.cond())
@@ -147,16 +147,29 @@ class Gen:
         a.update(self.cond())
         return "<group%s>%s</group>" % (_attrs(a), self.body(depth + 1))
 
+    def machine(self) -> str:
+        a = {"name": self.r.choice(["m1", "m2"]), "address": self.r.choice(["localhost", "127.0.0.1", "$(arg v)"])}
+        for attr, values in (("default", ["true", "false", "never"]), ("user", ["me"]), ("ssh-port", ["22", "x"]),
+                             ("timeout", ["3", "x"]), ("env-loader", ["/opt/env.sh"])):
+            if self.r.random() < 0.2:
+                a[attr] = self.r.choice(values)
+        return "<machine%s/>" % _attrs(a)
+
     def include(self) -> str:
-        a = {"file": "$(dirname)/inc.launch"}
+        a = {"file": "$(dirname)/%s" % self.r.choice(["inc.launch", "inc.launch", "inc2.launch"])}
         if self.r.random() < 0.5:
             a["ns"] = self.r.choice(NS[1:5])
         if self.r.random() < 0.3:
             a["pass_all_args"] = "true"
         a.update(self.cond())
-        child = '<arg name="iv" value="%s"/>' % self.r.choice(["1", "two", "$(arg v)"])
+        child = '<arg name="iv" %s="%s"/>' % (self.r.choice(["value", "value", "default"]),
+                                               self.r.choice(["1", "two", "$(arg v)"]))
         if a.get("pass_all_args"):
             child = ""
+        if self.r.random() < 0.2:
+            child += self.env()
+        if self.r.random() < 0.1:
+            a["clear_params"] = "true"
         return "<include%s>%s</include>" % (_attrs(a), child)
 
     def body(self, depth: int = 0) -> str:
@@ -179,8 +192,10 @@ class Gen:
                 items.append(self.arg())
             elif roll < 0.89:
                 items.append(self.test())
-            elif roll < 0.92:
+            elif roll < 0.91:
                 items.append(self.file_param())
+            elif roll < 0.92:
+                items.append(self.machine())
             else:
                 items.append(self.include())
         return "\n".join(items)
@@ -192,6 +207,10 @@ class Gen:
 
 INCLUDED = ('<launch><arg name="iv" default="0"/><arg name="v" default="9"/>'
             '<param name="inc_p" value="$(arg iv)"/><node pkg="p" type="t" name="inc_n"/></launch>')
+# a second level: passes everything down, and refers to the parent's args
+INCLUDED2 = ('<launch><arg name="iv" default="0"/><arg name="v" default="9"/><arg name="flag" default="true"/>'
+             '<group ns="deeper" if="$(arg flag)"><include file="$(dirname)/inc.launch" pass_all_args="true"/></group>'
+             '<param name="inc2_p" value="$(arg v)-$(arg iv)"/></launch>')
 
 
 def _norm(value):
@@ -226,6 +245,7 @@ def corpus(tmp_path_factory):
         d = pkg / ("d%03d" % i)
         d.mkdir()
         (d / "inc.launch").write_text(INCLUDED)
+        (d / "inc2.launch").write_text(INCLUDED2)
         (d / "main.launch").write_text(Gen(rng).document())
         # command-line args for some documents: overrides, undeclared names, empty values, __ns
         argv = rng.sample(["v:=7", "flag:=false", "neg:= true ", "e3:=cli", "nobody:=1", "v:=", "__ns:=/cli"],
@@ -234,7 +254,9 @@ def corpus(tmp_path_factory):
         files.append((str(d / "main.launch"), argv, extra))
     env = {k: v for k, v in os.environ.items()
            if not k.startswith("ROS_") and not k.startswith("SPEC_") and k != "CMAKE_PREFIX_PATH"}
-    env.update(ROS_PACKAGE_PATH=str(root / "pkgs"), ROS_HOME=str(root / "home"), SPEC_DIFF_SET="set")
+    # (ROS_DISTRO names the default env-loader of <machine>s, as a sourced setup.bash sets it)
+    env.update(ROS_PACKAGE_PATH=str(root / "pkgs"), ROS_HOME=str(root / "home"), SPEC_DIFF_SET="set",
+               ROS_DISTRO="noetic")
     return files, env
 
 
@@ -251,7 +273,9 @@ def _ours(path, env, argv=()):
             "fields": {n.full_name: {f: _norm(getattr(n, f, None)) for f in (TEST_FIELDS if n.is_test else FIELDS)}
                        for n in nodes},
             "clear": sorted(config.clear_params),
-            "commands": [list(c) for c in config.rosparam_commands]}
+            "commands": [list(c) for c in config.rosparam_commands],
+            "machines": {name: [m.address, m.user, m.ssh_port, m.env_loader, float(m.timeout)]
+                         for name, m in sorted(config.machines.items())}}
 
 
 REFERENCE_RUNNER = r"""
@@ -297,7 +321,9 @@ for path, argv, extra in paths:
                                for n in nodes},
                     "clear": sorted(config.clear_params),
                     "commands": [[e.args[0], e.args[-1], e.args[1] if e.args[0] == "dump" else None]
-                                 for e in config.executables if e.command == "rosparam"]})
+                                 for e in config.executables if e.command == "rosparam"],
+                    "machines": {name: [m.address, m.user, m.ssh_port, m.env_loader, float(m.timeout)]
+                                 for name, m in sorted(config.machines.items()) if name}})
     except Exception as e:
         out.append({"error": "%%s: %%s" %% (type(e).__name__, e)})
 print(json.dumps(out))
@@ -327,7 +353,7 @@ def test_same_results_as_roslaunch(ros_env, corpus):
                                                             "error: %s" % ours["error"] if ours["error"] else "ok"))
             continue
         if ours["error"] is None:
-            for key in ("params", "nodes", "fields", "clear", "commands"):
+            for key in ("params", "nodes", "fields", "clear", "commands", "machines"):
                 if ours[key] != ref[key]:
                     detail = ""
                     if key == "fields":
