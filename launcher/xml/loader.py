@@ -84,6 +84,7 @@ class XmlLoader:
         # launch-level ~params, to warn about those that no later node picks up
         self._private_params: dict[tuple[str, str, int], tuple[tuple[str, int], ...]] = {}
         self._used_private: set[tuple[str, str, int]] = set()
+        self._declared_args: set[str] = set()
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
 
@@ -108,11 +109,32 @@ class XmlLoader:
                     text += "\n  included from %s:%d" % (f, ln)
                 self._warn_plain(text)
         self._private_params.clear()
+        self._undeclared_cli_args()
         for n in self.nodes + self.tests:
             if n.machine_name and n.machine_name not in self.machines:
                 self._warn_plain("%s:%d: <%s> [%s] uses machine [%s], which no <machine> tag declares (roslaunch "
                                  "refuses to run it)" % (n.filename, n.line, "test" if n.is_test else "node",
                                                          n.full_name, n.machine_name))
+
+    def _undeclared_cli_args(self) -> None:
+        """roslaunch silently ignores `name:=value` for an arg no file declares: say so (a typo, usually)."""
+        unknown = [a for a in self.cli_args if not a.startswith("__") and a not in self._declared_args]
+        if not unknown:
+            return
+        texts = []
+        for f in dict.fromkeys(self.files):
+            try:
+                with open(f, "r", encoding="utf-8", errors="replace") as fh:
+                    texts.append(fh.read())
+            except OSError:
+                pass
+        text = "\n".join(texts)
+        for a in unknown:
+            # roslaunch lets $(arg x) read an undeclared command-line arg: that counts as used
+            if re.search(r"arg(\s+|\(\s*['\"])%s\b" % re.escape(a), text):
+                continue
+            self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch file(s) "
+                             "and is ignored" % (a, self.cli_args[a]))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:
@@ -329,6 +351,7 @@ class XmlLoader:
         doc = self._attr(el, "doc", scope)
         if value is not None and default is not None:
             raise self._fail(scope, el, "<arg> tag must have one and only one of value/default.")
+        self._declared_args.add(name)
         try:
             scope.add_arg(name, default=default, value=value, doc=doc)
         except ScopeError as e:

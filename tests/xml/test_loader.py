@@ -586,3 +586,10 @@ def test_warnings_for_what_roslaunch_silently_ignores(ld):
     assert "%s:3: <node> [/a] uses machine [nowhere]" % main in w
     assert "%s:3: respawn_delay has no effect" % main in w
     assert "%s:5: <rosparam param=\"~rp\"> outside a <node>" % main in w
+
+
+def test_undeclared_command_line_arg_is_warned_unless_read(ld):
+    text = '<launch><arg name="a" default="1"/><param name="u" value="$(arg used)"/></launch>'
+    c = ld.load(text, ["a:=2", "typo:=3", "used:=4", "__ns:=/x"])
+    w = [x for x in c.warnings if "command-line argument" in x]
+    assert len(w) == 1 and "[typo:=3]" in w[0]
