@@ -68,21 +68,9 @@ def main(opts: Any) -> int:
     if not files:
         raise LaunchError(NO_FILE)
     out = sys.stdout
-
-    if opts.ros_args:
-        from launcher.xml import load_arg_docs
-        docs = load_arg_docs(files, argv, environ=environ, packages=packages)
-        out.write(format_ros_args(docs))
-        return 0
-
-    if opts.dump_params:
-        config = load(files, argv, environ=environ, packages=packages, core=False, warn=_warn)
-        out.write(dump_params(config))
-        return 0
-
-    config = load(files, argv, environ=environ, packages=packages, warn=_warn)
-
+    # one option runs, in roslaunch's order of precedence
     if opts.node_args:
+        config = load(files, argv, environ=environ, packages=packages, warn=_warn)
         name = resolve_node_name(opts.node_args, argv, environ)
         node = _find(config, name, files)
         if node is None:
@@ -95,6 +83,7 @@ def main(opts: Any) -> int:
         return 0
 
     if opts.find_node:
+        config = load(files, argv, environ=environ, packages=packages, warn=_warn)
         name = resolve_node_name(opts.find_node, argv, environ)
         node = _find(config, name, files)
         if node is None:
@@ -103,11 +92,25 @@ def main(opts: Any) -> int:
         out.write(node.filename + "\n")
         return 0
 
+    if opts.dump_params:
+        # as roslaunch: roscore.xml (and so its /rosout node) is not loaded for --dump-params
+        config = load(files, argv, environ=environ, packages=packages, core=False, warn=_warn)
+        out.write(dump_params(config))
+        return 0
+
     if opts.files:
+        config = load(files, argv, environ=environ, packages=packages, warn=_warn)
         out.write("".join(f + "\n" for f in config.files))
         return 0
 
+    if opts.ros_args:
+        from launcher.xml import load_arg_docs
+        docs = load_arg_docs(files, argv, environ=environ, packages=packages)
+        out.write(format_ros_args(docs))
+        return 0
+
     # --nodes
+    config = load(files, argv, environ=environ, packages=packages, warn=_warn)
     names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
     out.write("\n".join(names) + "\n")
     return 0

@@ -151,3 +151,13 @@ def test_warnings_go_to_stderr_with_file_and_line(tree, capsys, tmp_path):
     f.write_text("<launch>\n<bogus/>\n</launch>")
     rc, out, err = run(capsys, "--nodes", str(f))
     assert rc == 0 and out == "\n" and "%s:2:" % f in err and "bogus" in err
+
+
+def test_option_precedence_is_roslaunchs(tree, capsys):
+    # --args wins over --nodes and --dump-params; --dump-params over --files; --files over --ros-args
+    rc, out, _ = run(capsys, "--nodes", "--dump-params", "--args", "/drv", tree["main"], "robot:=r")
+    assert rc == 0 and out.endswith("__name:=drv\n")
+    rc, out, _ = run(capsys, "--files", "--dump-params", tree["main"], "robot:=r")
+    assert rc == 0 and yaml.safe_load(out)["/robot"] == "r"
+    rc, out, _ = run(capsys, "--ros-args", "--files", tree["main"], "robot:=r")
+    assert rc == 0 and sorted(out.split()) == sorted([tree["main"], tree["inc"]])
