@@ -621,6 +621,8 @@ class _Connection(asyncio.Protocol):
             return
         if not self.busy:
             self._process()
+        else:
+            self._update_reading()  # pipelined requests wait in the socket, not in memory
 
     def eof_received(self) -> bool:
         """The client will send no more: answer what is pending, then close."""
