@@ -614,7 +614,7 @@ class _Connection(asyncio.Protocol):
                     return
         buf = self.buf
         if not buf and self.partial_since is None:
-            self.partial_since = self.server._loop.time()
+            self._partial_started(server._loop.time())
         buf += data
         if len(buf) > self.server.max_request_size + self.server.max_header_size:
             self._http_error(413, "Request Entity Too Large")
@@ -686,8 +686,10 @@ class _Connection(asyncio.Protocol):
             body = bytes(buf[body_start:body_start + length])
             del buf[:body_start + length]
             now = server._loop.time()
-            self.partial_since = now if buf else None
             self.last_activity = now
+            self.partial_since = None
+            if buf:
+                self._partial_started(now)
             if path not in RPC_PATHS:
                 self._reply(_http_response(404, "Not Found", b"No such page", keep_alive, b"text/plain"),
                             keep_alive)
@@ -829,6 +831,17 @@ class _Connection(asyncio.Protocol):
         self._reply(_http_response(status, reason, body, False, b"text/plain"), False)
 
     # -- time-outs ----------------------------------------------------------------
+    def _partial_started(self, now: float) -> None:
+        """A request began arriving: it must be complete within request_timeout."""
+        self.partial_since = now
+        deadline = now + self.server.request_timeout
+        timer = self.timer
+        if timer is None or timer.when() > deadline:
+            # the timer may be set for the (much later) idle deadline: bring it forward
+            if timer is not None:
+                timer.cancel()
+            self.timer = self.server._loop.call_at(deadline, self._on_timer)
+
     def _arm_timer(self) -> None:
         server = self.server
         self.timer = server._loop.call_later(min(server.request_timeout, server.idle_timeout), self._on_timer)

@@ -506,3 +506,24 @@ def test_half_closed_client_still_gets_its_asynchronous_reply(server):
                 break
             out += c
     assert out.startswith(b"HTTP/1.1 200") and b"late" in out
+
+
+def test_slow_request_after_a_long_idle_time_still_times_out():
+    s = ServerThread(request_timeout=0.5, idle_timeout=60)
+    try:
+        with socket.create_connection(("127.0.0.1", s.port), timeout=10) as c:
+            t_idle = time.time()
+            while time.time() - t_idle < 0.8:  # past the first timer: it now waits for the idle deadline
+                time.sleep(0.05)
+            c.sendall(b"POST / HTTP/1.1\r\nContent-Length: 100\r\n\r\n<methodCall>")
+            t0 = time.time()
+            out = b""
+            while True:
+                chunk = c.recv(4096)
+                if not chunk:
+                    break
+                out += chunk
+            assert out.startswith(b"HTTP/1.1 408")
+            assert time.time() - t0 < 5
+    finally:
+        s.close()
