@@ -1,9 +1,12 @@
 """ROS YAML: rosparam's dialect of YAML (angles, binary) for loading and dumping parameters.
 
 rosparam extends PyYAML's safe loader with `deg(...)`/`rad(...)` plain scalars and the
-`!degrees`/`!radians` tags, and wraps `!!binary` data. We do the same on a private
-loader class (never on PyYAML's global ones), use libyaml when it is installed, and
-evaluate angle expressions with a small arithmetic evaluator instead of Python's `eval`.
+`!degrees`/`!radians` tags, and wraps `!!binary` data (here: plain bytes). We do the same
+on private loader classes (never on PyYAML's global ones) and evaluate angle expressions
+with a small arithmetic evaluator instead of Python's `eval`. roslaunch parses with
+PyYAML's pure-Python loader; we use libyaml where it gives the same answer (checked by
+differential fuzzing) and PyYAML's own code where it would not, and dump exactly as
+PyYAML dumps.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ class RosYamlError(LaunchError, ValueError):
         super().__init__(message, filename, line)
 
 
-class _AngleError(Exception):
+class _ValueRefused(Exception):
     """A value rosparam would refuse, found while constructing (raised inside PyYAML, mapped later)."""
 
     def __init__(self, message: str, line: int):
@@ -104,14 +107,14 @@ def _construct_radians(loader: Any, node: yaml.Node) -> float:
     try:
         return radians_value(loader.construct_scalar(node))
     except ValueError as e:
-        raise _AngleError(str(e), node.start_mark.line) from None
+        raise _ValueRefused(str(e), node.start_mark.line) from None
 
 
 def _construct_degrees(loader: Any, node: yaml.Node) -> float:
     try:
         return degrees_value(loader.construct_scalar(node))
     except ValueError as e:
-        raise _AngleError(str(e), node.start_mark.line) from None
+        raise _ValueRefused(str(e), node.start_mark.line) from None
 
 
 def _construct_binary(loader: Any, node: yaml.Node) -> bytes:
@@ -129,10 +132,10 @@ def _construct_object(self: Any, node: yaml.Node, deep: bool = False) -> Any:
     # (`!!int a`, `!!float`): turn them into a located error like any other bad YAML
     try:
         return yaml.constructor.BaseConstructor.construct_object(self, node, deep)
-    except (_AngleError, yaml.YAMLError, RecursionError, MemoryError):
+    except (_ValueRefused, yaml.YAMLError, RecursionError, MemoryError):
         raise
     except Exception as e:  # noqa: BLE001 - any failure here means the input is bad YAML
-        raise _AngleError("invalid YAML: cannot construct %s: %s" % (node.tag, e), node.start_mark.line) from None
+        raise _ValueRefused("invalid YAML: cannot construct %s: %s" % (node.tag, e), node.start_mark.line) from None
 
 
 def _guarded(base: type) -> type:
@@ -261,7 +264,7 @@ def _fresh_copy(value: Any, memo: dict[int, Any] | None = None) -> Any:
 
 def _yaml_error(e: BaseException, text: str, filename: str | None, first_line: int) -> RosYamlError:
     offset = first_line - 1
-    if isinstance(e, _AngleError):
+    if isinstance(e, _ValueRefused):
         return RosYamlError(str(e), filename, e.line + 1 + offset)
     if isinstance(e, yaml.MarkedYAMLError):
         parts = []
