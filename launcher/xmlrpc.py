@@ -583,8 +583,8 @@ class _Connection(asyncio.Protocol):
     # -- asyncio callbacks --------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
-        if len(self.server._connections) >= self.server.max_connections:
-            self.closing = True  # refused: too many open connections
+        if len(self.server._connections) >= self.server.max_connections and not self.server._evict_idle():
+            self.closing = True  # refused: every connection is in use
             transport.close()
             return
         self.server._connections.add(self)
@@ -899,6 +899,19 @@ class XmlRpcServer:
 
     def _protocol(self) -> asyncio.Protocol:
         return _Connection(self)
+
+    def _evict_idle(self) -> bool:
+        """Close the connection idle the longest to make room (a flood of idle sockets must not
+        lock real clients out); False if none is idle."""
+        idle = [c for c in self._connections if not c.busy and not c.buf and not c.closing]
+        if not idle:
+            return False
+        oldest = min(idle, key=lambda c: c.last_activity)
+        oldest.closing = True
+        self._connections.discard(oldest)
+        if oldest.transport is not None:
+            oldest.transport.close()
+        return True
 
     async def start(self) -> None:
         """Listen; raises OSError when the port is taken."""

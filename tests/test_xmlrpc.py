@@ -527,3 +527,18 @@ def test_slow_request_after_a_long_idle_time_still_times_out():
             assert time.time() - t0 < 5
     finally:
         s.close()
+
+
+def test_a_flood_of_idle_connections_cannot_lock_clients_out():
+    s = ServerThread(max_connections=20)
+    try:
+        hogs = [socket.create_connection(("127.0.0.1", s.port)) for _ in range(60)]
+        try:
+            # each new connection evicted the longest-idle one: real clients still get in
+            assert xmlrpc.client.ServerProxy(s.uri).echo("in") == ["in"]
+            assert len(s.server._connections) <= 20
+        finally:
+            for h in hogs:
+                h.close()
+    finally:
+        s.close()
