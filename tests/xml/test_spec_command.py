@@ -195,3 +195,52 @@ def test_expectations_are_roslaunchs(ros_env, tree):
             if got.get(name, "<node missing>") != expected:
                 failures.append("%s %s:\n  roslaunch: %s\n  expected:  %s" % (case.id, name, got.get(name), expected))
     assert not failures, "\n".join(failures)
+
+
+# -- many random nodes in one file: every --args line must be roslaunch's ---------------------
+
+def _random_launch(seed: int = 5, n: int = 150) -> str:
+    import random
+    rng = random.Random(seed)
+
+    def esc(v: str) -> str:
+        return v.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;")
+
+    body = []
+    for i in range(n):
+        attrs = {"pkg": PKG, "type": rng.choice(["talker", "deep", "both"]), "name": "r%d" % i}
+        if rng.random() < 0.4:
+            attrs["ns"] = rng.choice(["a", "/b", "c/d", "/e/f/"])
+        if rng.random() < 0.5:
+            attrs["args"] = rng.choice(["--x 1", "'a  b' c", '"q r"  s', "$(arg v) --v", "-a=1 -b='2 3'", " lead trail "])
+        if rng.random() < 0.3:
+            attrs["launch-prefix"] = rng.choice(["nice -n 5", "env A=1", "valgrind  --tool=memcheck"])
+        children = []
+        for _ in range(rng.randint(0, 3)):
+            if rng.random() < 0.5:
+                children.append('<remap from="%s" to="%s"/>' % (rng.choice(["in", "~p", "/abs", "x/y"]),
+                                                                rng.choice(["o", "/g/o", "~q"])))
+            else:
+                children.append('<env name="%s" value="%s"/>' % (rng.choice(["SPEC_CMD_R1", "SPEC_CMD_R2", "HOME"]),
+                                                                 esc(rng.choice(["1", "two words", "$(arg v)", ""]))))
+        wrap_ns = rng.choice([None, None, "grp", "/top"])
+        node = "<node%s>%s</node>" % ("".join(' %s="%s"' % (k, esc(v)) for k, v in attrs.items()), "".join(children))
+        body.append('<group ns="%s">%s</group>' % (wrap_ns, node) if wrap_ns else node)
+    return '<launch><arg name="v" default="7"/><remap from="glob" to="/remapped"/>%s</launch>' % "".join(body)
+
+
+def test_random_nodes_command_lines_are_roslaunchs(ros_env, tree):
+    root, pkg, ws, env = tree
+    launch_file = root / "random.launch"
+    launch_file.write_text(_random_launch())
+    case = Cmd("random", "", {})
+    ours = _ours(str(launch_file), case, env)
+    assert len(ours) == 150
+    jobs = [[str(launch_file), dict(env, PATH=ros_env["path"]), []]]
+    proc = subprocess.run([ros_env["python"], "-c", REFERENCE_RUNNER], input=json.dumps(jobs), text=True,
+                          capture_output=True, timeout=300, env=dict(os.environ, PATH=ros_env["path"]))
+    assert proc.returncode == 0, proc.stderr
+    ref = json.loads(proc.stdout)[0]
+    assert sorted(ref) == sorted(ours)
+    different = ["%s:\n  roslaunch: %s\n  ours:      %s" % (n, ref[n], ours[n]) for n in sorted(ref) if ref[n] != ours[n]]
+    assert not different, "\n".join(different[:10])
