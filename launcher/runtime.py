@@ -449,6 +449,10 @@ class Launch:
         from launcher.names import ns_join
         from launcher.process.supervisor import ProcessSpec
         opts = self.opts
+        if self.config.tests:
+            # roslaunch skips <test> tags without a word; say so, they are the user's
+            console.printlog("ignoring %d <test> node(s) (%s): run them with rostest"
+                             % (len(self.config.tests), ", ".join(t.test_name or t.name for t in self.config.tests)))
         for node in self.config.nodes:
             if self._stop.is_set():
                 break
