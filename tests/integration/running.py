@@ -98,8 +98,8 @@ def get_param(port: int, key: str):
 class RosMaster:
     """Debian's real rosmaster on a free port."""
 
-    def __init__(self, tmp: str):
-        self.port = free_port()
+    def __init__(self, tmp: str, port: int | None = None):
+        self.port = port or free_port()
         env = dict(os.environ, PATH=ROS_PATH, ROS_HOME=os.path.join(tmp, "masterhome"))
         self.proc = subprocess.Popen(["rosmaster", "--core", "-p", str(self.port)], env=env,
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
