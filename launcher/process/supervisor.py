@@ -38,6 +38,9 @@ STOP_CONCURRENCY = 20
 STOP_HOLD_S = 0.5
 # After SIGKILL a process is gone at once unless stuck in the kernel; don't wait forever.
 KILL_WAIT_S = 2.0
+# A node that keeps crashing at start is restarted at most this often (roslaunch's 0.1 s monitor
+# loop gives it the same pace); one that ran longer is restarted at once.
+MIN_RESPAWN_INTERVAL_S = 0.1
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
 
@@ -72,6 +75,7 @@ class NodeProcess:
     pidfd: int | None = None
     exit_code: int | None = None
     spawn_count: int = 0
+    started_at: float = 0.0  # loop time of the latest start
     alive: bool = False  # the group leader runs
     group_alive: bool = False  # the leader or anything left in its process group
     stopping: bool = False
@@ -273,6 +277,7 @@ class Supervisor:
         proc.popen = popen
         proc.pid = proc.pgid = popen.pid
         proc.exit_code = None
+        proc.started_at = self.loop.time()
         proc.alive = proc.group_alive = True
         # recorded before anything else can fail, so a launcher killed now still leaves no orphan
         if self.watchdog is not None:
@@ -342,7 +347,9 @@ class Supervisor:
         return proc.group_alive
 
     def _schedule_respawn(self, proc: NodeProcess) -> None:
-        delay = max(0.0, proc.spec.respawn_delay)
+        # respawn_delay counts from the death, as roslaunch; a crash loop is paced, not spun
+        delay = max(0.0, proc.spec.respawn_delay,
+                    proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
         if delay == 0.0:
             self._respawn(proc)
         else:

@@ -141,6 +141,7 @@ def test_respawn_immediately_and_with_delay(tmp_path, capsys):
         sup.registrations_complete()
         lat = []
         for _ in range(5):
+            await asyncio.sleep(0.15)  # a node that ran a while (a crash loop is paced: see below)
             old = fast.pid
             t0 = time.monotonic()
             os.kill(old, signal.SIGKILL)
@@ -287,3 +288,16 @@ def test_inherited_ignored_sigint_is_not_passed_on(tmp_path):
         signal.signal(signal.SIGINT, old)
     # Python maps a default SIGINT to KeyboardInterrupt; an inherited SIG_IGN stays SIG_IGN
     assert out.read_text() == "False"
+
+
+def test_crash_loop_is_paced(tmp_path):
+    """A node that dies at once is restarted about 10 times a second (roslaunch's pace), not in a busy loop."""
+    async def main():
+        sup = Supervisor()
+        p = sup.start(spec("crash-1", ["/bin/false"], tmp_path, respawn=True))
+        await asyncio.sleep(1.0)
+        count = p.spawn_count
+        await sup.shutdown()
+        return count
+    count = asyncio.run(main())
+    assert 5 <= count <= 12, count
