@@ -77,7 +77,7 @@ class Master:
         self._notify_timeout = notify_timeout
         self.uri: str = ""
         self.shutdown_requested = asyncio.Event()
-        self.shutdown_reason = ""
+        self.shutdown_reason = ""  # the message of the `shutdown` call that set shutdown_requested
         self._server: Any = None
         self._notifier: Any = None
         self._api: Any = None

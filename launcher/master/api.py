@@ -304,7 +304,7 @@ class MasterApi:
     # -- Master API -------------------------------------------------------------------
     def shutdown(self, caller_id: str, msg: Any) -> tuple:
         if self.on_shutdown is not None:
-            self.on_shutdown("external shutdown request from [%s]: %s" % (caller_id, msg))
+            self.on_shutdown(str(msg))  # rosmaster prints "shutdown request: <msg>"
         return 1, "shutdown", 0
 
     def getUri(self, caller_id: str) -> tuple:  # noqa: N802 - XML-RPC method names
