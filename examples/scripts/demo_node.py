@@ -8,7 +8,6 @@ installed: `launch` gives each node ROS_MASTER_URI, ROS_NAMESPACE and
 from __future__ import annotations
 
 import os
-import signal
 import sys
 import xmlrpc.client
 
@@ -20,11 +19,6 @@ class DemoNode:
         base = args.get("__name", default_name)
         self.name = "/" + "/".join(p for p in (ns, base) if p)
         self.master = xmlrpc.client.ServerProxy(os.environ.get("ROS_MASTER_URI", "http://localhost:11311/"))
-        self.stopping = False
-        signal.signal(signal.SIGINT, self._on_sigint)
-
-    def _on_sigint(self, signum, frame) -> None:
-        self.stopping = True
 
     def param(self, key: str, default=None):
         """getParam; `~key` is private to this node."""
