@@ -208,8 +208,8 @@ class XmlLoader:
 
     def _if_unless(self, el: Any, scope: Scope) -> bool:
         """True if the element is to be processed (its if/unless say so)."""
-        attrib = el.attrib
-        if "if" not in attrib and "unless" not in attrib:
+        get = el.get
+        if get("if") is None and get("unless") is None:
             return True
         if_val = self._attr(el, "if", scope)
         unless_val = self._attr(el, "unless", scope)
@@ -622,9 +622,11 @@ class XmlLoader:
         param_scope.params = []
         pkg = self._reqd(el, "pkg", scope)
         node_type = self._reqd(el, "type", scope)
-        machine, args, output, respawn_s, respawn_delay_s, cwd, launch_prefix, required_s = (
-            a(el, x, scope) for x in ("machine", "args", "output", "respawn", "respawn_delay", "cwd",
-                                      "launch-prefix", "required"))
+        get = el.get
+        machine, args, output, respawn_s, respawn_delay_s, cwd, launch_prefix, required_s = [
+            v if (not v or "$" not in v) else self._sub(v, scope, el)
+            for v in (get("machine"), get("args"), get("output"), get("respawn"), get("respawn_delay"),
+                      get("cwd"), get("launch-prefix"), get("required"))]
         if not machine and default_machine is not None:
             machine = default_machine.name
         if respawn_delay_s is not None and respawn_s is None and not is_test:
