@@ -36,7 +36,15 @@ class Watchdog:
             rfd, wfd = os.pipe()
         except OSError:
             return None
-        pid = os.fork()
+        try:
+            pid = os.fork()
+        except OSError as e:
+            os.close(rfd)
+            os.close(wfd)
+            from launcher.process import console
+            console.printerrlog("WARNING: cannot start the no-orphans guard (%s): if launch is killed with "
+                                "SIGKILL, its nodes will keep running" % e.strerror)
+            return None
         if pid == 0:  # the guard
             code = 0
             try:

@@ -63,7 +63,12 @@ def compile_roscpp(source_name: str, dest: str) -> str:
     os.makedirs(cache, exist_ok=True)
     exe = os.path.join(cache, "%s-%s" % (os.path.splitext(source_name)[0], digest))
     if not os.path.exists(exe):
-        flags = subprocess.check_output(["pkg-config", "--cflags", "--libs", "roscpp"], text=True).split()
+        try:
+            flags = subprocess.check_output(["pkg-config", "--cflags", "--libs", "roscpp"], text=True).split()
+        except (OSError, subprocess.CalledProcessError):  # no pkg-config: Debian's roscpp link line
+            flags = ("-lroscpp -lboost_chrono -lboost_filesystem -lrosconsole -lrosconsole_log4cxx "
+                     "-lrosconsole_backend_interface -llog4cxx -lboost_regex -lboost_system -lboost_thread "
+                     "-lroscpp_serialization -lxmlrpcpp -lrostime -lcpp_common").split()
         subprocess.run(["g++", "-O1", "-o", exe + ".tmp", src] + flags, check=True)
         os.replace(exe + ".tmp", exe)
     shutil.copy2(exe, dest)
