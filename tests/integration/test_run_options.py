@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from running import (ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy, poll,
+from running import (ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
                      ros_env, write_launch)
 
 Spinner = """#!%s
