@@ -79,3 +79,13 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # `launch --nodes f.launch | head`: the reader left; that is not an error of ours
+        sys.stderr.close()
+        return 0
+    except Exception as e:  # a bug of ours: say so in one line, the traceback only with -v
+        if opts.verbose:
+            raise
+        print("launch: internal error: %s: %s (run with -v for the traceback; please report it)"
+              % (type(e).__name__, e), file=sys.stderr)
+        return 2
