@@ -142,8 +142,8 @@ def _ours(seq):
     return json.loads(json.dumps(res))
 
 
-def test_same_replies_and_callbacks_as_rosmaster():
-    py = os.environ.get("ROS_PYTHON", "/usr/bin/python3")
+def test_same_replies_and_callbacks_as_rosmaster(ros_env):
+    py = ros_env["python"]
     if not os.path.exists(py) or subprocess.run([py, "-c", "import rosmaster.master_api"],
                                                 capture_output=True).returncode != 0:
         pytest.skip("rosmaster (Debian's python3-rosmaster) not importable")

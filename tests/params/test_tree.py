@@ -209,7 +209,7 @@ def _reference_python():
     return py if r.returncode == 0 else None
 
 
-def test_matches_rosmaster_paramdictionary_on_random_operations():
+def test_matches_rosmaster_paramdictionary_on_random_operations(ros_env):
     py = _reference_python()
     if py is None:
         pytest.skip("rosmaster (Debian's python3-rosmaster) not importable")
