@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
@@ -26,9 +27,17 @@ def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, st
         from launcher.packages import PackageIndex
         packages = PackageIndex(environ)
     loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=args_only, core=core, warn=warn)
-    for f in files:
-        loader.load_file(f)
-    return loader.config()
+    # A load allocates tens of thousands of objects and frees almost none of them, and makes no
+    # reference cycles worth collecting: the cyclic GC would only rescan them (~10% of a big load).
+    gc_was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        for f in files:
+            loader.load_file(f)
+        return loader.config()
+    finally:
+        if gc_was_enabled:
+            gc.enable()
 
 
 def load_arg_docs(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
