@@ -132,19 +132,31 @@ def format_ros_args(docs: dict[str, tuple[str | None, str | None]]) -> str:
 
 
 def _has_binary(value: Any) -> bool:
-    if isinstance(value, (bytes, bytearray)):
-        return True
-    if isinstance(value, dict):
-        return any(_has_binary(v) for v in value.values())
-    if isinstance(value, list):
-        return any(_has_binary(v) for v in value)
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        kind = type(v)
+        if kind in _PLAIN_SCALARS:
+            continue
+        if isinstance(v, (bytes, bytearray)):
+            return True
+        if isinstance(v, dict):
+            stack.extend(v.values())
+        elif isinstance(v, list):
+            stack.extend(v)
     return False
+
+
+_PLAIN_SCALARS = frozenset((str, int, float, bool, type(None)))
 
 
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
     for p in config.params.values():
-        if _has_binary(p.value):
+        v = p.value
+        if type(v) in _PLAIN_SCALARS:  # nearly all values: no need to walk them
+            continue
+        if _has_binary(v):
             raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or !!binary), "
                               "which roslaunch cannot print either" % p.key, p.filename or None, p.line or None)
     data = {k: p.value for k, p in config.params.items()}
