@@ -301,3 +301,22 @@ def test_crash_loop_is_paced(tmp_path):
         return count
     count = asyncio.run(main())
     assert 5 <= count <= 12, count
+
+
+def test_children_left_by_earlier_runs_are_stopped_at_shutdown(tmp_path):
+    """A node that exits but leaves children in its group, then respawns: shutdown still stops every run's children."""
+    pids = tmp_path / "pids"
+
+    async def main():
+        sup = Supervisor(sigint_timeout=0.5, sigterm_timeout=0.5)
+        code = "sleep 100 & echo $! >> %s; sleep 0.2; exit 1" % pids
+        p = sup.start(spec("leaver-1", ["/bin/sh", "-c", code], tmp_path, respawn=True))
+        await wait_for(lambda: p.spawn_count >= 3)
+        await asyncio.sleep(0.05)
+        left = [int(x) for x in pids.read_text().split()]
+        alive_before = [q for q in left if pid_exists(q)]
+        await sup.shutdown()
+        return left, alive_before
+    left, alive_before = asyncio.run(main())
+    assert len(alive_before) >= 2  # the earlier runs' children outlived their parents
+    assert not [q for q in left if pid_exists(q)]
