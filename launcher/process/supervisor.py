@@ -258,6 +258,9 @@ class Supervisor:
         console.printerrlog(message)
         if required:
             self._required_gone(name, "could not be started")
+        else:
+            self._any_died = True  # counts as ended, like a failed exec (external master: all ended -> exit)
+            self._check_all_dead()
 
     def registrations_complete(self) -> None:
         """Every node of the launch has been started (or failed to)."""
