@@ -57,6 +57,39 @@ def _auto_value(text: str) -> Any:
     return auto(text)
 
 
+# A big launch makes thousands of Params: the frozen dataclass __init__ sets each field with
+# object.__setattr__ (~0.4 us a Param, 2 us a Node). These build the very same objects by giving
+# them their __dict__ at once. Used only while config.py's classes are plain frozen dataclasses
+# with exactly these fields (checked here, once); otherwise the real constructors are used.
+_PARAM_FIELDS = ("key", "value", "filename", "line")
+_NODE_FIELDS = ("package", "type", "name", "namespace", "args", "remap_args", "env_args", "respawn",
+                "respawn_delay", "required", "output", "cwd", "launch_prefix", "machine_name", "filename",
+                "line", "test_name", "time_limit", "retry")
+
+
+def _plain_frozen(cls: type, fields: tuple[str, ...]) -> bool:
+    return (tuple(getattr(cls, "__dataclass_fields__", ())) == fields and "__slots__" not in cls.__dict__
+            and "__post_init__" not in cls.__dict__)
+
+
+if _plain_frozen(Param, _PARAM_FIELDS) and _plain_frozen(Node, _NODE_FIELDS):
+    _new = object.__new__
+    _set_dict = object.__setattr__
+
+    def _param(key: str, value: Any, filename: str, line: int) -> Param:
+        p = _new(Param)
+        _set_dict(p, "__dict__", {"key": key, "value": value, "filename": filename, "line": line})
+        return p
+
+    def _node(**fields: Any) -> Node:
+        n = _new(Node)
+        _set_dict(n, "__dict__", fields)
+        return n
+else:  # pragma: no cover - config.py changed shape
+    _param = Param
+    _node = Node
+
+
 class XmlLoader:
     """One load: files + command-line args -> LaunchConfig."""
 
@@ -85,6 +118,7 @@ class XmlLoader:
         self._private_params: dict[tuple[str, str, int], tuple[tuple[str, int], ...]] = {}
         self._used_private: set[tuple[str, str, int]] = set()
         self._declared_args: set[str] = set()
+        self._clean_ns: str | None = None  # see _add_param
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
 
@@ -494,14 +528,22 @@ class XmlLoader:
     def _add_param(self, key: str, value: Any, scope: Scope, el: Any) -> None:
         key = canonical(key)
         params = self.params
-        # a parameter under another parameter is only a config error in roslaunch: warn
-        i = key.find(SEP, 1)
-        while i > 0:
-            parent = key[:i]
-            if parent in params:
-                self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
-            i = key.find(SEP, i + 1)
-        params[key] = Param(key, value, scope.source, el.sourceline or 0)
+        # a parameter under another parameter is only a config error in roslaunch: warn.
+        # Parameters come in runs with the same namespace: once no prefix of a namespace is a
+        # parameter, the next key in that namespace needs no new check (adding `ns/x` cannot make
+        # a prefix of `ns` a parameter; every other way of adding params resets the check).
+        ns_end = key.rfind(SEP)
+        if ns_end <= 0 or key[:ns_end] != self._clean_ns:
+            clean = True
+            i = key.find(SEP, 1)
+            while i > 0:
+                parent = key[:i]
+                if parent in params:
+                    clean = False
+                    self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
+                i = key.find(SEP, i + 1)
+            self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
+        params[key] = _param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
     def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
@@ -680,7 +722,8 @@ class XmlLoader:
             if key.startswith("~"):
                 key = key[1:]
             full = canonical(param_scope.ns + key)
-            self.params[full] = Param(full, value, pfile, pline)
+            self.params[full] = _param(full, value, pfile, pline)
+        self._clean_ns = None
 
         if respawn and required:
             raise self._fail(scope, el, "Invalid <%s> tag: respawn and required cannot both be set to true" % el.tag)
@@ -704,12 +747,12 @@ class XmlLoader:
             namespace = _MULTISLASH.sub("/", namespace)
         remaps = (remap_scope or scope).remap_args()
         env_args = tuple((env_scope or scope).env_args)
-        node = Node(package=pkg, type=node_type, name=name or "", namespace=namespace, args=args or "",
-                    remap_args=remaps, env_args=env_args, respawn=respawn, respawn_delay=respawn_delay,
-                    required=required, output=output, cwd=cwd, launch_prefix=launch_prefix or None,
-                    machine_name=machine or None, filename=scope.filename or scope.source,
-                    line=el.sourceline or 0, test_name=test_name,
-                    time_limit=(time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None, retry=retry)
+        node = _node(package=pkg, type=node_type, name=name or "", namespace=namespace, args=args or "",
+                     remap_args=remaps, env_args=env_args, respawn=respawn, respawn_delay=respawn_delay,
+                     required=required, output=output, cwd=cwd, launch_prefix=launch_prefix or None,
+                     machine_name=machine or None, filename=scope.filename or scope.source,
+                     line=el.sourceline or 0, test_name=test_name,
+                     time_limit=(time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None, retry=retry)
         if is_test:
             self.tests.append(node)
             return
