@@ -216,7 +216,7 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     loaders = _loaders(angles, text)
     for i, loader in enumerate(loaders):
         try:
-            value = yaml.load(text, Loader=loader)
+            value = _load_c(text, loader) if loader is _C_ROS or loader is _C_PLAIN else yaml.load(text, Loader=loader)
         except Exception as e:  # noqa: BLE001 - whatever PyYAML raises, the text is not valid ROS YAML
             if i + 1 < len(loaders):
                 continue
@@ -228,6 +228,88 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
             return _fresh_copy(value)
         return value
     raise AssertionError("unreachable")
+
+
+# -- constructing libyaml's node graph -----------------------------------------------------------
+# PyYAML's SafeConstructor builds values through generators and per-tag method lookups (~1 us a
+# node). Parameter files hold plain strings, numbers, booleans, lists and maps; those are built
+# here directly, with the SafeConstructor's results. Any other tag (timestamps, merge keys, binary,
+# angles, sets, ...), an unhashable key or a recursive alias hands the document back to PyYAML.
+
+_STR = "tag:yaml.org,2002:str"
+_INT = "tag:yaml.org,2002:int"
+_FLOAT = "tag:yaml.org,2002:float"
+_BOOL = "tag:yaml.org,2002:bool"
+_NULL = "tag:yaml.org,2002:null"
+_SEQ = "tag:yaml.org,2002:seq"
+_MAP = "tag:yaml.org,2002:map"
+
+
+class _NotPlain(Exception):
+    """The document needs PyYAML's constructor."""
+
+
+def _load_c(text: str, loader_cls: type) -> Any:
+    """yaml.load(text, Loader=loader_cls) for a libyaml loader, plain documents built by _plain()."""
+    loader = loader_cls(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        try:
+            return _plain(node, {})
+        except (_NotPlain, ValueError, KeyError, TypeError, RecursionError):
+            return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
+def _plain(node: Any, built: dict[int, Any]) -> Any:
+    """The value of `node` as SafeConstructor makes it; `built` shares aliased nodes' values."""
+    tag = node.tag
+    value = node.value
+    if type(value) is str:  # a scalar
+        if tag == _STR:
+            return value
+        if tag == _INT:
+            # SafeConstructor.construct_yaml_int, for plain decimals
+            digits = value[1:] if value[:1] in ("-", "+") else value
+            if digits.isdigit() and (digits[0] != "0" or digits == "0"):
+                return int(value)
+            raise _NotPlain
+        if tag == _FLOAT:
+            # SafeConstructor.construct_yaml_float, without '_', ':' (base 60), .inf and .nan
+            if "_" in value or ":" in value or "n" in value or "N" in value:
+                raise _NotPlain
+            return float(value)
+        if tag == _BOOL:
+            return yaml.constructor.SafeConstructor.bool_values[value.lower()]
+        if tag == _NULL:
+            return None
+        raise _NotPlain
+    key = id(node)
+    if key in built:
+        done = built[key]
+        if done is _BUILDING:
+            raise _NotPlain  # a recursive structure
+        return done
+    built[key] = _BUILDING
+    if tag == _SEQ:
+        out: Any = [_plain(item, built) for item in value]
+    elif tag == _MAP:
+        out = {}
+        for key_node, value_node in value:
+            if key_node.tag not in _SCALAR_KEY_TAGS:
+                raise _NotPlain  # merge keys, '=', collections as keys
+            out[_plain(key_node, built)] = _plain(value_node, built)
+    else:
+        raise _NotPlain
+    built[key] = out
+    return out
+
+
+_BUILDING = object()
+_SCALAR_KEY_TAGS = frozenset((_STR, _INT, _FLOAT, _BOOL, _NULL))
 
 
 # Big launch trees repeat the same small YAML (inline <rosparam>, type="yaml" values, files

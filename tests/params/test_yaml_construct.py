@@ -1,0 +1,78 @@
+"""rosyaml's direct construction of libyaml's node graph gives exactly what PyYAML's SafeConstructor gives."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from launcher.params import rosyaml
+
+CASES = [
+    "a: 1\nb: -2\nc: +3\nd: 0\ne: 012\nf: 0x1F\ng: 0b101\nh: 1_000\ni: 1:30\n",
+    "a: 1.5\nb: -0.0\nc: +1.0e+5\nd: .inf\ne: -.Inf\nf: .nan\ng: 1_0.5\nh: 1:30.5\ni: 6.8523015e+5\n",
+    "a: yes\nb: No\nc: on\nd: OFF\ne: true\nf: False\ng: ~\nh: null\ni:\nj: 'yes'\nk: \"1\"\n",
+    "list: [1, 2.0, x, true, null, [a, b], {c: d}]\nempty_list: []\nempty_map: {}\n",
+    "base: &b {x: 1, y: [1, 2]}\nuse: *b\nmerged:\n  <<: *b\n  z: 3\n",
+    "shared: &s [1, 2]\nagain: *s\n",
+    "when: 2001-12-14\nstamp: 2001-12-14t21:59:43.10-05:00\n",
+    "bin: !!binary aGVsbG8=\nset: !!set {a, b}\nomap: !!omap [a: 1, b: 2]\n",
+    "angle: deg(90)\nrad: rad(pi/2)\ntagged: !degrees 180\n",
+    "explicit_str: !!str 123\nexplicit_int: !!int \"42\"\nexplicit_float: !!float 3\n",
+    "1: int key\n2.5: float key\ntrue: bool key\n~: null key\n",
+    "=: value key\n",
+    "- just\n- a\n- list\n",
+    "plain scalar",
+    "",
+    "nested:\n  deeper:\n    deepest: [1, {k: v}]\n",
+    "unicode: \u00e9t\u00e9\nlong: " + "x" * 500 + "\n",
+    "? [complex, key]\n: value\n",
+]
+
+
+def typed(value, seen=None):
+    """A comparable form that keeps types (True != 1 != 1.0) and NaN, and records alias sharing."""
+    if seen is None:
+        seen = {}
+    if isinstance(value, (dict, list)):
+        if id(value) in seen:
+            return ("alias", seen[id(value)])
+        seen[id(value)] = len(seen)
+        if isinstance(value, dict):
+            return ("dict", [(typed(k, seen), typed(v, seen)) for k, v in value.items()])
+        return ("list", [typed(v, seen) for v in value])
+    if isinstance(value, float) and math.isnan(value):
+        return ("float", "nan")
+    return (type(value).__name__, repr(value))
+
+
+@pytest.mark.parametrize("text", CASES)
+@pytest.mark.parametrize("angles", [True, False])
+def test_same_as_safe_constructor(text, angles):
+    cls = rosyaml._C_ROS if angles else rosyaml._C_PLAIN
+    if cls is None:
+        pytest.skip("PyYAML without libyaml")
+    try:
+        expected = ("ok", typed(yaml.load(text, Loader=cls)))
+    except yaml.YAMLError as e:
+        expected = ("error", type(e).__name__)
+    try:
+        got = ("ok", typed(rosyaml._load_c(text, cls)))
+    except yaml.YAMLError as e:
+        got = ("error", type(e).__name__)
+    assert got == expected
+
+
+def test_plain_documents_skip_pyyaml_constructor(monkeypatch):
+    """The fast path is really taken for plain documents (so the comparison above tests it)."""
+    cls = rosyaml._C_ROS
+    if cls is None:
+        pytest.skip("PyYAML without libyaml")
+
+    def refuse(self, node):
+        raise AssertionError("PyYAML's constructor used for a plain document")
+
+    monkeypatch.setattr(cls, "construct_document", refuse)
+    assert rosyaml._load_c("a: [1, 2.5, x, true, null]\nb: {c: d}\n", cls) == {
+        "a": [1, 2.5, "x", True, None], "b": {"c": "d"}}
