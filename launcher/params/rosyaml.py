@@ -186,6 +186,38 @@ if _C_ROS is not None:
     _C_ROS._resolved = {}  # its own memo: its resolver table has the angle patterns
 
 
+def _resolve_in_c(cls: type) -> None:
+    """Make libyaml's composer resolve tags without running Python code for repeated scalars.
+
+    libyaml's composer calls `resolve(kind, value, implicit)` for every node and
+    `descend_resolver`/`ascend_resolver` around each one. No path resolvers are registered on
+    our classes, so the descend/ascend calls do nothing (PyYAML's own methods return at once):
+    C callables that ignore their arguments do the same without a Python frame. The tag depends
+    only on the arguments: an LRU cache (C) in front of PyYAML's resolve answers repeats.
+    Done once the class's resolver table is final.
+    """
+    if cls.__dict__.get("yaml_path_resolvers") or any(getattr(b, "yaml_path_resolvers", None) for b in cls.__mro__):
+        return
+    import functools
+    import operator
+
+    proto = cls.__new__(cls)  # BaseResolver.resolve reads only class-level tables
+    base_resolve = yaml.resolver.BaseResolver.resolve
+
+    @functools.lru_cache(maxsize=65536)
+    def resolve(kind: type, value: Any, implicit: Any) -> str:
+        return base_resolve(proto, kind, value, implicit)
+
+    cls.resolve = staticmethod(resolve)
+    cls.descend_resolver = staticmethod(operator.is_)  # (parent, index) -> ignored
+    cls.ascend_resolver = staticmethod(tuple)  # () -> ignored
+
+
+for _cls in (_C_ROS, _C_PLAIN):
+    if _cls is not None:
+        _resolve_in_c(_cls)
+
+
 # Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
 # differential fuzzing: tabs (PyYAML refuses them inside plain scalars and after ':'), byte
 # order marks and Unicode line breaks, the bare non-specific tag `!`, and a comment right
