@@ -19,19 +19,7 @@ def convert_value(text: str, ptype: str | None = "auto", *, filename: str | None
     """
     kind = (ptype or "auto").strip().lower()
     if kind == "auto":
-        # numbers first, as roslaunch: a '.' means float or nothing; no '_' for ints,
-        # because Python 3 would accept `1_000` but roslaunch means a string there
-        try:
-            if "." in text:
-                return float(text)
-            if "_" not in text:
-                return int(text)
-        except ValueError:
-            pass
-        lowered = text.lower()
-        if lowered == "true" or lowered == "false":
-            return lowered == "true"
-        return text
+        return auto_value(text)
     if kind == "str" or kind == "string":
         return text
     if kind == "int":
@@ -45,6 +33,23 @@ def convert_value(text: str, ptype: str | None = "auto", *, filename: str | None
 
         return load_yaml(text, filename=filename, first_line=first_line, angles=angles)
     raise ValueError("Unknown type '%s'" % kind)
+
+
+def auto_value(text: str) -> Any:
+    """`convert_value(text, "auto")`: roslaunch's inference for a `<param>` without `type=`."""
+    # numbers first, as roslaunch: a '.' means float or nothing; no '_' for ints,
+    # because Python 3 would accept `1_000` but roslaunch means a string there
+    try:
+        if "." in text:
+            return float(text)
+        if "_" not in text:
+            return int(text)
+    except ValueError:
+        pass
+    lowered = text.lower()
+    if lowered == "true" or lowered == "false":
+        return lowered == "true"
+    return text
 
 
 def to_bool(text: str, kind: str = "bool") -> bool:

@@ -49,12 +49,9 @@ _MULTISLASH = re.compile("//+")
 def _auto_value(text: str) -> Any:
     """`<param value=...>` with no type= (roslaunch's inference), via the params package."""
     global _auto_value
-    from launcher.params.values import convert_value
-
-    def auto(text: str) -> Any:
-        return convert_value(text, "auto")
-    _auto_value = auto
-    return auto(text)
+    from launcher.params.values import auto_value
+    _auto_value = auto_value
+    return auto_value(text)
 
 
 # A big launch makes thousands of Params: the frozen dataclass __init__ sets each field with
@@ -224,7 +221,10 @@ class XmlLoader:
         return self._sub(v, scope, el)  # type: ignore[return-value]
 
     def _check_attrs(self, el: Any, scope: Scope, allowed: frozenset[str]) -> None:
-        for a in el.attrib:
+        keys = el.keys()
+        if allowed.issuperset(keys):  # the usual case, checked in C
+            return
+        for a in keys:
             if a not in allowed:
                 self._warn(scope, el, "unknown <%s> attribute '%s' (ignored)" % (el.tag, a))
 
@@ -417,9 +417,11 @@ class XmlLoader:
     # ------------------------------------------------------------------ <param>
     def _param_tag(self, el: Any, scope: Scope, force_local: bool = False) -> None:
         attrib = el.attrib
-        for a in attrib:
-            if a not in PARAM_ATTRS:
-                self._warn(scope, el, "unknown <param> attribute '%s' (ignored)" % a)
+        keys = el.keys()
+        if not PARAM_ATTRS.issuperset(keys):
+            for a in keys:
+                if a not in PARAM_ATTRS:
+                    self._warn(scope, el, "unknown <param> attribute '%s' (ignored)" % a)
         ptype = attrib.get("type")
         ptype = ptype.lower().strip() if ptype else "auto"
         value = attrib.get("value")

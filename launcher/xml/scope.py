@@ -138,8 +138,12 @@ class Scope(SubstitutionScope):
     # -- private params -------------------------------------------------
     def add_param(self, key: str, value: Any, filename: str, line: int) -> None:
         key = canonical(key)
-        self.params[:] = [p for p in self.params if p[0] != key]
-        self.params.append((key, value, filename, line))
+        params = self.params
+        for p in params:
+            if p[0] == key:  # a redefinition replaces the first one, at the end
+                params[:] = [p for p in params if p[0] != key]
+                break
+        params.append((key, value, filename, line))
 
     # -- remaps ---------------------------------------------------------
     def add_remap(self, src: str, dst: str) -> None:
@@ -150,7 +154,10 @@ class Scope(SubstitutionScope):
             raise ScopeError("remap from [%s] is not a valid ROS name" % src)
         if not is_legal_name(dst):
             raise ScopeError("remap to [%s] is not a valid ROS name" % dst)
-        self.remaps = [r for r in self.remaps if r[0] != src]
+        for r in self.remaps:
+            if r[0] == src:
+                self.remaps = [r for r in self.remaps if r[0] != src]
+                break
         self.remaps.append((src, dst))
         self._remap_cache = None
 
