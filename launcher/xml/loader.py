@@ -116,6 +116,7 @@ class XmlLoader:
         self._used_private: set[tuple[str, str, int]] = set()
         self._declared_args: set[str] = set()
         self._clean_ns: str | None = None  # see _add_param
+        self._realpaths: dict[str, str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
 
@@ -284,6 +285,13 @@ class XmlLoader:
         if deprecated:
             self._warn(scope, launch, "DEPRECATED: %s" % deprecated)
 
+    def _realpath(self, filename: str) -> str:
+        """os.path.realpath, once per file name in a load (include cycle checks ask for each level)."""
+        real = self._realpaths.get(filename)
+        if real is None:
+            real = self._realpaths[filename] = os.path.realpath(filename)
+        return real
+
     def _find_package(self, pkg: str) -> str:
         return self.packages.get_path(pkg)
 
@@ -342,7 +350,7 @@ class XmlLoader:
     # ------------------------------------------------------------------ ns + clear_params
     def _ns_clear_params(self, el: Any, scope: Scope, kind: str, node_name: str | None = None,
                          include_file: str | None = None) -> Scope:
-        if "ns" in el.attrib:
+        if el.get("ns") is not None:
             ns = self._attr(el, "ns", scope)
             if not ns:
                 raise self._fail(scope, el, "<%s> tag has an empty 'ns' attribute" % el.tag)
@@ -853,8 +861,8 @@ class XmlLoader:
         chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
         if len(chain) > MAX_INCLUDE_DEPTH:
             raise self._fail(scope, el, "includes are nested more than %d deep" % MAX_INCLUDE_DEPTH)
-        real = os.path.realpath(inc_file)
-        if any(os.path.realpath(f) == real for f, _ in chain):
+        real = self._realpath(inc_file)
+        if any(self._realpath(f) == real for f, _ in chain):
             raise self._fail(scope, el, "include cycle: [%s] includes itself" % inc_file)
         child.source = inc_file
         child.include_chain = chain
