@@ -75,12 +75,24 @@ if _plain_frozen(Param, _PARAM_FIELDS) and _plain_frozen(Node, _NODE_FIELDS):
 
     def _param(key: str, value: Any, filename: str, line: int) -> Param:
         p = _new(Param)
-        _set_dict(p, "__dict__", {"key": key, "value": value, "filename": filename, "line": line})
+        d = p.__dict__  # (filling the instance's own dict beats handing it a new one)
+        d["key"] = key
+        d["value"] = value
+        d["filename"] = filename
+        d["line"] = line
         return p
 
-    def _node(**fields: Any) -> Node:
+    def _node(package: str, type: str, name: str, namespace: str, args: str,  # noqa: A002 - field name
+              remap_args: tuple, env_args: tuple, respawn: bool, respawn_delay: float, required: bool,
+              output: str | None, cwd: str | None, launch_prefix: str | None, machine_name: str | None,
+              filename: str, line: int, test_name: str | None, time_limit: float | None, retry: int) -> Node:
         n = _new(Node)
-        _set_dict(n, "__dict__", fields)
+        _set_dict(n, "__dict__", {
+            "package": package, "type": type, "name": name, "namespace": namespace, "args": args,
+            "remap_args": remap_args, "env_args": env_args, "respawn": respawn, "respawn_delay": respawn_delay,
+            "required": required, "output": output, "cwd": cwd, "launch_prefix": launch_prefix,
+            "machine_name": machine_name, "filename": filename, "line": line, "test_name": test_name,
+            "time_limit": time_limit, "retry": retry})
         return n
 else:  # pragma: no cover - config.py changed shape
     _param = Param
@@ -300,44 +312,47 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        if_unless = self._if_unless
         for el in parent_el:
             tag = el.tag
             if not isinstance(tag, str):
                 continue  # comments, processing instructions
+            # the element's if/unless allow it: decided here at once for the many that have neither
+            get = el.get
             if tag == "arg":
                 self._arg_tag(el, scope)
             elif self.args_only:
                 continue
             elif tag == "node":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._node_tag(el, scope, default_machine, is_test=False)
             elif tag == "param":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._param_tag(el, scope)
             elif tag == "group":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._check_attrs(el, scope, GROUP_ATTRS)
                     child = self._ns_clear_params(el, scope, "group")
                     child.params = list(child.params)
                     default_machine = self._recurse(el, child, default_machine)
             elif tag == "include":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     default_machine = self._include_tag(el, scope, default_machine)
             elif tag == "remap":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     src, dst = self._remap_tag(el, scope)
                     self._add_remap(scope, src, dst, el)
             elif tag == "rosparam":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._rosparam_tag(el, scope)
             elif tag == "env":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._env_tag(el, scope)
             elif tag == "test":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     self._node_tag(el, scope, default_machine, is_test=True)
             elif tag == "machine":
-                if self._if_unless(el, scope):
+                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
                     m, is_default = self._machine_tag(el, scope)
                     if is_default:
                         default_machine = m
@@ -704,23 +719,24 @@ class XmlLoader:
             if not isinstance(ctag, str):
                 continue
             ctag = ctag.lower()  # roslaunch matches a node's child tags case-insensitively
+            plain = c.get("if") is None and c.get("unless") is None  # no if/unless to evaluate
             if ctag == "remap":
-                if self._if_unless(c, scope):
+                if plain or self._if_unless(c, scope):
                     src, dst = self._remap_tag(c, scope)
                     if remap_scope is None:
                         remap_scope = scope.node_child("")
                     self._add_remap(remap_scope, src, dst, c, err_scope=scope)
             elif ctag == "param":
-                if self._if_unless(c, param_scope):
+                if plain or self._if_unless(c, param_scope):
                     self._param_tag(c, param_scope, force_local=True)
             elif ctag == "rosparam":
-                if self._if_unless(c, param_scope):
+                if plain or self._if_unless(c, param_scope):
                     self._rosparam_tag(c, param_scope)
             elif ctag == "env":
                 if env_scope is None:
                     env_scope = scope.node_child("")
                     env_scope.env_args = list(scope.env_args)
-                if self._if_unless(c, env_scope):
+                if plain or self._if_unless(c, env_scope):
                     self._env_tag(c, env_scope)
             else:
                 self._warn(scope, c, "unrecognized <%s> child tag of <%s> (ignored)" % (ctag, el.tag))
@@ -757,12 +773,10 @@ class XmlLoader:
             namespace = _MULTISLASH.sub("/", namespace)
         remaps = (remap_scope or scope).remap_args()
         env_args = tuple((env_scope or scope).env_args)
-        node = _node(package=pkg, type=node_type, name=name or "", namespace=namespace, args=args or "",
-                     remap_args=remaps, env_args=env_args, respawn=respawn, respawn_delay=respawn_delay,
-                     required=required, output=output, cwd=cwd, launch_prefix=launch_prefix or None,
-                     machine_name=machine or None, filename=scope.filename or scope.source,
-                     line=el.sourceline or 0, test_name=test_name,
-                     time_limit=(time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None, retry=retry)
+        node = _node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
+                     required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
+                     el.sourceline or 0, test_name, (time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None,
+                     retry)
         if is_test:
             self.tests.append(node)
             return
