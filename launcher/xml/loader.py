@@ -99,6 +99,14 @@ else:  # pragma: no cover - config.py changed shape
     _node = Node
 
 
+def _convert_value(text: str, ptype: str) -> Any:
+    """`<param type=...>` typing, via the params package (imported on first use)."""
+    global _convert_value
+    from launcher.params.values import convert_value
+    _convert_value = convert_value
+    return convert_value(text, ptype)
+
+
 class XmlLoader:
     """One load: files + command-line args -> LaunchConfig."""
 
@@ -439,21 +447,18 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ <param>
     def _param_tag(self, el: Any, scope: Scope, force_local: bool = False) -> None:
-        attrib = el.attrib
+        get = el.get
         keys = el.keys()
         if not PARAM_ATTRS.issuperset(keys):
             for a in keys:
                 if a not in PARAM_ATTRS:
                     self._warn(scope, el, "unknown <param> attribute '%s' (ignored)" % a)
-        ptype = attrib.get("type")
+        ptype = get("type")
         ptype = ptype.lower().strip() if ptype else "auto"
-        value = attrib.get("value")
-        textfile = attrib.get("textfile")
-        binfile = attrib.get("binfile")
-        command = attrib.get("command")
-        if (value is not None) + (textfile is not None) + (binfile is not None) + (command is not None) != 1:
+        value = get("value")
+        if ("textfile" in keys) + ("binfile" in keys) + ("command" in keys) + (value is not None) != 1:
             raise self._fail(scope, el, "<param> tag must have one and only one of value/textfile/binfile/command.")
-        raw_name = attrib.get("name")
+        raw_name = get("name")
         if raw_name is None:
             raise self._fail(scope, el, "<param> tag is missing required attribute: 'name'")
         name = raw_name.strip()
@@ -468,8 +473,8 @@ class XmlLoader:
             else:
                 typed = self._convert(value, ptype, scope, el, name)
         else:
-            typed = self._param_value(el, scope, name, ptype, None, self._sub(textfile, scope, el),
-                                      self._sub(binfile, scope, el), self._sub(command, scope, el))
+            typed = self._param_value(el, scope, name, ptype, None, self._sub(get("textfile"), scope, el),
+                                      self._sub(get("binfile"), scope, el), self._sub(get("command"), scope, el))
         if force_local or name[:1] == "~":
             scope.add_param(name, typed, scope.source, el.sourceline or 0)
             if not force_local:
@@ -481,9 +486,8 @@ class XmlLoader:
         if ptype == "yaml":
             # rosparam's angle tags exist only once a <rosparam> has been processed (an import side effect)
             return self._yaml(text, scope, el, angles=self._ros_yaml, what="<param> [%s]" % name)
-        from launcher.params.values import convert_value
         try:
-            return convert_value(text, ptype)
+            return _convert_value(text, ptype)
         except ValueError as e:
             if ptype in ("int", "double"):
                 msg = "value [%s] is not of type %s" % (text.strip(), ptype)
