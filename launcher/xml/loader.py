@@ -383,7 +383,9 @@ class XmlLoader:
             if include_file is not None:
                 child = scope.include_child(ns, include_file)
             elif kind == "node":
-                child = scope.node_child(ns)
+                # a node only reads its namespace scope (to make its params' scope): without ns=,
+                # that is the enclosing scope itself, no copy needed
+                child = scope if ns is None else scope.node_child(ns)
             else:
                 child = scope.child(ns)
         except ScopeError as e:
