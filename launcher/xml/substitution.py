@@ -229,7 +229,7 @@ class _Names(dict):
     __slots__ = ("_functions", "_args")
 
     def __init__(self, functions: dict[str, Any], args: Mapping[str, str]):
-        super().__init__()
+        # (an empty dict needs no dict.__init__)
         self._functions = functions
         self._args = args
 
