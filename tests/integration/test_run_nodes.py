@@ -68,7 +68,7 @@ def test_respawn_and_respawn_delay_with_real_nodes(tmp_path, pkgs):
         t0 = time.monotonic()
         new_fast = poll(lambda: lp.started_pids()["fast-2"] != fast_pid and lp.started_pids()["fast-2"], 10,
                         period=0.005, what="fast respawned")
-        assert time.monotonic() - t0 < 0.5
+        assert time.monotonic() - t0 < 1.0  # at once (the delayed node below takes 1.5 s); margin for a loaded box
         poll(lambda: lookup_node(port, "/fast") not in (None, old_uri), 30, what="fast re-registered")
         assert pid_alive(new_fast)
         os.kill(slow_pid, signal.SIGKILL)
