@@ -434,6 +434,8 @@ def _quoted_if_typed(value: str) -> str:
 
 
 _first_chars: frozenset | None = None
+_INF = math.inf
+_NINF = -math.inf
 
 
 def _plain_scalar(value: Any) -> str | None:
@@ -557,7 +559,14 @@ def dump_yaml(value: Any) -> str:
                 append(k + ": " + str(v) + "\n")
                 continue
             elif kind is float:
-                append(k + ": " + _plain_scalar(v) + "\n")  # type: ignore[operator]
+                if v == v and v != _INF and v != _NINF:
+                    # (a finite float's repr is already lower case)
+                    text = repr(v)
+                    if "." not in text and "e" in text:
+                        text = text.replace("e", ".0e", 1)
+                    append(k + ": " + text + "\n")
+                else:
+                    append(k + ": " + _plain_scalar(v) + "\n")  # type: ignore[operator]
                 continue
         text = _entry(key, v)
         append(text if text is not None else _pyyaml_dump({key: v}))
