@@ -42,6 +42,14 @@ def _demo_lines(path: str) -> list[str]:
     return lines if any(l.endswith("] done") for l in lines) else []
 
 
+def _waiting_seen(path: str) -> bool:
+    try:
+        text = open(path, encoding="utf-8").read()
+    except FileNotFoundError:
+        return False
+    return any(" /py_logger " in l and l.endswith("] waiting") for l in text.splitlines())
+
+
 def test_launch_core_rosout_looks_like_roscore_rosout(ros_env, tmp_path):
     script = tmp_path / "py_logger.py"
     script.write_text(PY_LOGGER)
@@ -63,9 +71,11 @@ def test_launch_core_rosout_looks_like_roscore_rosout(ros_env, tmp_path):
             master = _core(procs, argv, env)
             info = procs.run(["rosnode", "info", "/rosout"])
             procs.start([ros_env["python"], str(script), "__name:=py_logger"])
-            wait_for(lambda: "/py_logger" in procs.run(["rosnode", "list"]), what="py_logger")
-            master.setParam("/t", "/rosout_test/go", True)
             path = _rosout_log(env, master)
+            # registered is not connected: lines logged before rosout's subscription is up are lost
+            # (by roscore's rosout too), so "go" only once a "waiting" line has come through
+            wait_for(lambda: _waiting_seen(path), what="py_logger connected to rosout")
+            master.setParam("/t", "/rosout_test/go", True)
             lines = wait_for(lambda: _demo_lines(path), what="demo lines in %s" % path)
             results[kind] = (info, lines, open(path).read().splitlines()[:3])
         finally:
