@@ -7,13 +7,21 @@ import os
 import pytest
 
 from launcher.rosout import (RosoutLogFile, file_logging_disabled, format_log_line, format_stamp,
-                             service_md5)
+                             rosout_typestore, service_md5)
 
 
 @pytest.fixture(scope="module")
 def typestore():
+    return rosout_typestore()  # what rosout runs with
+
+
+@pytest.mark.parametrize("name", ["rosgraph_msgs/msg/Log", "std_msgs/msg/Header", "roscpp/msg/Logger"])
+def test_rosout_types_are_noetics(typestore, name):
+    """rosout's small type store gives the same definitions and md5sums as rosbags' Noetic store."""
     from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS1_NOETIC)
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    assert typestore.generate_msgdef(name) == noetic.generate_msgdef(name)
+    assert typestore.fielddefs[name] == noetic.fielddefs[name]
 
 
 def _log(typestore, **fields):
