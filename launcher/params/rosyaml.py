@@ -243,12 +243,17 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     Raises RosYamlError.
     """
     key = (text, angles)
-    if key in _parsed:
-        return _fresh_copy(_parsed[key])
+    memo = _parsed.get(key)
+    if memo is not None:
+        value, plain_tree = memo
+        return _copy_tree(value) if plain_tree else _fresh_copy(value)
     loaders = _loaders(angles, text)
     for i, loader in enumerate(loaders):
         try:
-            value = _load_c(text, loader) if loader is _C_ROS or loader is _C_PLAIN else yaml.load(text, Loader=loader)
+            if loader is _C_ROS or loader is _C_PLAIN:
+                value, plain_tree = _load_c_tree(text, loader)
+            else:
+                value, plain_tree = yaml.load(text, Loader=loader), False
         except Exception as e:  # noqa: BLE001 - whatever PyYAML raises, the text is not valid ROS YAML
             if i + 1 < len(loaders):
                 continue
@@ -256,8 +261,8 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
         global _memo_chars
         if len(text) <= _MEMO_TEXT_MAX and _memo_chars + len(text) <= _MEMO_CHARS:
             _memo_chars += len(text)
-            _parsed[key] = value
-            return _fresh_copy(value)
+            _parsed[key] = (value, plain_tree)
+            return _copy_tree(value) if plain_tree else _fresh_copy(value)
         return value
     raise AssertionError("unreachable")
 
@@ -283,15 +288,22 @@ class _NotPlain(Exception):
 
 def _load_c(text: str, loader_cls: type) -> Any:
     """yaml.load(text, Loader=loader_cls) for a libyaml loader, plain documents built by _plain()."""
+    return _load_c_tree(text, loader_cls)[0]
+
+
+def _load_c_tree(text: str, loader_cls: type) -> tuple[Any, bool]:
+    """(_load_c's value, whether it is a plain tree: built by _plain() with no aliases)."""
     loader = loader_cls(text)
     try:
         node = loader.get_single_node()
         if node is None:
-            return None
+            return None, True
+        built: dict[Any, Any] = {}
         try:
-            return _plain(node, {})
+            value = _plain(node, built)
+            return value, _ALIASED not in built
         except (_NotPlain, ValueError, KeyError, TypeError, RecursionError):
-            return loader.construct_document(node)
+            return loader.construct_document(node), False
     finally:
         loader.dispose()
 
@@ -324,6 +336,7 @@ def _plain(node: Any, built: dict[int, Any]) -> Any:
         done = built[key]
         if done is _BUILDING:
             raise _NotPlain  # a recursive structure
+        built[_ALIASED] = True
         return done
     built[key] = _BUILDING
     if tag == _SEQ:
@@ -341,6 +354,7 @@ def _plain(node: Any, built: dict[int, Any]) -> Any:
 
 
 _BUILDING = object()
+_ALIASED = "aliased"  # key in _plain's `built` (whose other keys are ints) once an alias was met
 _SCALAR_KEY_TAGS = frozenset((_STR, _INT, _FLOAT, _BOOL, _NULL))
 
 
@@ -350,7 +364,17 @@ _SCALAR_KEY_TAGS = frozenset((_STR, _INT, _FLOAT, _BOOL, _NULL))
 _MEMO_TEXT_MAX = 64 * 1024
 _MEMO_CHARS = 8 * 1024 * 1024  # bounds the memo's memory to a few times this
 _memo_chars = 0
-_parsed: dict[tuple[str, bool], Any] = {}
+_parsed: dict[tuple[str, bool], tuple[Any, bool]] = {}  # -> (value, plain tree: no aliases)
+
+
+def _copy_tree(value: Any) -> Any:
+    """Deep copy of a parsed YAML tree that shares no container (no aliases)."""
+    kind = type(value)
+    if kind is dict:
+        return {k: (v if type(v) is not dict and type(v) is not list else _copy_tree(v)) for k, v in value.items()}
+    if kind is list:
+        return [v if type(v) is not dict and type(v) is not list else _copy_tree(v) for v in value]
+    return value
 
 
 def _fresh_copy(value: Any, memo: dict[int, Any] | None = None) -> Any:

@@ -82,3 +82,25 @@ def test_plain_documents_skip_pyyaml_constructor(monkeypatch):
     monkeypatch.setattr(cls, "construct_document", refuse)
     assert rosyaml._load_c("a: [1, 2.5, x, true, null]\nb: {c: d}\n", cls) == {
         "a": [1, 2.5, "x", True, None], "b": {"c": "d"}}
+
+
+def test_repeated_plain_text_gives_independent_values():
+    """A memoised document without aliases is copied by the plain-tree copier: nothing is shared."""
+    rosyaml._parsed.clear()
+    text = "a: {b: [1, {c: 2}]}\nd: [[3], []]\n"
+    first = rosyaml.load_yaml(text)
+    assert rosyaml._parsed[(text, True)][1] is True  # taken as a plain tree
+    first["a"]["b"][1]["c"] = 99
+    first["d"][0].append(4)
+    second = rosyaml.load_yaml(text)
+    third = rosyaml.load_yaml(text)
+    assert second == third == {"a": {"b": [1, {"c": 2}]}, "d": [[3], []]}
+    assert second["a"]["b"][1] is not third["a"]["b"][1] and second["d"][1] is not third["d"][1]
+
+
+def test_aliased_text_is_not_a_plain_tree():
+    rosyaml._parsed.clear()
+    text = "x: &s [1]\ny: *s\n"
+    value = rosyaml.load_yaml(text)
+    assert value["x"] is value["y"]
+    assert rosyaml._parsed[(text, True)][1] is False
