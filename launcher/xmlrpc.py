@@ -16,10 +16,10 @@ import datetime
 import inspect
 import re
 import socket
+import sys
 import urllib.parse
 from typing import Any, Awaitable, Callable, Iterable
 from xml.parsers import expat
-from xmlrpc.client import Binary, DateTime
 
 __all__ = [
     "Encoded", "encode_value", "Fault", "XmlRpcError", "loads_request", "loads_response", "dumps_request",
@@ -106,11 +106,11 @@ def _enc_bytes(v: bytes | bytearray, out: list[str]) -> None:
     out.append("<value><base64>%s</base64></value>" % base64.b64encode(v).decode("ascii"))
 
 
-def _enc_binary(v: Binary, out: list[str]) -> None:
+def _enc_binary(v: Any, out: list[str]) -> None:  # an xmlrpc.client.Binary
     _enc_bytes(v.data, out)
 
 
-def _enc_datetime(v: DateTime, out: list[str]) -> None:
+def _enc_datetime(v: Any, out: list[str]) -> None:  # an xmlrpc.client.DateTime
     out.append("<value><dateTime.iso8601>%s</dateTime.iso8601></value>" % v.value)
 
 
@@ -162,8 +162,7 @@ def _enc_none(v: None, out: list[str]) -> None:
 
 _ENCODERS: dict[type, Callable[[Any, list[str]], None]] = {
     str: _enc_str, int: _enc_int, bool: _enc_bool, float: _enc_float,
-    bytes: _enc_bytes, bytearray: _enc_bytes, Binary: _enc_binary,
-    DateTime: _enc_datetime, datetime.datetime: _enc_pydatetime,
+    bytes: _enc_bytes, bytearray: _enc_bytes, datetime.datetime: _enc_pydatetime,
     list: _enc_list, tuple: _enc_list, dict: _enc_dict, type(None): _enc_none,
     Encoded: _enc_encoded,
 }
@@ -175,6 +174,13 @@ def _encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
         enc = _ENCODERS.get(base)
         if enc is not None:
             return enc
+    # xmlrpc.client's Binary and DateTime: that module (http.client, email, ...) is not imported
+    # at every launch's start for them; a value of its types means the caller has loaded it.
+    client = sys.modules.get("xmlrpc.client")
+    if client is not None and client.Binary not in _ENCODERS:
+        _ENCODERS[client.Binary] = _enc_binary
+        _ENCODERS[client.DateTime] = _enc_datetime
+        return _encoder_for(value)
     raise TypeError("cannot marshal %s objects" % type(value))
 
 
@@ -323,6 +329,7 @@ class _Unmarshaller:
             except (ValueError, UnicodeEncodeError):
                 raise XmlRpcError("bad base64 value") from None
         elif tag == "dateTime.iso8601":
+            from xmlrpc.client import DateTime  # rare in ROS: loaded on first use
             self.stack.append(DateTime(data.strip()))
         elif tag == "nil":
             self.stack.append(None)

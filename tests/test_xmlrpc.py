@@ -542,3 +542,16 @@ def test_a_flood_of_idle_connections_cannot_lock_clients_out():
                 h.close()
     finally:
         s.close()
+
+
+def test_stdlib_binary_is_sent_as_base64():
+    assert b"<base64>AP8=</base64>" in X.dumps_response(xmlrpc.client.Binary(b"\x00\xff"))
+
+
+def test_import_does_not_load_the_stdlib_client():
+    """xmlrpc.client (http.client, email) costs every launch's start for two rarely used types."""
+    import subprocess
+    import sys
+    code = "import sys, launcher.xmlrpc; print(sorted({'xmlrpc.client', 'http.client'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
