@@ -260,8 +260,11 @@ class Rosout:
     def log_path(self) -> str | None:
         return self.file.path if self.file is not None else None
 
-    async def start(self) -> None:
-        """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout."""
+    async def start(self, *, warm_up: bool = True) -> None:
+        """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout.
+
+        With `warm_up=False` the caller calls `warm_up()` itself, when it suits (see there).
+        """
         self._typestore = rosout_typestore()
         definition, md5sum = self._typestore.generate_msgdef(_LOG_TYPE_RB)
         mtype = TopicType(LOG_TYPE, md5sum, definition)
@@ -272,10 +275,17 @@ class Rosout:
                 log.error("Error opening rosout log file '%s': %s", self.file.path, exc)
                 self.file = None
         await self._start_node(mtype)
-        # rosbags compiles a deserializer on first use (~80 ms of Python); do it on a worker
-        # thread now rather than on the event loop when the first node logs, mid-launch.
-        asyncio.get_running_loop().run_in_executor(None, self._typestore.get_msgdef,
-                                                   _LOG_TYPE_RB)
+        if warm_up:
+            self.warm_up()
+
+    def warm_up(self) -> None:
+        """Build the Log decoder on a worker thread now, not on the event loop at the first message.
+
+        rosbags compiles a deserializer on first use (numpy's import and code generation: ~100 ms
+        of Python). The thread holds the GIL for most of that, and every fork/exec releases and
+        retakes it, so `launch` calls this once its nodes are spawned, not while it spawns them.
+        """
+        asyncio.get_running_loop().run_in_executor(None, self._typestore.get_msgdef, _LOG_TYPE_RB)
 
     async def _start_node(self, mtype: TopicType) -> None:
         from launcher.slave import SlaveNode, default_host

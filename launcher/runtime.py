@@ -242,6 +242,8 @@ class Launch:
                                      exit_when_all_dead=external, watchdog=self.watchdog)
         self._launch_nodes()
         self.supervisor.registrations_complete()
+        if self.rosout is not None:
+            self.rosout.warm_up()
         if not opts.skip_log_check:
             from launcher.process.logdir import log_root, watch_log_disk
             self._tasks.append(asyncio.ensure_future(watch_log_disk(log_root(self.environ), self.log_threshold)))
@@ -345,7 +347,7 @@ class Launch:
             return
         rosout = Rosout(self.master_uri, self.run_log_dir, environ=self.environ)
         try:
-            await rosout.start()
+            await rosout.start(warm_up=False)  # warmed up once the nodes are spawned (Rosout.warm_up)
         except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector
             console.printerrlog("could not start the built-in rosout: %s" % e)
             return
