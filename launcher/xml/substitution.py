@@ -100,27 +100,67 @@ def resolve(text: str | None, scope: SubstitutionScope) -> str | None:
     if text.startswith("$(eval ") and text.endswith(")"):
         return evaluate(text[7:-1], scope)
     resolved = text
-    for body in collect_commands(text):
-        words = body.split()
-        if not words or words[0] not in VALID_COMMANDS:
+    for placeholder, body, cmd, args in _first_pass_plan(text):
+        if placeholder is None:
             raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
                                     % (body, list(VALID_COMMANDS)))
-        cmd, args = words[0], words[1:]
-        if cmd == "find":
-            continue
-        resolved = resolved.replace("$(%s)" % body, _first_pass(cmd, body, args, scope))
+        resolved = resolved.replace(placeholder, _first_pass(cmd, body, args, scope))
     if "$" in resolved:
-        for body in collect_commands(resolved):
-            words = body.split()
-            if not words or words[0] not in VALID_COMMANDS:
+        for body, args in _find_plan(resolved):
+            if args is None:
                 raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
                                         % (body, list(VALID_COMMANDS)))
-            if words[0] == "find":
-                resolved = _find(resolved, body, words[1:], scope)
+            resolved = _find(resolved, body, args, scope)
     return resolved
 
 
-def _first_pass(cmd: str, body: str, args: list[str], scope: SubstitutionScope) -> str:
+# A launch tree repeats the same attribute texts many times (the same include's nodes and
+# params, once per include): what a text asks for is worked out once per distinct text. The
+# plans depend on the text alone; the values come from the scope at every use.
+_PLAN_MAX = 16384
+_FIRST_PLANS: dict[str, tuple[tuple[Any, ...], ...]] = {}
+_FIND_PLANS: dict[str, tuple[tuple[Any, ...], ...]] = {}
+
+
+def _first_pass_plan(text: str) -> tuple[tuple[Any, ...], ...]:
+    """(placeholder, body, command, args) for each non-find command of `text`, in order; an
+    unknown command is a step with placeholder None, where resolution stops with its error."""
+    plan = _FIRST_PLANS.get(text)
+    if plan is None:
+        steps: list[tuple[Any, ...]] = []
+        for body in collect_commands(text):  # (raises for a malformed text: nothing cached)
+            words = body.split()
+            if not words or words[0] not in VALID_COMMANDS:
+                steps.append((None, body, None, None))
+                break
+            if words[0] != "find":
+                steps.append(("$(%s)" % body, body, words[0], tuple(words[1:])))
+        plan = tuple(steps)
+        if len(_FIRST_PLANS) < _PLAN_MAX:
+            _FIRST_PLANS[text] = plan
+    return plan
+
+
+def _find_plan(resolved: str) -> tuple[tuple[Any, ...], ...]:
+    """(body, args) for each `$(find)` of the first pass's result, in order; an unknown command
+    is a step with args None, where resolution stops with its error."""
+    plan = _FIND_PLANS.get(resolved)
+    if plan is None:
+        steps: list[tuple[Any, ...]] = []
+        for body in collect_commands(resolved):
+            words = body.split()
+            if not words or words[0] not in VALID_COMMANDS:
+                steps.append((body, None))
+                break
+            if words[0] == "find":
+                steps.append((body, tuple(words[1:])))
+        plan = tuple(steps)
+        if len(_FIND_PLANS) < _PLAN_MAX:
+            _FIND_PLANS[resolved] = plan
+    return plan
+
+
+def _first_pass(cmd: str, body: str, args: tuple[str, ...], scope: SubstitutionScope) -> str:
     if cmd == "arg":
         if not args:
             raise SubstitutionError("$(arg var) must specify a variable name [%s]" % body)
@@ -173,7 +213,7 @@ def _dirname(scope: SubstitutionScope) -> str:
     return os.path.abspath(os.path.dirname(scope.filename))
 
 
-def _find(resolved: str, body: str, args: list[str], scope: SubstitutionScope) -> str:
+def _find(resolved: str, body: str, args: tuple[str, ...], scope: SubstitutionScope) -> str:
     if len(args) != 1:
         raise SubstitutionError("$(find pkg) command only accepts one argument [%s]" % body)
     cmd = "$(%s)" % body

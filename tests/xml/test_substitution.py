@@ -225,3 +225,24 @@ def test_collect_commands_matches_roslaunchs_state_machine(parts):
             collect_commands(text)
         return
     assert collect_commands(text) == expected
+
+
+def test_repeated_text_takes_each_scopes_values():
+    """What a text asks for is planned once; the values come from each scope every time."""
+    text = "$(arg a)/$(optenv E dflt)/$(find pkg)/x"
+    first = resolve(text, scope({"a": "1"}, packages={"pkg": "/p1"}))
+    second = resolve(text, scope({"a": "2"}, {"E": "set"}, packages={"pkg": "/p2"}))
+    assert (first, second) == ("1/dflt//p1/x", "2/set//p2/x")
+    # an arg whose value holds a $(find) is expanded by the second pass, per scope
+    assert resolve("$(arg a)", scope({"a": "$(find pkg)/y"})) == "/pkgs/pkg/y"
+    assert resolve("$(arg a)", scope({"a": "plain"})) == "plain"
+
+
+def test_repeated_text_keeps_its_error_order():
+    """Errors come in text order, also from a planned text: a missing arg before a later unknown command."""
+    text = "$(arg missing) $(bogus x)"
+    for _ in range(2):
+        with pytest.raises(ArgNotSet):
+            resolve(text, scope())
+        with pytest.raises(SubstitutionError, match="Unknown substitution command"):
+            resolve(text, scope({"missing": "v"}))
