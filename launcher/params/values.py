@@ -39,13 +39,16 @@ def auto_value(text: str) -> Any:
     """`convert_value(text, "auto")`: roslaunch's inference for a `<param>` without `type=`."""
     # numbers first, as roslaunch: a '.' means float or nothing; no '_' for ints,
     # because Python 3 would accept `1_000` but roslaunch means a string there
-    try:
-        if "." in text:
+    if "." in text:
+        try:
             return float(text)
-        if "_" not in text:
+        except ValueError:
+            pass
+    elif "_" not in text and not text.isalpha():  # (letters only: int() would refuse it)
+        try:
             return int(text)
-    except ValueError:
-        pass
+        except ValueError:
+            pass
     lowered = text.lower()
     if lowered == "true" or lowered == "false":
         return lowered == "true"

@@ -17,9 +17,9 @@ from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, Param
 from launcher.errors import LaunchError
-from launcher.names import SEP, is_legal_name, make_global_ns, ns_join
+from launcher.names import SEP, make_global_ns, ns_join
 from launcher.xml.document import element_text, read_launch
-from launcher.xml.scope import Scope, ScopeError, canonical
+from launcher.xml.scope import Scope, ScopeError, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists; anything else is warned about

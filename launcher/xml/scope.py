@@ -12,8 +12,15 @@ from __future__ import annotations
 
 from typing import Any, Callable, Mapping
 
-from launcher.names import PRIV_NAME, SEP, canonicalize_name, is_legal_name, make_global_ns, ns_join
+import functools
+
+from launcher.names import PRIV_NAME, SEP, canonicalize_name, make_global_ns, ns_join
+from launcher.names import is_legal_name as _is_legal_name
 from launcher.xml.substitution import SubstitutionScope
+
+# names.is_legal_name, remembered: a launch tree checks the same few names (remaps, node names)
+# thousands of times; a pure function of the name
+is_legal_name = functools.lru_cache(maxsize=8192)(_is_legal_name)
 
 
 def canonical(name: str) -> str:
