@@ -165,14 +165,14 @@ _PLAIN_SCALARS = frozenset((str, int, float, bool, type(None)))
 
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
-    for p in config.params.values():
-        v = p.value
+    data = {}
+    for k, p in config.params.items():
+        v = data[k] = p.value
         if type(v) in _PLAIN_SCALARS:  # nearly all values: no need to walk them
             continue
         if _has_binary(v):
             raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or !!binary), "
                               "which roslaunch cannot print either" % p.key, p.filename or None, p.line or None)
-    data = {k: p.value for k, p in config.params.items()}
     try:
         from launcher.params.rosyaml import dump_yaml
     except ImportError:  # pragma: no cover - params package not installed
