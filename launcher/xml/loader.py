@@ -94,9 +94,12 @@ if _plain_frozen(Param, _PARAM_FIELDS) and _plain_frozen(Node, _NODE_FIELDS):
             "machine_name": machine_name, "filename": filename, "line": line, "test_name": test_name,
             "time_limit": time_limit, "retry": retry})
         return n
-else:  # pragma: no cover - config.py changed shape
-    _param = Param
-    _node = Node
+else:  # pragma: no cover - config.py changed shape: the real constructors, by field name
+    def _param(key: str, value: Any, filename: str, line: int) -> Param:
+        return Param(key=key, value=value, filename=filename, line=line)
+
+    def _node(*values: Any) -> Node:
+        return Node(**dict(zip(_NODE_FIELDS, values)))
 
 
 def _convert_value(text: str, ptype: str) -> Any:
