@@ -31,6 +31,16 @@ _ROSOUT_MSG_TYPES = {
                              "string function\nuint32 line\nstring[] topics",
     "roscpp/msg/Logger": "string name\nstring level",
 }
+# What rosout announces at registration, as rosbags computes it from the definitions above
+# (tests/test_rosout.py checks): constants, so that registering /rosout needs no type store and
+# rosbags is not imported before the nodes are spawned.
+LOG_MD5 = "acffd30cd6b6de30f120938c17c593fb"
+LOG_DEFINITION = (
+    "byte DEBUG=1\nbyte INFO=2\nbyte WARN=4\nbyte ERROR=8\nbyte FATAL=16\nstd_msgs/Header header\n"
+    "byte level\nstring name\nstring msg\nstring file\nstring function\nuint32 line\nstring[] topics\n"
+    + "=" * 80 + "\nMSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n")
+GET_LOGGERS_MD5 = "32e97e85527d4678a8f9279894bb64b0"  # `rossrv md5 roscpp/GetLoggers`
+SET_LOGGER_LEVEL_MD5 = "51da076440d78ca1684d36c868df61ea"  # `rossrv md5 roscpp/SetLoggerLevel`
 # Every roscpp node (rosout.cpp included) serves ~get_loggers and ~set_logger_level; these are
 # their request/response definitions (roscpp/srv/*.srv), which rosbags' type store lacks.
 _LOGGER_SERVICE_TYPES = {
@@ -265,9 +275,7 @@ class Rosout:
 
         With `warm_up=False` the caller calls `warm_up()` itself, when it suits (see there).
         """
-        self._typestore = rosout_typestore()
-        definition, md5sum = self._typestore.generate_msgdef(_LOG_TYPE_RB)
-        mtype = TopicType(LOG_TYPE, md5sum, definition)
+        mtype = TopicType(LOG_TYPE, LOG_MD5, LOG_DEFINITION)
         if self.file is not None:
             try:
                 self.file.open()
@@ -279,13 +287,28 @@ class Rosout:
             self.warm_up()
 
     def warm_up(self) -> None:
-        """Build the Log decoder on a worker thread now, not on the event loop at the first message.
+        """Build the type store and Log decoder on a worker thread now, not on the event loop at the
+        first message.
 
-        rosbags compiles a deserializer on first use (numpy's import and code generation: ~100 ms
-        of Python). The thread holds the GIL for most of that, and every fork/exec releases and
-        retakes it, so `launch` calls this once its nodes are spawned, not while it spawns them.
+        rosbags' import, and the deserializer it compiles on first use (numpy's import and code
+        generation), are ~100 ms of Python. The thread holds the GIL for most of that, and every
+        fork/exec releases and retakes it, so `launch` calls this once its nodes are spawned, not
+        while it spawns them.
         """
-        asyncio.get_running_loop().run_in_executor(None, self._typestore.get_msgdef, _LOG_TYPE_RB)
+        if self._typestore is None:
+            asyncio.get_running_loop().run_in_executor(None, self._build_typestore)
+
+    def _build_typestore(self) -> Any:
+        # On the worker thread (warm_up) or, if a message comes first, on the loop. Two threads may
+        # both build one; each store is complete and either may be kept.
+        typestore = rosout_typestore()
+        typestore.get_msgdef(_LOG_TYPE_RB)
+        self._typestore = typestore
+        return typestore
+
+    def _types(self) -> Any:
+        """The type store (built here if warm_up has not finished)."""
+        return self._typestore if self._typestore is not None else self._build_typestore()
 
     async def _start_node(self, mtype: TopicType) -> None:
         from launcher.slave import SlaveNode, default_host
@@ -316,15 +339,15 @@ class Rosout:
             log.error("could not restart /rosout: %s", exc)
 
     def _logger_services(self) -> list[ServiceServer]:
-        ts = self._typestore
-
         def get_loggers(request: bytes) -> bytes:
+            ts = self._types()
             logger_t = ts.types["roscpp/msg/Logger"]
             loggers = [logger_t(name=n, level=_logger_level(n)) for n in _OWN_LOGGERS]
             return bytes(ts.serialize_ros1(ts.types["roscpp/msg/GetLoggers_Response"](
                 loggers=loggers), "roscpp/msg/GetLoggers_Response"))
 
         def set_logger_level(request: bytes) -> bytes:
+            ts = self._types()
             req = ts.deserialize_ros1(request, "roscpp/msg/SetLoggerLevel_Request")
             level = _ROS_TO_PY_LEVEL.get(req.level.lower())
             if req.logger not in _OWN_LOGGERS or level is None:
@@ -334,13 +357,11 @@ class Rosout:
 
         return [
             ServiceServer(self.name + "/get_loggers", "roscpp/GetLoggers",
-                          service_md5(ts, "roscpp/msg/GetLoggers_Request",
-                                      "roscpp/msg/GetLoggers_Response"),
+                          GET_LOGGERS_MD5,
                           "roscpp/GetLoggersRequest", "roscpp/GetLoggersResponse",
                           self.name, get_loggers),
             ServiceServer(self.name + "/set_logger_level", "roscpp/SetLoggerLevel",
-                          service_md5(ts, "roscpp/msg/SetLoggerLevel_Request",
-                                      "roscpp/msg/SetLoggerLevel_Response"),
+                          SET_LOGGER_LEVEL_MD5,
                           "roscpp/SetLoggerLevelRequest", "roscpp/SetLoggerLevelResponse",
                           self.name, set_logger_level),
         ]
@@ -358,10 +379,16 @@ class Rosout:
         if self.file is None:
             return
         try:
-            msg = self._typestore.deserialize_ros1(payload, _LOG_TYPE_RB)
+            ts = self._types()
+        except Exception as exc:  # rosbags unusable: nothing can be decoded
+            self.undecodable += 1
+            log.error("cannot decode rosgraph_msgs/Log: %s", exc)
+            return
+        try:
+            msg = ts.deserialize_ros1(payload, _LOG_TYPE_RB)
         except Exception:
             try:  # most likely text that is not UTF-8: keep its bytes as they are
-                msg = self._typestore.deserialize_ros1(payload, _RAW_LOG)
+                msg = ts.deserialize_ros1(payload, _RAW_LOG)
             except Exception as exc:
                 self.undecodable += 1
                 log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)

@@ -15,6 +15,13 @@ def typestore():
     return rosout_typestore()  # what rosout runs with
 
 
+def test_announced_log_type_is_rosbags_noetic_log():
+    """/rosout is registered with constants (no rosbags at start): they are what rosbags computes."""
+    from rosbags.typesys import Stores, get_typestore
+    from launcher.rosout import LOG_DEFINITION, LOG_MD5
+    assert get_typestore(Stores.ROS1_NOETIC).generate_msgdef("rosgraph_msgs/msg/Log") == (LOG_DEFINITION, LOG_MD5)
+
+
 @pytest.mark.parametrize("name", ["rosgraph_msgs/msg/Log", "std_msgs/msg/Header", "roscpp/msg/Logger"])
 def test_rosout_types_are_noetics(typestore, name):
     """rosout's small type store gives the same definitions and md5sums as rosbags' Noetic store."""
@@ -114,6 +121,11 @@ def test_logger_service_md5s_match_roscpp(typestore):
                        "roscpp/msg/SetLoggerLevel_Response") == "51da076440d78ca1684d36c868df61ea"
     with pytest.raises(NotImplementedError):
         service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request", "roscpp/msg/Logger")
+    # the constants rosout announces its services with
+    from launcher.rosout import GET_LOGGERS_MD5, SET_LOGGER_LEVEL_MD5
+    assert GET_LOGGERS_MD5 == service_md5(typestore, "roscpp/msg/GetLoggers_Request", "roscpp/msg/GetLoggers_Response")
+    assert SET_LOGGER_LEVEL_MD5 == service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request",
+                                               "roscpp/msg/SetLoggerLevel_Response")
 
 
 def test_text_that_is_not_utf8_is_kept_as_bytes(typestore):
