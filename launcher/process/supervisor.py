@@ -14,6 +14,12 @@ roscpp nodes at the same instant on a small machine makes them all thrash
 (bench/BASELINE.md); pacing keeps the CPU busy without thrashing, while a node
 that ignores SIGINT only holds its pacing slot for `stop_hold`, so the total
 stays bounded by the slowest node rather than by the number of nodes.
+
+The SIGKILL step is not theoretical: a rospy node that gets SIGINT while its main thread is
+inside a master call (init_node makes several; so does any rospy.get_param) deadlocks in its
+own handler, which unregisters through the same non-reentrant proxy lock; its SIGTERM handler
+is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, as roslaunch
+does (checked side by side); sending SIGINT again would not help.
 """
 
 from __future__ import annotations
