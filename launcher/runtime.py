@@ -2,18 +2,39 @@
 
 from __future__ import annotations
 
-import asyncio
-import os
-import signal
-import socket
 import sys
-import time
-import urllib.parse
-import uuid
-from typing import Any, Mapping
 
-from launcher.errors import LaunchError
-from launcher.process import console
+
+def _import_asyncio_without_ssl() -> None:
+    """Import asyncio without the ssl module: ~5 ms less before the first node starts.
+
+    asyncio imports ssl only to offer TLS transports, and copes with it missing
+    (`ssl = None`). Nothing in the launcher speaks TLS, and every millisecond
+    here delays the first node. `ssl` is only hidden during this one import:
+    anything that imports it later gets the real module.
+    """
+    if "asyncio" in sys.modules or "ssl" in sys.modules:
+        return
+    sys.modules["ssl"] = None  # type: ignore[assignment]  # makes `import ssl` raise ImportError
+    try:
+        import asyncio  # noqa: F401
+    finally:
+        if "ssl" in sys.modules and sys.modules["ssl"] is None:
+            del sys.modules["ssl"]
+
+
+_import_asyncio_without_ssl()
+
+import asyncio  # noqa: E402
+import os  # noqa: E402
+import signal  # noqa: E402
+import socket  # noqa: E402
+import time  # noqa: E402
+import urllib.parse  # noqa: E402
+from typing import Any, Mapping  # noqa: E402
+
+from launcher.errors import LaunchError  # noqa: E402
+from launcher.process import console  # noqa: E402
 
 _CALLER_ID = "/roslaunch"
 # How long to wait for an answer from a master that accepted the connection.
@@ -258,6 +279,7 @@ class Launch:
         return 0
 
     log_threshold = 1073741824
+    _run_id_known: bool | None = None  # is /run_id set on the external master? (None: not asked yet)
 
     # ---- master ----------------------------------------------------------------------------------------
 
@@ -321,12 +343,17 @@ class Launch:
                                                timeout=PARAM_TIMEOUT_S)
             except Exception:  # noqa: BLE001
                 code, value = 0, None
+            # getParam answered whether /run_id is set: _set_run_id needs no hasParam round trip then
+            self._run_id_known = True if code == 1 else False if code == -1 else None
             if code == 1 and value:
                 if self.opts.run_id and self.opts.run_id != value:
                     raise LaunchError("run_id on parameter server does not match declared run_id: %s vs %s"
                                       % (value, self.opts.run_id))
                 return str(value)
-        return self.opts.run_id or str(uuid.uuid1())
+        if self.opts.run_id:
+            return self.opts.run_id
+        import uuid  # imports platform & co.: only when a run id must be made up
+        return str(uuid.uuid1())
 
     async def _set_run_id(self, external: bool) -> None:
         if self.master is not None:
@@ -334,7 +361,11 @@ class Launch:
             console.printlog_bold("setting /run_id to %s" % self.run_id)
             return
         from launcher.xmlrpc import call
-        code, _msg, has = await call(self.master_uri, "hasParam", _CALLER_ID, "/run_id", timeout=PARAM_TIMEOUT_S)
+        if self._run_id_known is not None:
+            code, has = 1, self._run_id_known
+        else:
+            code, _msg, has = await call(self.master_uri, "hasParam", _CALLER_ID, "/run_id",
+                                         timeout=PARAM_TIMEOUT_S)
         if code == 1 and not has:
             console.printlog_bold("setting /run_id to %s" % self.run_id)
             await call(self.master_uri, "setParam", _CALLER_ID, "/run_id", self.run_id, timeout=PARAM_TIMEOUT_S)
