@@ -54,7 +54,7 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
     tear-down (tens of ms that a user waiting for the prompt would notice).
     """
     from launcher.process.watchdog import Watchdog
-    # The guard is forked first, while this process has a single thread.
+    # The guard is started first, so that no node can ever run unwatched.
     watchdog = Watchdog.start()
     pid_fn = getattr(opts, "pid_fn", None)
     try:
