@@ -214,8 +214,7 @@ def spawn(spec: ProcessSpec, append: bool = False) -> int:
             if out_fd == 1:  # our stdout was closed, so the log file got fd 1: dup2(1, 1) would keep CLOEXEC
                 os.set_inheritable(out_fd, True)
             if spec.cwd:
-                # O_PATH: coming back needs no read right on our own directory
-                here = os.open(".", getattr(os, "O_PATH", os.O_RDONLY) | os.O_DIRECTORY | os.O_CLOEXEC)
+                here = os.open(".", os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
                 try:
                     os.chdir(spec.cwd)
                     try:
