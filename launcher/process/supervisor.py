@@ -28,6 +28,7 @@ import asyncio
 import errno
 import os
 import signal
+import subprocess
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
@@ -74,6 +75,7 @@ class NodeProcess:
     """One supervised node: its spec and the state of its current OS process."""
 
     spec: ProcessSpec
+    popen: subprocess.Popen | None = None
     pid: int | None = None
     pgid: int | None = None
     pidfd: int | None = None
@@ -123,114 +125,33 @@ def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
     return "unable to launch [%s]: %s" % (" ".join(argv), e.strerror)
 
 
-# Signals Python itself ignores and that a child must get back at their default (what
-# subprocess.Popen's restore_signals does).
-_RESET_SIGNALS = tuple(getattr(signal, n) for n in ("SIGPIPE", "SIGXFZ", "SIGXFSZ") if hasattr(signal, n))
-_inherited_fds_closed = False
-
-
-def _no_inherited_fds() -> None:
-    """Mark every inheritable descriptor above stderr close-on-exec, once.
-
-    posix_spawn has no `close_fds`: instead of closing descriptors in each
-    child (what Popen(close_fds=True) does), the few the launcher may have
-    inherited from its own parent are made non-inheritable; Python creates all
-    of its own descriptors non-inheritable anyway.
-    """
-    global _inherited_fds_closed
-    if _inherited_fds_closed:
-        return
-    _inherited_fds_closed = True
-    try:
-        fds = [int(fd) for fd in os.listdir("/proc/self/fd")]
-    except OSError:
-        fds = list(range(3, 256))
-    for fd in fds:
-        if fd > 2:
-            try:
-                if os.get_inheritable(fd):
-                    os.set_inheritable(fd, False)
-            except OSError:
-                pass
-
-
-def _find_executable(name: str, env: dict[str, str], cwd: str) -> str:
-    """The file exec would run for argv[0], searching the child's PATH as Popen does."""
-    if "/" in name:
-        return name if os.path.isabs(name) or not cwd else os.path.join(cwd, name)
-    path = env.get("PATH") or os.defpath
-    denied = None
-    for d in path.split(os.pathsep):
-        candidate = os.path.join(d or ".", name)
-        if not os.path.isabs(candidate) and cwd:
-            candidate = os.path.join(cwd, candidate)
-        try:
-            st = os.stat(candidate)
-        except OSError:
-            continue
-        if not (st.st_mode & 0o170000 == 0o100000):  # directories and the like: exec would say EACCES
-            denied = candidate
-            continue
-        if os.access(candidate, os.X_OK):
-            return candidate
-        denied = candidate
-    if denied is not None:
-        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), name)
-    raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), name)
-
-
-def spawn(spec: ProcessSpec, append: bool = False) -> int:
-    """Start the node's process in a new session/process group; return its pid. Raises SpawnError.
-
-    os.posix_spawn (vfork + exec in glibc) instead of subprocess.Popen: the
-    same child (new session, stdout to the log file, Popen's signal resets, no
-    inherited descriptors, exec errors reported with their errno) at about a
-    third of the launcher's CPU per node, which matters while 100 nodes start
-    on a small machine. Python 3.11's posix_spawn has no cwd: the launcher
-    changes directory around the call and straight back.
+def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
+    """Start the node's process in a new session/process group. Raises SpawnError.
 
     Signals the launcher handles are reset to their default disposition by exec
     itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
     restored by the launcher installing handlers before spawning (runtime.py).
     """
-    _no_inherited_fds()
-    out_fd = -1
+    stdout = None
     if spec.stdout_path:
         try:
             # roslaunch: append when respawning, so earlier runs' output survives
-            flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | (os.O_APPEND if append or spec.respawn else os.O_TRUNC)
-            out_fd = os.open(spec.stdout_path, flags, 0o666)
+            stdout = open(spec.stdout_path, "ab" if append or spec.respawn else "wb")
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
     try:
         if spec.cwd:
-            try:
-                os.makedirs(spec.cwd, exist_ok=True)
-            except OSError:
-                pass
-        try:
-            exe = _find_executable(spec.argv[0], spec.env, spec.cwd)
-            actions = [(os.POSIX_SPAWN_DUP2, out_fd, 1)] if out_fd >= 0 and out_fd != 1 else []
-            if out_fd == 1:  # our stdout was closed, so the log file got fd 1: dup2(1, 1) would keep CLOEXEC
-                os.set_inheritable(out_fd, True)
-            if spec.cwd:
-                here = os.open(".", os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
-                try:
-                    os.chdir(spec.cwd)
-                    try:
-                        return os.posix_spawn(exe, spec.argv, spec.env, file_actions=actions, setsid=True,
-                                              setsigdef=_RESET_SIGNALS)
-                    finally:
-                        os.fchdir(here)
-                finally:
-                    os.close(here)
-            return os.posix_spawn(exe, spec.argv, spec.env, file_actions=actions, setsid=True,
-                                  setsigdef=_RESET_SIGNALS)
-        except OSError as e:
-            raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
+            os.makedirs(spec.cwd, exist_ok=True)
+    except OSError:
+        pass
+    try:
+        return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
+                                close_fds=True, start_new_session=True)
+    except OSError as e:
+        raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
     finally:
-        if out_fd >= 0:
-            os.close(out_fd)
+        if stdout is not None:
+            stdout.close()
 
 
 def _ignore(signum, frame) -> None:
@@ -252,18 +173,6 @@ def restore_default_signals_for_children() -> None:
                 signal.signal(sig, _ignore)
         except (ValueError, OSError):  # not the main thread: the runtime handles it
             pass
-
-
-def _wait_status(pid: int) -> int | None:
-    """Reap `pid`: its exit code, or minus the signal that killed it (Popen.returncode's convention)."""
-    while True:
-        try:
-            _, status = os.waitpid(pid, 0)
-        except InterruptedError:
-            continue
-        except ChildProcessError:  # already reaped elsewhere: the code is lost
-            return None
-        return os.waitstatus_to_exitcode(status)
 
 
 def _group_exists(pgid: int) -> bool:
@@ -366,7 +275,7 @@ class Supervisor:
 
     def _spawn(self, proc: NodeProcess) -> bool:
         try:
-            pid = spawn(proc.spec, append=proc.spawn_count > 0)
+            popen = spawn(proc.spec, append=proc.spawn_count > 0)
         except SpawnError as e:
             console.printerrlog(str(e))
             return False
@@ -374,21 +283,22 @@ class Supervisor:
             # the previous run left processes in its group: keep them on the list to stop at shutdown
             self.procs.append(NodeProcess(proc.spec, pid=proc.pid, pgid=proc.pgid, group_alive=True))
         proc.spawn_count += 1
-        proc.pid = proc.pgid = pid
+        proc.popen = popen
+        proc.pid = proc.pgid = popen.pid
         proc.exit_code = None
         proc.started_at = self.loop.time()
         proc.alive = proc.group_alive = True
         # recorded before anything else can fail, so a launcher killed now still leaves no orphan
         if self.watchdog is not None:
-            self.watchdog.watch(pid)
+            self.watchdog.watch(popen.pid)
         try:
-            proc.pidfd = os.pidfd_open(pid)
+            proc.pidfd = os.pidfd_open(popen.pid)
             self.loop.add_reader(proc.pidfd, self._on_exit, proc)
         except OSError:
             # pidfd unavailable (very old kernel): fall back to a waiter thread
             proc.pidfd = None
-            self.loop.run_in_executor(None, _wait_status, pid).add_done_callback(
-                lambda f, p=proc, pi=pid: self.loop.call_soon(self._on_exit, p, pi, f.result()))
+            self.loop.run_in_executor(None, popen.wait).add_done_callback(
+                lambda _f, p=proc, po=popen: self.loop.call_soon(self._on_exit, p, po))
         console.printlog_bold("process[%s]: started with pid [%s]" % (proc.name, proc.pid))
         if self.on_spawn is not None:
             self.on_spawn(proc)
@@ -403,15 +313,16 @@ class Supervisor:
 
     # ---- watching ---------------------------------------------------------------------------------
 
-    def _on_exit(self, proc: NodeProcess, pid: int | None = None, rc: int | None = None) -> None:
-        if pid is not None and (pid != proc.pid or not proc.alive):
+    def _on_exit(self, proc: NodeProcess, popen: subprocess.Popen | None = None) -> None:
+        if popen is not None and popen is not proc.popen:
             return  # a stale notification from an earlier run of this node
         if proc.pidfd is not None:
             self.loop.remove_reader(proc.pidfd)
             os.close(proc.pidfd)
             proc.pidfd = None
-        if pid is None:
-            rc = _wait_status(proc.pid)
+        rc = proc.popen.poll() if proc.popen is not None else None
+        if rc is None and proc.popen is not None:
+            rc = proc.popen.wait()
         proc.exit_code = rc
         proc.alive = False
         self._check_group(proc)

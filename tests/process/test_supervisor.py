@@ -207,6 +207,8 @@ def test_stop_escalation_sigint_sigterm_sigkill(tmp_path, capsys):
         neither = sup.start(spec("stubborn-3", py_node(IGNORE_BOTH), tmp_path, stdout_path=str(tmp_path / "b")))
         await wait_for(lambda: all((tmp_path / f).exists() and (tmp_path / f).read_text() for f in "ab"))
         deaths = {}
+        for p in (polite, int_only, neither):
+            p.popen  # noqa: B018
         t0 = time.monotonic()
         task = asyncio.ensure_future(sup.shutdown())
         while not task.done():
