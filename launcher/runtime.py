@@ -2,39 +2,17 @@
 
 from __future__ import annotations
 
+import asyncio
+import os
+import signal
+import socket
 import sys
+import time
+import urllib.parse
+from typing import Any, Mapping
 
-
-def _import_asyncio_without_ssl() -> None:
-    """Import asyncio without the ssl module: ~5 ms less before the first node starts.
-
-    asyncio imports ssl only to offer TLS transports, and copes with it missing
-    (`ssl = None`). Nothing in the launcher speaks TLS, and every millisecond
-    here delays the first node. `ssl` is only hidden during this one import:
-    anything that imports it later gets the real module.
-    """
-    if "asyncio" in sys.modules or "ssl" in sys.modules:
-        return
-    sys.modules["ssl"] = None  # type: ignore[assignment]  # makes `import ssl` raise ImportError
-    try:
-        import asyncio  # noqa: F401
-    finally:
-        if "ssl" in sys.modules and sys.modules["ssl"] is None:
-            del sys.modules["ssl"]
-
-
-_import_asyncio_without_ssl()
-
-import asyncio  # noqa: E402
-import os  # noqa: E402
-import signal  # noqa: E402
-import socket  # noqa: E402
-import time  # noqa: E402
-import urllib.parse  # noqa: E402
-from typing import Any, Mapping  # noqa: E402
-
-from launcher.errors import LaunchError  # noqa: E402
-from launcher.process import console  # noqa: E402
+from launcher.errors import LaunchError
+from launcher.process import console
 
 _CALLER_ID = "/roslaunch"
 # How long to wait for an answer from a master that accepted the connection.
