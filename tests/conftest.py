@@ -47,3 +47,16 @@ def ros_env():
             pytest.fail("integration tests cannot run: %s (REQUIRE_ROS=1)" % why)
         pytest.skip("real ROS parts missing: %s" % why)
     return {"python": ROS_PYTHON, "path": ROS_PATH}
+
+
+def skip_unless_ros_required(why: str) -> None:
+    """Skip for a missing ROS part, except under REQUIRE_ROS=1 (CI), where it is a failure."""
+    if os.environ.get("REQUIRE_ROS") == "1":
+        pytest.fail("cannot run: %s (REQUIRE_ROS=1)" % why)
+    pytest.skip(why)
+
+
+@pytest.fixture(scope="session")
+def ros_part_missing():
+    """`ros_part_missing(why)`: skip for a missing ROS part, fail instead under REQUIRE_ROS=1."""
+    return skip_unless_ros_required

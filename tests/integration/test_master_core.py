@@ -210,14 +210,14 @@ int main(int argc, char** argv) {
 
 
 @pytest.fixture(scope="session")
-def cpp_talker(ros_env, tmp_path_factory):
+def cpp_talker(ros_env, tmp_path_factory, ros_part_missing):
     if shutil.which("g++") is None:
-        pytest.skip("g++ not installed")
+        ros_part_missing("g++ not installed")
     flags = subprocess.run(["pkg-config", "--cflags", "--libs", "roscpp", "std_msgs"], capture_output=True, text=True)
     if flags.returncode != 0:
         flags = subprocess.run(["pkg-config", "--cflags", "--libs", "roscpp"], capture_output=True, text=True)
     if flags.returncode != 0:
-        pytest.skip("roscpp development files not found by pkg-config")
+        ros_part_missing("roscpp development files not found by pkg-config")
     d = tmp_path_factory.mktemp("cpp")
     src = d / "talker.cpp"
     src.write_text(CPP_NODE)
