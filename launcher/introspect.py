@@ -76,7 +76,7 @@ def _main(opts: Any) -> int:
     environ = os.environ
     from launcher.packages import PackageIndex
     from launcher.xml import load, resolve_launch_arguments
-    packages = PackageIndex(environ)
+    packages = PackageIndex(environ, warn=_warn)
     files, argv = resolve_launch_arguments(list(opts.positional or []), packages)
     if not files:
         raise LaunchError(NO_FILE)

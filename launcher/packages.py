@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import stat
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 from launcher.errors import LaunchError
 
@@ -138,11 +138,13 @@ def _package_name(manifest: str) -> tuple[str | None, bool]:
 class PackageIndex:
     """Where packages and their files are, for one run. Crawls lazily, each directory once."""
 
-    def __init__(self, environ: Mapping[str, str] | None = None):
+    def __init__(self, environ: Mapping[str, str] | None = None, warn: Callable[[str], None] | None = None):
+        """`warn` is told each warning as the lazy crawl finds it (they also collect in `warnings`)."""
         env = os.environ if environ is None else environ
         self.ros_paths: list[str] = ros_paths(env)
         self.workspaces: list[str] = catkin_workspaces(env)
         self.warnings: list[str] = []
+        self._warn = warn
         self._located: dict[str, str] = {}
         self._uncrawled = list(self.ros_paths)  # crawled in precedence order, on demand
         self._files: dict[str, dict[str, list[str]]] = {}  # dir -> file name -> paths, os.walk order
@@ -150,6 +152,11 @@ class PackageIndex:
         self._catkin: dict[tuple[str, tuple[str, ...], str | None, bool], list[str]] = {}
         self._source_spaces: dict[str, list[str]] = {}
         self._source_packages: dict[str, list[tuple[str, str]]] = {}
+
+    def _warning(self, text: str) -> None:
+        self.warnings.append(text)
+        if self._warn is not None:
+            self._warn(text)
 
     # -- packages ---------------------------------------------------------------------------
 
@@ -163,7 +170,7 @@ class PackageIndex:
             if PACKAGE_FILE in files:
                 name, is_meta = _package_name(os.path.join(d, PACKAGE_FILE))
                 if name is None:
-                    self.warnings.append("ignoring unreadable package manifest %s" % os.path.join(d, PACKAGE_FILE))
+                    self._warning("ignoring unreadable package manifest %s" % os.path.join(d, PACKAGE_FILE))
                     del dirs[:]
                     continue
                 # rospkg's RosPack lists packages, not metapackages (those are "stacks").

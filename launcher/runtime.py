@@ -144,7 +144,7 @@ class Launch:
         from launcher.packages import PackageIndex
         from launcher.xml import load, resolve_launch_arguments
         opts = self.opts
-        self.packages = PackageIndex(self.environ)
+        self.packages = PackageIndex(self.environ, warn=lambda msg: console.printerrlog("WARNING: %s" % msg))
         files, self.argv = resolve_launch_arguments(list(opts.positional or []), self.packages)
         if not files:
             raise LaunchError("you must specify at least one input file")

@@ -417,3 +417,22 @@ def test_catkin_dirs_match_catkin_find_in_workspaces(ros_env, tmp_path):
     for (dirs, project, path, first), expected in zip(queries, ref):
         ours = ix.catkin_dirs(project, tuple(dirs), path=path, first_match_only=first)
         assert ours == expected, (dirs, project, path)
+
+
+def test_unreadable_package_xml_is_reported_by_launch(tmp_path):
+    """Nothing is silently ignored: the index's warning reaches the user through the loader."""
+    import sys
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken/package.xml").write_text("<package><name>x</nam")
+    good = make_pkg(tmp_path, "zz_good")
+    make_exe(good / "talker")
+    launch_file = tmp_path / "a.launch"
+    launch_file.write_text('<launch><node pkg="zz_good" type="talker" name="t"/></launch>')
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROS_") and k != "CMAKE_PREFIX_PATH"}
+    env["ROS_PACKAGE_PATH"] = str(tmp_path)
+    # --args looks up the executable, which crawls the package path
+    out = subprocess.run([sys.executable, "-m", "launcher", "--args", "/t", str(launch_file)], env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("zz_good/talker __name:=t")
+    assert "ignoring unreadable package manifest %s" % (tmp_path / "broken" / "package.xml") in out.stderr
