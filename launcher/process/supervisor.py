@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from launcher.process import console
+from launcher.process.watchdog import group_members
 
 DEFAULT_SIGINT_TIMEOUT = 15.0
 DEFAULT_SIGTERM_TIMEOUT = 2.0
@@ -189,23 +190,9 @@ def _group_exists(pgid: int) -> bool:
         return False
     except PermissionError:
         return True
-    try:
-        entries = os.listdir("/proc")
-    except OSError:
+    if not os.path.isdir("/proc"):
         return True
-    for entry in entries:
-        if not entry.isdigit():
-            continue
-        try:
-            with open("/proc/%s/stat" % entry, "rb") as f:
-                stat = f.read()
-        except OSError:
-            continue
-        fields = stat[stat.rfind(b")") + 2:].split()
-        # fields: state ppid pgrp ...
-        if int(fields[2]) == pgid and fields[0] != b"Z":
-            return True
-    return False
+    return bool(group_members({pgid}, sessions=False))
 
 
 def _signal_group(pgid: int | None, sig: int) -> None:

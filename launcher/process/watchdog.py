@@ -126,10 +126,20 @@ def _serve(rfd: int) -> None:
         kill_groups(groups)
 
 
-def _members(groups: set[int]) -> list[int]:
-    """Pids whose process group or session is one of `groups` (a node's session id is its pgid)."""
+def group_members(groups: set[int], *, sessions: bool = True) -> list[int]:
+    """Live pids whose process group (or, with `sessions`, session) is one of `groups`.
+
+    A node's session id is its pgid, so `sessions` also finds what left the
+    node's group but stayed in its session. Zombies are dead already and don't
+    count. (Here rather than in its own module because this file also runs as
+    the guard under `python -I -S`, where it can import nothing of ours.)
+    """
+    try:
+        entries = os.listdir("/proc")
+    except OSError:
+        return []
     pids = []
-    for entry in os.listdir("/proc"):
+    for entry in entries:
         if not entry.isdigit():
             continue
         try:
@@ -138,8 +148,8 @@ def _members(groups: set[int]) -> list[int]:
         except OSError:
             continue
         fields = stat[stat.rfind(b")") + 2:].split()
-        # fields: state ppid pgrp session ...; zombies are dead already
-        if fields[0] != b"Z" and (int(fields[2]) in groups or int(fields[3]) in groups):
+        # fields: state ppid pgrp session ...
+        if fields[0] != b"Z" and (int(fields[2]) in groups or (sessions and int(fields[3]) in groups)):
             pids.append(int(entry))
     return pids
 
@@ -148,7 +158,7 @@ def kill_groups(groups: set[int]) -> None:
     """SIGTERM every process of the groups (and their sessions), then SIGKILL what remains."""
     own = os.getpid()
     for sig, wait in ((signal.SIGTERM, TERM_GRACE_S), (signal.SIGKILL, 0.0)):
-        pids = [p for p in _members(groups) if p != own]
+        pids = [p for p in group_members(groups) if p != own]
         if not pids:
             return
         for pgid in groups:
@@ -163,7 +173,7 @@ def kill_groups(groups: set[int]) -> None:
                 pass
         deadline = time.monotonic() + wait
         while wait and time.monotonic() < deadline:
-            if not any(p != own for p in _members(groups)):
+            if not any(p != own for p in group_members(groups)):
                 return
             time.sleep(0.02)
 
