@@ -66,16 +66,16 @@ class Scope(SubstitutionScope):
         self.source = filename  # the file whose elements are being read (for errors)
         self.include_chain: tuple[tuple[str, int], ...] = ()
 
+    def _child_ns(self, ns: str | None) -> str:
+        """The namespace a child scope with `ns=` gets (global, `~`, or relative to ours)."""
+        if not ns:
+            return self.ns
+        if ns[0] == SEP or ns == PRIV_NAME:
+            return ns
+        return ns_join(self.ns, ns)
+
     def child(self, ns: str | None) -> Scope:
-        if ns:
-            if ns[0] == SEP:
-                child_ns = ns
-            elif ns == PRIV_NAME:
-                child_ns = PRIV_NAME
-            else:
-                child_ns = ns_join(self.ns, ns)
-        else:
-            child_ns = self.ns
+        child_ns = self._child_ns(ns)
         c = Scope.__new__(Scope)
         c.args = dict(self.args)
         c.anon = dict(self.anon)
@@ -102,15 +102,7 @@ class Scope(SubstitutionScope):
     def node_child(self, ns: str | None) -> Scope:
         """A child for a <node>'s namespace and params: as child(), but sharing what a node's children never
         change (args, arg declarations, env), which makes a 1000-node launch much cheaper."""
-        if ns:
-            if ns[0] == SEP:
-                child_ns = ns
-            elif ns == PRIV_NAME:
-                child_ns = PRIV_NAME
-            else:
-                child_ns = ns_join(self.ns, ns)
-        else:
-            child_ns = self.ns
+        child_ns = self._child_ns(ns)
         c = Scope.__new__(Scope)
         c.args = self.args
         c.anon = dict(self.anon) if self.anon else {}
