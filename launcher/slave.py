@@ -130,7 +130,7 @@ class SlaveNode:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        from launcher.xmlrpc import XmlRpcServer
+        from launcher.xmlrpc_server import XmlRpcServer
         bind = bind_address(self.host)
         await self.tcpros.start(bind)
         self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0)

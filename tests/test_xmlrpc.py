@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from launcher import xmlrpc as X
+from launcher import xmlrpc_server as S
 
 # ---------------------------------------------------------------------------
 # codec
@@ -127,7 +128,7 @@ def test_multicall_collects_results_and_faults():
         if m == "ok":
             return p[0]
         raise X.Fault(7, "bad")
-    out = X.multicall(dispatch, [{"methodName": "ok", "params": [5]}, {"methodName": "no", "params": []},
+    out = S.multicall(dispatch, [{"methodName": "ok", "params": [5]}, {"methodName": "no", "params": []},
                                  "junk"])
     assert out[0] == [5]
     assert out[1] == {"faultCode": 7, "faultString": "bad"}
@@ -159,7 +160,7 @@ class ServerThread:
     def __init__(self, **kw):
         import threading
         self.loop = asyncio.new_event_loop()
-        self.server = X.XmlRpcServer(_dispatch, "127.0.0.1", 0, multicall=True, **kw)
+        self.server = S.XmlRpcServer(_dispatch, "127.0.0.1", 0, multicall=True, **kw)
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
         asyncio.run_coroutine_threadsafe(self.server.start(), self.loop).result(5)
@@ -311,7 +312,7 @@ def test_client_that_never_reads_does_not_wedge_the_server(server):
 
 def test_async_client_call_and_errors():
     async def scenario():
-        s = X.XmlRpcServer(_dispatch, "127.0.0.1", 0)
+        s = S.XmlRpcServer(_dispatch, "127.0.0.1", 0)
         await s.start()
         uri = "http://127.0.0.1:%d/" % s.port
         try:
@@ -331,10 +332,10 @@ def test_async_client_call_and_errors():
 
 def test_port_taken_raises_oserror():
     async def scenario():
-        a = X.XmlRpcServer(_dispatch, "127.0.0.1", 0)
+        a = S.XmlRpcServer(_dispatch, "127.0.0.1", 0)
         await a.start()
         try:
-            b = X.XmlRpcServer(_dispatch, "127.0.0.1", a.port)
+            b = S.XmlRpcServer(_dispatch, "127.0.0.1", a.port)
             with pytest.raises(OSError):
                 await b.start()
         finally:
@@ -424,7 +425,7 @@ def test_large_requests_and_long_multicalls_do_not_starve_other_clients(server):
     import select
     calls = [{"methodName": "echo", "params": ["x" * 20, i]} for i in range(60000)]
     body = xmlrpc.client.dumps((calls,), "system.multicall").encode()
-    assert len(body) > X.LARGE_REQUEST
+    assert len(body) > S.LARGE_REQUEST
     with socket.create_connection(("127.0.0.1", server.port), timeout=30) as big:
         t0 = time.time()
         big.sendall(_post(body))
@@ -555,3 +556,60 @@ def test_import_does_not_load_the_stdlib_client():
     code = "import sys, launcher.xmlrpc; print(sorted({'xmlrpc.client', 'http.client'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_codec_and_clients_do_not_import_asyncio():
+    """A launch talks to a running master and spawns its nodes before it imports asyncio (~25 ms)."""
+    import subprocess
+    import sys
+    code = "import sys, launcher.xmlrpc; print('asyncio' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+def test_blocking_client_values_faults_and_http_errors(server):
+    assert X.call_blocking(server.uri, "echo", 1, "a", [True, 2.5], {"k": "v"}) == [1, "a", [True, 2.5], {"k": "v"}]
+    assert X.call_blocking(server.uri, "later", 0.01, "async") == "async"
+    calls = [{"methodName": "echo", "params": ["x"]}, {"methodName": "nope", "params": []}]
+    out = X.call_blocking(server.uri, "system.multicall", calls)
+    assert out[0] == [["x"]] and out[1]["faultCode"] == 1
+    with pytest.raises(X.Fault) as e:
+        X.call_blocking(server.uri, "boom")
+    assert "boom" in e.value.faultString
+    with pytest.raises(X.XmlRpcError, match="HTTP 404"):
+        X.call_blocking(server.uri + "elsewhere", "echo")
+    with pytest.raises(X.XmlRpcError, match="not an http"):
+        X.call_blocking("https://127.0.0.1:1/", "echo")
+
+
+def test_blocking_client_refused_and_timeout():
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(OSError):
+        X.call_blocking("http://127.0.0.1:%d/" % port, "echo", timeout=2.0)
+    with socket.socket() as silent:  # accepts (backlog) but never answers
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(1)
+        t0 = time.monotonic()
+        with pytest.raises(OSError):  # socket.timeout
+            X.call_blocking("http://127.0.0.1:%d/" % silent.getsockname()[1], "echo", timeout=0.3)
+        assert time.monotonic() - t0 < 3.0
+
+
+def test_blocking_client_reply_cut_short():
+    import threading
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+
+        def answer():
+            c, _ = srv.accept()
+            with c:
+                c.recv(65536)
+                c.sendall(b"HTTP/1.1 200 OK\r\nContent-Length: 500\r\n\r\n<?xml version='1.0'?>")
+        t = threading.Thread(target=answer)
+        t.start()
+        with pytest.raises(X.XmlRpcError, match="before the reply was complete"):
+            X.call_blocking("http://127.0.0.1:%d/" % srv.getsockname()[1], "echo", timeout=5.0)
+        t.join(5)

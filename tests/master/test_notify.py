@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
-from launcher import xmlrpc
+from launcher import xmlrpc, xmlrpc_server
 from launcher.master.notify import Notifier
 
 
@@ -15,7 +15,7 @@ class SlowNode:
         self.delay = delay
         self.answer = answer
         self.calls = []
-        self.server = xmlrpc.XmlRpcServer(self.dispatch, "127.0.0.1", 0)
+        self.server = xmlrpc_server.XmlRpcServer(self.dispatch, "127.0.0.1", 0)
 
     def dispatch(self, method, params):
         self.calls.append((method, params))
