@@ -52,10 +52,12 @@ def ros_version_params(environ: Mapping[str, str]) -> tuple[str, str]:
     package_xml = _roslaunch_package_xml(environ)
     version = None
     if package_xml is not None:
+        from launcher.xml.document import XmlSyntaxError, element_text, parse_xml
         try:
-            from lxml import etree
-            version = etree.parse(package_xml).findtext("version")
-        except Exception:  # noqa: BLE001 - unreadable manifest: fall back
+            with open(package_xml, "rb") as f:
+                root, _ = parse_xml(f.read())
+            version = next((element_text(c) for c in root if c.tag == "version"), None)
+        except (OSError, XmlSyntaxError):  # unreadable manifest: fall back
             version = None
     distro = environ.get("ROS_DISTRO") or ("Debian" if package_xml is not None else DEFAULT_ROSDISTRO)
     return (version or DEFAULT_ROSVERSION).strip() + "\n", distro + "\n"

@@ -123,16 +123,18 @@ def _walk(top: str) -> Iterator[tuple[str, list[str], list[str]]]:
 
 def _package_name(manifest: str) -> tuple[str | None, bool]:
     """(the `<name>` of a package.xml, whether it is a metapackage); (None, False) if unreadable."""
-    import xml.etree.ElementTree as ET  # lazy: only needed when a crawl meets a package.xml
+    from launcher.xml.document import XmlSyntaxError, element_text, parse_xml
 
     try:
-        root = ET.parse(manifest).getroot()
-    except (OSError, ET.ParseError):
+        with open(manifest, "rb") as f:
+            root, _ = parse_xml(f.read())
+    except (OSError, XmlSyntaxError):
         return None, False
-    name = root.findtext("name")
+    name = next((element_text(c) for c in root if c.tag == "name"), None)
     if name is None:
         return None, False
-    return name.strip(" \n\r\t"), root.find("./export/metapackage") is not None
+    is_meta = any(c.tag == "metapackage" for e in root if e.tag == "export" for c in e)
+    return name.strip(" \n\r\t"), is_meta
 
 
 class PackageIndex:

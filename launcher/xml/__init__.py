@@ -33,11 +33,21 @@ def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, st
     gc.disable()
     try:
         for f in files:
-            loader.load_file(f)
+            _load_file(loader, f)
         return loader.config()
     finally:
         if gc_was_enabled:
             gc.enable()
+
+
+def _load_file(loader: Any, filename: str) -> None:
+    try:
+        loader.load_file(filename)
+    except RecursionError:
+        # the loader follows the nesting of <group>s and <include>s; expat has no depth limit
+        from launcher.errors import LaunchError
+        raise LaunchError("Invalid roslaunch XML syntax: elements or includes are nested too deeply "
+                          "(maximum recursion depth exceeded)", filename) from None
 
 
 def load_arg_docs(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
@@ -51,7 +61,7 @@ def load_arg_docs(files: list[str], argv: Iterable[str] = (), *, environ: Mappin
         packages = PackageIndex(environ)
     loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=True)
     for f in files:
-        loader.load_file(f)
+        _load_file(loader, f)
     return dict(loader.root_scope.arg_docs) if loader.root_scope is not None else {}
 
 

@@ -233,19 +233,19 @@ class XmlLoader:
         return "arg '%s' is required: pass %s:=value on the command line" % (name, name)
 
     def _attr(self, el: Any, name: str, scope: Scope) -> str | None:
-        v = el.get(name)
+        v = el.attrib.get(name)
         if not v or "$" not in v:
             return v
         return self._sub(v, scope, el)
 
     def _reqd(self, el: Any, name: str, scope: Scope) -> str:
-        v = el.get(name)
+        v = el.attrib.get(name)
         if v is None:
             raise self._fail(scope, el, "<%s> tag is missing required attribute: '%s'" % (el.tag, name))
         return self._sub(v, scope, el)  # type: ignore[return-value]
 
     def _check_attrs(self, el: Any, scope: Scope, allowed: frozenset[str]) -> None:
-        keys = el.keys()
+        keys = el.attrib
         if allowed.issuperset(keys):  # the usual case, checked in C
             return
         for a in keys:
@@ -266,7 +266,7 @@ class XmlLoader:
 
     def _if_unless(self, el: Any, scope: Scope) -> bool:
         """True if the element is to be processed (its if/unless say so)."""
-        get = el.get
+        get = el.attrib.get
         if get("if") is None and get("unless") is None:
             return True
         if_val = self._attr(el, "if", scope)
@@ -288,7 +288,8 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ files
     def load_file(self, filename: str) -> None:
-        launch = read_launch(filename)
+        doc = read_launch(filename)
+        launch = doc.launch
         self.files.append(filename)
         scope = Scope(self.root_ns, filename, environ=self.environ,
                       find_package=self._find_package, find_resource=self._find_resource,
@@ -296,7 +297,7 @@ class XmlLoader:
         self.root_scope = scope
         self._launch_tag(launch, scope)
         if not self.args_only:
-            for m in launch.iterdescendants("master"):
+            for m in doc.masters:
                 self._warn(scope, m, "ignoring defunct <master /> tag")
         self._recurse(launch, scope, None)
 
@@ -304,7 +305,7 @@ class XmlLoader:
         self._check_attrs(launch, scope, LAUNCH_ATTRS)
         if not self._if_unless(launch, scope):
             return
-        deprecated = launch.get("deprecated")
+        deprecated = launch.attrib.get("deprecated")
         if deprecated:
             self._warn(scope, launch, "DEPRECATED: %s" % deprecated)
 
@@ -326,10 +327,8 @@ class XmlLoader:
         if_unless = self._if_unless
         for el in parent_el:
             tag = el.tag
-            if not isinstance(tag, str):
-                continue  # comments, processing instructions
             # the element's if/unless allow it: decided here at once for the many that have neither
-            get = el.get
+            get = el.attrib.get
             if tag == "arg":
                 self._arg_tag(el, scope)
             elif self.args_only:
@@ -376,7 +375,7 @@ class XmlLoader:
     # ------------------------------------------------------------------ ns + clear_params
     def _ns_clear_params(self, el: Any, scope: Scope, kind: str, node_name: str | None = None,
                          include_file: str | None = None) -> Scope:
-        if el.get("ns") is not None:
+        if el.attrib.get("ns") is not None:
             ns = self._attr(el, "ns", scope)
             if not ns:
                 raise self._fail(scope, el, "<%s> tag has an empty 'ns' attribute" % el.tag)
@@ -430,7 +429,7 @@ class XmlLoader:
     # ------------------------------------------------------------------ <remap>, <env>
     def _remap_tag(self, el: Any, scope: Scope) -> tuple[str, str]:
         self._check_attrs(el, scope, REMAP_ATTRS)
-        if el.get("from") is None or el.get("to") is None:
+        if el.attrib.get("from") is None or el.attrib.get("to") is None:
             raise self._fail(scope, el, "<remap> tag is missing required from/to attributes")
         return self._attr(el, "from", scope) or "", self._attr(el, "to", scope) or ""
 
@@ -442,7 +441,7 @@ class XmlLoader:
 
     def _env_tag(self, el: Any, scope: Scope) -> None:
         self._check_attrs(el, scope, ENV_ATTRS)
-        if el.get("name") is None or el.get("value") is None:
+        if el.attrib.get("name") is None or el.attrib.get("value") is None:
             raise self._fail(scope, el, "<env> tag is missing required name/value attributes")
         name = self._attr(el, "name", scope)
         value = self._attr(el, "value", scope)
@@ -452,8 +451,8 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ <param>
     def _param_tag(self, el: Any, scope: Scope, force_local: bool = False) -> None:
-        get = el.get
-        keys = el.keys()
+        get = el.attrib.get
+        keys = el.attrib
         if not PARAM_ATTRS.issuperset(keys):
             for a in keys:
                 if a not in PARAM_ATTRS:
@@ -698,7 +697,7 @@ class XmlLoader:
         param_scope.params = []
         pkg = self._reqd(el, "pkg", scope)
         node_type = self._reqd(el, "type", scope)
-        get = el.get
+        get = el.attrib.get
         machine, args, output, respawn_s, respawn_delay_s, cwd, launch_prefix, required_s = [
             v if (not v or "$" not in v) else self._sub(v, scope, el)
             for v in (get("machine"), get("args"), get("output"), get("respawn"), get("respawn_delay"),
@@ -724,11 +723,9 @@ class XmlLoader:
         remap_scope: Scope | None = None
         env_scope: Scope | None = None
         for c in el:
-            ctag = c.tag
-            if not isinstance(ctag, str):
-                continue
-            ctag = ctag.lower()  # roslaunch matches a node's child tags case-insensitively
-            plain = c.get("if") is None and c.get("unless") is None  # no if/unless to evaluate
+            ctag = c.tag.lower()  # roslaunch matches a node's child tags case-insensitively
+            cget = c.attrib.get
+            plain = cget("if") is None and cget("unless") is None  # no if/unless to evaluate
             if ctag == "remap":
                 if plain or self._if_unless(c, scope):
                     src, dst = self._remap_tag(c, scope)
@@ -819,8 +816,6 @@ class XmlLoader:
             raise self._fail(scope, el, "Invalid value for 'default' attribute of <machine>: %s "
                                         "(use true, false or never)" % default)
         for c in el:
-            if not isinstance(c.tag, str):
-                continue
             if c.tag == "env":
                 raise self._fail(scope, c, "<machine>: <env> tag is not supported since ROS Fuerte.\n"
                                            "Please use env-loader instead")
@@ -865,8 +860,6 @@ class XmlLoader:
         # the include's own <arg>/<env> children are evaluated in the including file
         child.filename = scope.filename
         for c in el:
-            if not isinstance(c.tag, str):
-                continue
             ctag = c.tag.lower()
             if ctag == "env":
                 if self._if_unless(c, child):
@@ -889,9 +882,10 @@ class XmlLoader:
             raise self._fail(scope, el, "include cycle: [%s] includes itself" % inc_file)
         child.source = inc_file
         child.include_chain = chain
-        launch = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
-        if launch is None:
+        doc = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
+        if doc is None:
             raise self._fail(scope, el, "included file [%s] does not exist" % inc_file)
+        launch = doc.launch
         self.files.append(inc_file)
         self._launch_tag(launch, child)
         default_machine = self._recurse(launch, child, default_machine)
