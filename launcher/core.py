@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import asyncio
 import os
 import signal
 import sys
 import urllib.parse
-import uuid
 from typing import Any, Mapping
 
 from launcher.errors import LaunchError
@@ -80,6 +78,8 @@ def run_core(opts: Any) -> int:
     if environ.get("ROS_MASTER_URI") and uri_port != port:
         print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),
               file=sys.stderr)
+    import asyncio  # (here: `launch` imports this module for ros_version_params before it needs asyncio)
+    import uuid
     run_id = getattr(opts, "run_id", None) or str(uuid.uuid1())
     pid_fn = getattr(opts, "pid_fn", None)
     if pid_fn:
@@ -101,6 +101,8 @@ def run_core(opts: Any) -> int:
 
 
 async def _core(port: int, run_id: str, environ: dict[str, str]) -> int:
+    import asyncio
+
     from launcher.master import Master
 
     master = Master(port=port, environ=environ)

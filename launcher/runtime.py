@@ -1,8 +1,13 @@
-"""Running a launch: config -> master (running or embedded) -> parameters -> rosout -> supervised nodes -> shutdown."""
+"""Running a launch: config -> master (running or embedded) -> parameters -> rosout -> supervised nodes -> shutdown.
+
+With a master already running, everything up to the nodes' start is plain
+blocking code: the nodes are spawned before asyncio is even imported (~25 ms,
+a quarter of the way to the first node), and the supervisor adopts them once
+its event loop runs. An embedded master needs the loop first.
+"""
 
 from __future__ import annotations
 
-import asyncio
 import os
 import signal
 import socket
@@ -44,6 +49,8 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
         launch = Launch(opts, watchdog)
         launch.load()
+        launch.start_before_loop()
+        import asyncio
         status = asyncio.run(launch.main())
     finally:
         if watchdog is not None:
@@ -132,10 +139,16 @@ class Launch:
         self.run_id = ""
         self.run_log_dir = ""
         self.master_uri = ""
-        self._stop = None
+        self.external = False  # a master was already running
+        self._stop: Any = None  # asyncio.Event, once the loop runs
+        self._stop_requested = False  # SIGINT/SIGTERM/SIGHUP seen
+        self._interruptible = False  # a signal may abort the blocking steps (no node runs yet)
         self._counter = 0
         self._log_file: Any = None
-        self._tasks: list[asyncio.Task] = []
+        self._tasks: list[Any] = []
+        # nodes spawned before the supervisor exists: (spec, Popen or None if it failed, monotonic start)
+        self._started: list[tuple[Any, Any, float]] = []
+        self._not_started: list[tuple[str, bool]] = []  # (name, required) of nodes that could not be prepared
 
     # ---- loading (synchronous; LaunchError -> the CLI prints it, exit 1) -------------------------------
 
@@ -190,13 +203,42 @@ class Launch:
 
     # ---- the run ---------------------------------------------------------------------------------------
 
+    def start_before_loop(self) -> None:
+        """With a running master: run_id, log directory, parameters and every node's start, blocking."""
+        from launcher.process.spawn import restore_default_signals_for_children
+        # handlers (not SIG_IGN) for the signals nodes must get at their default: exec resets handled
+        # signals, so nodes start with SIGINT at SIG_DFL even if we inherited it ignored
+        restore_default_signals_for_children()
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, self._on_signal_before_loop)
+        self._interruptible = True
+        try:
+            self.external = self._find_master()
+            if self.external:
+                self._begin_log()
+                self._announce_master()
+                self._set_parameters()
+                self._interruptible = False
+                self._launch_nodes()
+        except _Stop:
+            pass
+        finally:
+            self._interruptible = False
+
+    def _on_signal_before_loop(self, sig: int, _frame: Any) -> None:
+        self._stop_requested = True
+        if self._interruptible:
+            raise _Stop()  # out of a blocking master call at once: no node runs yet
+        # otherwise _launch_nodes stops at the next node, and main() shuts down what runs
+
     async def main(self) -> int:
+        import asyncio
         loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
-        # Handlers (not SIG_IGN) for the signals nodes must get at their default: exec resets handled
-        # signals, so nodes start with SIGINT at SIG_DFL even if we inherited it ignored.
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             loop.add_signal_handler(sig, self._on_signal, sig)
+        if self._stop_requested:
+            self._stop.set()
         status = 0
         try:
             status = await self._run()
@@ -211,36 +253,39 @@ class Launch:
         return status
 
     def _on_signal(self, sig: int) -> None:
+        self._stop_requested = True
         if not self._stop.is_set():
             self._stop.set()
 
     def _check_stop(self) -> None:
-        if self._stop.is_set():
+        if self._stop_requested:
             raise _Stop()
 
     async def _run(self) -> int:
+        import asyncio
+
         from launcher.process.supervisor import Supervisor
         opts = self.opts
-        external = await self._find_master()
-        self._check_stop()
-        self.run_id = await self._decide_run_id(external)
-        self._setup_log_dir()
-        if not opts.no_summary:
-            console.printlog(summary(self.config, self._summary_params()))
-        if not external:
+        if not self.external:
+            self._check_stop()
+            self._begin_log()
             await self._start_master()
-        console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
-        await self._set_run_id(external)
-        if not external:
+            self._announce_master()
+            self._check_stop()
             await self._start_rosout()
-        self._check_stop()
-        await self._rosparam_commands()
-        await self._load_parameters()
-        self._check_stop()
+            self._check_stop()
+            self._set_parameters()
+            self._check_stop()
+            self._launch_nodes()
         self.supervisor = Supervisor(sigint_timeout=opts.sigint_timeout, sigterm_timeout=opts.sigterm_timeout,
-                                     exit_when_all_dead=external, watchdog=self.watchdog)
-        self._launch_nodes()
+                                     exit_when_all_dead=self.external, watchdog=self.watchdog)
+        for spec, popen, started_at in self._started:
+            self.supervisor.adopt(spec, popen, started_at)
+        for name, required in self._not_started:
+            self.supervisor.not_started(name, required)
+        self._started.clear()
         self.supervisor.registrations_complete()
+        self._check_stop()
         if self.rosout is not None:
             self.rosout.warm_up()
         if not opts.skip_log_check:
@@ -256,33 +301,47 @@ class Launch:
             console.printlog("shutdown request: %s" % self.master.shutdown_reason)
         return 0
 
+    def _begin_log(self) -> None:
+        """run_id, log directory, summary (roslaunch's order)."""
+        self.run_id = self._decide_run_id()
+        self._setup_log_dir()
+        if not self.opts.no_summary:
+            console.printlog(summary(self.config, self._summary_params()))
+
+    def _announce_master(self) -> None:
+        console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
+        self._set_run_id()
+
+    def _set_parameters(self) -> None:
+        self._rosparam_commands()
+        self._check_stop()
+        self._load_parameters()
+        self._check_stop()
+
     log_threshold = 1073741824
     _run_id_known: bool | None = None  # is /run_id set on the external master? (None: not asked yet)
 
     # ---- master ----------------------------------------------------------------------------------------
 
-    async def _probe(self) -> bool:
-        from launcher.xmlrpc import call
+    def _probe(self) -> bool:
+        from launcher.xmlrpc import Fault, XmlRpcError, call_blocking
         try:
-            await call(self.master_uri, "getPid", _CALLER_ID, timeout=PROBE_TIMEOUT_S)
+            call_blocking(self.master_uri, "getPid", _CALLER_ID, timeout=PROBE_TIMEOUT_S)
             return True
-        except (OSError, asyncio.TimeoutError, ValueError):
+        except Fault:
+            return True  # anything answering XML-RPC with a fault is still a master
+        except (OSError, XmlRpcError):
             return False
-        except Exception:  # noqa: BLE001 - anything answering XML-RPC with a fault is still a master
-            return True
 
-    async def _find_master(self) -> bool:
+    def _find_master(self) -> bool:
         """True if a master already answers at the master URI (it is then used, as roslaunch does)."""
-        if await self._probe():
+        if self._probe():
             return True
         if self.opts.wait:
             console.printlog("master has not been started, waiting for it at %s ..." % self.master_uri)
-            while not await self._probe():
+            while not self._probe():
                 self._check_stop()
-                try:
-                    await asyncio.wait_for(self._stop.wait(), 0.1)
-                except asyncio.TimeoutError:
-                    pass
+                time.sleep(0.1)  # a signal ends the wait at once (_on_signal_before_loop)
             return True
         host = urllib.parse.urlsplit(self.master_uri).hostname or ""
         if not _is_local_host(host, self.environ):
@@ -313,12 +372,12 @@ class Launch:
         params.setdefault("/rosdistro", rosdistro)
         return params
 
-    async def _decide_run_id(self, external: bool) -> str:
-        if external:
-            from launcher.xmlrpc import call
+    def _decide_run_id(self) -> str:
+        if self.external:
+            from launcher.xmlrpc import call_blocking
             try:
-                code, _msg, value = await call(self.master_uri, "getParam", _CALLER_ID, "/run_id",
-                                               timeout=PARAM_TIMEOUT_S)
+                code, _msg, value = call_blocking(self.master_uri, "getParam", _CALLER_ID, "/run_id",
+                                                  timeout=PARAM_TIMEOUT_S)
             except Exception:  # noqa: BLE001
                 code, value = 0, None
             # getParam answered whether /run_id is set: _set_run_id needs no hasParam round trip then
@@ -333,20 +392,20 @@ class Launch:
         import uuid  # imports platform & co.: only when a run id must be made up
         return str(uuid.uuid1())
 
-    async def _set_run_id(self, external: bool) -> None:
+    def _set_run_id(self) -> None:
         if self.master is not None:
             self.master.set_param("/run_id", self.run_id)
             console.printlog_bold("setting /run_id to %s" % self.run_id)
             return
-        from launcher.xmlrpc import call
+        from launcher.xmlrpc import call_blocking
         if self._run_id_known is not None:
             code, has = 1, self._run_id_known
         else:
-            code, _msg, has = await call(self.master_uri, "hasParam", _CALLER_ID, "/run_id",
-                                         timeout=PARAM_TIMEOUT_S)
+            code, _msg, has = call_blocking(self.master_uri, "hasParam", _CALLER_ID, "/run_id",
+                                            timeout=PARAM_TIMEOUT_S)
         if code == 1 and not has:
             console.printlog_bold("setting /run_id to %s" % self.run_id)
-            await call(self.master_uri, "setParam", _CALLER_ID, "/run_id", self.run_id, timeout=PARAM_TIMEOUT_S)
+            call_blocking(self.master_uri, "setParam", _CALLER_ID, "/run_id", self.run_id, timeout=PARAM_TIMEOUT_S)
 
     async def _start_rosout(self) -> None:
         try:
@@ -387,40 +446,40 @@ class Launch:
 
     # ---- parameters ------------------------------------------------------------------------------------
 
-    async def _rosparam_commands(self) -> None:
+    def _rosparam_commands(self) -> None:
         """`<rosparam command="delete|dump">`, in document order, before the parameters are set."""
         for command, key, filename in getattr(self.config, "rosparam_commands", ()):
             try:
                 if command == "delete":
-                    await self._delete_param(key)
+                    self._delete_param(key)
                 elif command == "dump" and filename:
                     from launcher.params.rosyaml import dump_yaml
-                    value = await self._get_param(key)
+                    value = self._get_param(key)
                     with open(filename, "w") as f:
                         f.write(dump_yaml(value))
             except (KeyError, OSError, LaunchError) as e:
                 console.printerrlog("rosparam %s %s failed: %s" % (command, key, e))
 
-    async def _delete_param(self, key: str) -> None:
+    def _delete_param(self, key: str) -> None:
         if self.master is not None:
             try:
                 self.master.delete_param(key)
             except KeyError:
                 pass
             return
-        from launcher.xmlrpc import call
-        await call(self.master_uri, "deleteParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+        from launcher.xmlrpc import call_blocking
+        call_blocking(self.master_uri, "deleteParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
 
-    async def _get_param(self, key: str) -> Any:
+    def _get_param(self, key: str) -> Any:
         if self.master is not None:
             return self.master.params.get(key)
-        from launcher.xmlrpc import call
-        code, msg, value = await call(self.master_uri, "getParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+        from launcher.xmlrpc import call_blocking
+        code, msg, value = call_blocking(self.master_uri, "getParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
         if code != 1:
             raise LaunchError(msg)
         return value
 
-    async def _load_parameters(self) -> None:
+    def _load_parameters(self) -> None:
         """Clear the `clear_params` namespaces, then set every parameter, before any node starts."""
         params = [(p.key, p.value) for p in self.config.params.values()]
         clear = list(self.config.clear_params)
@@ -437,12 +496,12 @@ class Launch:
             return
         if not params and not clear:
             return
-        from launcher.xmlrpc import call
+        from launcher.xmlrpc import call_blocking
         # one round trip: deletes first, then sets (the master runs a multicall in order)
         calls = [{"methodName": "deleteParam", "params": [_CALLER_ID, ns]} for ns in clear]
         calls += [{"methodName": "setParam", "params": [_CALLER_ID, k, v]} for k, v in params]
         try:
-            results = await call(self.master_uri, "system.multicall", calls, timeout=PARAM_TIMEOUT_S)
+            results = call_blocking(self.master_uri, "system.multicall", calls, timeout=PARAM_TIMEOUT_S)
         except Exception as e:  # noqa: BLE001
             raise LaunchError("cannot set the launch's parameters on the master at [%s]: %s"
                               % (self.master_uri, e)) from None
@@ -456,19 +515,21 @@ class Launch:
     # ---- nodes -----------------------------------------------------------------------------------------
 
     def _launch_nodes(self) -> None:
+        """Spawn every node, in order (the supervisor adopts them: see `_run`)."""
         from launcher.command import node_command
         from launcher.names import ns_join
-        from launcher.process.supervisor import ProcessSpec
+        from launcher.process.spawn import ProcessSpec, start_process
         opts = self.opts
         if self.config.tests:
             # roslaunch skips <test> tags without a word; say so, they are the user's
             console.printlog("ignoring %d <test> node(s) (%s): run them with rostest"
                              % (len(self.config.tests), ", ".join(t.test_name or t.name for t in self.config.tests)))
         for node in self.config.nodes:
-            if self._stop.is_set():
+            if self._stop_requested:
                 break
             if self._remote(node):
-                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)" % node.full_name)
+                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)"
+                                    % node.full_name)
                 continue
             self._counter += 1
             name = "%s-%d" % (ns_join(node.namespace, node.name), self._counter)
@@ -476,12 +537,11 @@ class Launch:
             log_name = name.replace("/", "-")
             required = node.required or opts.required
             try:
-                cmd = node_command(node, master_uri=self.master_uri, environ=self.environ, packages=self.packages,
-                                   log_file=os.path.join(self.run_log_dir, log_name + ".log"))
+                cmd = node_command(node, master_uri=self.master_uri, environ=self.environ,
+                                   packages=self.packages, log_file=os.path.join(self.run_log_dir, log_name + ".log"))
             except LaunchError as e:
-                self.supervisor.report_failed(
-                    name, "ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e),
-                    required=required)
+                console.printerrlog("ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e))
+                self._not_started.append((name, required))
                 continue
             output = node.output or "log"
             if opts.screen:
@@ -493,7 +553,7 @@ class Launch:
                 stdout_path=os.path.join(self.run_log_dir, log_name + "-stdout.log") if output == "log" else None,
                 log_dir=self.run_log_dir, respawn=node.respawn, respawn_delay=node.respawn_delay,
                 required=required)
-            self.supervisor.start(spec)
+            self._started.append((spec, start_process(spec, self.watchdog), time.monotonic()))
 
     # ---- shutdown --------------------------------------------------------------------------------------
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import os
 import re
 import shutil
@@ -105,6 +104,7 @@ async def disk_usage_bytes(path: str) -> int:
     (a cancelled check never delays the shutdown); without `du`, a walk in a
     worker thread.
     """
+    import asyncio  # here, not at the top: making the run's log directory comes before asyncio is needed
     argv = _du_argv(path)
     if argv is None:
         return await asyncio.get_running_loop().run_in_executor(None, _walk_size, path)
@@ -163,6 +163,7 @@ async def watch_log_disk(root: str, threshold: int, *, first_delay: float = FIRS
     runs at low priority once start-up is over, so a big log directory never
     delays the nodes. Only warnings are repeated.
     """
+    import asyncio
     await asyncio.sleep(first_delay)
     first = True
     while True:

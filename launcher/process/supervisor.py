@@ -25,7 +25,6 @@ does (checked side by side); sending SIGINT again would not help.
 from __future__ import annotations
 
 import asyncio
-import errno
 import os
 import signal
 import subprocess
@@ -34,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from launcher.process import console
+from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
 DEFAULT_SIGINT_TIMEOUT = 15.0
@@ -50,25 +50,6 @@ KILL_WAIT_S = 2.0
 MIN_RESPAWN_INTERVAL_S = 0.1
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
-
-
-@dataclass
-class ProcessSpec:
-    """What to run for one node, fully resolved (see `launcher.command.node_command`)."""
-
-    name: str  # roslaunch's process name, e.g. "robot/driver-2"
-    argv: list[str]
-    env: dict[str, str]
-    cwd: str
-    stdout_path: str | None = None  # None: inherit the terminal (output="screen")
-    log_dir: str | None = None  # for the "log file:" hint after a death
-    respawn: bool = False
-    respawn_delay: float = 0.0
-    required: bool = False
-
-    @property
-    def log_name(self) -> str:
-        return self.name.replace("/", "-")
 
 
 @dataclass
@@ -109,71 +90,6 @@ class NodeProcess:
         if self.spec.log_dir:
             text += "\nlog file: %s*.log" % os.path.join(self.spec.log_dir, self.spec.log_name)
         return text
-
-
-class SpawnError(Exception):
-    """A node's process could not be started; the message says why, in roslaunch's words."""
-
-
-def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
-    if e.errno == errno.ENOEXEC:
-        return "Unable to launch [%s]. \nIf it is a script, you may be missing a '#!' declaration at the top." % name
-    if e.errno in (errno.ENOENT, errno.EACCES):
-        return ("[%s] got a '%s' error while attempting to run:\n\n%s\n\n"
-                "Please make sure that all the executables in this command exist and have\n"
-                "executable permission. This is often caused by a bad launch-prefix."
-                % (name, e.strerror, " ".join(argv)))
-    return "unable to launch [%s]: %s" % (" ".join(argv), e.strerror)
-
-
-def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
-    """Start the node's process in a new session/process group. Raises SpawnError.
-
-    Signals the launcher handles are reset to their default disposition by exec
-    itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
-    restored by the launcher installing handlers before spawning (runtime.py).
-    """
-    stdout = None
-    if spec.stdout_path:
-        try:
-            # roslaunch: append when respawning, so earlier runs' output survives
-            stdout = open(spec.stdout_path, "ab" if append or spec.respawn else "wb")
-        except OSError as e:
-            raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
-    try:
-        if spec.cwd:
-            os.makedirs(spec.cwd, exist_ok=True)
-    except OSError:
-        pass
-    try:
-        return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
-                                close_fds=True, start_new_session=True)
-    except OSError as e:
-        raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
-    finally:
-        if stdout is not None:
-            stdout.close()
-
-
-def _ignore(signum, frame) -> None:
-    """Stands in for an inherited SIG_IGN: same effect here, but exec resets it in children."""
-
-
-def restore_default_signals_for_children() -> None:
-    """Make sure nodes start with SIGINT/SIGQUIT/SIGTERM/SIGHUP at their default disposition.
-
-    exec keeps a signal *ignored* but resets a *handled* one to default. A
-    launcher started as a background job inherits SIGINT and SIGQUIT ignored,
-    and would pass that on to every node (which then could not be stopped by
-    SIGINT). Replacing each inherited SIG_IGN with a do-nothing handler keeps
-    the launcher's own behaviour and gives the nodes their defaults.
-    """
-    for sig in (signal.SIGINT, signal.SIGQUIT, signal.SIGTERM, signal.SIGHUP):
-        try:
-            if signal.getsignal(sig) == signal.SIG_IGN:
-                signal.signal(sig, _ignore)
-        except (ValueError, OSError):  # not the main thread: the runtime handles it
-            pass
 
 
 def _group_exists(pgid: int) -> bool:
@@ -239,16 +155,28 @@ class Supervisor:
 
     def start(self, spec: ProcessSpec) -> NodeProcess | None:
         """Spawn a node now. A failure is reported by name and the rest carry on (unless required)."""
+        return self.adopt(spec, start_process(spec, self.watchdog), self.loop.time())
+
+    def adopt(self, spec: ProcessSpec, popen: subprocess.Popen | None, started_at: float) -> NodeProcess | None:
+        """Supervise a node started by `start_process` before this loop ran (None: it failed to start).
+
+        `started_at` is its time.monotonic() at the start (the loop's clock).
+        """
         proc = NodeProcess(spec)
         self.procs.append(proc)
-        if not self._spawn(proc):
+        if popen is None:
             self._failed_start(proc)
             return None
+        self._watch(proc, popen, started_at)
         return proc
 
     def report_failed(self, name: str, message: str, required: bool = False) -> None:
         """A node that could not even be prepared (e.g. missing executable): report it like a failed start."""
         console.printerrlog(message)
+        self.not_started(name, required)
+
+    def not_started(self, name: str, required: bool = False) -> None:
+        """A node that was never started (already reported by name): what that means for the launch."""
         if required:
             self._required_gone(name, "could not be started")
         else:
@@ -261,11 +189,14 @@ class Supervisor:
         self._check_all_dead()
 
     def _spawn(self, proc: NodeProcess) -> bool:
-        try:
-            popen = spawn(proc.spec, append=proc.spawn_count > 0)
-        except SpawnError as e:
-            console.printerrlog(str(e))
+        """Start `proc` again (respawn)."""
+        popen = start_process(proc.spec, self.watchdog, append=True)
+        if popen is None:
             return False
+        self._watch(proc, popen, self.loop.time())
+        return True
+
+    def _watch(self, proc: NodeProcess, popen: subprocess.Popen, started_at: float) -> None:
         if proc.group_alive and proc.pgid is not None and not proc.alive:
             # the previous run left processes in its group: keep them on the list to stop at shutdown
             self.procs.append(NodeProcess(proc.spec, pid=proc.pid, pgid=proc.pgid, group_alive=True))
@@ -273,11 +204,8 @@ class Supervisor:
         proc.popen = popen
         proc.pid = proc.pgid = popen.pid
         proc.exit_code = None
-        proc.started_at = self.loop.time()
+        proc.started_at = started_at
         proc.alive = proc.group_alive = True
-        # recorded before anything else can fail, so a launcher killed now still leaves no orphan
-        if self.watchdog is not None:
-            self.watchdog.watch(popen.pid)
         try:
             proc.pidfd = os.pidfd_open(popen.pid)
             self.loop.add_reader(proc.pidfd, self._on_exit, proc)
@@ -286,10 +214,8 @@ class Supervisor:
             proc.pidfd = None
             self.loop.run_in_executor(None, popen.wait).add_done_callback(
                 lambda _f, p=proc, po=popen: self.loop.call_soon(self._on_exit, p, po))
-        console.printlog_bold("process[%s]: started with pid [%s]" % (proc.name, proc.pid))
         if self.on_spawn is not None:
             self.on_spawn(proc)
-        return True
 
     def _failed_start(self, proc: NodeProcess) -> None:
         if proc.spec.required:

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
+import subprocess
+import sys
 import time
 
 import pytest
 
 from running import (ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
-                     ros_env, write_launch)
+                     pid_alive, ros_env, write_launch)
 
 Spinner = """#!%s
 import rospy
@@ -42,6 +45,63 @@ def test_wait_for_master_then_run(tmp_path, pkgs):
         lp.close()
         if master is not None:
             master.stop()
+
+
+def test_sigint_while_waiting_for_a_master_ends_at_once(tmp_path, pkgs):
+    launch = write_launch(str(tmp_path), '<node pkg="opt_tests" type="spinner" name="w"/>')
+    lp = Launcher(["--wait", launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
+    try:
+        lp.wait_output(r"waiting for it")
+        t0 = time.monotonic()
+        lp.signal(signal.SIGINT)
+        assert lp.wait(10) == 0
+        assert time.monotonic() - t0 < 2.0
+        assert "started with pid" not in lp.stdout and "Traceback" not in lp.stderr
+    finally:
+        lp.close()
+
+
+# With a running master, the nodes are spawned by blocking code before asyncio is imported; the
+# supervisor adopts them once the loop runs. This drives those two steps in one process.
+ADOPT_SCRIPT = """
+import os, signal, sys, threading
+from launcher import runtime
+from launcher.cli import build_parser
+launch = runtime.Launch(build_parser().parse_intermixed_args(sys.argv[1:]))
+launch.load()
+launch.start_before_loop()
+print("asyncio imported before the loop:", "asyncio" in sys.modules, flush=True)
+import asyncio
+
+async def main():
+    asyncio.get_running_loop().call_later(1.0, os.kill, os.getpid(), signal.SIGINT)
+    return await launch.main()
+print("status", asyncio.run(main()), flush=True)
+"""
+
+
+def test_nodes_spawned_before_the_loop_are_supervised(tmp_path, pkgs):
+    master = RosMaster(str(tmp_path))
+    launch = write_launch(str(tmp_path), """
+      <param name="p" value="5"/>
+      <node pkg="opt_tests" type="spinner" name="a"/>
+      <node pkg="opt_tests" type="quick" name="b"/>""")
+    env = ros_env(str(tmp_path), master.port, pkgs)
+    try:
+        out = subprocess.run([sys.executable, "-c", ADOPT_SCRIPT, launch], env=env, capture_output=True,
+                             text=True, timeout=60)
+        assert "asyncio imported before the loop: False" in out.stdout, out.stdout + out.stderr
+        assert get_param(master.port, "/p") == 5
+        pids = {m.group(1): int(m.group(2))
+                for m in re.finditer(r"process\[([^\]]+)\]: started with pid \[(\d+)\]", out.stdout)}
+        assert set(pids) == {"a-1", "b-2"}
+        # the quick node's exit was noticed by the adopted supervision, the spinner was stopped at SIGINT
+        assert "[b-2] process has finished cleanly" in out.stdout
+        assert "[a-1] killing on exit" in out.stdout
+        assert not pid_alive(pids["a-1"])
+        assert "status 0" in out.stdout
+    finally:
+        master.stop()
 
 
 def test_required_option_rejects_respawn(tmp_path, pkgs):

@@ -1,0 +1,124 @@
+"""Starting one node's process: what to run (`ProcessSpec`) and `spawn`, with roslaunch's failure messages.
+
+Nothing here needs an event loop: a launch against a running master spawns its
+nodes before it imports asyncio, and the supervisor adopts them once its loop
+runs (`Supervisor.adopt`).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+
+
+class ProcessSpec:
+    """What to run for one node, fully resolved (see `launcher.command.node_command`)."""
+
+    # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
+    # first spawn)
+    __slots__ = ("name", "argv", "env", "cwd", "stdout_path", "log_dir", "respawn", "respawn_delay", "required")
+
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str, stdout_path: str | None = None,
+                 log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
+                 required: bool = False):
+        self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
+        self.argv = argv
+        self.env = env
+        self.cwd = cwd
+        self.stdout_path = stdout_path  # None: inherit the terminal (output="screen")
+        self.log_dir = log_dir  # for the "log file:" hint after a death
+        self.respawn = respawn
+        self.respawn_delay = respawn_delay
+        self.required = required
+
+    def __repr__(self) -> str:
+        return "ProcessSpec(%s)" % ", ".join("%s=%r" % (k, getattr(self, k)) for k in self.__slots__)
+
+    @property
+    def log_name(self) -> str:
+        return self.name.replace("/", "-")
+
+
+class SpawnError(Exception):
+    """A node's process could not be started; the message says why, in roslaunch's words."""
+
+
+def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
+    if e.errno == errno.ENOEXEC:
+        return "Unable to launch [%s]. \nIf it is a script, you may be missing a '#!' declaration at the top." % name
+    if e.errno in (errno.ENOENT, errno.EACCES):
+        return ("[%s] got a '%s' error while attempting to run:\n\n%s\n\n"
+                "Please make sure that all the executables in this command exist and have\n"
+                "executable permission. This is often caused by a bad launch-prefix."
+                % (name, e.strerror, " ".join(argv)))
+    return "unable to launch [%s]: %s" % (" ".join(argv), e.strerror)
+
+
+def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
+    """Start the node's process in a new session/process group. Raises SpawnError.
+
+    Signals the launcher handles are reset to their default disposition by exec
+    itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
+    restored by the launcher installing handlers before spawning (runtime.py).
+    """
+    stdout = None
+    if spec.stdout_path:
+        try:
+            # roslaunch: append when respawning, so earlier runs' output survives
+            stdout = open(spec.stdout_path, "ab" if append or spec.respawn else "wb")
+        except OSError as e:
+            raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
+    try:
+        if spec.cwd:
+            os.makedirs(spec.cwd, exist_ok=True)
+    except OSError:
+        pass
+    try:
+        return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
+                                close_fds=True, start_new_session=True)
+    except OSError as e:
+        raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
+    finally:
+        if stdout is not None:
+            stdout.close()
+
+
+def _ignore(signum, frame) -> None:
+    """Stands in for an inherited SIG_IGN: same effect here, but exec resets it in children."""
+
+
+def restore_default_signals_for_children() -> None:
+    """Make sure nodes start with SIGINT/SIGQUIT/SIGTERM/SIGHUP at their default disposition.
+
+    exec keeps a signal *ignored* but resets a *handled* one to default. A
+    launcher started as a background job inherits SIGINT and SIGQUIT ignored,
+    and would pass that on to every node (which then could not be stopped by
+    SIGINT). Replacing each inherited SIG_IGN with a do-nothing handler keeps
+    the launcher's own behaviour and gives the nodes their defaults.
+    """
+    for sig in (signal.SIGINT, signal.SIGQUIT, signal.SIGTERM, signal.SIGHUP):
+        try:
+            if signal.getsignal(sig) == signal.SIG_IGN:
+                signal.signal(sig, _ignore)
+        except (ValueError, OSError):  # not the main thread: the runtime handles it
+            pass
+
+
+def start_process(spec: ProcessSpec, watchdog=None, append: bool = False) -> subprocess.Popen | None:
+    """Spawn a node as roslaunch does, by name: the process, or None after saying why it could not start.
+
+    The no-orphans guard learns the new process group before anything else can
+    fail, so that a launcher killed right now still leaves nothing behind.
+    """
+    from launcher.process import console
+    try:
+        popen = spawn(spec, append=append)
+    except SpawnError as e:
+        console.printerrlog(str(e))
+        return None
+    if watchdog is not None:
+        watchdog.watch(popen.pid)
+    console.printlog_bold("process[%s]: started with pid [%s]" % (spec.name, popen.pid))
+    return popen
