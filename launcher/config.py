@@ -2,64 +2,137 @@
 
 The XML loader produces it; introspection (`--nodes`, `--args`, ...) and the
 runtime consume it. Nothing here knows about XML, sockets or processes.
+
+The classes behave as frozen dataclasses (fields set once, equality, hash and
+repr by field, assignment refused) but are written out by hand: `dataclasses`
+costs ~5 ms to import (it pulls in `inspect`) and its frozen `__init__` sets each
+field through `object.__setattr__`, while a big launch makes thousands of them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 from launcher.names import SEP
 
 
-@dataclass(frozen=True)
-class Machine:
+class FrozenInstanceError(AttributeError):
+    """Assignment to a field of a LaunchConfig object (they are immutable)."""
+
+
+class _Record:
+    """Fields in the instance `__dict__`, filled by `__init__` directly (no `__setattr__`)."""
+
+    __slots__ = ("__dict__",)
+    _fields: tuple[str, ...] = ()
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise FrozenInstanceError("cannot assign to field '%s'" % name)
+
+    def __delattr__(self, name: str) -> None:
+        raise FrozenInstanceError("cannot delete field '%s'" % name)
+
+    def astuple(self) -> tuple:
+        """The field values, in field order (dataclasses.astuple without the deep copy)."""
+        d = self.__dict__
+        return tuple([d[f] for f in self._fields])
+
+    def __eq__(self, other: object) -> bool:
+        if other.__class__ is self.__class__:
+            return self.astuple() == other.astuple()  # type: ignore[attr-defined]
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.astuple())
+
+    def __repr__(self) -> str:
+        d = self.__dict__
+        return "%s(%s)" % (type(self).__qualname__, ", ".join("%s=%r" % (f, d[f]) for f in self._fields))
+
+    def __reduce__(self) -> tuple:
+        return (type(self), self.astuple())
+
+
+class Machine(_Record):
     """A `<machine>` tag."""
 
+    __slots__ = ()
+    _fields = ("name", "address", "env_loader", "ssh_port", "user", "password", "assignable", "timeout",
+               "filename", "line")
     name: str
     address: str
-    env_loader: str | None = None
-    ssh_port: int = 22
-    user: str | None = None
-    password: str | None = None
-    assignable: bool = True
-    timeout: float = 10.0
-    filename: str = ""
-    line: int = 0
+    env_loader: str | None
+    ssh_port: int
+    user: str | None
+    password: str | None
+    assignable: bool
+    timeout: float
+    filename: str
+    line: int
+
+    def __init__(self, name: str, address: str, env_loader: str | None = None, ssh_port: int = 22,
+                 user: str | None = None, password: str | None = None, assignable: bool = True,
+                 timeout: float = 10.0, filename: str = "", line: int = 0):
+        d = self.__dict__
+        d["name"] = name
+        d["address"] = address
+        d["env_loader"] = env_loader
+        d["ssh_port"] = ssh_port
+        d["user"] = user
+        d["password"] = password
+        d["assignable"] = assignable
+        d["timeout"] = timeout
+        d["filename"] = filename
+        d["line"] = line
 
     @property
     def is_local(self) -> bool:
         return self.address in ("localhost", "127.0.0.1", "::1") or self.address.startswith("127.")
 
 
-@dataclass(frozen=True)
-class Node:
+class Node(_Record):
     """A `<node>` (or, with `test_name` set, a `<test>`), fully substituted.
 
     `namespace` is global with a trailing slash (`/`, `/robot/`), as in
     roslaunch; `name` is the base name (already generated for `$(anon)`).
     """
 
+    __slots__ = ()
+    _fields = ("package", "type", "name", "namespace", "args", "remap_args", "env_args", "respawn",
+               "respawn_delay", "required", "output", "cwd", "launch_prefix", "machine_name", "filename",
+               "line", "test_name", "time_limit", "retry")
     package: str
     type: str
     name: str
-    namespace: str = SEP
-    args: str = ""
-    remap_args: tuple[tuple[str, str], ...] = ()
-    env_args: tuple[tuple[str, str], ...] = ()
-    respawn: bool = False
-    respawn_delay: float = 0.0
-    required: bool = False
-    output: str | None = None  # "log" | "screen" | None (= log)
-    cwd: str | None = None  # "ROS_HOME" | "node" | None (= ROS_HOME)
-    launch_prefix: str | None = None
-    machine_name: str | None = None
-    filename: str = ""
-    line: int = 0
+    namespace: str
+    args: str
+    remap_args: tuple[tuple[str, str], ...]
+    env_args: tuple[tuple[str, str], ...]
+    respawn: bool
+    respawn_delay: float
+    required: bool
+    output: str | None  # "log" | "screen" | None (= log)
+    cwd: str | None  # "ROS_HOME" | "node" | None (= ROS_HOME)
+    launch_prefix: str | None
+    machine_name: str | None
+    filename: str
+    line: int
     # <test> only
-    test_name: str | None = None
-    time_limit: float | None = None
-    retry: int = 0
+    test_name: str | None
+    time_limit: float | None
+    retry: int
+
+    def __init__(self, package: str, type: str, name: str, namespace: str = SEP,  # noqa: A002 - ROS's word
+                 args: str = "", remap_args: tuple[tuple[str, str], ...] = (),
+                 env_args: tuple[tuple[str, str], ...] = (), respawn: bool = False, respawn_delay: float = 0.0,
+                 required: bool = False, output: str | None = None, cwd: str | None = None,
+                 launch_prefix: str | None = None, machine_name: str | None = None, filename: str = "",
+                 line: int = 0, test_name: str | None = None, time_limit: float | None = None, retry: int = 0):
+        self.__dict__.update(package=package, type=type, name=name, namespace=namespace, args=args,
+                             remap_args=remap_args, env_args=env_args, respawn=respawn,
+                             respawn_delay=respawn_delay, required=required, output=output, cwd=cwd,
+                             launch_prefix=launch_prefix, machine_name=machine_name, filename=filename,
+                             line=line, test_name=test_name, time_limit=time_limit, retry=retry)
 
     @property
     def is_test(self) -> bool:
@@ -71,18 +144,25 @@ class Node:
         return self.namespace + self.name if self.namespace.endswith(SEP) else self.namespace + SEP + self.name
 
 
-@dataclass(frozen=True)
-class Param:
+class Param(_Record):
     """One parameter the launch sets: a global key and its typed value."""
 
+    __slots__ = ()
+    _fields = ("key", "value", "filename", "line")
     key: str
     value: Any
-    filename: str = ""
-    line: int = 0
+    filename: str
+    line: int
+
+    def __init__(self, key: str, value: Any, filename: str = "", line: int = 0):
+        d = self.__dict__
+        d["key"] = key
+        d["value"] = value
+        d["filename"] = filename
+        d["line"] = line
 
 
-@dataclass(frozen=True)
-class LaunchConfig:
+class LaunchConfig(_Record):
     """Everything a launch asks for.
 
     `params` is ordered by first setting (later settings of the same key
@@ -90,16 +170,26 @@ class LaunchConfig:
     lists global namespaces (trailing slash) to delete before setting params.
     """
 
-    nodes: tuple[Node, ...] = ()
-    tests: tuple[Node, ...] = ()
-    params: dict[str, Param] = field(default_factory=dict)
-    clear_params: tuple[str, ...] = ()
-    machines: dict[str, Machine] = field(default_factory=dict)
-    files: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
+    __slots__ = ()
+    _fields = ("nodes", "tests", "params", "clear_params", "machines", "files", "warnings", "rosparam_commands")
+    nodes: tuple[Node, ...]
+    tests: tuple[Node, ...]
+    params: dict[str, Param]
+    clear_params: tuple[str, ...]
+    machines: dict[str, Machine]
+    files: tuple[str, ...]
+    warnings: tuple[str, ...]
     # <rosparam command="delete|dump">, in document order, to run before params are set
     # (as roslaunch's setup executables): ("delete", key, None) or ("dump", key, file)
-    rosparam_commands: tuple[tuple[str, str, str | None], ...] = ()
+    rosparam_commands: tuple[tuple[str, str, str | None], ...]
+
+    def __init__(self, nodes: tuple[Node, ...] = (), tests: tuple[Node, ...] = (),
+                 params: dict[str, Param] | None = None, clear_params: tuple[str, ...] = (),
+                 machines: dict[str, Machine] | None = None, files: tuple[str, ...] = (),
+                 warnings: tuple[str, ...] = (), rosparam_commands: tuple[tuple[str, str, str | None], ...] = ()):
+        self.__dict__.update(nodes=nodes, tests=tests, params={} if params is None else params,
+                             clear_params=clear_params, machines={} if machines is None else machines,
+                             files=files, warnings=warnings, rosparam_commands=rosparam_commands)
 
     def find_node(self, full_name: str) -> Node | None:
         for n in self.nodes + self.tests:

@@ -54,54 +54,6 @@ def _auto_value(text: str) -> Any:
     return auto_value(text)
 
 
-# A big launch makes thousands of Params: the frozen dataclass __init__ sets each field with
-# object.__setattr__ (~0.4 us a Param, 2 us a Node). These build the very same objects by giving
-# them their __dict__ at once. Used only while config.py's classes are plain frozen dataclasses
-# with exactly these fields (checked here, once); otherwise the real constructors are used.
-_PARAM_FIELDS = ("key", "value", "filename", "line")
-_NODE_FIELDS = ("package", "type", "name", "namespace", "args", "remap_args", "env_args", "respawn",
-                "respawn_delay", "required", "output", "cwd", "launch_prefix", "machine_name", "filename",
-                "line", "test_name", "time_limit", "retry")
-
-
-def _plain_frozen(cls: type, fields: tuple[str, ...]) -> bool:
-    return (tuple(getattr(cls, "__dataclass_fields__", ())) == fields and "__slots__" not in cls.__dict__
-            and "__post_init__" not in cls.__dict__)
-
-
-if _plain_frozen(Param, _PARAM_FIELDS) and _plain_frozen(Node, _NODE_FIELDS):
-    _new = object.__new__
-    _set_dict = object.__setattr__
-
-    def _param(key: str, value: Any, filename: str, line: int) -> Param:
-        p = _new(Param)
-        d = p.__dict__  # (filling the instance's own dict beats handing it a new one)
-        d["key"] = key
-        d["value"] = value
-        d["filename"] = filename
-        d["line"] = line
-        return p
-
-    def _node(package: str, type: str, name: str, namespace: str, args: str,  # noqa: A002 - field name
-              remap_args: tuple, env_args: tuple, respawn: bool, respawn_delay: float, required: bool,
-              output: str | None, cwd: str | None, launch_prefix: str | None, machine_name: str | None,
-              filename: str, line: int, test_name: str | None, time_limit: float | None, retry: int) -> Node:
-        n = _new(Node)
-        _set_dict(n, "__dict__", {
-            "package": package, "type": type, "name": name, "namespace": namespace, "args": args,
-            "remap_args": remap_args, "env_args": env_args, "respawn": respawn, "respawn_delay": respawn_delay,
-            "required": required, "output": output, "cwd": cwd, "launch_prefix": launch_prefix,
-            "machine_name": machine_name, "filename": filename, "line": line, "test_name": test_name,
-            "time_limit": time_limit, "retry": retry})
-        return n
-else:  # pragma: no cover - config.py changed shape: the real constructors, by field name
-    def _param(key: str, value: Any, filename: str, line: int) -> Param:
-        return Param(key=key, value=value, filename=filename, line=line)
-
-    def _node(*values: Any) -> Node:
-        return Node(**dict(zip(_NODE_FIELDS, values)))
-
-
 def _convert_value(text: str, ptype: str) -> Any:
     """`<param type=...>` typing, via the params package (imported on first use)."""
     global _convert_value
@@ -576,7 +528,7 @@ class XmlLoader:
                     self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
                 i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
-        params[key] = _param(key, value, scope.source, el.sourceline or 0)
+        params[key] = Param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
     def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
@@ -754,7 +706,7 @@ class XmlLoader:
             if key.startswith("~"):
                 key = key[1:]
             full = canonical(param_scope.ns + key)
-            self.params[full] = _param(full, value, pfile, pline)
+            self.params[full] = Param(full, value, pfile, pline)
         self._clean_ns = None
 
         if respawn and required:
@@ -779,7 +731,7 @@ class XmlLoader:
             namespace = _MULTISLASH.sub("/", namespace)
         remaps = (remap_scope or scope).remap_args()
         env_args = tuple((env_scope or scope).env_args)
-        node = _node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
+        node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
                      required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
                      el.sourceline or 0, test_name, (time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None,
                      retry)
