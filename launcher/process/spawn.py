@@ -71,13 +71,20 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
     try:
-        if spec.cwd:
-            os.makedirs(spec.cwd, exist_ok=True)
-    except OSError:
-        pass
-    try:
-        return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
-                                close_fds=True, start_new_session=True)
+        try:
+            return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
+                                    close_fds=True, start_new_session=True)
+        except FileNotFoundError as e:
+            if not spec.cwd or e.filename != spec.cwd:
+                raise
+            # the working directory (ROS_HOME, ~/.ros by default) does not exist yet: create it, as
+            # roslaunch does (only now: a makedirs before every spawn costs more than the spawn's setup)
+            try:
+                os.makedirs(spec.cwd, exist_ok=True)
+            except OSError:
+                pass
+            return subprocess.Popen(spec.argv, cwd=spec.cwd, env=spec.env, stdout=stdout,
+                                    close_fds=True, start_new_session=True)
     except OSError as e:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
     finally:
