@@ -29,7 +29,6 @@ import os
 import signal
 import subprocess
 from collections import deque
-from dataclasses import dataclass, field
 from typing import Callable
 
 from launcher.process import console
@@ -52,27 +51,33 @@ MIN_RESPAWN_INTERVAL_S = 0.1
 GROUP_POLL_S = 0.02
 
 
-@dataclass
 class NodeProcess:
     """One supervised node: its spec and the state of its current OS process."""
 
-    spec: ProcessSpec
-    popen: subprocess.Popen | None = None
-    pid: int | None = None
-    pgid: int | None = None
-    pidfd: int | None = None
-    exit_code: int | None = None
-    spawn_count: int = 0
-    started_at: float = 0.0  # loop time of the latest start
-    alive: bool = False  # the group leader runs
-    group_alive: bool = False  # the leader or anything left in its process group
-    stopping: bool = False
-    sigkilled: bool = False
-    respawn_handle: asyncio.TimerHandle | None = None
-    timers: list[asyncio.TimerHandle] = field(default_factory=list)
-    stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
-    group_poll: asyncio.TimerHandle | None = None
-    pacing_slot: bool = False  # holds one of the shutdown pacing slots
+    # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
+    __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
+                 "group_alive", "stopping", "sigkilled", "respawn_handle", "timers", "stopped", "group_poll",
+                 "pacing_slot")
+
+    def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
+                 group_alive: bool = False):
+        self.spec = spec
+        self.popen: subprocess.Popen | None = None
+        self.pid = pid
+        self.pgid = pgid
+        self.pidfd: int | None = None
+        self.exit_code: int | None = None
+        self.spawn_count = 0
+        self.started_at = 0.0  # loop time of the latest start
+        self.alive = False  # the group leader runs
+        self.group_alive = group_alive  # the leader or anything left in its process group
+        self.stopping = False
+        self.sigkilled = False
+        self.respawn_handle: asyncio.TimerHandle | None = None
+        self.timers: list[asyncio.TimerHandle] = []
+        self.stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
+        self.group_poll: asyncio.TimerHandle | None = None
+        self.pacing_slot = False  # holds one of the shutdown pacing slots
 
     @property
     def name(self) -> str:
