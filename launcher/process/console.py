@@ -18,6 +18,19 @@ def remove_handler(fn: Callable[[str], None]) -> None:
         _handlers.remove(fn)
 
 
+_is_terminal: dict[int, tuple[TextIO, bool]] = {}  # id(stream) -> (stream, isatty): one ioctl per stream
+
+
+def _colours(stream: TextIO) -> bool:
+    known = _is_terminal.get(id(stream))
+    if known is None or known[0] is not stream:
+        try:
+            known = _is_terminal[id(stream)] = (stream, stream.isatty())
+        except (OSError, ValueError):
+            return False
+    return known[1]
+
+
 def _emit(stream: TextIO, msg: str, style: str | None) -> None:
     for h in _handlers:
         try:
@@ -27,7 +40,7 @@ def _emit(stream: TextIO, msg: str, style: str | None) -> None:
     try:
         # Colours only on a terminal: roslaunch always writes escapes, which
         # litter redirected output; the words are the same either way.
-        if style and stream.isatty():
+        if style and _colours(stream):
             stream.write("\033[%sm%s\033[0m\n" % (style, msg))
         else:
             stream.write(msg + "\n")
