@@ -173,11 +173,5 @@ def dump_params(config: Any) -> str:
         if _has_binary(v):
             raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or !!binary), "
                               "which roslaunch cannot print either" % p.key, p.filename or None, p.line or None)
-    try:
-        from launcher.params.rosyaml import dump_yaml
-    except ImportError:  # pragma: no cover - params package not installed
-        import yaml
-
-        def dump_yaml(value: Any) -> str:
-            return yaml.safe_dump(value)
+    from launcher.params.dump import dump_yaml
     return dump_yaml(data) + "\n"

@@ -252,7 +252,8 @@ _tricky_strings = st.one_of(
     st.sampled_from(["", "a", "/a/b", "123", "1_000", "0x1f", "1e3", "1.5", "true", "Yes", "off", "null", "~",
                      "nan", ".nan", "-", "-a", ".a", "...", "---", "a:b", "a: b", "#x", "a#b", "x" * 99,
                      "x" * 101, "y" * 130, "é", "a\nb", " lead", "trail ", "'q'", '"d"', "2001-12-14", "1:20",
-                     "=", "<<", "a.b-c_d/e", "_x", "/", "//", "1abc", "inf", "-.inf", "0o7", "+1", "..."]),
+                     "=", "<<", "a.b-c_d/e", "_x", "/", "//", "1abc", "inf", "-.inf", "0o7", "+1", "...",
+                     "817", "10.0/2", "1/2", "+1/2", "-1/2", "0b_", "NULL", "On", "Null_x", "_", "/1"]),
     st.text(max_size=12),
     st.text(alphabet="ab01_./-:# '\"\n", max_size=12))
 _scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.integers(min_value=-2**70, max_value=2**70),

@@ -1,0 +1,175 @@
+"""Writing parameters as YAML, byte for byte as PyYAML's safe dumper (roslaunch `--dump-params`, `rosparam dump`).
+
+The common entries (simple keys, scalars, flat lists and maps of them) are written
+here; anything else, and any string whose YAML type only PyYAML's resolver can tell,
+goes to PyYAML, which is imported only then.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any
+
+from launcher.params.plain_yaml import NON_STR_WORDS, WORD_FIRST_CHARS, scalar_is_str
+
+# A string PyYAML writes as a bare plain scalar or single-quoted, with nothing to escape or
+# wrap: no spaces, quotes, indicators or non-ASCII, and no leading '-' or '.'.
+_SIMPLE_STRING = re.compile(r"[A-Za-z0-9_/][A-Za-z0-9_./-]*\Z")
+_STR_TAG = "tag:yaml.org,2002:str"
+_resolver = None
+
+
+def _quoted_if_typed(value: str) -> str:
+    """A simple string as PyYAML writes it: bare, or single-quoted if it would read back as
+    another type (123, true, 1_000, null)."""
+    known = scalar_is_str(value)
+    if known is None:
+        global _resolver
+        import yaml
+        if _resolver is None:
+            _resolver = yaml.resolver.Resolver()
+        known = _resolver.resolve(yaml.ScalarNode, value, (True, False)) == _STR_TAG
+    return value if known else "'%s'" % value
+
+
+_INF = math.inf
+_NINF = -math.inf
+
+
+def _plain_scalar(value: Any) -> str | None:
+    """`value` as PyYAML's safe dumper writes it inline, or None when it takes more care."""
+    kind = type(value)
+    if kind is str:
+        if not value:
+            return "''"
+        if len(value) > 100 or not _SIMPLE_STRING.match(value):
+            return None
+        return _quoted_if_typed(value)
+    if kind is bool:
+        return "true" if value else "false"
+    if kind is int:
+        return str(value)
+    if kind is float:
+        if value != value:
+            return ".nan"
+        if value in (math.inf, -math.inf):
+            return ".inf" if value > 0 else "-.inf"
+        text = repr(value).lower()
+        if "." not in text and "e" in text:
+            text = text.replace("e", ".0e", 1)
+        return text
+    if value is None:
+        return "null"
+    return None
+
+
+def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
+    """One `key: value` entry of a block mapping at `indent`, for values made of plain
+    scalars, lists of them and string-keyed mappings of those; None for anything else."""
+    # (an empty key is no simple key for PyYAML: it writes "? ''")
+    if type(key) is not str or not key or len(key) > 100 or not _SIMPLE_STRING.match(key):
+        return None
+    k = _quoted_if_typed(key)
+    pad = " " * indent
+    v = _plain_scalar(value)
+    if v is not None:
+        return "%s%s: %s\n" % (pad, k, v)
+    kind = type(value)
+    if kind is list:
+        if not value:
+            return "%s%s: []\n" % (pad, k)
+        items = [_plain_scalar(x) for x in value]
+        if None in items:
+            return None
+        # PyYAML writes a sequence inside a mapping "indentless": dashes under the key
+        return "%s%s:\n%s" % (pad, k, "".join("%s- %s\n" % (pad, i) for i in items))
+    if kind is dict:
+        if not value:
+            return "%s%s: {}\n" % (pad, k)
+        if not all(type(x) is str for x in value):
+            return None
+        out = ["%s%s:\n" % (pad, k)]
+        for sub in sorted(value):
+            text = _entry(sub, value[sub], indent + 2)
+            if text is None:
+                return None
+            out.append(text)
+        return "".join(out)
+    return None
+
+
+def _shares_containers(value: Any) -> bool:
+    """Whether a list/dict object occurs twice: PyYAML would write anchors and aliases."""
+    seen: set[int] = set()
+    # only containers can be shared: skip the (many) scalar values of a flat dict at once
+    stack = [v for v in value.values() if isinstance(v, (list, dict))] if type(value) is dict else [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, (list, dict)):
+            if id(v) in seen:
+                return True
+            seen.add(id(v))
+            stack.extend(v.values() if isinstance(v, dict) else v)
+    return False
+
+
+def _pyyaml_dump(value: Any) -> str:
+    import yaml
+    return yaml.dump(value, Dumper=yaml.SafeDumper, default_flow_style=False)
+
+
+def dump_yaml(value: Any) -> str:
+    """YAML text of `value` as roslaunch `--dump-params` and `rosparam dump` print it
+    (PyYAML's safe block style; bytes become `!!binary`).
+
+    PyYAML's pure-Python emitter is the reference, but it costs ~50 us per scalar (a
+    quarter of a second for a big launch), and libyaml's emitter differs in places. So
+    the entries of a top-level mapping that are plain scalars or flat lists of them are
+    written here, exactly as PyYAML writes them; every other entry goes through PyYAML.
+    """
+    if type(value) is not dict or not value or _shares_containers(value):
+        return _pyyaml_dump(value)
+    try:
+        items = sorted(value.items())  # safe_dump's sort_keys=True
+    except TypeError:
+        return _pyyaml_dump(value)
+    # the common entries (a simple key and a scalar) are written inline; anything else by _entry
+    # or PyYAML. ~1 us per entry instead of ~3: a big launch has thousands of them. A simple
+    # string that starts with a letter, '_' or '/' is a string to YAML unless it is one of the
+    # words YAML 1.1 reads as a bool or null (see plain_yaml): no need to ask further.
+    first_chars = WORD_FIRST_CHARS
+    non_str = NON_STR_WORDS
+    match = _SIMPLE_STRING.match
+    out = []
+    append = out.append
+    for key, v in items:
+        if type(key) is str and key and len(key) <= 100 and match(key):
+            k = key if (key[0] in first_chars and key not in non_str) else _quoted_if_typed(key)
+            kind = type(v)
+            if kind is str:
+                if not v:
+                    append(k + ": ''\n")
+                    continue
+                if len(v) <= 100 and match(v):
+                    append(k + ": " + (v if (v[0] in first_chars and v not in non_str) else _quoted_if_typed(v)) + "\n")
+                    continue
+            elif kind is bool:
+                append(k + (": true\n" if v else ": false\n"))
+                continue
+            elif kind is int:
+                append(k + ": " + str(v) + "\n")
+                continue
+            elif kind is float:
+                if v == v and v != _INF and v != _NINF:
+                    # (a finite float's repr is already lower case)
+                    text = repr(v)
+                    if "." not in text and "e" in text:
+                        text = text.replace("e", ".0e", 1)
+                    append(k + ": " + text + "\n")
+                else:
+                    append(k + ": " + _plain_scalar(v) + "\n")  # type: ignore[operator]
+                continue
+        text = _entry(key, v)
+        append(text if text is not None else _pyyaml_dump({key: v}))
+    return "".join(out)
