@@ -165,13 +165,18 @@ _PLAIN_SCALARS = frozenset((str, int, float, bool, type(None)))
 
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
-    data = {}
-    for k, p in config.params.items():
-        v = data[k] = p.value
-        if type(v) in _PLAIN_SCALARS:  # nearly all values: no need to walk them
-            continue
-        if _has_binary(v):
-            raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or !!binary), "
-                              "which roslaunch cannot print either" % p.key, p.filename or None, p.line or None)
     from launcher.params.dump import dump_yaml
-    return dump_yaml(data) + "\n"
+    data = {k: p.value for k, p in config.params.items()}
+    try:
+        text = dump_yaml(data)
+    except Exception:  # noqa: BLE001 - PyYAML cannot write it: binary data is the one case we produce
+        text = "!!binary"
+    if "!!binary" in text:  # (bytes are only ever written as !!binary; else no value holds any)
+        for p in config.params.values():
+            if _has_binary(p.value):
+                raise LaunchError("cannot print parameter [%s] as YAML: it holds binary data (binfile= or "
+                                  "!!binary), which roslaunch cannot print either" % p.key, p.filename or None,
+                                  p.line or None)
+        if text == "!!binary":
+            text = dump_yaml(data)  # not binary after all: let its error through
+    return text + "\n"

@@ -64,26 +64,53 @@ def _plain_scalar(value: Any) -> str | None:
     return None
 
 
+def _float_text(value: float) -> str:
+    """A float as PyYAML writes it."""
+    if value != value:
+        return ".nan"
+    if value == _INF or value == _NINF:
+        return ".inf" if value > 0 else "-.inf"
+    text = repr(value)  # (a finite float's repr is already lower case)
+    if "." not in text and "e" in text:
+        text = text.replace("e", ".0e", 1)
+    return text
+
+
+def _items_text(value: list) -> list[str] | None:
+    """The items of a list of plain scalars as PyYAML writes them, or None."""
+    out = []
+    for x in value:
+        kind = type(x)
+        if kind is float:
+            out.append(_float_text(x))
+        elif kind is int:
+            out.append(str(x))
+        else:
+            text = _plain_scalar(x)
+            if text is None:
+                return None
+            out.append(text)
+    return out
+
+
 def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
     """One `key: value` entry of a block mapping at `indent`, for values made of plain
     scalars, lists of them and string-keyed mappings of those; None for anything else."""
     # (an empty key is no simple key for PyYAML: it writes "? ''")
     if type(key) is not str or not key or len(key) > 100 or not _SIMPLE_STRING.match(key):
         return None
-    k = _quoted_if_typed(key)
-    pad = " " * indent
-    v = _plain_scalar(value)
-    if v is not None:
-        return "%s%s: %s\n" % (pad, k, v)
+    k = key if (key[0] in WORD_FIRST_CHARS and key not in NON_STR_WORDS) else _quoted_if_typed(key)
+    pad = " " * indent if indent else ""
     kind = type(value)
     if kind is list:
         if not value:
             return "%s%s: []\n" % (pad, k)
-        items = [_plain_scalar(x) for x in value]
-        if None in items:
+        items = _items_text(value)
+        if items is None:
             return None
         # PyYAML writes a sequence inside a mapping "indentless": dashes under the key
-        return "%s%s:\n%s" % (pad, k, "".join("%s- %s\n" % (pad, i) for i in items))
+        dash = pad + "- "
+        return "%s%s:\n%s%s\n" % (pad, k, dash, ("\n" + dash).join(items))
     if kind is dict:
         if not value:
             return "%s%s: {}\n" % (pad, k)
@@ -96,6 +123,9 @@ def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
                 return None
             out.append(text)
         return "".join(out)
+    v = _float_text(value) if kind is float else _plain_scalar(value)
+    if v is not None:
+        return "%s%s: %s\n" % (pad, k, v)
     return None
 
 
