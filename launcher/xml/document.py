@@ -31,7 +31,8 @@ class Element(list):
     `text` the list of its own character data chunks when they were recorded (else None).
     """
 
-    __slots__ = ("tag", "attrib", "sourceline", "text")
+    __slots__ = ("tag", "attrib", "sourceline")
+    text: list[str] | None = None  # (the few elements that record their text are _TextElements)
     __hash__ = object.__hash__  # an element is one place in one document, not a value
     __eq__ = object.__eq__  # type: ignore[assignment]
     __ne__ = object.__ne__  # type: ignore[assignment]
@@ -60,6 +61,10 @@ class Element(list):
 
     def __repr__(self) -> str:
         return "<Element %s at line %s>" % (self.tag, self.sourceline)
+
+
+class _TextElement(Element):
+    __slots__ = ("text",)
 
 
 def element_text(el: Element) -> str:
@@ -102,11 +107,11 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
     p.buffer_text = True
     p.namespace_prefixes = True
     top = _new(Element)
-    top.text = None
     stack: list[Element] = [top]
     push = stack.append
     pop = stack.pop
     watched: list[Element] = []
+    kinds = _TagKinds(keeps_text, watch)
     text_depth = 0  # > 0 while inside an element whose text is recorded
 
     def chars(data: str) -> None:
@@ -114,23 +119,39 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
         if t is not None:
             t.append(data)
 
-    def start_text(tag: str, attrib: dict[str, str]) -> None:
-        nonlocal text_depth
+    def start(tag: str, attrib: dict[str, str]) -> None:
+        kind = kinds[tag]
+        if kind:  # (rare) records its text, or is watched
+            start_special(tag, attrib, kind)
+            return
         el = _new(Element)
         el.tag = tag
         el.attrib = attrib
         el.sourceline = p.CurrentLineNumber
-        if keeps_text is None or keeps_text(tag):
+        stack[-1].append(el)
+        push(el)
+
+    def start_special(tag: str, attrib: dict[str, str], kind: int) -> None:
+        nonlocal text_depth
+        if kind & _KEEPS_TEXT:
+            el = _new(_TextElement)
             el.text = []
             if text_depth == 0:
                 p.CharacterDataHandler = chars
+                p.EndElementHandler = end_text
             text_depth += 1
         else:
-            el.text = None
+            el = _new(Element)
+        el.tag = tag
+        el.attrib = attrib
+        el.sourceline = p.CurrentLineNumber
         stack[-1].append(el)
         push(el)
-        if tag in watch:
+        if kind & _WATCHED:
             watched.append(el)
+
+    def end(tag: str) -> None:
+        pop()
 
     def end_text(tag: str) -> None:
         nonlocal text_depth
@@ -138,24 +159,23 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
             text_depth -= 1
             if text_depth == 0 and keeps_text is not None:
                 p.CharacterDataHandler = None
+                p.EndElementHandler = end
 
     def start_ns(tag: str, attrib: dict[str, str]) -> None:
         if _NS_SEP in tag:
             tag = _qualified(tag)
         if attrib and any(_NS_SEP in k for k in attrib):
             attrib = {(_qualified(k) if _NS_SEP in k else k): v for k, v in attrib.items()}
-        start_text(tag, attrib)
+        start(tag, attrib)
 
     def namespace_declared(prefix: str | None, uri: str) -> None:
         # the rare document that uses namespaces: qualify names from here on
         p.StartElementHandler = start_ns
         p.StartNamespaceDeclHandler = None
 
-    p.StartElementHandler = start_text
-    p.EndElementHandler = end_text
+    p.StartElementHandler = start
+    p.EndElementHandler = end
     p.StartNamespaceDeclHandler = namespace_declared
-    if keeps_text is None:
-        p.CharacterDataHandler = chars
     if _OLD_EXPAT:
         p.EntityDeclHandler = _refuse_nested_entities
     try:
@@ -167,6 +187,25 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
     if not top:
         raise XmlSyntaxError("no element found", p.CurrentLineNumber, None)
     return top[0], watched
+
+
+_KEEPS_TEXT = 1
+_WATCHED = 2
+
+
+class _TagKinds(dict):
+    """tag -> what parse_xml does with such an element beyond building it (_KEEPS_TEXT | _WATCHED), worked out
+    once per tag name in a document."""
+
+    def __init__(self, keeps_text: Callable[[str], bool] | None, watch: frozenset[str]):
+        self.keeps_text = keeps_text
+        self.watch = watch
+
+    def __missing__(self, tag: str) -> int:
+        kind = ((_KEEPS_TEXT if self.keeps_text is None or self.keeps_text(tag) else 0)
+                | (_WATCHED if tag in self.watch else 0))
+        self[tag] = kind
+        return kind
 
 
 class _EntityRefused(Exception):
@@ -184,14 +223,10 @@ def _refuse_nested_entities(name: str, is_parameter: int, value: str | None, *re
 
 # the tags whose text a launch file means (roslaunch matches a node's child tags case-insensitively)
 _TEXT_TAGS = frozenset(("rosparam",))
-_text_tag_memo: dict[str, bool] = {}
 
 
 def _launch_keeps_text(tag: str) -> bool:
-    keep = _text_tag_memo.get(tag)
-    if keep is None:
-        keep = _text_tag_memo[tag] = tag.lower() in _TEXT_TAGS
-    return keep
+    return tag.lower() in _TEXT_TAGS
 
 
 class LaunchDocument:
