@@ -1,0 +1,56 @@
+"""The `launch` command line: the argparse-free reading of simple command lines is argparse's reading."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from launcher import cli
+
+
+def _argparse(argv: list[str]) -> dict:
+    return vars(cli.build_parser().parse_intermixed_args(argv))
+
+
+def test_defaults_and_flags_are_the_parsers():
+    parser = cli.build_parser()
+    defaults = {a.dest: a.default for a in parser._actions if a.dest not in ("help", "version", "positional")}
+    assert {k: v for k, v in cli._DEFAULTS.items()} == defaults
+    store_true = {s: a.dest for a in parser._actions if a.__class__.__name__ == "_StoreTrueAction"
+                  for s in a.option_strings}
+    # every flag read without argparse is a store_true option of the parser, under the same name
+    assert {s: d for s, d in store_true.items() if s in cli._FLAGS} == cli._FLAGS
+
+
+@pytest.mark.parametrize("argv", [
+    ["--nodes", "a.launch"], ["a.launch", "--dump-params"], ["pkg", "f.launch", "x:=1", "--files", "__ns:=/r"],
+    ["-v", "--screen", "--log", "--required", "--wait", "--local", "--no-summary", "--skip-log-check",
+     "--disable-title", "f.launch"], ["--core"], ["-", "--nodes"], [], ["--ros-args", "f.launch", "a:=b c"],
+])
+def test_simple_command_lines_read_as_argparse_reads_them(argv):
+    opts = cli.parse_simple_args(argv)
+    assert opts is not None and vars(opts) == _argparse(argv)
+
+
+@pytest.mark.parametrize("argv", [
+    ["--args", "/n", "f.launch"], ["--find-node=/n", "f.launch"], ["-p", "11312", "--core"], ["-h"], ["--version"],
+    ["--node", "f.launch"], ["--nodes", "--", "-f.launch"], ["-vv"], ["--sigint-timeout", "3", "f.launch"],
+])
+def test_anything_else_goes_to_argparse(argv):
+    assert cli.parse_simple_args(argv) is None
+
+
+def test_simple_introspection_does_not_import_argparse(tmp_path):
+    f = tmp_path / "a.launch"
+    f.write_text("<launch><node pkg='p' type='t' name='n'/></launch>")
+    code = ("import sys; from launcher.cli import main; rc = main(['--nodes', sys.argv[1]]); "
+            "print('argparse' in sys.modules); sys.exit(rc)")
+    out = subprocess.run([sys.executable, "-c", code, str(f)], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.split() == ["/n", "False"], out
+    # and a command line argparse must read still works, with its errors
+    out = subprocess.run([sys.executable, "-m", "launcher", "--bogus"], capture_output=True, text=True)
+    assert out.returncode == 2 and "unrecognized arguments: --bogus" in out.stderr
+    out = subprocess.run([sys.executable, "-m", "launcher", "--nodes"], capture_output=True, text=True)
+    assert out.returncode == 1 and "you must specify at least one input file" in out.stderr
