@@ -37,6 +37,7 @@ _FLOW_SPACE = re.compile(r" *")
 
 _memo: dict[str, Any] = {}
 _MEMO_MAX = 4096
+_MEMO_TEXT_MAX = 512
 
 
 def scalar_is_str(text: str) -> bool | None:
@@ -137,27 +138,51 @@ def _value(text: str) -> Any:
     return value
 
 
+# One line of a block mapping, or a blank or comment line (no key). The common values are
+# told apart by the regex itself (which group matched); flow collections go to _value.
+_LINE = re.compile(r"""
+    (?: [ ]* (?:\#.*)?                             # blank or comment line
+      | ([ ]*)(%(word)s):                            # 1 indent, 2 key
+        (?: [ ]+ (?: '([^'\n]*)'                     # 3 single-quoted
+                   | "([^"\\\n]*)"                 # 4 double-quoted
+                   | (%(int)s)                       # 5 int
+                   | (%(float)s)                     # 6 float
+                   | (%(word)s)                      # 7 word: a string, a bool or null
+                   | ([A-Za-z0-9_.+-]*/[A-Za-z0-9_./+-]*)  # 8 with a '/': a string
+                   | ([\[{].*?)                      # 9 flow collection
+                   ) )? [ ]*
+    )\Z""" % {"word": _WORD, "int": _INT, "float": _FLOAT}, re.X)
+_FLOW_NUMBERS = re.compile(r"\[((?:%(n)s)(?:, (?:%(n)s))*)\]\Z" % {"n": "%s|%s" % (_FLOAT, _INT)})
+
+
 def _parse(text: str) -> Any:
     if _UNUSUAL.search(text):
         return NOT_PLAIN
-    lines = [ln for ln in text.split("\n") if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
+    lines = text.split("\n")
+    first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if first is None:
         return None  # an empty document
-    if len(lines) == 1 and lines[0].lstrip()[:1] in ("[", "{"):
-        return _value(lines[0].strip())
+    if first.lstrip()[:1] in ("[", "{") or _BLOCK_LINE.match(first) is None:
+        # a one-line document: a flow collection or a scalar
+        if sum(1 for ln in lines if ln.strip() and not ln.lstrip().startswith("#")) != 1:
+            return NOT_PLAIN
+        return _value(first.strip())
     root: dict[Any, Any] = {}
     stack: list[tuple[int, dict[Any, Any]]] = []
     pending: tuple[int, dict[Any, Any], str] | None = None  # a `key:` whose value may be a nested block
+    line_match = _LINE.match
+    bools = _BOOLS
+    nulls = _NULLS
     for line in lines:
-        m = _BLOCK_LINE.match(line)
+        m = line_match(line)
         if m is None:
-            if len(lines) == 1:  # a one-line document: a scalar
-                return _value(line.strip())
             return NOT_PLAIN
+        key = m.group(2)
+        if key is None:
+            continue  # blank or comment
+        if key in bools or key in nulls or len(key) > 1000:
+            return NOT_PLAIN  # (a bool or null key; PyYAML refuses implicit keys over 1024 characters)
         indent = len(m.group(1))
-        key = _key(m.group(2))
-        if key is NOT_PLAIN:
-            return NOT_PLAIN
         if not stack:
             stack.append((indent, root))
         elif pending is not None and indent > pending[0]:
@@ -171,15 +196,29 @@ def _parse(text: str) -> Any:
                 return NOT_PLAIN  # inconsistent indentation: PyYAML says what is wrong
         pending = None
         mapping = stack[-1][1]
-        rest = m.group(3)
-        if not rest:
+        kind = m.lastindex
+        if kind == 2:  # `key:` alone
             mapping[key] = None
             pending = (indent, mapping, key)
-            continue
-        value = _value(rest)
-        if value is NOT_PLAIN:
-            return NOT_PLAIN
-        mapping[key] = value
+        elif kind == 7:
+            word = m.group(7)
+            mapping[key] = bools[word] if word in bools else None if word in nulls else word
+        elif kind == 5:
+            mapping[key] = int(m.group(5))
+        elif kind == 6:
+            mapping[key] = float(m.group(6))
+        elif kind == 9:
+            flow = m.group(9)
+            numbers = _FLOW_NUMBERS.match(flow)
+            if numbers is not None:
+                value: Any = [float(x) if "." in x else int(x) for x in numbers.group(1).split(", ")]
+            else:
+                value = _value(flow)
+                if value is NOT_PLAIN:
+                    return NOT_PLAIN
+            mapping[key] = value
+        else:  # 3, 4, 8: strings
+            mapping[key] = m.group(kind)
     return root
 
 
@@ -196,10 +235,10 @@ def load_plain(text: str) -> Any:
             return NOT_PLAIN
         if value is NOT_PLAIN:
             return NOT_PLAIN
-        if len(_memo) < _MEMO_MAX and len(text) < 65536:
-            _memo[text] = value
-        else:
+        # short texts (inline YAML, type="yaml" values) tend to repeat: remember those
+        if len(text) > _MEMO_TEXT_MAX or len(_memo) >= _MEMO_MAX:
             return value
+        _memo[text] = value
     return _copy(value)
 
 
