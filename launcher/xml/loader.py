@@ -20,7 +20,7 @@ from launcher.errors import LaunchError
 from launcher.names import SEP, make_global_ns, ns_join
 from launcher.params.plain_yaml import NOT_PLAIN, load_plain
 from launcher.xml.document import element_text, read_launch
-from launcher.xml.scope import Scope, ScopeError, canonical, is_legal_name
+from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists; anything else is warned about
@@ -386,11 +386,11 @@ class XmlLoader:
             raise self._fail(scope, el, "<remap> tag is missing required from/to attributes")
         return self._attr(el, "from", scope) or "", self._attr(el, "to", scope) or ""
 
-    def _add_remap(self, scope: Scope, src: str, dst: str, el: Any, err_scope: Scope | None = None) -> None:
+    def _add_remap(self, scope: Scope, src: str, dst: str, el: Any) -> None:
         try:
             scope.add_remap(src, dst)
         except ScopeError as e:
-            raise self._fail(err_scope or scope, el, "Invalid <remap> tag: %s" % e) from None
+            raise self._fail(scope, el, "Invalid <remap> tag: %s" % e) from None
 
     def _env_tag(self, el: Any, scope: Scope) -> None:
         self._check_attrs(el, scope, ENV_ATTRS)
@@ -676,7 +676,7 @@ class XmlLoader:
                                  % (el.tag, respawn_delay_s)) from None
 
         # children: remaps and env build on the enclosing scope; params go under the node's name
-        remap_scope: Scope | None = None
+        node_remaps: list[tuple[str, str]] = []  # the node's own <remap>s, on top of the scope's
         env_scope: Scope | None = None
         for c in el:
             ctag = c.tag.lower()  # roslaunch matches a node's child tags case-insensitively
@@ -685,9 +685,10 @@ class XmlLoader:
             if ctag == "remap":
                 if plain or self._if_unless(c, scope):
                     src, dst = self._remap_tag(c, scope)
-                    if remap_scope is None:
-                        remap_scope = scope.node_child("")
-                    self._add_remap(remap_scope, src, dst, c, err_scope=scope)
+                    try:
+                        add_remap_to(node_remaps, src, dst)
+                    except ScopeError as e:
+                        raise self._fail(scope, c, "Invalid <remap> tag: %s" % e) from None
             elif ctag == "param":
                 if plain or self._if_unless(c, param_scope):
                     self._param_tag(c, param_scope, force_local=True)
@@ -733,7 +734,7 @@ class XmlLoader:
         namespace = child.ns
         if "//" in namespace:
             namespace = _MULTISLASH.sub("/", namespace)
-        remaps = (remap_scope or scope).remap_args()
+        remaps = scope.remap_args_with(node_remaps)
         env_args = tuple((env_scope or scope).env_args)
         node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
                      required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,

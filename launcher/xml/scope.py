@@ -34,6 +34,22 @@ class ScopeError(ValueError):
     """An invalid namespace, remap or arg declaration; the loader adds file and line."""
 
 
+def add_remap_to(remaps: list[tuple[str, str]], src: str, dst: str) -> None:
+    """Add a remap (checked, canonical) to `remaps`; a remap of the same name is replaced, at the end."""
+    src, dst = canonical(src), canonical(dst)
+    if not src or not dst:
+        raise ScopeError("remap from/to attributes cannot be empty")
+    if not is_legal_name(src):
+        raise ScopeError("remap from [%s] is not a valid ROS name" % src)
+    if not is_legal_name(dst):
+        raise ScopeError("remap to [%s] is not a valid ROS name" % dst)
+    for r in remaps:
+        if r[0] == src:
+            remaps[:] = [r for r in remaps if r[0] != src]
+            break
+    remaps.append((src, dst))
+
+
 def global_ns(ns: str) -> str:
     try:
         return make_global_ns(ns or SEP)
@@ -146,19 +162,16 @@ class Scope(SubstitutionScope):
 
     # -- remaps ---------------------------------------------------------
     def add_remap(self, src: str, dst: str) -> None:
-        src, dst = canonical(src), canonical(dst)
-        if not src or not dst:
-            raise ScopeError("remap from/to attributes cannot be empty")
-        if not is_legal_name(src):
-            raise ScopeError("remap from [%s] is not a valid ROS name" % src)
-        if not is_legal_name(dst):
-            raise ScopeError("remap to [%s] is not a valid ROS name" % dst)
-        for r in self.remaps:
-            if r[0] == src:
-                self.remaps = [r for r in self.remaps if r[0] != src]
-                break
-        self.remaps.append((src, dst))
+        add_remap_to(self.remaps, src, dst)
         self._remap_cache = None
+
+    def remap_args_with(self, own: list[tuple[str, str]]) -> tuple[tuple[str, str], ...]:
+        """remap_args() of a child scope whose own remaps are `own` (a <node>'s <remap> children)."""
+        inherited = self.remap_args()
+        if not own:
+            return inherited
+        names = {r[0] for r in own}
+        return tuple([r for r in inherited if r[0] not in names] + own)
 
     def remap_args(self) -> tuple[tuple[str, str], ...]:
         """Inherited remaps first (minus those redefined here), then this scope's, in order."""
