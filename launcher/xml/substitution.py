@@ -264,28 +264,66 @@ def auto_value(text: str) -> Any:
 
 
 class _Names(dict):
-    """Name lookup for eval: this call's functions, the fixed names, then args auto-typed (roslaunch's _DictWrapper)."""
+    """Name lookup for eval: the scope's functions, the fixed names, then args auto-typed (roslaunch's _DictWrapper)."""
 
-    __slots__ = ("_functions", "_args")
+    __slots__ = ("_scope",)
 
-    def __init__(self, functions: dict[str, Any], args: Mapping[str, str]):
-        # (an empty dict needs no dict.__init__)
-        self._functions = functions
-        self._args = args
+    def __init__(self, scope: SubstitutionScope):
+        # (an empty dict needs no dict.__init__; the functions are made when the expression names them)
+        self._scope = scope
 
     def __getitem__(self, key: str) -> Any:
-        f = self._functions.get(key, _MISSING)
-        if f is not _MISSING:
-            return f
+        make = _SCOPE_FUNCTIONS.get(key)
+        if make is not None:
+            return make(self._scope)
         f = _STATIC_NAMES.get(key, _MISSING)
         if f is not _MISSING:
             return f
-        return auto_value(self._args[key])
+        return auto_value(self._scope.args[key])
 
     def __contains__(self, key: object) -> bool:
-        return key in self._functions or key in _STATIC_NAMES or key in self._args
+        return key in _SCOPE_FUNCTIONS or key in _STATIC_NAMES or key in self._scope.args
 
 
+# (named functions, not lambdas: a misuse like `arg()` is reported with the function's name)
+def _eval_arg(scope: SubstitutionScope) -> Callable[[str], Any]:
+    def arg(name: str) -> Any:
+        return auto_value(_arg(name, scope))
+    return arg
+
+
+def _eval_env(scope: SubstitutionScope) -> Callable[[str], str]:
+    def env(name: str) -> str:
+        return _env(name, scope)
+    return env
+
+
+def _eval_optenv(scope: SubstitutionScope) -> Callable[..., str]:
+    def optenv(name: str, default: str = "") -> str:
+        return scope.environ.get(name, default)
+    return optenv
+
+
+def _eval_anon(scope: SubstitutionScope) -> Callable[[str], str]:
+    def anon(id_: str) -> str:
+        return _anon(id_, scope)
+    return anon
+
+
+def _eval_dirname(scope: SubstitutionScope) -> Callable[[], str]:
+    def dirname() -> str:
+        return _dirname(scope)
+    return dirname
+
+
+def _eval_find(scope: SubstitutionScope) -> Callable[[str], str]:
+    return scope.find_package
+
+
+# roslaunch's functions in $(eval): each made for the scope when an expression looks it up
+_SCOPE_FUNCTIONS: dict[str, Callable[[SubstitutionScope], Any]] = {
+    "arg": _eval_arg, "env": _eval_env, "optenv": _eval_optenv, "anon": _eval_anon, "dirname": _eval_dirname,
+    "find": _eval_find}
 _MISSING = object()
 _STATIC_NAMES: dict[str, Any] = {**_SAFE_BUILTINS, **_MATH, **_CONSTANTS}
 _COMPILED: dict[str, Any] = {}
@@ -357,26 +395,8 @@ def _compile(expr: str) -> Any:
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
     """`$(eval expr)`: str() of the Python expression, with roslaunch's names and nothing dangerous."""
     code = _compile(expr)
-
-    def arg(name: str) -> Any:
-        return auto_value(_arg(name, scope))
-
-    def env(name: str) -> str:
-        return _env(name, scope)
-
-    def optenv(name: str, default: str = "") -> str:
-        return scope.environ.get(name, default)
-
-    def anon(id_: str) -> str:
-        return _anon(id_, scope)
-
-    def dirname() -> str:
-        return _dirname(scope)
-
-    functions = {"arg": arg, "env": env, "optenv": optenv, "anon": anon, "dirname": dirname,
-                 "find": scope.find_package}
     try:
-        value = eval(code, {"__builtins__": {}}, _Names(functions, scope.args))  # noqa: S307 (sandboxed above)
+        value = eval(code, {"__builtins__": {}}, _Names(scope))  # noqa: S307 (sandboxed above)
     except (SubstitutionError, LaunchError):
         raise
     except Exception as e:  # the user's expression failed: report it, never a traceback
