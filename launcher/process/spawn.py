@@ -65,9 +65,10 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
     """
     stdout = None
     if spec.stdout_path:
+        # roslaunch: append when respawning, so earlier runs' output survives
+        flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | (os.O_APPEND if append or spec.respawn else os.O_TRUNC)
         try:
-            # roslaunch: append when respawning, so earlier runs' output survives
-            stdout = open(spec.stdout_path, "ab" if append or spec.respawn else "wb")
+            stdout = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object to build per node)
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
     try:
@@ -89,7 +90,7 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
     finally:
         if stdout is not None:
-            stdout.close()
+            os.close(stdout)
 
 
 def _ignore(signum, frame) -> None:
