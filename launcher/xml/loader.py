@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, Param
 from launcher.errors import LaunchError
-from launcher.names import SEP, make_global_ns, ns_join
+from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.plain_yaml import NOT_PLAIN, load_plain
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
@@ -578,8 +578,7 @@ class XmlLoader:
             return
         if file_:
             try:
-                with open(file_, "r", encoding="utf-8") as f:
-                    text = f.read()
+                text = _read_text(file_)
             except (OSError, UnicodeDecodeError) as e:
                 raise self._fail(scope, el, "error loading <rosparam> tag: cannot read [%s]: %s"
                                  % (file_, getattr(e, "strerror", None) or e)) from None
@@ -599,16 +598,23 @@ class XmlLoader:
     def _unroll(self, key: str, value: Any, scope: Scope, el: Any) -> None:
         if not key:
             raise self._fail(scope, el, "no parameter name specified")
-        if key == SEP and not isinstance(value, dict):
-            raise self._fail(scope, el, "Cannot load non-dictionary types into global namespace '/'")
-        if isinstance(value, dict):
-            for k, v in value.items():
-                if not isinstance(k, str):
-                    raise self._fail(scope, el, "error loading <rosparam> tag: parameter names must be strings, "
-                                                "not %r (quote the key in the YAML)" % (k,))
-                self._unroll(ns_join(key, k), v, scope, el)
-        else:
+        if not isinstance(value, dict):
+            if key == SEP:
+                raise self._fail(scope, el, "Cannot load non-dictionary types into global namespace '/'")
             self._add_param(key, value, scope, el)
+            return
+        # ns_join(key, k) for each k, with the join worked out once (YAML files have thousands of keys)
+        prefix = key if key[-1] == SEP else PRIV_NAME if key == PRIV_NAME else key + SEP
+        add = self._add_param
+        for k, v in value.items():
+            if type(k) is not str and not isinstance(k, str):
+                raise self._fail(scope, el, "error loading <rosparam> tag: parameter names must be strings, "
+                                            "not %r (quote the key in the YAML)" % (k,))
+            full = k if (k[:1] == SEP or k[:1] == PRIV_NAME) else prefix + k
+            if isinstance(v, dict) or full == SEP:
+                self._unroll(full, v, scope, el)
+            else:
+                add(full, v, scope, el)
 
     # ------------------------------------------------------------------ <node>, <test>
     def _node_tag(self, el: Any, scope: Scope, default_machine: Machine | None, is_test: bool) -> None:
@@ -851,6 +857,16 @@ class XmlLoader:
             if unused:
                 raise self._fail(scope, el, "unused args [%s] for include of [%s]" % (", ".join(unused), inc_file))
         return default_machine
+
+
+def _read_text(path: str) -> str:
+    """A UTF-8 text file as open(path, "r", encoding="utf-8").read() gives it (universal newlines),
+    without a text-mode file's incremental decoder (a YAML file per <rosparam file=...>)."""
+    with open(path, "rb") as f:
+        text = f.read().decode("utf-8")
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
 
 
 def _machine_key(m: Machine) -> tuple:
