@@ -16,6 +16,7 @@ from launcher.params.plain_yaml import NON_STR_WORDS, WORD_FIRST_CHARS, scalar_i
 # A string PyYAML writes as a bare plain scalar or single-quoted, with nothing to escape or
 # wrap: no spaces, quotes, indicators or non-ASCII, and no leading '-' or '.'.
 _SIMPLE_STRING = re.compile(r"[A-Za-z0-9_/][A-Za-z0-9_./-]*\Z")
+_SIMPLE_LINES = re.compile(r"(?:[A-Za-z0-9_/][A-Za-z0-9_./-]*\n)*[A-Za-z0-9_/][A-Za-z0-9_./-]*")  # of them, one a line
 _STR_TAG = "tag:yaml.org,2002:str"
 _resolver = None
 
@@ -161,9 +162,12 @@ def dump_yaml(value: Any) -> str:
     if type(value) is not dict or not value or _shares_containers(value):
         return _pyyaml_dump(value)
     try:
-        items = sorted(value.items())  # safe_dump's sort_keys=True
+        keys = sorted(value)  # safe_dump's sort_keys=True
     except TypeError:
         return _pyyaml_dump(value)
+    # parameter names are nearly always simple strings: check them all in one regex pass
+    all_simple = (all(type(k) is str for k in keys) and _SIMPLE_LINES.fullmatch("\n".join(keys)) is not None
+                  and max(map(len, keys)) <= 100)
     # the common entries (a simple key and a scalar) are written inline; anything else by _entry
     # or PyYAML. ~1 us per entry instead of ~3: a big launch has thousands of them. A simple
     # string that starts with a letter, '_' or '/' is a string to YAML unless it is one of the
@@ -173,8 +177,9 @@ def dump_yaml(value: Any) -> str:
     match = _SIMPLE_STRING.match
     out = []
     append = out.append
-    for key, v in items:
-        if type(key) is str and key and len(key) <= 100 and match(key):
+    for key in keys:
+        v = value[key]
+        if all_simple or (type(key) is str and key and len(key) <= 100 and match(key)):
             k = key if (key[0] in first_chars and key not in non_str) else _quoted_if_typed(key)
             kind = type(v)
             if kind is str:
