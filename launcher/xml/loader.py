@@ -381,10 +381,18 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ <remap>, <env>
     def _remap_tag(self, el: Any, scope: Scope) -> tuple[str, str]:
-        self._check_attrs(el, scope, REMAP_ATTRS)
-        if el.attrib.get("from") is None or el.attrib.get("to") is None:
+        attrib = el.attrib
+        if not REMAP_ATTRS.issuperset(attrib):
+            self._check_attrs(el, scope, REMAP_ATTRS)
+        src = attrib.get("from")
+        dst = attrib.get("to")
+        if src is None or dst is None:
             raise self._fail(scope, el, "<remap> tag is missing required from/to attributes")
-        return self._attr(el, "from", scope) or "", self._attr(el, "to", scope) or ""
+        if "$" in src:
+            src = self._sub(src, scope, el)
+        if "$" in dst:
+            dst = self._sub(dst, scope, el)
+        return src or "", dst or ""
 
     def _add_remap(self, scope: Scope, src: str, dst: str, el: Any) -> None:
         try:
@@ -427,6 +435,8 @@ class XmlLoader:
             value = value.strip()  # type: ignore[union-attr]
             if ptype == "auto":
                 typed = _auto_value(value)
+            elif ptype == "str" or ptype == "string":
+                typed = value  # (what convert_value does for these, without the calls)
             else:
                 typed = self._convert(value, ptype, scope, el, name)
         else:
@@ -646,7 +656,8 @@ class XmlLoader:
             if not name:
                 name = test_name
         else:
-            self._check_attrs(el, scope, NODE_ATTRS)
+            if not NODE_ATTRS.issuperset(el.attrib):
+                self._check_attrs(el, scope, NODE_ATTRS)
             name = self._reqd(el, "name", scope)
         if not is_legal_name(name):
             self._warn(scope, el, "illegal <%s> name '%s' (see http://ros.org/wiki/Names); this will likely "
