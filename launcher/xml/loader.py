@@ -15,7 +15,7 @@ import re
 import sys
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig, Machine, Node, Param
+from launcher.config import LaunchConfig, Machine, Node, new_param
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.plain_yaml import NOT_PLAIN, load_plain
@@ -539,7 +539,7 @@ class XmlLoader:
                     self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
                 i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
-        params[key] = Param(key, value, scope.source, el.sourceline or 0)
+        params[key] = new_param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
     def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
@@ -728,7 +728,7 @@ class XmlLoader:
             if key.startswith("~"):
                 key = key[1:]
             full = canonical(param_scope.ns + key)
-            self.params[full] = Param(full, value, pfile, pline)
+            self.params[full] = new_param(full, value, pfile, pline)
         self._clean_ns = None
 
         if respawn and required:

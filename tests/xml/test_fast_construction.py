@@ -16,13 +16,13 @@ from typing import Any
 
 import pytest
 
-from launcher.config import FrozenInstanceError, LaunchConfig, Machine, Node, Param
+from launcher.config import FrozenInstanceError, LaunchConfig, Machine, Node, Param, new_param
 
 
 def _reference(cls: type) -> type:
     """A frozen dataclass with `cls`'s fields, defaults and name: what `cls` must behave like."""
     fields = []
-    for p in list(inspect.signature(cls.__init__).parameters.values())[1:]:
+    for p in inspect.signature(cls).parameters.values():
         if p.default is inspect.Parameter.empty:
             fields.append((p.name, Any))
         elif p.default is None and p.name in ("params", "machines"):  # LaunchConfig's fresh dicts
@@ -79,6 +79,15 @@ def test_record_behaves_as_the_frozen_dataclass(cls, kwargs):
     # copies and pickles are equal objects
     for dup in (copy.copy(obj), copy.deepcopy(obj), pickle.loads(pickle.dumps(obj))):
         assert dup == obj and type(dup) is cls
+
+
+def test_loader_fast_param_is_the_constructors():
+    # the loader builds its thousands of Params with new_param (no Python-level call)
+    for args in (("/a/b", [1, 2], "f.launch", 7), ("/a", "x", "", 0)):
+        fast, public = new_param(*args), Param(*args)
+        assert type(fast) is Param and fast == public and repr(fast) == repr(public)
+        assert (fast.key, fast.value, fast.filename, fast.line) == args
+    assert Param("/a", 1) != ("/a", 1, "", 0) and not Param("/a", 1) == ("/a", 1, "", 0)
 
 
 def test_fresh_default_dicts():
