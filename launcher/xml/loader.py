@@ -679,8 +679,8 @@ class XmlLoader:
             machine = default_machine.name
         if respawn_delay_s is not None and respawn_s is None and not is_test:
             self._warn(scope, el, "respawn_delay has no effect without respawn=\"true\"")
-        required = self._bool(required_s, False, "required", scope, el)
-        respawn = self._bool(respawn_s, False, "respawn", scope, el)
+        required = False if required_s is None else self._bool(required_s, False, "required", scope, el)
+        respawn = False if respawn_s is None else self._bool(respawn_s, False, "respawn", scope, el)
         if respawn_delay_s is None:
             respawn_delay = 0.0
         elif not respawn_delay_s:
@@ -722,9 +722,12 @@ class XmlLoader:
                 self._warn(scope, c, "unrecognized <%s> child tag of <%s> (ignored)" % (ctag, el.tag))
 
         # launch-level ~params declared earlier in this scope, then the node's own
-        for key, value, pfile, pline in scope.params:
-            self._used_private.add((key, pfile, pline))
-        for key, value, pfile, pline in list(scope.params) + param_scope.params:
+        node_params = param_scope.params
+        if scope.params:
+            for key, value, pfile, pline in scope.params:
+                self._used_private.add((key, pfile, pline))
+            node_params = scope.params + node_params
+        for key, value, pfile, pline in node_params:
             if key.startswith("~"):
                 key = key[1:]
             full = canonical(param_scope.ns + key)
