@@ -522,7 +522,8 @@ class XmlLoader:
                              % (name, command)) from None
 
     def _add_param(self, key: str, value: Any, scope: Scope, el: Any) -> None:
-        key = canonical(key)
+        if "//" in key or (key[-1:] == SEP and len(key) > 1):  # (canonical(), inline: nearly all keys are)
+            key = canonical(key)
         params = self.params
         # a parameter under another parameter is only a config error in roslaunch: warn.
         # Parameters come in runs with the same namespace: once no prefix of a namespace is a
@@ -727,11 +728,15 @@ class XmlLoader:
             for key, value, pfile, pline in scope.params:
                 self._used_private.add((key, pfile, pline))
             node_params = scope.params + node_params
+        ns = param_scope.ns
+        params = self.params
         for key, value, pfile, pline in node_params:
-            if key.startswith("~"):
+            if key[:1] == "~":
                 key = key[1:]
-            full = canonical(param_scope.ns + key)
-            self.params[full] = new_param(full, value, pfile, pline)
+            full = ns + key
+            if "//" in full or (full[-1:] == SEP and len(full) > 1):  # (canonical(), inline)
+                full = canonical(full)
+            params[full] = new_param(full, value, pfile, pline)
         self._clean_ns = None
 
         if respawn and required:
