@@ -14,6 +14,7 @@ import sys
 from typing import Any, Mapping
 
 from launcher.errors import LaunchError
+from launcher.names import ns_join
 
 NO_FILE = "you must specify at least one input file"
 
@@ -46,7 +47,6 @@ def master_uri(argv: list[str], environ: Mapping[str, str]) -> str:
 
 
 def _full_name(node: Any) -> str | None:
-    from launcher.names import ns_join
     return ns_join(node.namespace, node.name) if node.name else None
 
 
