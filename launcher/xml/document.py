@@ -53,11 +53,9 @@ class Element(list):
             stack.extend(reversed(el))
 
     def iterdescendants(self, tag: str | None = None) -> Iterator[Element]:
-        it = self.iter(tag)
-        first = next(it)
-        if first is not self:
-            yield first
-        yield from it
+        """The element's descendants (not itself), in document order (those named `tag` if given)."""
+        for child in self:
+            yield from child.iter(tag)
 
     def __repr__(self) -> str:
         return "<Element %s at line %s>" % (self.tag, self.sourceline)

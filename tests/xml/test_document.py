@@ -134,3 +134,16 @@ def test_nesting_deeper_than_python_recursion_is_a_clean_error(tmp_path):
     assert "nested too deeply" in err.value.message and err.value.filename == str(path)
     path.write_text("<launch>%s<param name='p' value='1'/>%s</launch>" % ("<group>" * 300, "</group>" * 300))
     assert load([str(path)], [], core=False).params["/p"].value == 1  # deeper than libxml2's 256 is fine
+
+
+def test_iter_and_iterdescendants():
+    root, _ = parse_xml(b"<a><b><c/><b/></b><c><b/></c></a>")
+    assert [e.tag for e in root.iter()] == ["a", "b", "c", "b", "c", "b"]
+    assert [e.tag for e in root.iterdescendants()] == ["b", "c", "b", "c", "b"]
+    assert len(list(root.iterdescendants("b"))) == 3 and list(root.iterdescendants("a")) == []
+    assert list(root[0][0].iterdescendants("master")) == []  # (found by the fuzzer: a leaf, nothing to find)
+
+
+def test_masters_outside_a_wrapped_launch_are_not_its_own(tmp_path):
+    doc = _read(tmp_path, "<root>\n<master/>\n<launch/>\n</root>")
+    assert doc.masters == []
