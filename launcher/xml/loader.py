@@ -195,7 +195,7 @@ class XmlLoader:
         v = el.attrib.get(name)
         if v is None:
             raise self._fail(scope, el, "<%s> tag is missing required attribute: '%s'" % (el.tag, name))
-        return self._sub(v, scope, el)  # type: ignore[return-value]
+        return v if "$" not in v else self._sub(v, scope, el)  # type: ignore[return-value]
 
     def _check_attrs(self, el: Any, scope: Scope, allowed: frozenset[str]) -> None:
         keys = el.attrib
@@ -345,7 +345,9 @@ class XmlLoader:
                 child = scope.child(ns)
         except ScopeError as e:
             raise self._fail(scope, el, str(e)) from None
-        clear = self._attr(el, "clear_params", scope)
+        clear = el.attrib.get("clear_params")
+        if clear and "$" in clear:
+            clear = self._sub(clear, scope, el)
         if clear and self._bool(clear, False, "clear_params", scope, el):
             if kind == "node":
                 if not node_name:
