@@ -182,6 +182,11 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
         raise XmlSyntaxError(pyexpat.ErrorString(e.code), e.lineno or None, e.offset) from None
     except _EntityRefused as e:
         raise XmlSyntaxError(str(e), p.CurrentLineNumber, None) from None
+    finally:
+        # the parser holds the handlers, whose closures hold the parser (and the whole tree): a
+        # cycle, which a load (the cyclic GC off) would keep until the end. Break it.
+        p.StartElementHandler = p.EndElementHandler = p.CharacterDataHandler = None
+        p.StartNamespaceDeclHandler = p.EntityDeclHandler = None
     if not top:
         raise XmlSyntaxError("no element found", p.CurrentLineNumber, None)
     return top[0], watched

@@ -147,3 +147,21 @@ def test_iter_and_iterdescendants():
 def test_masters_outside_a_wrapped_launch_are_not_its_own(tmp_path):
     doc = _read(tmp_path, "<root>\n<master/>\n<launch/>\n</root>")
     assert doc.masters == []
+
+
+def test_a_parse_leaves_no_cycle_behind():
+    # loads run with the cyclic GC off: a tree kept alive by a parser<->handler cycle would stay
+    # in memory for the whole load (it did: ~5 MB on a 1000-node tree)
+    import gc
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        gc.collect()
+        root, _ = parse_xml(b"<launch><rosparam>a: 1</rosparam><node><param/></node></launch>",
+                            lambda tag: tag == "rosparam", frozenset(("launch",)))
+        assert element_text(root[0]) == "a: 1"
+        del root
+        assert gc.collect() == 0
+    finally:
+        if was_enabled:
+            gc.enable()
