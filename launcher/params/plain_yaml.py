@@ -239,13 +239,14 @@ def load_plain(text: str) -> Any:
         if len(text) > _MEMO_TEXT_MAX or len(_memo) >= _MEMO_MAX:
             return value
         _memo[text] = value
-    return _copy(value)
+    return copy_tree(value)
 
 
-def _copy(value: Any) -> Any:
+def copy_tree(value: Any) -> Any:
+    """Deep copy of a parsed YAML tree that shares no container (no aliases)."""
     kind = type(value)
     if kind is dict:
-        return {k: (v if type(v) is not dict and type(v) is not list else _copy(v)) for k, v in value.items()}
+        return {k: (v if type(v) is not dict and type(v) is not list else copy_tree(v)) for k, v in value.items()}
     if kind is list:
-        return [v if type(v) is not dict and type(v) is not list else _copy(v) for v in value]
+        return [v if type(v) is not dict and type(v) is not list else copy_tree(v) for v in value]
     return value

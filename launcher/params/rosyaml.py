@@ -20,7 +20,7 @@ from typing import Any
 import yaml
 
 from launcher.errors import LaunchError
-from launcher.params.plain_yaml import NOT_PLAIN, load_plain
+from launcher.params.plain_yaml import NOT_PLAIN, copy_tree as _copy_tree, load_plain
 
 
 class RosYamlError(LaunchError, ValueError):
@@ -369,16 +369,6 @@ _MEMO_TEXT_MAX = 64 * 1024
 _MEMO_CHARS = 8 * 1024 * 1024  # bounds the memo's memory to a few times this
 _memo_chars = 0
 _parsed: dict[tuple[str, bool], tuple[Any, bool]] = {}  # -> (value, plain tree: no aliases)
-
-
-def _copy_tree(value: Any) -> Any:
-    """Deep copy of a parsed YAML tree that shares no container (no aliases)."""
-    kind = type(value)
-    if kind is dict:
-        return {k: (v if type(v) is not dict and type(v) is not list else _copy_tree(v)) for k, v in value.items()}
-    if kind is list:
-        return [v if type(v) is not dict and type(v) is not list else _copy_tree(v) for v in value]
-    return value
 
 
 def _fresh_copy(value: Any, memo: dict[int, Any] | None = None) -> Any:
