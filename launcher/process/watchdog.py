@@ -35,6 +35,7 @@ class Watchdog:
     def __init__(self, pid: int, wfd: int):
         self.pid = pid
         self._wfd: int | None = wfd
+        self._groups: set[int] = set()  # what the guard has on its list
 
     @classmethod
     def start(cls) -> Watchdog | None:
@@ -73,10 +74,12 @@ class Watchdog:
 
     def watch(self, pgid: int) -> None:
         """Record a node's process group (right after spawning it)."""
+        self._groups.add(pgid)
         self._send("+%d\n" % pgid)
 
     def forget(self, pgid: int) -> None:
         """The group is empty: never signal that id again."""
+        self._groups.discard(pgid)
         self._send("-%d\n" % pgid)
 
     def _close_fd(self) -> None:
@@ -87,9 +90,17 @@ class Watchdog:
                 pass
             self._wfd = None
 
-    def close(self) -> None:
-        """Normal exit: let the guard go (it kills whatever is still recorded) and reap it."""
+    def close(self, reap: bool = True) -> None:
+        """Normal exit: let the guard go (it kills whatever is still recorded) and reap it.
+
+        `reap=False` is for a process that ends right after: then the guard is waited for
+        only while it has groups left to clean up. With none, it ends by itself once it
+        reads the end of the pipe (within READ_NAP_S), and waiting for that would only
+        delay the launcher's exit.
+        """
         self._close_fd()
+        if not reap and not self._groups:
+            return
         try:
             os.waitpid(self.pid, 0)
         except ChildProcessError:

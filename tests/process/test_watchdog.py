@@ -105,3 +105,40 @@ def test_normal_exit_releases_guard_quickly():
     assert child.poll() is None  # a forgotten group is left alone
     child.kill()
     child.wait()
+
+
+def _gone(pid: int, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if os.waitpid(pid, os.WNOHANG)[0] == pid:
+                return True
+        except ChildProcessError:
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_exit_without_reaping_does_not_wait_for_an_idle_guard():
+    wd = Watchdog.start()
+    assert wd is not None
+    child = subprocess.Popen(["sleep", "100"], start_new_session=True)
+    wd.watch(child.pid)
+    time.sleep(0.1)  # the guard has read the line and naps
+    wd.forget(child.pid)
+    t0 = time.monotonic()
+    wd.close(reap=False)  # nothing left on the guard's list: the launcher may end at once
+    assert time.monotonic() - t0 < 0.02
+    assert _gone(wd.pid, 2.0)  # the guard ends on its own
+    assert child.poll() is None  # and leaves the forgotten group alone
+    child.kill()
+    child.wait()
+
+
+def test_exit_without_reaping_still_waits_while_groups_are_left():
+    wd = Watchdog.start()
+    assert wd is not None
+    child = subprocess.Popen(["sleep", "100"], start_new_session=True)
+    wd.watch(child.pid)
+    wd.close(reap=False)  # a group is still recorded: wait until the guard has dealt with it
+    assert _gone(child.pid, 0.5)  # (the guard killed it; it is our child, so reap it here)
