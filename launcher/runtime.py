@@ -54,7 +54,7 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
         status = asyncio.run(launch.main())
     finally:
         if watchdog is not None:
-            watchdog.close(reap=not exit_process)
+            watchdog.close()
         if pid_fn:
             try:
                 os.unlink(pid_fn)

@@ -90,17 +90,19 @@ class Watchdog:
                 pass
             self._wfd = None
 
-    def close(self, reap: bool = True) -> None:
+    def close(self) -> None:
         """Normal exit: let the guard go (it kills whatever is still recorded) and reap it.
 
-        `reap=False` is for a process that ends right after: then the guard is waited for
-        only while it has groups left to clean up. With none, it ends by itself once it
-        reads the end of the pipe (within READ_NAP_S), and waiting for that would only
-        delay the launcher's exit.
+        With nothing left on its list the guard has nothing to do, and it would read the
+        end of the pipe only after its nap (READ_NAP_S): it is ended at once instead, so
+        the launcher's exit does not wait for it.
         """
         self._close_fd()
-        if not reap and not self._groups:
-            return
+        if not self._groups:
+            try:
+                os.kill(self.pid, signal.SIGKILL)
+            except OSError:
+                pass
         try:
             os.waitpid(self.pid, 0)
         except ChildProcessError:

@@ -119,7 +119,7 @@ def _gone(pid: int, timeout: float) -> bool:
     return False
 
 
-def test_exit_without_reaping_does_not_wait_for_an_idle_guard():
+def test_exit_does_not_wait_for_an_idle_guard():
     wd = Watchdog.start()
     assert wd is not None
     child = subprocess.Popen(["sleep", "100"], start_new_session=True)
@@ -127,18 +127,18 @@ def test_exit_without_reaping_does_not_wait_for_an_idle_guard():
     time.sleep(0.1)  # the guard has read the line and naps
     wd.forget(child.pid)
     t0 = time.monotonic()
-    wd.close(reap=False)  # nothing left on the guard's list: the launcher may end at once
+    wd.close()  # nothing left on the guard's list: it is ended and reaped at once
     assert time.monotonic() - t0 < 0.02
-    assert _gone(wd.pid, 2.0)  # the guard ends on its own
-    assert child.poll() is None  # and leaves the forgotten group alone
+    assert not alive(wd.pid)
+    assert child.poll() is None  # and the forgotten group is left alone
     child.kill()
     child.wait()
 
 
-def test_exit_without_reaping_still_waits_while_groups_are_left():
+def test_exit_waits_while_the_guard_has_groups_left():
     wd = Watchdog.start()
     assert wd is not None
     child = subprocess.Popen(["sleep", "100"], start_new_session=True)
     wd.watch(child.pid)
-    wd.close(reap=False)  # a group is still recorded: wait until the guard has dealt with it
+    wd.close()  # a group is still recorded: the guard deals with it before close returns
     assert _gone(child.pid, 0.5)  # (the guard killed it; it is our child, so reap it here)
