@@ -320,18 +320,22 @@ class Launch:
 
     log_threshold = 1073741824
     _run_id_known: bool | None = None  # is /run_id set on the external master? (None: not asked yet)
+    _run_id_reply: tuple[Any, Any] | None = None  # (code, value) of the probe's getParam('/run_id')
 
     # ---- master ----------------------------------------------------------------------------------------
 
     def _probe(self) -> bool:
+        """Does a master answer? Asked as getParam('/run_id'), whose answer _decide_run_id needs next."""
         from launcher.xmlrpc import Fault, XmlRpcError, call_blocking
         try:
-            call_blocking(self.master_uri, "getPid", _CALLER_ID, timeout=PROBE_TIMEOUT_S)
-            return True
+            reply = call_blocking(self.master_uri, "getParam", _CALLER_ID, "/run_id", timeout=PROBE_TIMEOUT_S)
         except Fault:
             return True  # anything answering XML-RPC with a fault is still a master
         except (OSError, XmlRpcError):
             return False
+        if isinstance(reply, list) and len(reply) == 3:
+            self._run_id_reply = (reply[0], reply[2])
+        return True
 
     def _find_master(self) -> bool:
         """True if a master already answers at the master URI (it is then used, as roslaunch does)."""
@@ -374,12 +378,7 @@ class Launch:
 
     def _decide_run_id(self) -> str:
         if self.external:
-            from launcher.xmlrpc import call_blocking
-            try:
-                code, _msg, value = call_blocking(self.master_uri, "getParam", _CALLER_ID, "/run_id",
-                                                  timeout=PARAM_TIMEOUT_S)
-            except Exception:  # noqa: BLE001
-                code, value = 0, None
+            code, value = self._run_id_reply or (0, None)
             # getParam answered whether /run_id is set: _set_run_id needs no hasParam round trip then
             self._run_id_known = True if code == 1 else False if code == -1 else None
             if code == 1 and value:
