@@ -104,6 +104,49 @@ def test_nodes_spawned_before_the_loop_are_supervised(tmp_path, pkgs):
         master.stop()
 
 
+# Before the loop, the launcher waits for the first event; a long cap shows that an exit or a
+# signal ends the wait at once (the cap is never reached).
+FIRST_EVENT_SCRIPT = """
+import os, signal, sys, threading, time
+from launcher import runtime
+from launcher.cli import build_parser
+runtime.FIRST_EVENT_WAIT_S = 120.0
+launch = runtime.Launch(build_parser().parse_intermixed_args(sys.argv[2:]))
+launch.load()
+if sys.argv[1] == "signal":
+    threading.Timer(2.0, os.kill, (os.getpid(), signal.SIGINT)).start()  # (once the nodes run)
+t0 = time.monotonic()
+launch.start_before_loop()
+print("waited %.1f s" % (time.monotonic() - t0), flush=True)
+import asyncio
+
+async def main():
+    asyncio.get_running_loop().call_later(0.5, os.kill, os.getpid(), signal.SIGINT)
+    return await launch.main()
+print("status", asyncio.run(main()), flush=True)
+"""
+
+
+@pytest.mark.parametrize("event", ["exit", "signal"])
+def test_an_exit_or_a_signal_ends_the_wait_for_the_first_event(tmp_path, pkgs, event):
+    master = RosMaster(str(tmp_path))
+    nodes = '<node pkg="opt_tests" type="spinner" name="a"/>'
+    if event == "exit":
+        nodes += '<node pkg="opt_tests" type="quick" name="b"/>'
+    launch = write_launch(str(tmp_path), nodes)
+    try:
+        out = subprocess.run([sys.executable, "-c", FIRST_EVENT_SCRIPT, event, launch],
+                             env=ros_env(str(tmp_path), master.port, pkgs), capture_output=True, text=True,
+                             timeout=90)
+        waited = float(re.search(r"waited ([\d.]+) s", out.stdout).group(1))
+        assert waited < 30.0, out.stdout + out.stderr  # not the 120 s cap
+        if event == "exit":
+            assert "[b-2] process has finished cleanly" in out.stdout
+        assert "[a-1] killing on exit" in out.stdout and "status 0" in out.stdout
+    finally:
+        master.stop()
+
+
 def test_required_option_rejects_respawn(tmp_path, pkgs):
     launch = write_launch(str(tmp_path), '<node pkg="opt_tests" type="quick" name="r" respawn="true"/>')
     lp = Launcher(["--required", launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
