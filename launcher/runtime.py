@@ -122,7 +122,7 @@ def _is_local_host(host: str, environ: Mapping[str, str]) -> bool:
         import psutil
         local = {a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs}
         resolved = {ai[4][0] for ai in socket.getaddrinfo(host, None)}
-    except (OSError, ImportError):
+    except (OSError, ImportError, UnicodeError):  # (a malformed host name: idna refuses it)
         return False
     return bool(local & resolved)
 
@@ -361,12 +361,12 @@ class Launch:
 
     def _probe(self) -> bool:
         """Does a master answer? Asked as getParam('/run_id'), whose answer _decide_run_id needs next."""
-        from launcher.xmlrpc import Fault, XmlRpcError, call_blocking
+        from launcher.xmlrpc import Fault, call_blocking
         try:
             reply = call_blocking(self.master_uri, "getParam", _CALLER_ID, "/run_id", timeout=PROBE_TIMEOUT_S)
         except Fault:
             return True  # anything answering XML-RPC with a fault is still a master
-        except (OSError, XmlRpcError):
+        except (OSError, ValueError):  # (XmlRpcError is a ValueError; so is a host name idna refuses)
             return False
         if isinstance(reply, list) and len(reply) == 3:
             self._run_id_reply = (reply[0], reply[2])

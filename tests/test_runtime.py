@@ -39,3 +39,17 @@ def test_local_hosts():
     assert _is_local_host("localhost", env) and _is_local_host("127.0.0.1", env)
     assert _is_local_host("myrobot", env)
     assert not _is_local_host("192.0.2.77", env)  # TEST-NET-1: never a local address
+
+
+def test_malformed_master_host_is_not_local_and_not_a_crash(tmp_path):
+    assert not _is_local_host("a..b", {})
+    import os
+    import subprocess
+    import sys
+    launch = tmp_path / "a.launch"
+    launch.write_text("<launch/>")
+    env = dict(os.environ, ROS_MASTER_URI="http://a..b:11311/", ROS_HOME=str(tmp_path))
+    out = subprocess.run([sys.executable, "-m", "launcher", str(launch)], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 1
+    assert "unable to contact ROS master at [http://a..b:11311/]" in out.stderr and "internal error" not in out.stderr
