@@ -12,6 +12,8 @@ import os
 import signal
 import subprocess
 
+from launcher.process import console
+
 
 class ProcessSpec:
     """What to run for one node, fully resolved (see `launcher.command.node_command`)."""
@@ -120,7 +122,6 @@ def start_process(spec: ProcessSpec, watchdog=None, append: bool = False) -> sub
     The no-orphans guard learns the new process group before anything else can
     fail, so that a launcher killed right now still leaves nothing behind.
     """
-    from launcher.process import console
     try:
         popen = spawn(spec, append=append)
     except SpawnError as e:
