@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """rosout under load: N roscpp publishers x R messages/s x T seconds, ours vs Debian's rosout.
 
-For each rosout (ours: `launcher.rosout.Rosout` in its own process; the reference: Debian's
+For each rosout (ours: `launcher.net.rosout.Rosout` in its own process; the reference: Debian's
 /usr/lib/rosout/rosout), on a fresh Debian rosmaster:
   1. start N real roscpp nodes that log "waiting" until /rosout_test/go is set,
   2. once every node's "waiting" line is in rosout.log (so rosout is connected), set it,
@@ -74,7 +74,7 @@ def wait_for(cond, timeout: float, what: str):
 def serve(master_uri: str, log_dir: str) -> None:
     """Child mode: run our rosout until SIGINT/SIGTERM, then stop it cleanly."""
     sys.path.insert(0, ROOT)
-    from launcher.rosout import Rosout
+    from launcher.net.rosout import Rosout
 
     async def main() -> None:
         rosout = Rosout(master_uri, log_dir, host="127.0.0.1")

@@ -154,9 +154,9 @@ async def _core(port: int, run_id: str, environ: dict[str, str]) -> int:
 async def _start_rosout(master_uri: str, directory: str) -> Any:
     """The built-in rosout, if this install has it."""
     try:
-        from launcher.rosout import Rosout
+        from launcher.net.rosout import Rosout
     except ModuleNotFoundError as e:
-        if e.name in ("launcher.rosout",):
+        if e.name in ("launcher.net.rosout",):
             print("no built-in rosout available: /rosout is not served", file=sys.stderr)
             return None
         raise

@@ -361,7 +361,7 @@ class Launch:
 
     def _probe(self) -> bool:
         """Does a master answer? Asked as getParam('/run_id'), whose answer _decide_run_id needs next."""
-        from launcher.xmlrpc import Fault, call_blocking
+        from launcher.net.xmlrpc import Fault, call_blocking
         try:
             reply = call_blocking(self.master_uri, "getParam", _CALLER_ID, "/run_id", timeout=PROBE_TIMEOUT_S)
         except Fault:
@@ -431,7 +431,7 @@ class Launch:
             self.master.set_param("/run_id", self.run_id)
             console.printlog_bold("setting /run_id to %s" % self.run_id)
             return
-        from launcher.xmlrpc import call_blocking
+        from launcher.net.xmlrpc import call_blocking
         if self._run_id_known is not None:
             code, has = 1, self._run_id_known
         else:
@@ -443,7 +443,7 @@ class Launch:
 
     async def _start_rosout(self) -> None:
         try:
-            from launcher.rosout import Rosout
+            from launcher.net.rosout import Rosout
         except ImportError as e:
             console.printerrlog("no built-in rosout available (%s): /rosout is not served" % e)
             return
@@ -501,13 +501,13 @@ class Launch:
             except KeyError:
                 pass
             return
-        from launcher.xmlrpc import call_blocking
+        from launcher.net.xmlrpc import call_blocking
         call_blocking(self.master_uri, "deleteParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
 
     def _get_param(self, key: str) -> Any:
         if self.master is not None:
             return self.master.params.get(key)
-        from launcher.xmlrpc import call_blocking
+        from launcher.net.xmlrpc import call_blocking
         code, msg, value = call_blocking(self.master_uri, "getParam", _CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
         if code != 1:
             raise LaunchError(msg)
@@ -530,7 +530,7 @@ class Launch:
             return
         if not params and not clear:
             return
-        from launcher.xmlrpc import call_blocking
+        from launcher.net.xmlrpc import call_blocking
         # one round trip: deletes first, then sets (the master runs a multicall in order)
         calls = [{"methodName": "deleteParam", "params": [_CALLER_ID, ns]} for ns in clear]
         calls += [{"methodName": "setParam", "params": [_CALLER_ID, k, v]} for k, v in params]

@@ -96,7 +96,7 @@ class Master:
         """Listen and serve; OSError if the port is taken."""
         from launcher.master.api import MasterApi
         from launcher.master.notify import Notifier
-        from launcher.xmlrpc_server import XmlRpcServer
+        from launcher.net.xmlrpc_server import XmlRpcServer
 
         self._notifier = Notifier(timeout=self._notify_timeout)
         self._api = MasterApi(self._notifier, self._tree)

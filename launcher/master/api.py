@@ -15,7 +15,7 @@ from typing import Any, Callable
 from launcher.master import registry as reg
 from launcher.master.notify import Notifier
 from launcher.params.tree import ParamTree, copy_tree
-from launcher.xmlrpc import Encoded, Fault, encode_value
+from launcher.net.xmlrpc import Encoded, Fault, encode_value
 
 SEP = "/"
 ANYTYPE = "*"

@@ -14,7 +14,7 @@ import collections
 import logging
 from typing import Any, Callable
 
-from launcher import xmlrpc
+from launcher.net import xmlrpc
 
 log = logging.getLogger("launcher.master")
 

@@ -8,7 +8,7 @@ re-registered with a new API bumping the old one.
 
 from __future__ import annotations
 
-from launcher.xmlrpc import Encoded, encode_value
+from launcher.net.xmlrpc import Encoded, encode_value
 
 PUBLICATIONS = 1
 SUBSCRIPTIONS = 2

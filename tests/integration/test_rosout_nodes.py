@@ -147,7 +147,7 @@ class RosoutThread:
     """Our Rosout running on its own asyncio loop in a thread, as the launcher would run it."""
 
     def __init__(self, master_uri: str, log_dir: str, **kw: Any):
-        from launcher.rosout import Rosout
+        from launcher.net.rosout import Rosout
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
@@ -414,7 +414,7 @@ class BadPublisher:
             if self.behaviour == "garbage":
                 conn.sendall(b"\xff\xff\xff\x7f" + os.urandom(512))
             elif self.behaviour == "bad-frames":
-                from launcher.tcpros import encode_header
+                from launcher.net.tcpros import encode_header
                 conn.sendall(encode_header({"callerid": "/bad", "md5sum": "*",
                                             "type": "rosgraph_msgs/Log"}))
                 conn.sendall(b"\x10\x00\x00\x00" + os.urandom(16) + b"\xff\xff\xff\x7f")
@@ -489,7 +489,7 @@ def test_rosnode_kill_respawns_rosout(graph, rosout):
 
 
 def test_rosgraph_encodes_headers_like_us(graph):
-    from launcher.tcpros import decode_header, encode_header
+    from launcher.net.tcpros import decode_header, encode_header
     fields = {"callerid": "/a", "topic": "/rosout", "md5sum": "*", "message_definition": "x=1\n"}
     script = ("import sys, rosgraph.network as n; sys.stdout.buffer.write("
               "n.encode_ros_handshake_header(%r))" % fields)

@@ -16,7 +16,7 @@ import xmlrpc.client
 import pytest
 
 from launcher.master.api import MasterApi
-from launcher.xmlrpc import dumps_response
+from launcher.net.xmlrpc import dumps_response
 
 REFERENCE = r'''
 import copy, json, sys, xmlrpc.client

@@ -3,7 +3,7 @@
 It speaks HTTP/1.1 with keep-alive on `/` and `/RPC2` (what rospy, roscpp's
 XmlRpc++ and rosjava expect), bounds header and body sizes, times out slow
 clients and answers every malformed call with a fault or an HTTP error. The
-codec it uses (`launcher.xmlrpc`) stays free of asyncio, so that a launch can
+codec it uses (`launcher.net.xmlrpc`) stays free of asyncio, so that a launch can
 talk to a running master before it starts its event loop.
 """
 
@@ -14,7 +14,7 @@ import inspect
 import socket
 from typing import Any, Awaitable, Callable
 
-from launcher.xmlrpc import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
+from launcher.net.xmlrpc import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
 
 __all__ = ["XmlRpcServer", "multicall", "Dispatch"]
 

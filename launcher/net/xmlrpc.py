@@ -3,7 +3,7 @@
 The codec turns bytes into values and back without touching a socket. Parsing
 goes through expat with every DTD refused, so no entity can be declared: no
 XXE, no entity expansion ("billion laughs"); nesting depth is bounded. The
-HTTP server is `launcher.xmlrpc_server`. This module does not import asyncio
+HTTP server is `launcher.net.xmlrpc_server`. This module does not import asyncio
 (~25 ms): a launch talks to a running master with `call_blocking` and spawns
 its nodes before it starts an event loop.
 """

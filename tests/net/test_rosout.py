@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from launcher.rosout import (RosoutLogFile, file_logging_disabled, format_log_line, format_stamp,
+from launcher.net.rosout import (RosoutLogFile, file_logging_disabled, format_log_line, format_stamp,
                              rosout_typestore, service_md5)
 
 
@@ -18,7 +18,7 @@ def typestore():
 def test_announced_log_type_is_rosbags_noetic_log():
     """/rosout is registered with constants (no rosbags at start): they are what rosbags computes."""
     from rosbags.typesys import Stores, get_typestore
-    from launcher.rosout import LOG_DEFINITION, LOG_MD5
+    from launcher.net.rosout import LOG_DEFINITION, LOG_MD5
     assert get_typestore(Stores.ROS1_NOETIC).generate_msgdef("rosgraph_msgs/msg/Log") == (LOG_DEFINITION, LOG_MD5)
 
 
@@ -109,7 +109,7 @@ def test_rotation_keeps_every_line_and_the_newest_backups(tmp_path):
 
 def test_logger_service_md5s_match_roscpp(typestore):
     from rosbags.typesys import get_types_from_msg
-    from launcher.rosout import _LOGGER_SERVICE_TYPES
+    from launcher.net.rosout import _LOGGER_SERVICE_TYPES
     types = {}
     for name, text in _LOGGER_SERVICE_TYPES.items():
         types.update(get_types_from_msg(text, name))
@@ -122,7 +122,7 @@ def test_logger_service_md5s_match_roscpp(typestore):
     with pytest.raises(NotImplementedError):
         service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request", "roscpp/msg/Logger")
     # the constants rosout announces its services with
-    from launcher.rosout import GET_LOGGERS_MD5, SET_LOGGER_LEVEL_MD5
+    from launcher.net.rosout import GET_LOGGERS_MD5, SET_LOGGER_LEVEL_MD5
     assert GET_LOGGERS_MD5 == service_md5(typestore, "roscpp/msg/GetLoggers_Request", "roscpp/msg/GetLoggers_Response")
     assert SET_LOGGER_LEVEL_MD5 == service_md5(typestore, "roscpp/msg/SetLoggerLevel_Request",
                                                "roscpp/msg/SetLoggerLevel_Response")
@@ -131,7 +131,7 @@ def test_logger_service_md5s_match_roscpp(typestore):
 def test_text_that_is_not_utf8_is_kept_as_bytes(typestore):
     """roscpp may send any bytes; rosout.cpp writes them as they are, and so do we."""
     from rosbags.typesys import get_types_from_msg
-    from launcher.rosout import _RAW_LOG, _RAW_LOG_TYPES
+    from launcher.net.rosout import _RAW_LOG, _RAW_LOG_TYPES
     types = {}
     for name, text in _RAW_LOG_TYPES.items():
         types.update(get_types_from_msg(text, name))

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from launcher.tcpros import (FrameDecoder, InboundConnection, Publication, PublisherLink,
+from launcher.net.tcpros import (FrameDecoder, InboundConnection, Publication, PublisherLink,
                              ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
                              decode_header, encode_frame, encode_header, transport_info)
 
@@ -177,7 +177,7 @@ def test_garbage_client_does_not_disturb_a_good_subscriber():
 
 
 def test_a_subscriber_that_stops_reading_is_dropped_from_not_waited_for(monkeypatch):
-    import launcher.tcpros as tcpros
+    import launcher.net.tcpros as tcpros
     monkeypatch.setattr(tcpros, "MAX_WRITE_BACKLOG", 64 * 1024)
 
     async def main():

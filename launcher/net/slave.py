@@ -9,7 +9,7 @@ import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from launcher.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
+from launcher.net.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
                              connect_publisher)
 
 log = logging.getLogger("launcher.slave")
@@ -62,7 +62,7 @@ class Subscription:
                 self.connecting[uri] = task
 
     async def _connect(self, uri: str) -> None:
-        from launcher.xmlrpc import call
+        from launcher.net.xmlrpc import call
         try:
             reply = await call(uri, "requestTopic", self.node.name, self.topic, [["TCPROS"]],
                                timeout=10.0)
@@ -130,7 +130,7 @@ class SlaveNode:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        from launcher.xmlrpc_server import XmlRpcServer
+        from launcher.net.xmlrpc_server import XmlRpcServer
         bind = bind_address(self.host)
         await self.tcpros.start(bind)
         self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0)
@@ -138,7 +138,7 @@ class SlaveNode:
         self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
 
     async def _master(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
-        from launcher.xmlrpc import call
+        from launcher.net.xmlrpc import call
         code, status, value = await call(self.master_uri, method, self.name, *params,
                                          timeout=timeout)
         if code != 1:

@@ -10,8 +10,8 @@ import xmlrpc.client
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from launcher import xmlrpc as X
-from launcher import xmlrpc_server as S
+from launcher.net import xmlrpc as X
+from launcher.net import xmlrpc_server as S
 
 # ---------------------------------------------------------------------------
 # codec
@@ -553,7 +553,7 @@ def test_import_does_not_load_the_stdlib_client():
     """xmlrpc.client (http.client, email) costs every launch's start for two rarely used types."""
     import subprocess
     import sys
-    code = "import sys, launcher.xmlrpc; print(sorted({'xmlrpc.client', 'http.client'} & set(sys.modules)))"
+    code = "import sys, launcher.net.xmlrpc; print(sorted({'xmlrpc.client', 'http.client'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -562,7 +562,7 @@ def test_codec_and_clients_do_not_import_asyncio():
     """A launch talks to a running master and spawns its nodes before it imports asyncio (~25 ms)."""
     import subprocess
     import sys
-    code = "import sys, launcher.xmlrpc; print('asyncio' in sys.modules)"
+    code = "import sys, launcher.net.xmlrpc; print('asyncio' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
 

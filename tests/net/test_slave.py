@@ -7,9 +7,9 @@ import os
 
 import pytest
 
-from launcher.slave import SlaveNode, Subscription, bind_address
-from launcher.tcpros import Publication, TopicType
-from launcher.xmlrpc import Fault, call
+from launcher.net.slave import SlaveNode, Subscription, bind_address
+from launcher.net.tcpros import Publication, TopicType
+from launcher.net.xmlrpc import Fault, call
 
 CHAT = TopicType("std_msgs/String", "992ce8a1687cec8c8bd883ec73ca41d1", "string data\n")
 # Nothing listens here: these tests never reach a master.
