@@ -5,19 +5,19 @@ its corner cases: `$(...)` commands are collected by the same little state
 machine, the value of each replaces every copy of its text, `$(find)` runs in a
 second pass over the already substituted string (so an arg whose value
 contains `$(find pkg)` is expanded too), and `$(eval ...)` must be the whole
-attribute. `$(eval)` runs in a sandbox: roslaunch's names, a small set of pure
-builtins, no attribute starting with `_`, no `format` (it reaches attributes).
+attribute. `$(eval)` is not Python's eval(): `xml/sandbox.py` walks the expression's
+syntax tree over roslaunch's names, with an allowlist and a bound on the work.
 """
 
 from __future__ import annotations
 
-import builtins
-import math
+import os.path
 import re
 from typing import Any, Callable, Mapping
 
-from launcher.errors import LaunchError
 from launcher.names import anonymous_name
+from launcher.params.values import auto_value
+from launcher.xml import sandbox
 
 VALID_COMMANDS = ("find", "env", "optenv", "dirname", "anon", "arg")
 _FIRST_PASS = ("env", "optenv", "dirname", "anon", "arg")
@@ -207,7 +207,6 @@ def _anon(id_: str, scope: SubstitutionScope) -> str:
 
 
 def _dirname(scope: SubstitutionScope) -> str:
-    import os.path
     if not scope.filename:
         raise SubstitutionError("Cannot substitute $(dirname), no file/directory information available.")
     return os.path.abspath(os.path.dirname(scope.filename))
@@ -233,172 +232,43 @@ def _find(resolved: str, body: str, args: tuple[str, ...], scope: SubstitutionSc
 # ---------------------------------------------------------------------------
 # $(eval ...)
 
-# Builtins roslaunch's eval can reach that compute values only: no I/O, no
-# introspection (getattr, vars, type, ...), no code execution.
-_SAFE_BUILTINS = {name: getattr(builtins, name)
-                  for name in ("abs", "all", "any", "bin", "bool", "chr", "dict", "divmod", "enumerate",
-                               "filter", "float", "frozenset", "hex", "int", "isinstance", "len", "list",
-                               "map", "max", "min", "oct", "ord", "pow", "range", "repr", "reversed",
-                               "round", "set", "slice", "sorted", "str", "sum", "tuple", "zip", "complex")}
-_MATH = {k: v for k, v in vars(math).items() if not k.startswith("_")}
-_CONSTANTS = {"true": True, "false": False, "True": True, "False": False, "None": None}
-_FORBIDDEN_ATTRS = {"format", "format_map", "mro", "gi_frame", "gi_code", "cr_frame", "f_globals",
-                    "f_locals", "f_builtins", "func_globals", "tb_frame"}
-
-
-def auto_value(text: str) -> Any:
-    """roslaunch's 'auto' typing of a string (int, float, bool or str), as $(eval) sees arg values."""
-    try:
-        if "." in text:
-            return float(text)
-        if "_" not in text:
-            return int(text)
-    except ValueError:
-        pass
-    low = text.lower()
-    if low == "true":
-        return True
-    if low == "false":
-        return False
-    return text
-
-
-class _Names(dict):
-    """Name lookup for eval: the scope's functions, the fixed names, then args auto-typed (roslaunch's _DictWrapper)."""
-
-    __slots__ = ("_scope",)
-
-    def __init__(self, scope: SubstitutionScope):
-        # (an empty dict needs no dict.__init__; the functions are made when the expression names them)
-        self._scope = scope
-
-    def __getitem__(self, key: str) -> Any:
-        make = _SCOPE_FUNCTIONS.get(key)
-        if make is not None:
-            return make(self._scope)
-        f = _STATIC_NAMES.get(key, _MISSING)
-        if f is not _MISSING:
-            return f
-        return auto_value(self._scope.args[key])
-
-    def __contains__(self, key: object) -> bool:
-        return key in _SCOPE_FUNCTIONS or key in _STATIC_NAMES or key in self._scope.args
-
-
-# (named functions, not lambdas: a misuse like `arg()` is reported with the function's name)
-def _eval_arg(scope: SubstitutionScope) -> Callable[[str], Any]:
-    def arg(name: str) -> Any:
-        return auto_value(_arg(name, scope))
-    return arg
-
-
-def _eval_env(scope: SubstitutionScope) -> Callable[[str], str]:
-    def env(name: str) -> str:
-        return _env(name, scope)
-    return env
-
-
-def _eval_optenv(scope: SubstitutionScope) -> Callable[..., str]:
-    def optenv(name: str, default: str = "") -> str:
-        return scope.environ.get(name, default)
-    return optenv
-
-
-def _eval_anon(scope: SubstitutionScope) -> Callable[[str], str]:
-    def anon(id_: str) -> str:
-        return _anon(id_, scope)
-    return anon
-
-
-def _eval_dirname(scope: SubstitutionScope) -> Callable[[], str]:
-    def dirname() -> str:
-        return _dirname(scope)
-    return dirname
-
-
-def _eval_find(scope: SubstitutionScope) -> Callable[[str], str]:
-    return scope.find_package
-
-
-# roslaunch's functions in $(eval): each made for the scope when an expression looks it up
-_SCOPE_FUNCTIONS: dict[str, Callable[[SubstitutionScope], Any]] = {
-    "arg": _eval_arg, "env": _eval_env, "optenv": _eval_optenv, "anon": _eval_anon, "dirname": _eval_dirname,
-    "find": _eval_find}
-_MISSING = object()
-_STATIC_NAMES: dict[str, Any] = {**_SAFE_BUILTINS, **_MATH, **_CONSTANTS}
-_COMPILED: dict[str, Any] = {}
-
-
-def _unsafe_names(code: Any) -> str | None:
-    """The first name or attribute in `code` (or its nested code) that the sandbox refuses."""
-    for name in code.co_names:
-        if name[0] == "_" or name in _FORBIDDEN_ATTRS:
-            return name
-    for const in code.co_consts:
-        if hasattr(const, "co_names"):
-            bad = _unsafe_names(const)
-            if bad:
-                return bad
-    return None
-
-
-_PLAIN_FIELD = re.compile(r"^\w*$")
-
-
-def _literal_formats_only(expr: str) -> bool:
-    """True if every `.format` in `expr` is called on a string literal whose fields are plain
-    (`'{}_link'.format(x)`, common in launch files); a field like `{0.attr}` would read attributes."""
-    import ast
-    import string
-    tree = ast.parse(expr.strip(), mode="eval")
-    formatter = string.Formatter()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Attribute) and node.attr in ("format", "format_map"):
-            if node.attr != "format" or not (isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
-                return False
-            todo = [node.value.value]
-            while todo:
-                try:
-                    parts = list(formatter.parse(todo.pop()))
-                except ValueError:
-                    return False
-                for _, field, spec, _ in parts:
-                    if field is not None and not _PLAIN_FIELD.match(field):
-                        return False
-                    if spec and "{" in spec:
-                        todo.append(spec)
-        elif isinstance(node, ast.Attribute) and node.attr[:1] == "_":
-            return False
-    return True
-
-
-def _compile(expr: str) -> Any:
-    code = _COMPILED.get(expr)
-    if code is not None:
-        return code
-    if "__" in expr:
-        raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
-    try:
-        code = compile(expr.strip(), "<eval>", "eval")
-    except SyntaxError as e:
-        raise SubstitutionError("invalid $(eval) expression [%s]: %s" % (expr, e.msg)) from None
-    # every global name and attribute an expression can touch is in co_names (of it or its nested code)
-    bad = _unsafe_names(code)
-    if bad == "format" and _literal_formats_only(expr):
-        bad = None
-    if bad:
-        raise SubstitutionError("$(eval ...) may not use '%s'" % bad)
-    _COMPILED[expr] = code
-    return code
+# roslaunch's names in $(eval), looked up before the args: its constants and every name of
+# the math module (xml/sandbox.py bounds the few math functions that could run long).
+_ROSLAUNCH_NAMES: dict[str, Any] = {**sandbox.MATH, "true": True, "false": False, "True": True, "False": False}
 
 
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
-    """`$(eval expr)`: str() of the Python expression, with roslaunch's names and nothing dangerous."""
-    code = _compile(expr)
+    """`$(eval expr)`: str() of the expression, evaluated by the sandbox over roslaunch's names."""
+    # roslaunch's own refusal, kept for its message (the sandbox needs no such rule)
+    if "__" in expr:
+        raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
+
+    # (named functions, not lambdas: a misuse like `arg()` is reported with the function's name)
+    def arg(name: str) -> Any:
+        return auto_value(_arg(name, scope))
+
+    def env(name: str) -> str:
+        return _env(name, scope)
+
+    def optenv(name: str, default: str = "") -> str:
+        return scope.environ.get(name, default)
+
+    def anon(id_: str) -> str:
+        return _anon(id_, scope)
+
+    def dirname() -> str:
+        return _dirname(scope)
+
+    def arg_value(name: str) -> Any:  # a bare name: an arg, auto-typed, or KeyError
+        return auto_value(scope.args[name])
+
+    functions = dict(_ROSLAUNCH_NAMES, arg=arg, env=env, optenv=optenv, anon=anon, dirname=dirname,
+                     find=scope.find_package)
     try:
-        value = eval(code, {"__builtins__": {}}, _Names(scope))  # noqa: S307 (sandboxed above)
-    except (SubstitutionError, LaunchError):
-        raise
-    except Exception as e:  # the user's expression failed: report it, never a traceback
-        raise SubstitutionError("$(eval %s) failed: %s: %s" % (expr, type(e).__name__, e)) from None
-    return str(value)
+        value = sandbox.evaluate(expr, sandbox.Names(functions, arg_value))
+        text = str(value)
+    except sandbox.EvalError as e:
+        raise SubstitutionError("$(eval %s) failed: %s" % (expr.strip(), e)) from None
+    except ValueError as e:  # str() of a value Python will not print (an int past its digit limit)
+        raise SubstitutionError("$(eval %s) failed: %s" % (expr.strip(), e)) from None
+    return text
