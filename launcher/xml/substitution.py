@@ -237,38 +237,60 @@ def _find(resolved: str, body: str, args: tuple[str, ...], scope: SubstitutionSc
 _ROSLAUNCH_NAMES: dict[str, Any] = {**sandbox.MATH, "true": True, "false": False, "True": True, "False": False}
 
 
+# roslaunch's functions in $(eval), each made for the scope when an expression names it
+# (named functions, not lambdas: a misuse like `arg()` is reported with the function's name)
+def _eval_arg(scope: SubstitutionScope) -> Callable[[str], Any]:
+    def arg(name: str) -> Any:
+        return auto_value(_arg(name, scope))
+    return arg
+
+
+def _eval_env(scope: SubstitutionScope) -> Callable[[str], str]:
+    def env(name: str) -> str:
+        return _env(name, scope)
+    return env
+
+
+def _eval_optenv(scope: SubstitutionScope) -> Callable[..., str]:
+    def optenv(name: str, default: str = "") -> str:
+        return scope.environ.get(name, default)
+    return optenv
+
+
+def _eval_anon(scope: SubstitutionScope) -> Callable[[str], str]:
+    def anon(id_: str) -> str:
+        return _anon(id_, scope)
+    return anon
+
+
+def _eval_dirname(scope: SubstitutionScope) -> Callable[[], str]:
+    def dirname() -> str:
+        return _dirname(scope)
+    return dirname
+
+
+_SCOPE_FUNCTIONS: dict[str, Callable[[SubstitutionScope], Any]] = {
+    "arg": _eval_arg, "env": _eval_env, "optenv": _eval_optenv, "anon": _eval_anon, "dirname": _eval_dirname,
+    "find": lambda scope: scope.find_package}
+
+
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
     """`$(eval expr)`: str() of the expression, evaluated by the sandbox over roslaunch's names."""
     # roslaunch's own refusal, kept for its message (the sandbox needs no such rule)
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
 
-    # (named functions, not lambdas: a misuse like `arg()` is reported with the function's name)
-    def arg(name: str) -> Any:
-        return auto_value(_arg(name, scope))
-
-    def env(name: str) -> str:
-        return _env(name, scope)
-
-    def optenv(name: str, default: str = "") -> str:
-        return scope.environ.get(name, default)
-
-    def anon(id_: str) -> str:
-        return _anon(id_, scope)
-
-    def dirname() -> str:
-        return _dirname(scope)
-
-    def arg_value(name: str) -> Any:  # a bare name: an arg, auto-typed, or KeyError
+    def lookup(name: str) -> Any:  # roslaunch's _DictWrapper: its names, then the args auto-typed
+        if name in _ROSLAUNCH_NAMES:
+            return _ROSLAUNCH_NAMES[name]
+        make = _SCOPE_FUNCTIONS.get(name)
+        if make is not None:
+            return make(scope)
         return auto_value(scope.args[name])
 
-    functions = dict(_ROSLAUNCH_NAMES, arg=arg, env=env, optenv=optenv, anon=anon, dirname=dirname,
-                     find=scope.find_package)
     try:
-        value = sandbox.evaluate(expr, sandbox.Names(functions, arg_value))
-        text = str(value)
+        return str(sandbox.evaluate(expr, lookup))
     except sandbox.EvalError as e:
         raise SubstitutionError("$(eval %s) failed: %s" % (expr.strip(), e)) from None
     except ValueError as e:  # str() of a value Python will not print (an int past its digit limit)
         raise SubstitutionError("$(eval %s) failed: %s" % (expr.strip(), e)) from None
-    return text
