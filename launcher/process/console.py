@@ -1,12 +1,26 @@
-"""roslaunch-style console messages: plain, bold and error lines, flushed at once."""
+"""roslaunch-style console messages (plain, bold, error lines), written by one thread that may block so nothing else does.
+
+The launcher's stdout is often something it does not control: a terminal paused
+with Ctrl-S, a pipe nobody reads, a slow SSH link. A `write` there blocks, and
+if the event loop made it, the embedded master would stop answering and
+respawns would stop. So a message is handed to the console's writer thread
+through a bounded queue and the caller goes on at once. When the queue is full
+the oldest lines are dropped, and the writer says how many once output flows
+again. The extra sinks (the launch's own log file) get every message in full,
+at once, from the caller.
+"""
 
 from __future__ import annotations
 
+import collections
 import sys
+import threading
 from typing import Callable, TextIO
 
 # Extra sinks (e.g. the launcher's own log file); each gets every message.
 _handlers: list[Callable[[str], None]] = []
+
+MAX_QUEUED_CHARS = 128 * 1024  # console text held while the terminal or pipe does not take it
 
 
 def add_handler(fn: Callable[[str], None]) -> None:
@@ -31,23 +45,79 @@ def _colours(stream: TextIO) -> bool:
     return known[1]
 
 
+class _Writer:
+    """The one thread that writes console lines, in the order they were emitted, to their streams."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._queue: collections.deque[tuple[TextIO, str]] = collections.deque()
+        self._queued_chars = 0
+        self._dropped = 0
+        self._writing = False
+        self._thread: threading.Thread | None = None
+
+    def put(self, stream: TextIO, text: str) -> None:
+        with self._cond:
+            self._queue.append((stream, text))
+            self._queued_chars += len(text)
+            while self._queued_chars > MAX_QUEUED_CHARS and len(self._queue) > 1:
+                self._queued_chars -= len(self._queue.popleft()[1])
+                self._dropped += 1
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="console", daemon=True)
+                self._thread.start()
+            self._cond.notify()
+
+    def flush(self, timeout: float) -> bool:
+        """Wait until every queued line is written (False if the output stayed blocked for `timeout`)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._queue and not self._writing, timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._writing = False
+                self._cond.notify_all()
+                self._cond.wait_for(lambda: self._queue)
+                stream, text = self._queue.popleft()
+                self._queued_chars -= len(text)
+                dropped, self._dropped = self._dropped, 0
+                self._writing = True
+            if dropped:
+                _write(stream, "[launch] %d console line%s dropped while the output was blocked\n"
+                       % (dropped, "" if dropped == 1 else "s"))
+            _write(stream, text)
+
+
+def _write(stream: TextIO, text: str) -> None:
+    try:
+        stream.write(text)
+        # Flushed per line: node output shares the same terminal/pipe.
+        stream.flush()
+    except (OSError, ValueError):
+        pass
+
+
+_writer = _Writer()
+
+
+def flush(timeout: float = 2.0) -> bool:
+    """Write out what is queued before the process exits; give up after `timeout` if the output is blocked."""
+    return _writer.flush(timeout)
+
+
 def _emit(stream: TextIO, msg: str, style: str | None) -> None:
     for h in _handlers:
         try:
             h(msg)
         except Exception:  # a broken log sink must never stop the launch
             pass
-    try:
-        # Colours only on a terminal: roslaunch always writes escapes, which
-        # litter redirected output; the words are the same either way.
-        if style and _colours(stream):
-            stream.write("\033[%sm%s\033[0m\n" % (style, msg))
-        else:
-            stream.write(msg + "\n")
-        # Flushed per line: node output shares the same terminal/pipe.
-        stream.flush()
-    except (OSError, ValueError):
-        pass
+    # Colours only on a terminal: roslaunch always writes escapes, which
+    # litter redirected output; the words are the same either way.
+    if style and _colours(stream):
+        _writer.put(stream, "\033[%sm%s\033[0m\n" % (style, msg))
+    else:
+        _writer.put(stream, msg + "\n")
 
 
 def printlog(msg: str) -> None:
