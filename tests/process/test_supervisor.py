@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from launcher.command import NodeCommand
 from launcher.process.supervisor import ProcessSpec, Supervisor
 
 PY = sys.executable
@@ -20,7 +21,7 @@ def py_node(code: str) -> list[str]:
 
 
 def spec(name: str, argv: list[str], tmp_path, **kw) -> ProcessSpec:
-    return ProcessSpec(name=name, argv=argv, env=dict(os.environ), cwd=str(tmp_path), **kw)
+    return ProcessSpec(name, NodeCommand(argv, dict(os.environ), cwd=str(tmp_path)), **kw)
 
 
 async def wait_for(cond, timeout=10.0, period=0.005):
@@ -191,8 +192,8 @@ def test_cwd_and_env(tmp_path):
     async def main():
         sup = Supervisor()
         env = {"PATH": os.environ["PATH"], "MY_VAR": "hello"}
-        p = sup.start(ProcessSpec("e-1", ["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)], env,
-                                  str(work)))
+        p = sup.start(ProcessSpec("e-1", NodeCommand(["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)],
+                                                     env, cwd=str(work))))
         await wait_for(lambda: not p.alive)
         await sup.shutdown()
     asyncio.run(main())

@@ -16,6 +16,7 @@ from launcher.process.watchdog import Watchdog
 LAUNCHER = textwrap.dedent(r"""
     import asyncio, os, sys
     from launcher.process.watchdog import Watchdog
+    from launcher.command import NodeCommand
     from launcher.process.supervisor import ProcessSpec, Supervisor
     wd = Watchdog.start()
     tmp = sys.argv[1]
@@ -30,8 +31,8 @@ LAUNCHER = textwrap.dedent(r"""
     async def main():
         sup = Supervisor(watchdog=wd)
         for i in range(3):
-            sup.start(ProcessSpec("n%d-%d" % (i, i + 1), [sys.executable, "-c", NODE, GRAND, tmp],
-                                  dict(os.environ), tmp))
+            sup.start(ProcessSpec("n%d-%d" % (i, i + 1), NodeCommand([sys.executable, "-c", NODE, GRAND, tmp],
+                                                                     dict(os.environ), cwd=tmp)))
         print("up", flush=True)
         await asyncio.sleep(100)
     asyncio.run(main())
