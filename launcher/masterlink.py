@@ -161,7 +161,12 @@ class RemoteParams:
         await self._call("setParam", key, value)
 
     async def delete(self, key: str) -> None:
-        await self._call("deleteParam", key)
+        """Delete `key`; one that is not set is no error (as with our own master)."""
+        try:
+            await call(self.uri, "deleteParam", CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+        except (OSError, ValueError, Fault, asyncio.TimeoutError) as e:
+            raise LaunchError("deleteParam failed on the master at [%s]: %s" % (self.uri, e or type(e).__name__)) \
+                from None
 
     async def upload(self, clear: list[str], params: list[tuple[str, Any]]) -> None:
         if not params and not clear:
