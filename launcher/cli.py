@@ -1,7 +1,7 @@
 """The `launch` command: roslaunch's options, dispatch, exit codes.
 
 Launch semantics live elsewhere: introspection in `launcher.introspect`,
-`--core` in `launcher.core`, a real run in `launcher.runtime`.
+a run (`--core` is a run with an empty launch) in `launcher.runtime`.
 """
 
 from __future__ import annotations
@@ -102,9 +102,6 @@ def main(argv: list[str] | None = None) -> int:
             raise LaunchError("--sigint-timeout and --sigterm-timeout must be greater than zero")
         if opts.child_name or opts.server_uri:
             raise LaunchError("roslaunch's child mode (-c/-u) is not supported")
-        if opts.core:
-            from launcher import core
-            return core.run_core(opts)
         if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:
             from launcher import introspect
             status = introspect.main(opts)
@@ -115,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
                 sys.stderr.flush()
                 os._exit(status)
             return status
-        if not opts.positional:
+        if not opts.positional and not opts.core:
             build_parser().error("you must specify at least one input file")
         from launcher import runtime
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import os
 import shlex
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from launcher.config import Node
 from launcher.errors import LaunchError
+from launcher.process.logdir import ros_home
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 
@@ -42,8 +43,12 @@ class NodeCommand:
         return " ".join(['%s="%s"' % kv for kv in self.env_changes] + self.argv)
 
 
-def ros_home(environ: Mapping[str, str]) -> str:
-    return environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+def master_uri(argv: Iterable[str], environ: Mapping[str, str]) -> str:
+    """ROS_MASTER_URI as a node started by `launch` sees it: `__master:=`, then the environment, then the default."""
+    for token in argv:
+        if token.startswith("__master:="):
+            return token[len("__master:="):]
+    return environ.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
 
 
 def node_env(node: Node, master_uri: str, environ: Mapping[str, str]) -> dict[str, str]:

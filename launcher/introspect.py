@@ -37,15 +37,6 @@ def resolve_node_name(name: str, argv: list[str], environ: Mapping[str, str]) ->
     return ns + name
 
 
-def master_uri(argv: list[str], environ: Mapping[str, str]) -> str:
-    """ROS_MASTER_URI as a node started by `launch` sees it: `__master:=`, then the environment, then the default."""
-    from launcher.command import DEFAULT_MASTER_URI
-    for token in argv:
-        if token.startswith("__master:="):
-            return token[len("__master:="):]
-    return environ.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
-
-
 def _full_name(node: Any) -> str | None:
     return ns_join(node.namespace, node.name) if node.name else None
 
@@ -90,7 +81,7 @@ def _main(opts: Any) -> int:
             names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
             raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s"
                               % (name, ", ".join(files), "\n".join(" * %s" % n for n in names)))
-        from launcher.command import node_command
+        from launcher.command import master_uri, node_command
         cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
         out.write(cmd.format_args() + "\n")
         return 0

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from launcher.config import LaunchConfig, Node, Param
-from launcher.runtime import _is_local_host, _summary_value, summary
+from launcher.masterlink import is_local_host as _is_local_host
+from launcher.runlog import summary, summary_value as _summary_value
 
 
 def test_summary_matches_roslaunch_layout():

@@ -1,8 +1,8 @@
 """Starting one node's process: what to run (`ProcessSpec`) and `spawn`, with roslaunch's failure messages.
 
-Nothing here needs an event loop: a launch against a running master spawns its
-nodes before it imports asyncio, and the supervisor adopts them once its loop
-runs (`Supervisor.adopt`).
+A `ProcessSpec` is a node's `NodeCommand` (the very object `launch --args`
+prints, so what it prints is what runs) plus how the process is supervised:
+its roslaunch process name, where its output goes, respawn and required.
 """
 
 from __future__ import annotations
@@ -12,23 +12,22 @@ import os
 import signal
 import subprocess
 
+from launcher.command import NodeCommand
 from launcher.process import console
 
 
 class ProcessSpec:
-    """What to run for one node, fully resolved (see `launcher.command.node_command`)."""
+    """One node to supervise: its command (`launcher.command.node_command`) and how it is run."""
 
     # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
     # first spawn)
-    __slots__ = ("name", "argv", "env", "cwd", "stdout_path", "log_dir", "respawn", "respawn_delay", "required")
+    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required")
 
-    def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str, stdout_path: str | None = None,
+    def __init__(self, name: str, command: NodeCommand, stdout_path: str | None = None,
                  log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
                  required: bool = False):
         self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
-        self.argv = argv
-        self.env = env
-        self.cwd = cwd
+        self.command = command
         self.stdout_path = stdout_path  # None: inherit the terminal (output="screen")
         self.log_dir = log_dir  # for the "log file:" hint after a death
         self.respawn = respawn
@@ -37,6 +36,10 @@ class ProcessSpec:
 
     def __repr__(self) -> str:
         return "ProcessSpec(%s)" % ", ".join("%s=%r" % (k, getattr(self, k)) for k in self.__slots__)
+
+    @property
+    def argv(self) -> list[str]:
+        return self.command.argv
 
     @property
     def log_name(self) -> str:
@@ -63,7 +66,7 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
 
     Signals the launcher handles are reset to their default disposition by exec
     itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
-    restored by the launcher installing handlers before spawning (runtime.py).
+    restored by `restore_default_signals_for_children` (the Supervisor calls it).
     """
     stdout = None
     if spec.stdout_path:
@@ -73,20 +76,21 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
             stdout = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object to build per node)
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
+    command = spec.command
     try:
         try:
-            return subprocess.Popen(spec.argv, cwd=spec.cwd or None, env=spec.env, stdout=stdout,
+            return subprocess.Popen(command.argv, cwd=command.cwd or None, env=command.env, stdout=stdout,
                                     close_fds=True, start_new_session=True)
         except FileNotFoundError as e:
-            if not spec.cwd or e.filename != spec.cwd:
+            if not command.cwd or e.filename != command.cwd:
                 raise
             # the working directory (ROS_HOME, ~/.ros by default) does not exist yet: create it, as
             # roslaunch does (only now: a makedirs before every spawn costs more than the spawn's setup)
             try:
-                os.makedirs(spec.cwd, exist_ok=True)
+                os.makedirs(command.cwd, exist_ok=True)
             except OSError:
                 pass
-            return subprocess.Popen(spec.argv, cwd=spec.cwd, env=spec.env, stdout=stdout,
+            return subprocess.Popen(command.argv, cwd=command.cwd, env=command.env, stdout=stdout,
                                     close_fds=True, start_new_session=True)
     except OSError as e:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None

@@ -159,26 +159,14 @@ class Supervisor:
     # ---- starting ---------------------------------------------------------------------------------
 
     def start(self, spec: ProcessSpec) -> NodeProcess | None:
-        """Spawn a node now. A failure is reported by name and the rest carry on (unless required)."""
-        return self.adopt(spec, start_process(spec, self.watchdog), self.loop.time())
+        """Spawn a node now. A failure is reported by name and the rest carry on (unless required).
 
-    def adopt(self, spec: ProcessSpec, popen: subprocess.Popen | None, started_at: float) -> NodeProcess | None:
-        """Supervise a node started by `start_process` before this loop ran (None: it failed to start).
-
-        `started_at` is its time.monotonic() at the start (the loop's clock).
+        None if it could not start and will not be tried again (a respawning node will be).
         """
         proc = NodeProcess(spec)
         self.procs.append(proc)
-        if popen is None:
-            self._failed_start(proc)
-            return None
-        self._watch(proc, popen, started_at)
-        return proc
-
-    def report_failed(self, name: str, message: str, required: bool = False) -> None:
-        """A node that could not even be prepared (e.g. missing executable): report it like a failed start."""
-        console.printerrlog(message)
-        self.not_started(name, required)
+        self._start(proc)
+        return proc if proc.alive or proc.respawn_handle is not None else None
 
     def not_started(self, name: str, required: bool = False) -> None:
         """A node that was never started (already reported by name): what that means for the launch."""
@@ -193,13 +181,14 @@ class Supervisor:
         self._registrations_complete = True
         self._check_all_dead()
 
-    def _spawn(self, proc: NodeProcess) -> bool:
-        """Start `proc` again (respawn)."""
-        popen = start_process(proc.spec, self.watchdog, append=True)
+    def _start(self, proc: NodeProcess, append: bool = False) -> None:
+        """Start the node's process; a start that fails is a run that ended at once (`_run_ended`)."""
+        popen = start_process(proc.spec, self.watchdog, append=append)
         if popen is None:
-            return False
+            proc.started_at = self.loop.time()  # (paces the retries of a respawning node)
+            self._run_ended(proc, started=False)
+            return
         self._watch(proc, popen, self.loop.time())
-        return True
 
     def _watch(self, proc: NodeProcess, popen: subprocess.Popen, started_at: float) -> None:
         if proc.group_alive and proc.pgid is not None and not proc.alive:
@@ -222,13 +211,6 @@ class Supervisor:
         if self.on_spawn is not None:
             self.on_spawn(proc)
 
-    def _failed_start(self, proc: NodeProcess) -> None:
-        if proc.spec.required:
-            self._required_gone(proc.name, "could not be started")
-        else:
-            self._any_died = True
-            self._check_all_dead()
-
     # ---- watching ---------------------------------------------------------------------------------
 
     def _on_exit(self, proc: NodeProcess, popen: subprocess.Popen | None = None) -> None:
@@ -247,20 +229,31 @@ class Supervisor:
         if proc.stopping or self.shutting_down:
             self._stopping_progress(proc)
             return
+        self._run_ended(proc)
+
+    def _run_ended(self, proc: NodeProcess, started: bool = True) -> None:
+        """The one place where a node's run ends (it exited, or `started` is False: it failed to start)
+        and what comes next is decided: the launch ends (required), the node starts again (respawn),
+        or it stays down."""
         self._any_died = True
-        desc = proc.exit_description()
         if proc.spec.required:
-            console.printerrlog("=" * 80 + "REQUIRED process [%s] has died!\n%s\nInitiating shutdown!\n" % (proc.name, desc)
-                                + "=" * 80)
+            if not started:
+                self._required_gone(proc.name, "could not be started")
+                return
+            console.printerrlog("=" * 80 + "REQUIRED process [%s] has died!\n%s\nInitiating shutdown!\n"
+                                % (proc.name, proc.exit_description()) + "=" * 80)
             if proc.exit_code != 0:
                 self.required_failed = True
             self.done.set()
             return
-        if proc.exit_code:
-            console.printerrlog("[%s] %s" % (proc.name, desc))
-        else:
-            console.printlog_bold("[%s] %s" % (proc.name, desc))
+        if started:
+            desc = proc.exit_description()
+            if proc.exit_code:
+                console.printerrlog("[%s] %s" % (proc.name, desc))
+            else:
+                console.printlog_bold("[%s] %s" % (proc.name, desc))
         if proc.spec.respawn:
+            # a failed start too: an executable briefly missing (a package being reinstalled) comes back
             self._schedule_respawn(proc)
         else:
             self._check_all_dead()
@@ -287,8 +280,7 @@ class Supervisor:
         if self.shutting_down or self.done.is_set():
             return
         console.printlog("[%s] restarting process" % proc.name)
-        if not self._spawn(proc):
-            self._check_all_dead()
+        self._start(proc, append=True)
 
     def _check_all_dead(self) -> None:
         if not (self.exit_when_all_dead and self._registrations_complete and self._any_died):

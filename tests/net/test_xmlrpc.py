@@ -549,24 +549,6 @@ def test_stdlib_binary_is_sent_as_base64():
     assert b"<base64>AP8=</base64>" in X.dumps_response(xmlrpc.client.Binary(b"\x00\xff"))
 
 
-def test_import_does_not_load_the_stdlib_client():
-    """xmlrpc.client (http.client, email) costs every launch's start for two rarely used types."""
-    import subprocess
-    import sys
-    code = "import sys, launcher.net.xmlrpc; print(sorted({'xmlrpc.client', 'http.client'} & set(sys.modules)))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "[]"
-
-
-def test_codec_and_clients_do_not_import_asyncio():
-    """A launch talks to a running master and spawns its nodes before it imports asyncio (~25 ms)."""
-    import subprocess
-    import sys
-    code = "import sys, launcher.net.xmlrpc; print('asyncio' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "False"
-
-
 def test_blocking_client_values_faults_and_http_errors(server):
     assert X.call_blocking(server.uri, "echo", 1, "a", [True, 2.5], {"k": "v"}) == [1, "a", [True, 2.5], {"k": "v"}]
     assert X.call_blocking(server.uri, "later", 0.01, "async") == "async"

@@ -6,13 +6,14 @@ import os
 
 import pytest
 
+from launcher.command import NodeCommand
 from launcher.process.spawn import ProcessSpec, SpawnError, spawn
 
 
 def test_missing_working_directory_is_created(tmp_path):
     work = tmp_path / "a" / "b"
     out = tmp_path / "pwd.txt"
-    p = spawn(ProcessSpec("w-1", ["/bin/sh", "-c", "pwd > %s" % out], dict(os.environ), str(work)))
+    p = spawn(ProcessSpec("w-1", NodeCommand(["/bin/sh", "-c", "pwd > %s" % out], dict(os.environ), cwd=str(work))))
     assert p.wait(10) == 0
     assert out.read_text().strip() == str(work)
 
@@ -20,7 +21,7 @@ def test_missing_working_directory_is_created(tmp_path):
 def test_missing_executable_is_reported_even_when_the_directory_was_missing_too(tmp_path):
     work = tmp_path / "new"
     with pytest.raises(SpawnError) as e:
-        spawn(ProcessSpec("ghost-1", [str(tmp_path / "no_such_exe")], dict(os.environ), str(work)))
+        spawn(ProcessSpec("ghost-1", NodeCommand([str(tmp_path / "no_such_exe")], dict(os.environ), cwd=str(work))))
     assert "no_such_exe" in str(e.value) and "ghost-1" in str(e.value)
     assert work.is_dir()
 
@@ -29,4 +30,4 @@ def test_working_directory_that_cannot_be_made_is_a_spawn_error(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
     with pytest.raises(SpawnError):
-        spawn(ProcessSpec("x-1", ["/bin/true"], dict(os.environ), str(blocker / "sub")))
+        spawn(ProcessSpec("x-1", NodeCommand(["/bin/true"], dict(os.environ), cwd=str(blocker / "sub"))))

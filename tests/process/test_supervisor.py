@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from launcher.command import NodeCommand
 from launcher.process.supervisor import ProcessSpec, Supervisor
 
 PY = sys.executable
@@ -20,7 +21,7 @@ def py_node(code: str) -> list[str]:
 
 
 def spec(name: str, argv: list[str], tmp_path, **kw) -> ProcessSpec:
-    return ProcessSpec(name=name, argv=argv, env=dict(os.environ), cwd=str(tmp_path), **kw)
+    return ProcessSpec(name, NodeCommand(argv, dict(os.environ), cwd=str(tmp_path)), **kw)
 
 
 async def wait_for(cond, timeout=10.0, period=0.005):
@@ -82,8 +83,7 @@ def test_no_exit_while_core_runs(tmp_path):
         sup = Supervisor(exit_when_all_dead=False)
         p = sup.start(spec("ok-1", ["/bin/true"], tmp_path))
         sup.registrations_complete()
-        await wait_for(lambda: not p.alive)
-        await asyncio.sleep(0.05)
+        await wait_for(lambda: not p.alive)  # (the exit is handled in one callback: done would be set now)
         return sup.done.is_set()
     assert asyncio.run(main()) is False
 
@@ -191,8 +191,8 @@ def test_cwd_and_env(tmp_path):
     async def main():
         sup = Supervisor()
         env = {"PATH": os.environ["PATH"], "MY_VAR": "hello"}
-        p = sup.start(ProcessSpec("e-1", ["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)], env,
-                                  str(work)))
+        p = sup.start(ProcessSpec("e-1", NodeCommand(["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)],
+                                                     env, cwd=str(work))))
         await wait_for(lambda: not p.alive)
         await sup.shutdown()
     asyncio.run(main())
@@ -293,14 +293,16 @@ def test_inherited_ignored_sigint_is_not_passed_on(tmp_path):
 def test_crash_loop_is_paced(tmp_path):
     """A node that dies at once is restarted about 10 times a second (roslaunch's pace), not in a busy loop."""
     async def main():
-        sup = Supervisor()
-        p = sup.start(spec("crash-1", ["/bin/false"], tmp_path, respawn=True))
-        await asyncio.sleep(1.0)
-        count = p.spawn_count
+        loop = asyncio.get_running_loop()
+        starts = []
+        sup = Supervisor(on_spawn=lambda proc: starts.append(loop.time()))
+        sup.start(spec("crash-1", ["/bin/false"], tmp_path, respawn=True))
+        await wait_for(lambda: len(starts) >= 6)
         await sup.shutdown()
-        return count
-    count = asyncio.run(main())
-    assert 5 <= count <= 12, count
+        return [b - a for a, b in zip(starts, starts[1:])]
+    intervals = asyncio.run(main())
+    assert min(intervals) >= 0.09, intervals  # paced
+    assert sum(intervals) / len(intervals) < 0.3, intervals  # and not slower than roslaunch's 0.1 s loop
 
 
 def test_children_left_by_earlier_runs_are_stopped_at_shutdown(tmp_path):

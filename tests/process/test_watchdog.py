@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
+import struct
 import subprocess
 import sys
+import termios
 import time
 import textwrap
 
@@ -16,6 +19,7 @@ from launcher.process.watchdog import Watchdog
 LAUNCHER = textwrap.dedent(r"""
     import asyncio, os, sys
     from launcher.process.watchdog import Watchdog
+    from launcher.command import NodeCommand
     from launcher.process.supervisor import ProcessSpec, Supervisor
     wd = Watchdog.start()
     tmp = sys.argv[1]
@@ -30,8 +34,8 @@ LAUNCHER = textwrap.dedent(r"""
     async def main():
         sup = Supervisor(watchdog=wd)
         for i in range(3):
-            sup.start(ProcessSpec("n%d-%d" % (i, i + 1), [sys.executable, "-c", NODE, GRAND, tmp],
-                                  dict(os.environ), tmp))
+            sup.start(ProcessSpec("n%d-%d" % (i, i + 1), NodeCommand([sys.executable, "-c", NODE, GRAND, tmp],
+                                                                     dict(os.environ), cwd=tmp)))
         print("up", flush=True)
         await asyncio.sleep(100)
     asyncio.run(main())
@@ -119,12 +123,21 @@ def _gone(pid: int, timeout: float) -> bool:
     return False
 
 
+def unread(fd: int) -> int:
+    """Bytes written to the pipe and not yet read by the guard."""
+    return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
 def test_exit_does_not_wait_for_an_idle_guard():
     wd = Watchdog.start()
     assert wd is not None
     child = subprocess.Popen(["sleep", "100"], start_new_session=True)
     wd.watch(child.pid)
-    time.sleep(0.1)  # the guard has read the line and naps
+    # the guard has read the line (the pipe is empty) and naps
+    deadline = time.monotonic() + 10
+    while unread(wd._wfd) and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert unread(wd._wfd) == 0
     wd.forget(child.pid)
     t0 = time.monotonic()
     wd.close()  # nothing left on the guard's list: it is ended and reaped at once

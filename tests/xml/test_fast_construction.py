@@ -101,12 +101,3 @@ def test_node_properties():
     assert Node("p", "t", "n", namespace="/ns").full_name == "/ns/n"
     assert Node("p", "t", "n", test_name="tn").is_test
     assert Machine("m", "127.0.1.1").is_local and not Machine("m", "robot").is_local
-
-
-def test_config_does_not_import_dataclasses():
-    # the point of writing the records out: `launch --nodes` need not import dataclasses/inspect
-    import subprocess
-    import sys
-    code = "import sys, launcher.config; print('dataclasses' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"

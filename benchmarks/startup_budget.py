@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Start-up budget: how long `launch --nodes` and a run's first spawn take, and which heavy modules they import.
+
+    python3 benchmarks/startup_budget.py [--reps 10] [--launch python3 -m launcher]
+
+It reports; it asserts nothing (what a start imports is a cost to watch, not a
+rule to test). For each of `launch --nodes small.launch` and `launch
+small.launch` (our own master on a free port, stopped by SIGINT once its first
+node runs) it prints the median and min wall time over `--reps` runs, then, from
+one extra run under `python -X importtime`, which modules of HEAVY got
+imported and the ten largest imports by cumulative time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+# Modules a start should not need, or needs only for a reason worth seeing.
+HEAVY = ("argparse", "asyncio", "dataclasses", "email", "http.client", "lxml", "psutil", "uuid", "xmlrpc.client",
+         "yaml", "inspect", "typing_extensions", "platform", "gettext", "locale")
+NODE = "#!/bin/sh\nexec sleep 100\n"
+STARTED = re.compile(rb"process\[[^\]]+\]: started with pid")
+
+
+def make_launch(root: str, nodes: int) -> tuple[str, dict[str, str]]:
+    pkg = os.path.join(root, "pkgs", "budget_pkg")
+    os.makedirs(pkg)
+    with open(os.path.join(pkg, "package.xml"), "w") as f:
+        f.write("<package><name>budget_pkg</name><version>0.0.0</version></package>")
+    exe = os.path.join(pkg, "sleeper")
+    with open(exe, "w") as f:
+        f.write(NODE)
+    os.chmod(exe, 0o755)
+    launch = os.path.join(root, "small.launch")
+    with open(launch, "w") as f:
+        f.write("<launch>\n  <param name='p' value='1'/>\n%s</launch>\n" % "".join(
+            "  <node pkg='budget_pkg' type='sleeper' name='n%d'/>\n" % i for i in range(nodes)))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, ROS_PACKAGE_PATH=os.path.join(root, "pkgs"), ROS_HOME=os.path.join(root, "home"),
+               ROS_LOG_DIR=os.path.join(root, "log"), ROS_MASTER_URI="http://127.0.0.1:%d/" % port,
+               ROS_IP="127.0.0.1")
+    env.pop("ROS_HOSTNAME", None)
+    return launch, env
+
+
+def time_nodes(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, bytes]:
+    t0 = time.perf_counter()
+    out = subprocess.run(cmd + ["--nodes", launch], env=env, capture_output=True, check=True)
+    return time.perf_counter() - t0, out.stderr
+
+
+def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, bytes]:
+    """Seconds from Popen to the first 'started with pid' line; the launch is then stopped."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd + ["--skip-log-check", launch], env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+    out = b""
+    elapsed = float("nan")
+    try:
+        os.set_blocking(p.stdout.fileno(), True)
+        while True:
+            line = p.stdout.readline()
+            if not line:
+                raise RuntimeError("the launch ended before its first node started:\n%s" % out.decode())
+            out += line
+            if STARTED.search(line):
+                elapsed = time.perf_counter() - t0
+                break
+    finally:
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    return elapsed, err
+
+
+def imports(stderr: bytes) -> list[tuple[int, str]]:
+    """(cumulative µs, module) of each `-X importtime` line."""
+    found = []
+    for line in stderr.decode(errors="replace").splitlines():
+        m = re.match(r"import time:\s+(\d+)\s+\|\s+(\d+)\s+\|(\s*)(\S+)", line)
+        if m:
+            found.append((int(m.group(2)), m.group(4)))
+    return found
+
+
+def report(name: str, times: list[float], stderr: bytes) -> None:
+    mods = imports(stderr)
+    names = {m for _, m in mods}
+    print("%-12s median %.1f ms  min %.1f ms  (%d runs)" % (name, statistics.median(times) * 1e3,
+                                                           min(times) * 1e3, len(times)))
+    print("  heavy modules imported: %s" % (", ".join(h for h in HEAVY if h in names) or "none"))
+    top = sorted(mods, reverse=True)[:10]
+    print("  largest imports (cumulative): %s" % ", ".join("%s %.1f ms" % (m, us / 1e3) for us, m in top))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--reps", type=int, default=10)
+    ap.add_argument("--nodes", type=int, default=5, help="nodes in the small launch file")
+    ap.add_argument("--launch", default="%s -m launcher" % sys.executable, help="the launch command")
+    args = ap.parse_args()
+    cmd = shlex.split(args.launch)
+    py = cmd[0] if "python" in os.path.basename(cmd[0]) else None
+    with tempfile.TemporaryDirectory(prefix="startup-budget-") as root:
+        launch, env = make_launch(root, args.nodes)
+        for name, measure in (("--nodes", time_nodes), ("first spawn", time_first_spawn)):
+            times = [measure(cmd, launch, env)[0] for _ in range(args.reps)]
+            traced = [py, "-X", "importtime"] + cmd[1:] if py else cmd
+            report(name, times, measure(traced, launch, env)[1])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

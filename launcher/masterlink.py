@@ -1,0 +1,198 @@
+"""A run's master: its URI, a running one found or ours started, and one parameter interface for either.
+
+`Params` is what the run uses to touch the parameter server. `LocalParams`
+calls our in-process master directly; `RemoteParams` speaks XML-RPC to a
+master that was already running. Everything above this module (the
+parameter upload, `<rosparam command=...>`, `/run_id`) is written once
+against that interface.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import urllib.parse
+from typing import Any, Mapping
+
+from launcher.errors import LaunchError
+from launcher.net.xmlrpc import Fault, call
+
+CALLER_ID = "/roslaunch"
+DEFAULT_MASTER_PORT = 11311
+DEFAULT_ROSVERSION = "1.15.15"
+DEFAULT_ROSDISTRO = "noetic"
+# How long to wait for an answer from a master that accepted the connection.
+PROBE_TIMEOUT_S = 3.0
+PARAM_TIMEOUT_S = 30.0
+
+
+def master_port(opts: Any, environ: Mapping[str, str]) -> int:
+    """-p, else the port of ROS_MASTER_URI, else 11311 (as roscore picks it)."""
+    if getattr(opts, "port", None):
+        return int(opts.port)
+    uri = environ.get("ROS_MASTER_URI")
+    if uri:
+        try:
+            port = urllib.parse.urlsplit(uri).port
+        except ValueError:
+            raise LaunchError("invalid ROS_MASTER_URI [%s]" % uri) from None
+        if port:
+            return port
+    return DEFAULT_MASTER_PORT
+
+
+def _roslaunch_package_xml(environ: Mapping[str, str]) -> str | None:
+    """roslaunch's package.xml where rospkg would find it (no crawl: it sits at <entry>/roslaunch)."""
+    roots = [p for p in environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep) if p]
+    roots += [os.path.join(p, "share") for p in environ.get("CMAKE_PREFIX_PATH", "").split(os.pathsep) if p]
+    roots.append("/usr/share")  # Debian's rospkg always looks there
+    for root in roots:
+        candidate = os.path.join(root, "roslaunch", "package.xml")
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+def ros_version_params(environ: Mapping[str, str]) -> tuple[str, str]:
+    """(/rosversion, /rosdistro) as roscore sets them from `rosversion roslaunch` / `rosversion -d`.
+
+    Both are command outputs, so they end with a newline. Without a ROS
+    install there is no rosversion: sensible Noetic values are used instead.
+    """
+    package_xml = _roslaunch_package_xml(environ)
+    version = None
+    if package_xml is not None:
+        from launcher.xml.document import XmlSyntaxError, element_text, parse_xml
+        try:
+            with open(package_xml, "rb") as f:
+                root, _ = parse_xml(f.read())
+            version = next((element_text(c) for c in root if c.tag == "version"), None)
+        except (OSError, XmlSyntaxError):  # unreadable manifest: fall back
+            version = None
+    distro = environ.get("ROS_DISTRO") or ("Debian" if package_xml is not None else DEFAULT_ROSDISTRO)
+    return (version or DEFAULT_ROSVERSION).strip() + "\n", distro + "\n"
+
+
+def is_local_host(host: str, environ: Mapping[str, str]) -> bool:
+    """Is `host` this machine (so that a master for it may be started here)?"""
+    if host in ("localhost", "::1") or host.startswith("127."):
+        return True
+    names = {socket.gethostname()}
+    for key in ("ROS_HOSTNAME", "ROS_IP"):
+        if environ.get(key):
+            names.add(environ[key])
+    if host in names:
+        return True
+    try:
+        import psutil
+        local = {a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs}
+        resolved = {ai[4][0] for ai in socket.getaddrinfo(host, None)}
+    except (OSError, ImportError, UnicodeError):  # (a malformed host name: idna refuses it)
+        return False
+    return bool(local & resolved)
+
+
+async def probe(uri: str) -> tuple[bool, tuple[Any, Any] | None]:
+    """Does a master answer at `uri`? Asked as getParam('/run_id'): (answers, (code, value) of that call)."""
+    try:
+        reply = await call(uri, "getParam", CALLER_ID, "/run_id", timeout=PROBE_TIMEOUT_S)
+    except Fault:
+        return True, None  # anything answering XML-RPC with a fault is still a master
+    except (OSError, ValueError, asyncio.TimeoutError):  # (XmlRpcError is a ValueError; so is a host idna refuses)
+        return False, None
+    if isinstance(reply, list) and len(reply) == 3:
+        return True, (reply[0], reply[2])
+    return True, None
+
+
+class LocalParams:
+    """The parameter server of our own, in-process master."""
+
+    def __init__(self, master: Any):
+        self.master = master
+
+    async def has(self, key: str) -> bool:
+        return self.master.params.has(key)
+
+    async def get(self, key: str) -> Any:
+        return self.master.params.get(key)
+
+    async def set(self, key: str, value: Any) -> None:
+        self.master.set_param(key, value)
+
+    async def delete(self, key: str) -> None:
+        try:
+            self.master.delete_param(key)
+        except KeyError:
+            pass
+
+    async def upload(self, clear: list[str], params: list[tuple[str, Any]]) -> None:
+        for ns in clear:
+            if await self.has(ns):
+                await self.delete(ns)
+        for key, value in params:
+            self.master.set_param(key, value)
+
+
+class RemoteParams:
+    """The parameter server of a master that was already running, over XML-RPC."""
+
+    def __init__(self, uri: str):
+        self.uri = uri
+
+    async def _call(self, method: str, *args: Any) -> Any:
+        try:
+            code, msg, value = await call(self.uri, method, CALLER_ID, *args, timeout=PARAM_TIMEOUT_S)
+        except (OSError, ValueError, Fault, asyncio.TimeoutError) as e:
+            raise LaunchError("%s failed on the master at [%s]: %s" % (method, self.uri, e or type(e).__name__)) \
+                from None
+        if code != 1:
+            raise LaunchError(msg)
+        return value
+
+    async def has(self, key: str) -> bool:
+        return bool(await self._call("hasParam", key))
+
+    async def get(self, key: str) -> Any:
+        return await self._call("getParam", key)
+
+    async def set(self, key: str, value: Any) -> None:
+        await self._call("setParam", key, value)
+
+    async def delete(self, key: str) -> None:
+        """Delete `key`; one that is not set is no error (as with our own master)."""
+        try:
+            await call(self.uri, "deleteParam", CALLER_ID, key, timeout=PARAM_TIMEOUT_S)
+        except (OSError, ValueError, Fault, asyncio.TimeoutError) as e:
+            raise LaunchError("deleteParam failed on the master at [%s]: %s" % (self.uri, e or type(e).__name__)) \
+                from None
+
+    async def upload(self, clear: list[str], params: list[tuple[str, Any]]) -> None:
+        if not params and not clear:
+            return
+        # one round trip: deletes first, then sets (the master runs a multicall in order)
+        calls = [{"methodName": "deleteParam", "params": [CALLER_ID, ns]} for ns in clear]
+        calls += [{"methodName": "setParam", "params": [CALLER_ID, k, v]} for k, v in params]
+        try:
+            results = await call(self.uri, "system.multicall", calls, timeout=PARAM_TIMEOUT_S)
+        except Exception as e:  # noqa: BLE001
+            raise LaunchError("cannot set the launch's parameters on the master at [%s]: %s"
+                              % (self.uri, e)) from None
+        for (key, _value), result in zip(params, results[len(clear):]):
+            if isinstance(result, dict):
+                raise LaunchError("Failed to set parameter [%s]: %s" % (key, result.get("faultString")))
+            code, msg, _ = result[0]
+            if code != 1:
+                raise LaunchError("Failed to set parameter: %s" % msg)
+
+
+async def start_master(port: int, environ: Mapping[str, str]) -> Any:
+    """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken."""
+    from launcher.master import Master
+    master = Master(port=port, environ=environ)
+    await master.start()
+    rosversion, rosdistro = ros_version_params(environ)
+    master.set_param("/rosversion", rosversion)
+    master.set_param("/rosdistro", rosdistro)
+    return master

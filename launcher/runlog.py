@@ -1,0 +1,108 @@
+"""A run's own log: the run's log directory, the launch log file every console line goes to, and the summary.
+
+The launch log is a convenience, never a reason to fail: a full or broken
+disk makes it a warning (said once) and the run goes on and ends as it
+would have.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from typing import Any, Mapping
+
+from launcher.process import console
+from launcher.process.logdir import make_run_log_dir
+
+
+class RunLog:
+    """`<log root>/<run_id>/` and, in it, `roslaunch-<host>-<pid>.log` with every console line."""
+
+    def __init__(self, environ: Mapping[str, str]):
+        self.environ = environ
+        self.run_dir = ""
+        self.path = ""
+        self._file: Any = None
+
+    def open(self, run_id: str, *, launch_log: bool = True) -> str:
+        """Make the run's directory (and `latest`), start the launch log unless told not to; the directory."""
+        self.run_dir = make_run_log_dir(self.environ, run_id)
+        if not launch_log:
+            return self.run_dir
+        self.path = os.path.join(self.run_dir, "roslaunch-%s-%d.log" % (socket.gethostname(), os.getpid()))
+        try:
+            self._file = open(self.path, "a", buffering=1)
+        except OSError:
+            self._file = None
+            return self.run_dir
+        console.add_handler(self._write)
+        console.printlog("... logging to %s" % self.path)
+        return self.run_dir
+
+    def _write(self, msg: str) -> None:
+        if self._file is None:
+            return
+        now = time.time()
+        try:
+            self._file.write("[%s.%03d] %s\n" % (time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(now)),
+                                                 int(now * 1000) % 1000, msg))
+        except OSError as e:
+            self._give_up(e)
+
+    def _give_up(self, error: OSError) -> None:
+        """Stop writing the launch log after a write error, and say so once (on the console only)."""
+        console.remove_handler(self._write)
+        f, self._file = self._file, None
+        try:
+            f.close()
+        except OSError:
+            pass  # what was buffered is lost with the disk space
+        console.printerrlog("WARNING: cannot write the launch log [%s]: %s; it stops here"
+                            % (self.path, error.strerror or error))
+
+    def close(self) -> None:
+        if self._file is None:
+            return
+        console.remove_handler(self._write)
+        try:
+            self._file.close()
+        except OSError as e:
+            self._file = None
+            console.printerrlog("WARNING: cannot write the launch log [%s]: %s" % (self.path, e.strerror or e))
+        self._file = None
+
+
+def summary(config: Any, params: Mapping[str, Any]) -> str:
+    """roslaunch's SUMMARY block (ROSLaunchConfig.summary(local=True))."""
+    text = "\nSUMMARY\n========"
+    if config.clear_params:
+        text += "\n\nCLEAR PARAMETERS\n" + "\n".join(sorted(" * %s" % p for p in config.clear_params))
+    if params:
+        text += "\n\nPARAMETERS\n" + "\n".join(sorted(" * %s: %s" % (k, summary_value(v)) for k, v in params.items()))
+    text += "\n\nNODES\n"
+    namespaces: dict[str, list[Any]] = {}
+    for n in config.nodes:
+        namespaces.setdefault(n.namespace, []).append(n)
+    for ns in sorted(namespaces):
+        text += "  %s\n" % ns + "\n".join(sorted("    %s (%s/%s)" % (n.name, n.package, n.type)
+                                                for n in namespaces[ns]))
+        text += "\n"
+    return text
+
+
+def summary_value(value: Any) -> str:
+    """roslaunch's strip_string: at most 20 characters, `<...>` for unprintable ones."""
+    try:
+        value = str(value)
+    except Exception:  # noqa: BLE001 - as roslaunch
+        return "<...>"
+    if len(value) > 20:
+        value = value[:17] + "..."
+    for i, char in enumerate(value):
+        if ord(char) < 32 or ord(char) > 126:
+            value = value.rstrip()
+            if i >= len(value):
+                break
+            return "<...>"
+    return value
