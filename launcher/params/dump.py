@@ -11,12 +11,38 @@ import math
 import re
 from typing import Any
 
-from launcher.params.plain_yaml import NON_STR_WORDS, WORD_FIRST_CHARS, scalar_is_str
+# YAML 1.1's implicit bools and nulls among words (PyYAML's resolver): anything else made of
+# [A-Za-z0-9_./-] that starts with a letter, '_' or '/' is a string to PyYAML
+_BOOL_WORDS = ("yes", "true", "on", "no", "false", "off")
+NON_STR_WORDS = frozenset(w for word in _BOOL_WORDS for w in (word, word.capitalize(), word.upper())) | frozenset(
+    ("null", "Null", "NULL", "~"))
+WORD_FIRST_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_/")
+_WORD_RE = re.compile(r"[A-Za-z_/][A-Za-z0-9_./-]*\Z")
+# decimal ints (no '_', no leading 0: octal in YAML 1.1) and floats without exponent or '_'
+_NUMBER_RE = re.compile(r"[-+]?(?:0|[1-9][0-9]*)\Z|[-+]?[0-9]+\.[0-9]+\Z")
+_NUMBERISH_RE = re.compile(r"[A-Za-z0-9_./+-]+\Z")
+
+
+def scalar_is_str(text: str) -> bool | None:
+    """Whether PyYAML's resolver reads the plain scalar `text` as a string (True) or as
+    another type (False); None when this function cannot tell without asking PyYAML."""
+    if _WORD_RE.match(text):
+        return text not in NON_STR_WORDS
+    if _NUMBER_RE.match(text):
+        return False
+    if "/" in text and _NUMBERISH_RE.match(text):
+        return True  # no YAML 1.1 type has a '/' in it (e.g. "10.0/2")
+    return None
 
 # A string PyYAML writes as a bare plain scalar or single-quoted, with nothing to escape or
 # wrap: no spaces, quotes, indicators or non-ASCII, and no leading '-' or '.'.
 _SIMPLE_STRING = re.compile(r"[A-Za-z0-9_/][A-Za-z0-9_./-]*\Z")
 _SIMPLE_LINES = re.compile(r"(?:[A-Za-z0-9_/][A-Za-z0-9_./-]*\n)*[A-Za-z0-9_/][A-Za-z0-9_./-]*")  # of them, one a line
+# Words of those characters with single spaces between them, starting with a letter, '_' or
+# '/': PyYAML writes them plain too (inner spaces need no quoting), and no YAML 1.1 type
+# starts that way with a space inside. PyYAML folds a plain scalar at a space past column 80.
+_SPACED_STRING = re.compile(r"[A-Za-z_/][A-Za-z0-9_./-]*(?: [A-Za-z0-9_./-]+)+\Z")
+_BEST_WIDTH = 80
 _STR_TAG = "tag:yaml.org,2002:str"
 _resolver = None
 
@@ -38,13 +64,16 @@ _INF = math.inf
 _NINF = -math.inf
 
 
-def _plain_scalar(value: Any) -> str | None:
-    """`value` as PyYAML's safe dumper writes it inline, or None when it takes more care."""
+def _plain_scalar(value: Any, column: int = _BEST_WIDTH) -> str | None:
+    """`value` as PyYAML's safe dumper writes it inline starting at `column`, or None when
+    it takes more care."""
     kind = type(value)
     if kind is str:
         if not value:
             return "''"
         if len(value) > 100 or not _SIMPLE_STRING.match(value):
+            if column + len(value) <= _BEST_WIDTH and _SPACED_STRING.match(value):
+                return value
             return None
         return _quoted_if_typed(value)
     if kind is bool:
@@ -77,8 +106,8 @@ def _float_text(value: float) -> str:
     return text
 
 
-def _items_text(value: list) -> list[str] | None:
-    """The items of a list of plain scalars as PyYAML writes them, or None."""
+def _items_text(value: list, column: int) -> list[str] | None:
+    """The items (starting at `column`) of a list of plain scalars as PyYAML writes them, or None."""
     out = []
     for x in value:
         kind = type(x)
@@ -87,7 +116,7 @@ def _items_text(value: list) -> list[str] | None:
         elif kind is int:
             out.append(str(x))
         else:
-            text = _plain_scalar(x)
+            text = _plain_scalar(x, column)
             if text is None:
                 return None
             out.append(text)
@@ -106,7 +135,7 @@ def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
     if kind is list:
         if not value:
             return "%s%s: []\n" % (pad, k)
-        items = _items_text(value)
+        items = _items_text(value, indent + 2)
         if items is None:
             return None
         # PyYAML writes a sequence inside a mapping "indentless": dashes under the key
@@ -124,7 +153,7 @@ def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
                 return None
             out.append(text)
         return "".join(out)
-    v = _float_text(value) if kind is float else _plain_scalar(value)
+    v = _float_text(value) if kind is float else _plain_scalar(value, indent + len(k) + 2)
     if v is not None:
         return "%s%s: %s\n" % (pad, k, v)
     return None
@@ -171,10 +200,11 @@ def dump_yaml(value: Any) -> str:
     # the common entries (a simple key and a scalar) are written inline; anything else by _entry
     # or PyYAML. ~1 us per entry instead of ~3: a big launch has thousands of them. A simple
     # string that starts with a letter, '_' or '/' is a string to YAML unless it is one of the
-    # words YAML 1.1 reads as a bool or null (see plain_yaml): no need to ask further.
+    # words YAML 1.1 reads as a bool or null (see scalar_is_str): no need to ask further.
     first_chars = WORD_FIRST_CHARS
     non_str = NON_STR_WORDS
     match = _SIMPLE_STRING.match
+    spaced = _SPACED_STRING.match
     out = []
     append = out.append
     for key in keys:
@@ -188,6 +218,9 @@ def dump_yaml(value: Any) -> str:
                     continue
                 if len(v) <= 100 and match(v):
                     append(k + ": " + (v if (v[0] in first_chars and v not in non_str) else _quoted_if_typed(v)) + "\n")
+                    continue
+                if len(k) + 2 + len(v) <= _BEST_WIDTH and spaced(v):
+                    append(k + ": " + v + "\n")
                     continue
             elif kind is bool:
                 append(k + (": true\n" if v else ": false\n"))

@@ -3,10 +3,14 @@
 rosparam extends PyYAML's safe loader with `deg(...)`/`rad(...)` plain scalars and the
 `!degrees`/`!radians` tags, and wraps `!!binary` data (here: plain bytes). We do the same
 on private loader classes (never on PyYAML's global ones) and evaluate angle expressions
-with a small arithmetic evaluator instead of Python's `eval`. roslaunch parses with
-PyYAML's pure-Python loader; we use libyaml where it gives the same answer (checked by
-differential fuzzing) and PyYAML's own code where it would not, and dump exactly as
-PyYAML dumps.
+with a small arithmetic evaluator instead of Python's `eval`.
+
+There is one reading path, through PyYAML's public API only: libyaml (PyYAML's CSafeLoader)
+composes the node graph, whose plain nodes (strings, numbers, bools, lists, maps) are built
+directly and the rest by PyYAML's SafeConstructor; a text libyaml refuses or reads
+differently goes to PyYAML's pure-Python loader, roslaunch's own, which also words errors.
+Equality with rosparam is checked by differential fuzzing and on real parameter files
+(tests/params/corpus). Dumping is launcher.params.dump.
 """
 
 from __future__ import annotations
@@ -20,7 +24,6 @@ from typing import Any
 import yaml
 
 from launcher.errors import LaunchError
-from launcher.params.plain_yaml import NOT_PLAIN, copy_tree as _copy_tree, load_plain
 
 
 class RosYamlError(LaunchError, ValueError):
@@ -144,28 +147,6 @@ def _guarded(base: type) -> type:
     return type("Guarded" + base.__name__, (base,), {"construct_object": _construct_object})
 
 
-def _memo_resolve(self: Any, kind: type, value: Any, implicit: Any) -> str:
-    # Tag resolution runs a few regexes per scalar in Python; parameter files repeat the
-    # same keys and values a lot. The answer depends only on these arguments (no path
-    # resolvers are registered on these classes), so remember it per class.
-    if kind is not yaml.ScalarNode:
-        return yaml.resolver.BaseResolver.resolve(self, kind, value, implicit)
-    key = (value, implicit)
-    memo = type(self)._resolved
-    tag = memo.get(key)
-    if tag is None:
-        tag = yaml.resolver.BaseResolver.resolve(self, kind, value, implicit)
-        if len(memo) < 65536:
-            memo[key] = tag
-    return tag
-
-
-def _fast(base: type) -> type:
-    """libyaml-based `base` with memoised tag resolution. No construction guard: any error
-    on this path makes load_yaml retry with the guarded pure-Python loader."""
-    return type("Fast" + base.__name__, (base,), {"resolve": _memo_resolve, "_resolved": {}})
-
-
 def _with_ros_syntax(cls: type) -> type:
     cls.add_constructor("tag:yaml.org,2002:binary", _construct_binary)
     cls.add_constructor("!radians", _construct_radians)
@@ -181,42 +162,10 @@ def _ros_flavour(base: type) -> type:
 
 _PY_ROS = _ros_flavour(_guarded(yaml.SafeLoader))
 _PY_PLAIN = _guarded(yaml.SafeLoader)
-_C_ROS = _ros_flavour(_fast(yaml.CSafeLoader)) if hasattr(yaml, "CSafeLoader") else None
-_C_PLAIN = _fast(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
-if _C_ROS is not None:
-    _C_ROS._resolved = {}  # its own memo: its resolver table has the angle patterns
-
-
-def _resolve_in_c(cls: type) -> None:
-    """Make libyaml's composer resolve tags without running Python code for repeated scalars.
-
-    libyaml's composer calls `resolve(kind, value, implicit)` for every node and
-    `descend_resolver`/`ascend_resolver` around each one. No path resolvers are registered on
-    our classes, so the descend/ascend calls do nothing (PyYAML's own methods return at once):
-    C callables that ignore their arguments do the same without a Python frame. The tag depends
-    only on the arguments: an LRU cache (C) in front of PyYAML's resolve answers repeats.
-    Done once the class's resolver table is final.
-    """
-    if cls.__dict__.get("yaml_path_resolvers") or any(getattr(b, "yaml_path_resolvers", None) for b in cls.__mro__):
-        return
-    import functools
-    import operator
-
-    proto = cls.__new__(cls)  # BaseResolver.resolve reads only class-level tables
-    base_resolve = yaml.resolver.BaseResolver.resolve
-
-    @functools.lru_cache(maxsize=65536)
-    def resolve(kind: type, value: Any, implicit: Any) -> str:
-        return base_resolve(proto, kind, value, implicit)
-
-    cls.resolve = staticmethod(resolve)
-    cls.descend_resolver = staticmethod(operator.is_)  # (parent, index) -> ignored
-    cls.ascend_resolver = staticmethod(tuple)  # () -> ignored
-
-
-for _cls in (_C_ROS, _C_PLAIN):
-    if _cls is not None:
-        _resolve_in_c(_cls)
+# libyaml's loader: no construction guard, since any error on it makes load_yaml retry with
+# the guarded pure-Python loader, which decides and words it
+_C_ROS = _ros_flavour(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
+_C_PLAIN = type("PlainCSafeLoader", (yaml.CSafeLoader,), {}) if hasattr(yaml, "CSafeLoader") else None
 
 
 # Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
@@ -243,9 +192,6 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     is what roslaunch uses for `type="yaml"` params before any `<rosparam>` was processed.
     Raises RosYamlError.
     """
-    plain = load_plain(text)  # the common subset, without PyYAML's per-node objects
-    if plain is not NOT_PLAIN:
-        return plain
     key = (text, angles)
     memo = _parsed.get(key)
     if memo is not None:
@@ -369,6 +315,16 @@ _MEMO_TEXT_MAX = 64 * 1024
 _MEMO_CHARS = 8 * 1024 * 1024  # bounds the memo's memory to a few times this
 _memo_chars = 0
 _parsed: dict[tuple[str, bool], tuple[Any, bool]] = {}  # -> (value, plain tree: no aliases)
+
+
+def _copy_tree(value: Any) -> Any:
+    """Deep copy of a plain parsed tree (dicts, lists, scalars; no container occurs twice)."""
+    kind = type(value)
+    if kind is dict:
+        return {k: (v if type(v) is not dict and type(v) is not list else _copy_tree(v)) for k, v in value.items()}
+    if kind is list:
+        return [v if type(v) is not dict and type(v) is not list else _copy_tree(v) for v in value]
+    return value
 
 
 def _fresh_copy(value: Any, memo: dict[int, Any] | None = None) -> Any:

@@ -182,6 +182,15 @@ def parse_xml(data: bytes, keeps_text: Callable[[str], bool] | None = None,
         raise XmlSyntaxError(pyexpat.ErrorString(e.code), e.lineno or None, e.offset) from None
     except _EntityRefused as e:
         raise XmlSyntaxError(str(e), p.CurrentLineNumber, None) from None
+    except LookupError as e:
+        # the XML declaration names an encoding Python does not know (expat asks Python's codecs)
+        raise XmlSyntaxError(str(e), p.CurrentLineNumber, None) from None
+    except ValueError as e:
+        # or one expat cannot use ("multi-byte encodings are not supported"); only the declaration,
+        # before any element, can cause that: a ValueError later is a bug of ours, not bad input
+        if len(top) or len(stack) > 1:
+            raise
+        raise XmlSyntaxError(str(e), p.CurrentLineNumber, None) from None
     finally:
         # the parser holds the handlers, whose closures hold the parser (and the whole tree): a
         # cycle, which a load (the cyclic GC off) would keep until the end. Break it.

@@ -18,7 +18,6 @@ from typing import Any, Callable, Iterable, Mapping
 from launcher.config import LaunchConfig, Machine, Node, new_param
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
-from launcher.params.plain_yaml import NOT_PLAIN, load_plain
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
@@ -547,9 +546,6 @@ class XmlLoader:
     # ------------------------------------------------------------------ YAML
     def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
               yaml_file: str | None = None) -> Any:
-        value = load_plain(text)  # most parameter YAML: no need for PyYAML (~12 ms to import)
-        if value is not NOT_PLAIN:
-            return value
         from launcher.params.rosyaml import RosYamlError, load_yaml
         try:
             if yaml_file:

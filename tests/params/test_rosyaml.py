@@ -7,6 +7,7 @@ import json
 import math
 import os
 import subprocess
+import sys
 
 import pytest
 import yaml
@@ -146,6 +147,40 @@ def test_multiple_documents_are_an_error():
         load_yaml("a: 1\n---\nb: 2\n")
 
 
+@pytest.mark.parametrize("how", ["inline", "typed", "file"])
+def test_an_integer_too_long_for_python_is_a_clean_error_with_file_and_line(tmp_path, how):
+    # Python refuses int() of more than 4300 digits; roslaunch reports it as invalid YAML
+    digits = "9" * 5000
+    launch = tmp_path / "main.launch"
+    where = str(launch)
+    if how == "inline":
+        launch.write_text("<launch>\n<rosparam>\na: 1\nb: %s\n</rosparam>\n</launch>\n" % digits)
+        line = 4
+    elif how == "typed":
+        launch.write_text('<launch>\n\n<param name="p" type="yaml" value="%s"/>\n</launch>\n' % digits)
+        line = 3
+    else:
+        (tmp_path / "big.yaml").write_text("x: 1\n\nb: %s\n" % digits)
+        launch.write_text('<launch>\n<rosparam file="%s"/>\n</launch>\n' % (tmp_path / "big.yaml"))
+        where, line = str(tmp_path / "big.yaml"), 3
+    out = subprocess.run([sys.executable, "-m", "launcher", "--dump-params", str(launch)],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1, out
+    assert out.stderr.startswith("%s:%d: " % (where, line)), out.stderr
+    assert "invalid YAML" in out.stderr and "Exceeds the limit (4300 digits)" in out.stderr, out.stderr
+    assert "Traceback" not in out.stderr and "internal error" not in out.stderr
+
+
+def test_loaders_use_pyyaml_resolution_unpatched():
+    # PyYAML's resolver internals are no API: our loader classes only add constructors and
+    # implicit resolvers through PyYAML's class methods
+    for cls in (rosyaml._C_ROS, rosyaml._C_PLAIN, rosyaml._PY_ROS, rosyaml._PY_PLAIN):
+        if cls is None:
+            continue
+        for name in ("resolve", "descend_resolver", "ascend_resolver"):
+            assert getattr(cls, name) is getattr(yaml.resolver.BaseResolver, name), (cls, name)
+
+
 def test_global_pyyaml_loaders_untouched():
     load_yaml("a: deg(90)")
     assert yaml.safe_load("a: deg(90)") == {"a": "deg(90)"}
@@ -254,6 +289,10 @@ _tricky_strings = st.one_of(
                      "x" * 101, "y" * 130, "é", "a\nb", " lead", "trail ", "'q'", '"d"', "2001-12-14", "1:20",
                      "=", "<<", "a.b-c_d/e", "_x", "/", "//", "1abc", "inf", "-.inf", "0o7", "+1", "...",
                      "817", "10.0/2", "1/2", "+1/2", "-1/2", "0b_", "NULL", "On", "Null_x", "_", "/1"]),
+    st.sampled_from(["joint_3/link 4", "a b", "a  b", "a b ", "a - b", "a -b", "a #b", "a# b", "a ? b", "_x 1",
+                     "/a b/c", "a b: c", "yes no", "a " + "b" * 76, "a " + "b" * 77, "2001-12-14 21:59:43.10",
+                     "1 2", ".a b", "-a b", "a\tb", "a b\nc"]),
+    st.lists(st.text(alphabet="aZ1_./-", min_size=1, max_size=30), min_size=2, max_size=5).map(" ".join),
     st.text(max_size=12),
     st.text(alphabet="ab01_./-:# '\"\n", max_size=12))
 _scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.integers(min_value=-2**70, max_value=2**70),
@@ -267,6 +306,21 @@ _values = st.recursive(_scalars, lambda inner: st.one_of(st.lists(inner, max_siz
 @given(st.dictionaries(_tricky_strings, _values, max_size=8))
 def test_dump_yaml_is_byte_identical_to_pyyaml(params):
     assert dump_yaml(params) == rosyaml._pyyaml_dump(params)
+
+
+def test_dump_yaml_writes_strings_with_inner_spaces_itself(monkeypatch):
+    # real parameter files hold such strings ("joint_3/link 4", frame descriptions): one
+    # PyYAML emitter run per parameter made --dump-params several times slower
+    value = {"/a": "joint_3/link 4", "/b": ["front left", "x y z"], "/c": {"d": "two words", "e": ["a b"]}}
+    expected = rosyaml._pyyaml_dump(value)
+
+    def refuse(value):
+        raise AssertionError("PyYAML used for %r" % (value,))
+    monkeypatch.setattr("launcher.params.dump._pyyaml_dump", refuse)
+    assert dump_yaml(value) == expected
+    # a line that PyYAML would fold at column 80 is still left to PyYAML
+    with pytest.raises(AssertionError, match="PyYAML used"):
+        dump_yaml({"/k": "a " + "b" * 80})
 
 
 def test_dump_yaml_shared_containers_keep_pyyaml_anchors():

@@ -87,7 +87,7 @@ def test_plain_documents_skip_pyyaml_constructor(monkeypatch):
 def test_repeated_plain_text_gives_independent_values():
     """A memoised document without aliases is copied by the plain-tree copier: nothing is shared."""
     rosyaml._parsed.clear()
-    text = "a: {b: [1, {c: 2}]}  # (a comment: not for plain_yaml, libyaml's way)\nd: [[3], []]\n"
+    text = "a: {b: [1, {c: 2}]}\nd: [[3], []]\n"
     first = rosyaml.load_yaml(text)
     assert rosyaml._parsed[(text, True)][1] is True  # taken as a plain tree
     first["a"]["b"][1]["c"] = 99

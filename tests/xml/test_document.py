@@ -98,6 +98,18 @@ def test_encodings_bom_and_bad_bytes(tmp_path):
     assert e.line == 2
 
 
+@pytest.mark.parametrize("encoding, words", [
+    ("x-no-such", "unknown encoding: x-no-such"),  # Python knows no such codec
+    ("rot13", "is not a text encoding"),  # a codec, but not for text
+    ("utf-7", "multi-byte encodings are not supported"),  # a codec expat cannot use
+])
+def test_an_encoding_that_cannot_be_used_is_a_syntax_error_at_the_declaration(tmp_path, encoding, words):
+    # roslaunch: "Invalid roslaunch XML syntax: unknown encoding: x-no-such"
+    e = _syntax_error(tmp_path, '<?xml version="1.0" encoding="%s"?><launch/>' % encoding)
+    assert words in e.message and e.line == 1, e.message
+    assert e.filename == str(tmp_path / "main.launch")
+
+
 def test_external_entities_are_never_read(tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("TOP SECRET")

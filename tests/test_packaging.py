@@ -1,0 +1,28 @@
+"""What pyproject.toml declares matches what the code needs."""
+
+from __future__ import annotations
+
+import os
+import re
+
+import pytest
+
+tomllib = pytest.importorskip("tomllib")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# distribution name -> the module it provides, where they differ
+MODULE_OF = {"pyyaml": "yaml"}
+
+
+def test_every_runtime_dependency_is_imported_by_launcher():
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+        deps = tomllib.load(f)["project"]["dependencies"]
+    sources = []
+    for folder, _dirs, files in os.walk(os.path.join(ROOT, "launcher")):
+        sources += [open(os.path.join(folder, n)).read() for n in files if n.endswith(".py")]
+    code = "\n".join(sources)
+    for dep in deps:
+        name = re.match(r"[A-Za-z0-9_.-]+", dep).group().lower()
+        module = MODULE_OF.get(name, name.replace("-", "_"))
+        assert re.search(r"^\s*(?:import|from) %s\b" % re.escape(module), code, re.M), \
+            "%s is a runtime dependency but no launcher module imports %s" % (name, module)
