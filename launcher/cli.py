@@ -16,6 +16,7 @@ if TYPE_CHECKING:
 
 from launcher import __version__
 from launcher.errors import LaunchError
+from launcher.process import console
 
 USAGE = "launch [options] [package] <filename> [arg_name:=value...]\n       launch [options] <filename> [<filename>...] [arg_name:=value...]\n       launch --core [-p PORT]"
 
@@ -108,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
             if argv is None:
                 # a real command line: once the output is out, end without tearing down the loaded
                 # launch (freeing 10^5 objects one by one is ~10% of a big `--nodes`)
+                console.flush()
                 sys.stdout.flush()
                 sys.stderr.flush()
                 os._exit(status)

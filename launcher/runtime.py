@@ -74,6 +74,7 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
             except OSError:
                 pass
     if exit_process:
+        console.flush()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()

@@ -12,6 +12,7 @@ at once, from the caller.
 
 from __future__ import annotations
 
+import atexit
 import collections
 import sys
 import threading
@@ -66,6 +67,7 @@ class _Writer:
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name="console", daemon=True)
                 self._thread.start()
+                atexit.register(self.flush, 2.0)  # (an os._exit path calls flush() itself)
             self._cond.notify()
 
     def flush(self, timeout: float) -> bool:
