@@ -31,11 +31,14 @@ from launcher.names import ns_join
 from launcher.process import console
 from launcher.process.logdir import DEFAULT_THRESHOLD, log_root, parse_size, watch_log_disk
 from launcher.process.spawn import ProcessSpec
+from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# Every node's state changes, one JSON object a line, in the run's log directory.
+EVENTS_FILE = "launcher-events.jsonl"
 # `--wait`: how often a master that is not up yet is asked again.
 WAIT_POLL_S = 0.1
 
@@ -227,7 +230,8 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
         specs.append(ProcessSpec(
             name, command,
             stdout_path=os.path.join(run_dir, log_name + "-stdout.log") if output == "log" else None,
-            log_dir=run_dir, respawn=node.respawn, respawn_delay=node.respawn_delay, required=required))
+            log_dir=run_dir, respawn=node.respawn, respawn_delay=node.respawn_delay, required=required,
+            node_name=ns_join(node.namespace, node.name)))
     return specs, failed
 
 
@@ -247,6 +251,7 @@ class Run:
         self.external = False  # a master was already running
         self.rosout: Any = None
         self.supervisor: Supervisor | None = None
+        self.fleet: Fleet | None = None  # every node's state (process/state.py)
         self.run_id = ""
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
         self._tasks: list[asyncio.Future] = []
@@ -403,9 +408,11 @@ class Run:
         """
         self.signals.check()
         specs, failed = node_specs(self.plan, self.opts, self.log.run_dir, self._process_count)
+        self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
+                           warn=console.printerrlog)
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
-                                     exit_when_all_dead=self.external, watchdog=self.watchdog)
+                                     exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
         stop = self.signals.event
         for spec in specs:
             if stop.is_set():
@@ -442,6 +449,8 @@ class Run:
         if self.supervisor is not None:
             await self.supervisor.shutdown()
             self.supervisor.close()
+        if self.fleet is not None:
+            self.fleet.close()
         if self.rosout is not None:
             if not self.core:
                 console.printlog("[rosout-1] killing on exit")

@@ -21,12 +21,13 @@ class ProcessSpec:
 
     # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
     # first spawn)
-    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required")
+    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required", "node_name")
 
     def __init__(self, name: str, command: NodeCommand, stdout_path: str | None = None,
                  log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
-                 required: bool = False):
+                 required: bool = False, node_name: str | None = None):
         self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
+        self.node_name = node_name or "/" + name  # the ROS node name, e.g. "/robot/driver": how status names it
         self.command = command
         self.stdout_path = stdout_path  # None: inherit the terminal (output="screen")
         self.log_dir = log_dir  # for the "log file:" hint after a death

@@ -28,10 +28,11 @@ import asyncio
 import os
 import signal
 import subprocess
+import time
 from collections import deque
 from typing import Callable
 
-from launcher.process import console
+from launcher.process import console, state
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
@@ -56,8 +57,8 @@ class NodeProcess:
 
     # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
     __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
-                 "group_alive", "stopping", "sigkilled", "respawn_handle", "timers", "stopped", "group_poll",
-                 "pacing_slot")
+                 "group_alive", "stopping", "sigkilled", "respawn_handle", "respawn_at", "timers", "stopped",
+                 "group_poll", "pacing_slot")
 
     def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
                  group_alive: bool = False):
@@ -74,6 +75,7 @@ class NodeProcess:
         self.stopping = False
         self.sigkilled = False
         self.respawn_handle: asyncio.TimerHandle | None = None
+        self.respawn_at = 0.0  # loop time of the next start, when respawning
         self.timers: list[asyncio.TimerHandle] = []
         self.stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
         self.group_poll: asyncio.TimerHandle | None = None
@@ -95,6 +97,13 @@ class NodeProcess:
         if self.spec.log_dir:
             text += "\nlog file: %s*.log" % os.path.join(self.spec.log_dir, self.spec.log_name)
         return text
+
+
+def _exit_code_and_signal(returncode: int | None) -> tuple[int | None, int | None]:
+    """Popen's returncode (negative: killed by that signal) as (exit code, signal)."""
+    if returncode is not None and returncode < 0:
+        return None, -returncode
+    return returncode, None
 
 
 def _group_exists(pgid: int) -> bool:
@@ -136,7 +145,7 @@ class Supervisor:
     def __init__(self, *, sigint_timeout: float = DEFAULT_SIGINT_TIMEOUT,
                  sigterm_timeout: float = DEFAULT_SIGTERM_TIMEOUT, exit_when_all_dead: bool = True,
                  watchdog=None, stop_concurrency: int = STOP_CONCURRENCY, stop_hold: float = STOP_HOLD_S,
-                 on_spawn: Callable[[NodeProcess], None] | None = None):
+                 on_spawn: Callable[[NodeProcess], None] | None = None, fleet: state.Fleet | None = None):
         self.loop = asyncio.get_running_loop()
         restore_default_signals_for_children()
         self.sigint_timeout = sigint_timeout
@@ -146,6 +155,7 @@ class Supervisor:
         self.stop_concurrency = max(1, stop_concurrency)
         self.stop_hold = stop_hold
         self.on_spawn = on_spawn
+        self.fleet = fleet if fleet is not None else state.Fleet()  # every node's state: the supervisor writes it
         self.procs: list[NodeProcess] = []
         self.done = asyncio.Event()
         self.required_failed = False  # a required node exited non-zero / by signal, or could not start
@@ -165,6 +175,7 @@ class Supervisor:
         """
         proc = NodeProcess(spec)
         self.procs.append(proc)
+        self.fleet.add(spec.node_name, process=spec.name)
         self._start(proc)
         return proc if proc.alive or proc.respawn_handle is not None else None
 
@@ -200,6 +211,7 @@ class Supervisor:
         proc.exit_code = None
         proc.started_at = started_at
         proc.alive = proc.group_alive = True
+        self.fleet.change(proc.spec.node_name, state.RUNNING, pid=popen.pid)
         try:
             proc.pidfd = os.pidfd_open(popen.pid)
             self.loop.add_reader(proc.pidfd, self._on_exit, proc)
@@ -252,10 +264,16 @@ class Supervisor:
                 console.printerrlog("[%s] %s" % (proc.name, desc))
             else:
                 console.printlog_bold("[%s] %s" % (proc.name, desc))
+        exit_code, exit_signal = _exit_code_and_signal(proc.exit_code) if started else (None, None)
+        reason = "" if started else "could not be started"
         if proc.spec.respawn:
             # a failed start too: an executable briefly missing (a package being reinstalled) comes back
             self._schedule_respawn(proc)
+            self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
+                              next_start=time.time() + max(0.0, proc.respawn_at - self.loop.time()), reason=reason)
         else:
+            self.fleet.change(proc.spec.node_name, state.EXITED, exit_code=exit_code, exit_signal=exit_signal,
+                              reason=reason)
             self._check_all_dead()
 
     def _check_group(self, proc: NodeProcess) -> bool:
@@ -270,6 +288,7 @@ class Supervisor:
         # respawn_delay counts from the death, as roslaunch; a crash loop is paced, not spun
         delay = max(0.0, proc.spec.respawn_delay,
                     proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
+        proc.respawn_at = self.loop.time() + delay
         if delay == 0.0:
             self._respawn(proc)
         else:
@@ -386,6 +405,9 @@ class Supervisor:
         self._release_slot(p)
         if p.stopped is not None and not p.stopped.done():
             p.stopped.set_result(None)
+            code, sig = _exit_code_and_signal(p.exit_code)
+            self.fleet.change(p.spec.node_name, state.STOPPED, exit_code=code, exit_signal=sig,
+                              reason="killed with SIGKILL" if p.sigkilled else "")
 
     def close(self) -> None:
         """Drop loop registrations (after shutdown)."""

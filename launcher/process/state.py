@@ -1,0 +1,151 @@
+"""Every node's state, kept in one place: what the events file, status, diagnostics and the live view all read.
+
+A node is in one state at a time:
+
+    waiting     its start is held (spawn_delay, or wait_for conditions not met yet)
+    running     its process runs
+    respawning  its process ended; it starts again at `next_start`
+    exited      its process ended and will not be started again
+    fatal       it failed `respawn_max_retries` runs in a row: not restarted, kept here
+    hung        it stopped answering its own XML-RPC API (then killed; respawning or exited follows)
+    stopped     the launch (or an operator) stopped it
+
+The supervisor is the only writer: it calls `Fleet.change` at every transition.
+Each change is appended as one JSON object to the run's `launcher-events.jsonl`
+(time, node, state, pid, exit code or signal, restarts, reason), so a reader
+can follow a launch from outside; the in-memory `NodeStatus` is what a reader
+inside the launcher looks at.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import time
+from typing import Callable, Iterable
+
+WAITING = "waiting"
+RUNNING = "running"
+RESPAWNING = "respawning"
+EXITED = "exited"
+FATAL = "fatal"
+HUNG = "hung"
+STOPPED = "stopped"
+STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STOPPED)
+
+HISTORY = 60  # resource samples kept per node (a minute at the default period)
+
+
+class NodeStatus:
+    """One node as a reader sees it. Times are wall-clock seconds (time.time())."""
+
+    __slots__ = ("name", "process", "host", "state", "pid", "started_at", "restarts", "exit_code", "exit_signal",
+                 "next_start", "reason", "cpu", "rss", "history")
+
+    def __init__(self, name: str, process: str = "", host: str = "localhost"):
+        self.name = name  # the ROS node name, e.g. /robot/driver
+        self.process = process or name  # roslaunch's process name, e.g. robot/driver-2
+        self.host = host
+        self.state = WAITING
+        self.pid: int | None = None
+        self.started_at: float | None = None  # the current (or last) run's start
+        self.restarts = 0  # starts after the first
+        self.exit_code: int | None = None  # the last run's exit code, if it exited
+        self.exit_signal: int | None = None  # the signal that ended the last run, if one did
+        self.next_start: float | None = None  # when respawning
+        self.reason = ""  # why the last change happened, in words
+        self.cpu: float | None = None  # cores used over the last sample period
+        self.rss: int | None = None  # bytes, the node's whole process group
+        self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
+
+    def uptime(self, now: float | None = None) -> float | None:
+        if self.state != RUNNING or self.started_at is None:
+            return None
+        return (time.time() if now is None else now) - self.started_at
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "process": self.process, "host": self.host, "state": self.state, "pid": self.pid,
+                "started_at": self.started_at, "uptime": self.uptime(), "restarts": self.restarts,
+                "exit_code": self.exit_code, "exit_signal": self.exit_signal, "next_start": self.next_start,
+                "reason": self.reason, "cpu": self.cpu, "rss": self.rss}
+
+
+class Fleet:
+    """The states of all nodes of a run, and the events file they are written to."""
+
+    def __init__(self, events_path: str | None = None, warn: Callable[[str], None] | None = None):
+        self.nodes: dict[str, NodeStatus] = {}
+        self._events = None
+        self._warn = warn
+        self.listeners: list[Callable[[NodeStatus], None]] = []  # called after every change
+        if events_path:
+            try:
+                # line-buffered: a reader (`launcher events -f`) sees each event as it happens
+                self._events = open(events_path, "a", buffering=1, encoding="utf-8")
+            except OSError as e:
+                self._say("cannot write the events file [%s]: %s" % (events_path, e.strerror))
+
+    def add(self, name: str, process: str = "", host: str = "localhost") -> NodeStatus:
+        status = self.nodes.get(name)
+        if status is None:
+            status = self.nodes[name] = NodeStatus(name, process, host)
+        return status
+
+    def change(self, name: str, state: str, *, pid: int | None = None, exit_code: int | None = None,
+               exit_signal: int | None = None, next_start: float | None = None, reason: str = "") -> NodeStatus:
+        """Record that `name` is now in `state` (a transition; the same state again is an event too)."""
+        assert state in STATES, state
+        status = self.add(name)
+        now = time.time()
+        if state == RUNNING:
+            if status.started_at is not None:
+                status.restarts += 1
+            status.started_at = now
+            status.pid = pid
+            status.exit_code = status.exit_signal = None
+        elif exit_code is not None or exit_signal is not None:
+            status.exit_code, status.exit_signal = exit_code, exit_signal
+        status.state = state
+        status.next_start = next_start if state == RESPAWNING else None
+        status.reason = reason
+        if state != RUNNING:
+            status.cpu = None
+        self._write({"time": round(now, 6), "node": name, "state": state, "pid": status.pid,
+                     "exit_code": status.exit_code, "exit_signal": status.exit_signal,
+                     "restarts": status.restarts, "next_start": status.next_start, "reason": reason})
+        for listener in self.listeners:
+            listener(status)
+        return status
+
+    def sample(self, name: str, cpu: float, rss: int) -> None:
+        status = self.nodes.get(name)
+        if status is not None:
+            status.cpu, status.rss = cpu, rss
+            status.history.append((time.time(), cpu, rss))
+
+    def __iter__(self) -> Iterable[NodeStatus]:
+        return iter(self.nodes.values())
+
+    def _write(self, event: dict) -> None:
+        if self._events is None:
+            return
+        try:
+            self._events.write(json.dumps(event, separators=(",", ":")) + "\n")
+        except OSError as e:  # a full disk: say so once, keep supervising
+            self._say("cannot write the events file: %s" % e.strerror)
+            self._close()
+
+    def _say(self, msg: str) -> None:
+        if self._warn is not None:
+            self._warn("WARNING: %s" % msg)
+
+    def _close(self) -> None:
+        if self._events is not None:
+            try:
+                self._events.close()
+            except OSError:
+                pass
+            self._events = None
+
+    def close(self) -> None:
+        self._close()
