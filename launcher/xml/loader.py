@@ -92,6 +92,7 @@ class XmlLoader:
         self._used_private: set[tuple[str, str, int]] = set()
         self._declared_args: set[str] = set()
         self._clean_ns: str | None = None  # see _add_param
+        self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
@@ -531,17 +532,22 @@ class XmlLoader:
         # Parameters come in runs with the same namespace: once no prefix of a namespace is a
         # parameter, the next key in that namespace needs no new check (adding `ns/x` cannot make
         # a prefix of `ns` a parameter; every other way of adding params resets the check).
+        # A parent can only be a parameter of the length of some parameter's key: slicing and
+        # hashing every prefix of a key is quadratic in its length (a 100,000-segment name).
         ns_end = key.rfind(SEP)
         if ns_end <= 0 or key[:ns_end] != self._clean_ns:
             clean = True
+            key_lengths = self._key_lengths
             i = key.find(SEP, 1)
             while i > 0:
-                parent = key[:i]
-                if parent in params:
-                    clean = False
-                    self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
+                if i in key_lengths:
+                    parent = key[:i]
+                    if parent in params:
+                        clean = False
+                        self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
                 i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
+        self._key_lengths.add(len(key))
         params[key] = new_param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
@@ -732,6 +738,7 @@ class XmlLoader:
             node_params = scope.params + node_params
         ns = param_scope.ns
         params = self.params
+        key_lengths = self._key_lengths
         for key, value, pfile, pline in node_params:
             if key[:1] == "~":
                 key = key[1:]
@@ -739,6 +746,7 @@ class XmlLoader:
             if "//" in full or (full[-1:] == SEP and len(full) > 1):  # (canonical(), inline)
                 full = canonical(full)
             params[full] = new_param(full, value, pfile, pline)
+            key_lengths.add(len(full))
         self._clean_ns = None
 
         if respawn and required:

@@ -593,3 +593,18 @@ def test_undeclared_command_line_arg_is_warned_unless_read(ld):
     c = ld.load(text, ["a:=2", "typo:=3", "used:=4", "__ns:=/x"])
     w = [x for x in c.warnings if "command-line argument" in x]
     assert len(w) == 1 and "[typo:=3]" in w[0]
+
+
+def test_a_very_deep_parameter_name_takes_linear_time(ld):
+    """A parameter name of 160,000 `ns/` segments took 11 s (every prefix sliced and looked up)."""
+    import time
+    deep = "ns/" * 160_000
+    path = ld.write("deep.launch", '<launch><param name="p" value="0"/><param name="%sx" value="1"/>'
+                                   '<param name="%sx/y" value="2"/></launch>' % (deep, deep))
+    start = time.monotonic()
+    config = ld.load([path])
+    elapsed = time.monotonic() - start
+    assert {k: p.value for k, p in config.params.items()} == {"/p": 0, "/" + deep + "x": 1, "/" + deep + "x/y": 2}
+    # the parent check still sees the parent parameter, however deep
+    assert any("conflicts with parent parameter [/%sx]" % deep in w for w in config.warnings)
+    assert elapsed < 2.0, "took %.1f s" % elapsed
