@@ -91,6 +91,7 @@ class XmlLoader:
         self._private_params: dict[tuple[str, str, int], tuple[tuple[str, int], ...]] = {}
         self._used_private: set[tuple[str, str, int]] = set()
         self._declared_args: set[str] = set()
+        self._used_args: set[str] = set()  # what $(arg) read, in every scope (see _undeclared_cli_args)
         self._clean_ns: str | None = None  # see _add_param
         self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
@@ -127,23 +128,11 @@ class XmlLoader:
 
     def _undeclared_cli_args(self) -> None:
         """roslaunch silently ignores `name:=value` for an arg no file declares: say so (a typo, usually)."""
-        unknown = [a for a in self.cli_args if not a.startswith("__") and a not in self._declared_args]
-        if not unknown:
-            return
-        texts = []
-        for f in dict.fromkeys(self.files):
-            try:
-                with open(f, "r", encoding="utf-8", errors="replace") as fh:
-                    texts.append(fh.read())
-            except OSError:
-                pass
-        text = "\n".join(texts)
-        for a in unknown:
+        for a, value in self.cli_args.items():
             # roslaunch lets $(arg x) read an undeclared command-line arg: that counts as used
-            if re.search(r"arg(\s+|\(\s*['\"])%s\b" % re.escape(a), text):
-                continue
-            self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch file(s) "
-                             "and is ignored" % (a, self.cli_args[a]))
+            if not a.startswith("__") and a not in self._declared_args and a not in self._used_args:
+                self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch "
+                                 "file(s) and is ignored" % (a, value))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:
@@ -247,7 +236,7 @@ class XmlLoader:
         self.files.append(filename)
         scope = Scope(self.root_ns, filename, environ=self.environ,
                       find_package=self._find_package, find_resource=self._find_resource,
-                      args=dict(self.cli_args))
+                      args=dict(self.cli_args), used_args=self._used_args)
         self.root_scope = scope
         self._launch_tag(launch, scope)
         if not self.args_only:

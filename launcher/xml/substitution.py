@@ -38,17 +38,20 @@ class ArgNotSet(SubstitutionError):
 class SubstitutionScope:
     """What a substitution can see: the scope's args and anon names, the file, the environment, packages."""
 
-    __slots__ = ("args", "anon", "filename", "environ", "find_package", "find_resource")
+    __slots__ = ("args", "anon", "filename", "environ", "find_package", "find_resource", "used_args")
 
     def __init__(self, args: Mapping[str, str], anon: dict[str, str], filename: str | None,
                  environ: Mapping[str, str], find_package: Callable[[str], str],
-                 find_resource: Callable[[str, str], str]):
+                 find_resource: Callable[[str, str], str], used_args: set[str] | None = None):
         self.args = args
         self.anon = anon
         self.filename = filename
         self.environ = environ
         self.find_package = find_package
         self.find_resource = find_resource
+        # the names `$(arg)` (and `arg()` in `$(eval)`) have read: one set shared by a whole load,
+        # so that the loader can tell a command-line arg nothing reads (a typo, usually)
+        self.used_args = set() if used_args is None else used_args
 
 
 _SIMPLE_COMMAND = re.compile(r"\$\(([^$()]+)\)")
@@ -273,9 +276,11 @@ def _first_pass(cmd: str, body: str, args: tuple[str, ...], scope: SubstitutionS
 
 def _arg(name: str, scope: SubstitutionScope) -> str:
     try:
-        return scope.args[name]
+        value = scope.args[name]
     except KeyError:
         raise ArgNotSet(name) from None
+    scope.used_args.add(name)
+    return value
 
 
 def _env(name: str, scope: SubstitutionScope) -> str:

@@ -595,6 +595,21 @@ def test_undeclared_command_line_arg_is_warned_unless_read(ld):
     assert len(w) == 1 and "[typo:=3]" in w[0]
 
 
+def test_undeclared_command_line_arg_counts_as_read_only_when_a_substitution_reads_it(ld):
+    """What $(arg) and $(eval arg()) read while loading counts, not the text of the files: an arg
+    named in a comment or in a skipped group is still ignored, and the warning says so."""
+    inc = ld.write("inc.launch", '<launch><param name="i" value="$(arg viainclude)"/></launch>')
+    text = """<launch>
+      <!-- $(arg incomment) -->
+      <group if="false"><param name="s" value="$(arg skipped)"/></group>
+      <param name="e" value="$(eval arg('ev') + 1)"/>
+      <include file="%s" pass_all_args="true"/>
+    </launch>""" % inc
+    c = ld.load(text, ["incomment:=1", "skipped:=2", "ev:=3", "viainclude:=4"])
+    w = sorted(x for x in c.warnings if "command-line argument" in x)
+    assert len(w) == 2 and "[incomment:=1]" in w[0] and "[skipped:=2]" in w[1]
+
+
 def test_a_very_deep_parameter_name_takes_linear_time(ld):
     """A parameter name of 160,000 `ns/` segments took 11 s (every prefix sliced and looked up)."""
     import time
