@@ -267,53 +267,62 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
-        if_unless = self._if_unless
+        """Process the children of `parent_el` in order; returns the default machine after them."""
+        handlers = _TAG_HANDLERS
         for el in parent_el:
             tag = el.tag
-            # the element's if/unless allow it: decided here at once for the many that have neither
-            get = el.attrib.get
-            if tag == "arg":
+            if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
                 self._arg_tag(el, scope)
-            elif self.args_only:
                 continue
-            elif tag == "node":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._node_tag(el, scope, default_machine, is_test=False)
-            elif tag == "param":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._param_tag(el, scope)
-            elif tag == "group":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._check_attrs(el, scope, GROUP_ATTRS)
-                    child = self._ns_clear_params(el, scope, "group")
-                    child.params = list(child.params)
-                    default_machine = self._recurse(el, child, default_machine)
-            elif tag == "include":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    default_machine = self._include_tag(el, scope, default_machine)
-            elif tag == "remap":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    src, dst = self._remap_tag(el, scope)
-                    self._add_remap(scope, src, dst, el)
-            elif tag == "rosparam":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._rosparam_tag(el, scope)
-            elif tag == "env":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._env_tag(el, scope)
-            elif tag == "test":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._node_tag(el, scope, default_machine, is_test=True)
-            elif tag == "machine":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    m, is_default = self._machine_tag(el, scope)
-                    if is_default:
-                        default_machine = m
-            elif tag == "master":
-                pass  # warned about once per file
-            else:
-                self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+            if self.args_only:
+                continue
+            handler = handlers.get(tag)
+            if handler is None:
+                if tag != "master":  # (<master> is warned about once per file)
+                    self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+                continue
+            get = el.attrib.get
+            # most elements have neither if nor unless: decided here without a call
+            if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
+                default_machine = handler(self, el, scope, default_machine)
         return default_machine
+
+    # Each handler takes (element, scope, default machine) and returns the default machine for
+    # the elements that follow (only <machine default="true"> and what <group>/<include> contain change it).
+    def _node_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._node_tag(el, scope, default_machine, is_test=False)
+        return default_machine
+
+    def _test_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._node_tag(el, scope, default_machine, is_test=True)
+        return default_machine
+
+    def _param_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._param_tag(el, scope)
+        return default_machine
+
+    def _rosparam_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._rosparam_tag(el, scope)
+        return default_machine
+
+    def _env_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._env_tag(el, scope)
+        return default_machine
+
+    def _remap_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        src, dst = self._remap_tag(el, scope)
+        self._add_remap(scope, src, dst, el)
+        return default_machine
+
+    def _group_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._check_attrs(el, scope, GROUP_ATTRS)
+        child = self._ns_clear_params(el, scope, "group")
+        child.params = list(child.params)
+        return self._recurse(el, child, default_machine)
+
+    def _machine_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        m, is_default = self._machine_tag(el, scope)
+        return m if is_default else default_machine
 
     # ------------------------------------------------------------------ ns + clear_params
     def _ns_clear_params(self, el: Any, scope: Scope, kind: str, node_name: str | None = None,
@@ -875,6 +884,14 @@ class XmlLoader:
             if unused:
                 raise self._fail(scope, el, "unused args [%s] for include of [%s]" % (", ".join(unused), inc_file))
         return default_machine
+
+
+# tag -> handler, for the children of <launch>, <group> and an included file's <launch>
+_TAG_HANDLERS: dict[str, Callable[[XmlLoader, Any, Scope, Machine | None], Machine | None]] = {
+    "node": XmlLoader._node_element, "test": XmlLoader._test_element, "param": XmlLoader._param_element,
+    "rosparam": XmlLoader._rosparam_element, "env": XmlLoader._env_element, "remap": XmlLoader._remap_element,
+    "group": XmlLoader._group_element, "include": XmlLoader._include_tag, "machine": XmlLoader._machine_element,
+}
 
 
 def _read_text(path: str) -> str:
