@@ -15,10 +15,12 @@ import re
 import sys
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig, Machine, Node, new_param
+from launcher.config import LaunchConfig, Machine, Node, Param, new_param
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.plain_yaml import NOT_PLAIN, load_plain
+from launcher.params.values import auto_value, convert_value
+from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
@@ -47,29 +49,12 @@ MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-par
 _MULTISLASH = re.compile("//+")
 
 
-def _auto_value(text: str) -> Any:
-    """`<param value=...>` with no type= (roslaunch's inference), via the params package."""
-    global _auto_value
-    from launcher.params.values import auto_value
-    _auto_value = auto_value
-    return auto_value(text)
-
-
-def _convert_value(text: str, ptype: str) -> Any:
-    """`<param type=...>` typing, via the params package (imported on first use)."""
-    global _convert_value
-    from launcher.params.values import convert_value
-    _convert_value = convert_value
-    return convert_value(text, ptype)
-
-
 class XmlLoader:
     """One load: files + command-line args -> LaunchConfig."""
 
     def __init__(self, *, environ: Mapping[str, str], packages: Any, argv: Iterable[str] = (),
                  args_only: bool = False, core: bool = True,
                  warn: Callable[[str], None] | None = None):
-        from launcher.xml.arguments import load_mappings, root_namespace
         self.environ = environ
         self.packages = packages
         self.argv = list(argv)
@@ -435,7 +420,7 @@ class XmlLoader:
                 value = self._sub(value, scope, el)
             value = value.strip()  # type: ignore[union-attr]
             if ptype == "auto":
-                typed = _auto_value(value)
+                typed = auto_value(value)
             elif ptype == "str" or ptype == "string":
                 typed = value  # (what convert_value does for these, without the calls)
             else:
@@ -455,7 +440,7 @@ class XmlLoader:
             # rosparam's angle tags exist only once a <rosparam> has been processed (an import side effect)
             return self._yaml(text, scope, el, angles=self._ros_yaml, what="<param> [%s]" % name)
         try:
-            return _convert_value(text, ptype)
+            return convert_value(text, ptype)
         except ValueError as e:
             if ptype in ("int", "double"):
                 msg = "value [%s] is not of type %s" % (text.strip(), ptype)
@@ -486,6 +471,7 @@ class XmlLoader:
         return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, name)
 
     def _run_command(self, command: str, name: str, scope: Scope, el: Any) -> str:
+        # (imported here: subprocess costs ~4 ms to import, and only <param command=...> needs it)
         import shlex
         import subprocess
         try:

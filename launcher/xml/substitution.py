@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import builtins
 import math
+import os
 import re
 from typing import Any, Callable, Mapping
 
@@ -298,7 +299,6 @@ def _anon(id_: str, scope: SubstitutionScope) -> str:
 
 
 def _dirname(scope: SubstitutionScope) -> str:
-    import os.path
     if not scope.filename:
         raise SubstitutionError("Cannot substitute $(dirname), no file/directory information available.")
     return os.path.abspath(os.path.dirname(scope.filename))
