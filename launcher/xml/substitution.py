@@ -134,17 +134,17 @@ class _FirstPlan:
     roslaunch replaces, for each `$(...)` in order, every copy of its text in the string as it
     stands; that is one scan of the whole string per `$(...)`, quadratic in a long attribute.
     `commands` are the distinct non-find commands (body, command, args) in order, up to an
-    unknown one (command None), each evaluated once; `pieces`, for a simple text, is the text
-    split around its `$(...)`s (literal, body, literal, ..., literal), so that one join does
-    all the replacing. `order` is every non-find body in order, for roslaunch's own way.
+    unknown one (command None), each evaluated once. For a simple text, `template` is a
+    str.format template with a field for each copy of each command (a `$(find)` stays as it is,
+    for the second pass): one format() call, in C, does all the replacing. `order` is every non-find body in order, for roslaunch's own way.
     """
 
-    __slots__ = ("commands", "pieces", "order")
+    __slots__ = ("commands", "template", "order", "nothing")
 
     def __init__(self, text: str):
         commands: list[tuple[str, str | None, tuple[str, ...]]] = []
         order: list[str] = []
-        seen: set[str] = set()
+        index: dict[str, int] = {}  # body -> its value's position
         for body in collect_commands(text):  # (raises for a malformed text: nothing cached)
             words = body.split()
             if not words or words[0] not in VALID_COMMANDS:
@@ -152,12 +152,19 @@ class _FirstPlan:
                 break
             if words[0] != "find":
                 order.append(body)
-                if body not in seen:
-                    seen.add(body)
+                if body not in index:
+                    index[body] = len(commands)
                     commands.append((body, words[0], tuple(words[1:])))
         self.commands = tuple(commands)
         self.order = tuple(order)
-        self.pieces = _SIMPLE_COMMAND.split(text) if _is_simple(text) else None
+        self.nothing = not commands  # only $(find)s, for the second pass
+        self.template: str | None = None
+        if _is_simple(text):
+            pieces = _SIMPLE_COMMAND.split(text)
+            # (a $(find) is left as it is, for the second pass)
+            pieces[1::2] = ["{%d}" % index[b] if b in index else "$(%s)" % b for b in pieces[1::2]]
+            self.template = "".join(p if p[:1] == "{" and i % 2 else p.replace("{", "{{").replace("}", "}}")
+                                    for i, p in enumerate(pieces))
 
 
 def _first_pass_resolve(text: str, scope: SubstitutionScope) -> str:
@@ -166,23 +173,25 @@ def _first_pass_resolve(text: str, scope: SubstitutionScope) -> str:
         plan = _FirstPlan(text)
         if len(_FIRST_PLANS) < _PLAN_MAX:
             _FIRST_PLANS[text] = plan
-    values: dict[str, str] = {}
+    if plan.nothing:
+        return text
+    values = []
+    dollar = False
     for body, cmd, args in plan.commands:
         if cmd is None:
             raise _unknown(body)
-        values[body] = _first_pass(cmd, body, args, scope)
-    pieces = plan.pieces
-    if pieces is not None and not any("$" in v for v in values.values()):
+        value = _first_pass(cmd, body, args, scope)
+        if "$" in value:
+            dollar = True
+        values.append(value)
+    if plan.template is not None and not dollar:
         # every copy of a `$(...)` text gets its one value, as roslaunch's replace() gives it
-        out = pieces[:]
-        for i in range(1, len(out), 2):
-            v = values.get(out[i])
-            out[i] = "$(%s)" % out[i] if v is None else v  # ($(find) waits for the second pass)
-        return "".join(out)
+        return plan.template.format(*values)
     # a value holds a '$' (it may make or be a `$(...)` text): roslaunch's replacements, one by one
+    by_body = {c[0]: v for c, v in zip(plan.commands, values)}
     resolved = text
     for body in plan.order:
-        resolved = resolved.replace("$(%s)" % body, values[body])
+        resolved = resolved.replace("$(%s)" % body, by_body[body])
     return resolved
 
 
@@ -191,12 +200,12 @@ class _FindPlan:
 
     roslaunch replaces the first copy of each `$(find pkg)` text in turn, together with the path
     that follows it up to a space. `steps` are (body, args) of the finds in order, up to an
-    unknown command (args None). `pieces`, when the string is simple and no path holds a '$', is
-    [literal, (body, args, path), literal, ...]: then the k-th step always meets the k-th find,
-    and one left-to-right join does what the steps do.
+    unknown command (args None). When the string is simple and no path holds a '$', the k-th
+    step always meets the k-th find: `finds` are (body, args, path) of each, and `template` has
+    a field for each find and its path, so that one format() does what the steps do.
     """
 
-    __slots__ = ("steps", "pieces")
+    __slots__ = ("steps", "finds", "template")
 
     def __init__(self, resolved: str):
         steps: list[tuple[str, tuple[str, ...] | None]] = []
@@ -208,9 +217,11 @@ class _FindPlan:
             if words[0] == "find":
                 steps.append((body, tuple(words[1:])))
         self.steps = tuple(steps)
-        self.pieces: list[Any] | None = None
+        self.finds: tuple[tuple[str, tuple[str, ...], str], ...] = ()
+        self.template: str | None = None
         if steps and steps[-1][1] is not None and _is_simple(resolved):
-            pieces: list[Any] = []
+            finds = []
+            pieces: list[str] = []
             pos = 0
             for m in _SIMPLE_COMMAND.finditer(resolved):
                 words = m.group(1).split()
@@ -222,11 +233,13 @@ class _FindPlan:
                 path = resolved[m.end():j]
                 if "$" in path:
                     return
-                pieces.append(resolved[pos:m.start()])
-                pieces.append((m.group(1), tuple(words[1:]), path))
+                pieces.append(resolved[pos:m.start()].replace("{", "{{").replace("}", "}}"))
+                pieces.append("{%d}" % len(finds))
+                finds.append((m.group(1), tuple(words[1:]), path))
                 pos = j
-            pieces.append(resolved[pos:])
-            self.pieces = pieces
+            pieces.append(resolved[pos:].replace("{", "{{").replace("}", "}}"))
+            self.finds = tuple(finds)
+            self.template = "".join(pieces)
 
 
 def _find_pass_resolve(resolved: str, scope: SubstitutionScope) -> str:
@@ -235,14 +248,16 @@ def _find_pass_resolve(resolved: str, scope: SubstitutionScope) -> str:
         plan = _FindPlan(resolved)
         if len(_FIND_PLANS) < _PLAN_MAX:
             _FIND_PLANS[resolved] = plan
-    pieces = plan.pieces
-    if pieces is not None:
-        out = pieces[:]
-        for i in range(1, len(out), 2):
-            body, args, path = out[i]
-            out[i] = _find_value(body, args, path, scope)
-        if not any("$" in out[i] for i in range(1, len(out), 2)):
-            return "".join(out)
+    if plan.template is not None:
+        values = []
+        dollar = False
+        for body, args, path in plan.finds:
+            value = _find_value(body, args, path, scope)
+            if "$" in value:
+                dollar = True
+            values.append(value)
+        if not dollar:
+            return plan.template.format(*values)
     for body, args in plan.steps:  # (a found path holds a '$': roslaunch's steps, one by one)
         if args is None:
             raise _unknown(body)
