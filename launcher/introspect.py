@@ -9,12 +9,18 @@ message and exit 1.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 from typing import Any, Mapping
 
+from launcher.command import master_uri, node_command
 from launcher.errors import LaunchError
-from launcher.names import ns_join
+from launcher.names import SEP, make_global_ns, ns_join
+from launcher.packages import PackageIndex
+from launcher.params.dump import dump_yaml
+from launcher.xml import load, load_arg_docs, resolve_launch_arguments
+from launcher.xml.arguments import root_namespace
 
 NO_FILE = "you must specify at least one input file"
 
@@ -25,8 +31,6 @@ def _warn(msg: str) -> None:
 
 def resolve_node_name(name: str, argv: list[str], environ: Mapping[str, str]) -> str:
     """A node name given on the command line, resolved as roslaunch does (rosgraph's script_resolve_name)."""
-    from launcher.names import SEP, make_global_ns, ns_join
-    from launcher.xml.arguments import root_namespace
     ns = root_namespace(argv, environ)
     if not name:
         return ns
@@ -53,7 +57,6 @@ def main(opts: Any) -> int:
     """Run the one introspection option `opts` asks for; returns the exit status."""
     # Loading and printing allocate ~10^5 long-lived objects and free almost nothing: the
     # cyclic GC would only traverse them again and again (~10 ms on a big `--dump-params`).
-    import gc
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
@@ -65,8 +68,6 @@ def main(opts: Any) -> int:
 
 def _main(opts: Any) -> int:
     environ = os.environ
-    from launcher.packages import PackageIndex
-    from launcher.xml import load, resolve_launch_arguments
     packages = PackageIndex(environ, warn=_warn)
     files, argv = resolve_launch_arguments(list(opts.positional or []), packages)
     if not files:
@@ -81,7 +82,6 @@ def _main(opts: Any) -> int:
             names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
             raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s"
                               % (name, ", ".join(files), "\n".join(" * %s" % n for n in names)))
-        from launcher.command import master_uri, node_command
         cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
         out.write(cmd.format_args() + "\n")
         return 0
@@ -108,7 +108,6 @@ def _main(opts: Any) -> int:
         return 0
 
     if opts.ros_args:
-        from launcher.xml import load_arg_docs
         docs = load_arg_docs(files, argv, environ=environ, packages=packages)
         out.write(format_ros_args(docs))
         return 0
@@ -156,7 +155,6 @@ _PLAIN_SCALARS = frozenset((str, int, float, bool, type(None)))
 
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
-    from launcher.params.dump import dump_yaml
     data = {k: p.value for k, p in config.params.items()}
     try:
         text = dump_yaml(data)

@@ -11,6 +11,7 @@ launch with 1000 nodes must not walk a package 1000 times.
 from __future__ import annotations
 
 import os
+import pyexpat
 import stat
 from collections.abc import Callable, Iterator, Mapping
 
@@ -123,18 +124,61 @@ def _walk(top: str) -> Iterator[tuple[str, list[str], list[str]]]:
 
 def _package_name(manifest: str) -> tuple[str | None, bool]:
     """(the `<name>` of a package.xml, whether it is a metapackage); (None, False) if unreadable."""
-    from launcher.xml.document import XmlSyntaxError, element_text, parse_xml
-
     try:
         with open(manifest, "rb") as f:
-            root, _ = parse_xml(f.read())
-    except (OSError, XmlSyntaxError):
+            data = f.read()
+    except OSError:
         return None, False
-    name = next((element_text(c) for c in root if c.tag == "name"), None)
-    if name is None:
+    return read_package_xml(data)
+
+
+def read_package_xml(data: bytes) -> tuple[str | None, bool]:
+    """(the text of the first `<name>` under the root, whether `<export>` holds a `<metapackage>`).
+
+    Read with expat as minidom reads it (rospkg's parser), namespaces included, so that the same
+    manifests are accepted; only the text of `<name>` itself counts, not that of elements inside it.
+    (None, False) for a document that is not well-formed XML or has no `<name>`.
+    """
+    parser = pyexpat.ParserCreate(None, " ")  # (namespace processing, as minidom)
+    parser.buffer_text = True
+    parser.namespace_prefixes = True
+    path: list[str] = []  # the tags from the root down to the current element
+    name_text: list[str] | None = None
+    in_name = False  # inside the first <name> under the root (its text, at depth 2, is the name)
+    is_meta = False
+
+    def start(tag: str, attrib: dict[str, str]) -> None:
+        nonlocal name_text, in_name, is_meta
+        if " " in tag:  # "uri local [prefix]": the qualified name minidom reports
+            parts = tag.split(" ")
+            tag = parts[2] + ":" + parts[1] if len(parts) == 3 else parts[-1]
+        path.append(tag)
+        if len(path) == 2 and tag == "name" and name_text is None:
+            name_text = []
+            in_name = True
+        elif len(path) == 3 and path[1] == "export" and tag == "metapackage":
+            is_meta = True
+
+    def end(tag: str) -> None:
+        nonlocal in_name
+        if len(path) == 2:
+            in_name = False
+        path.pop()
+
+    def chars(text: str) -> None:
+        if in_name and len(path) == 2:
+            name_text.append(text)  # type: ignore[union-attr]
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(data, True)
+    except pyexpat.ExpatError:
         return None, False
-    is_meta = any(c.tag == "metapackage" for e in root if e.tag == "export" for c in e)
-    return name.strip(" \n\r\t"), is_meta
+    if name_text is None:
+        return None, False
+    return "".join(name_text).strip(" \n\r\t"), is_meta
 
 
 class PackageIndex:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 
 import pytest
 
@@ -53,6 +54,31 @@ def test_package_name_comes_from_package_xml_not_directory(tmp_path):
     assert ix.get_path("zz_real_name") == str(tmp_path / "src/some_dir")
     with pytest.raises(PackageNotFound):
         ix.get_path("some_dir")
+
+
+@pytest.mark.parametrize("xml,expected", [
+    (b"<package><name> pkg\n</name></package>", ("pkg", False)),
+    # the first <name> under the root, its own text only (CDATA and entities included)
+    (b"<package><x><name>no</name></x><name>a<b>x</b>c<![CDATA[d]]>&amp;</name><name>z</name></package>",
+     ("acd&", False)),
+    (b"<package><name>m</name><export><metapackage/></export></package>", ("m", True)),
+    (b"<package><name>m</name><export><x><metapackage/></x></export></package>", ("m", False)),
+    # namespaces as minidom reports them: a default namespace changes nothing, a prefix does
+    (b'<package xmlns="urn:x"><name>n</name></package>', ("n", False)),
+    (b'<p:package xmlns:p="urn:x"><p:name>n</p:name><name>m</name></p:package>', ("m", False)),
+    (b"<package><q:name>unbound prefix</q:name></package>", (None, False)),
+    (b"<package><version>1</version></package>", (None, False)),
+    (b"<package><name>x</package>", (None, False)),
+])
+def test_package_xml_name_and_metapackage(xml, expected):
+    assert packages_mod.read_package_xml(xml) == expected
+
+
+def test_packages_does_not_import_the_launch_xml_loader():
+    """package.xml is read by the package index itself: `packages` and `xml` import in one direction only."""
+    code = "import sys, launcher.packages; print(sorted(m for m in sys.modules if m.startswith('launcher.xml')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
 
 
 def test_first_ros_package_path_entry_wins(tmp_path):

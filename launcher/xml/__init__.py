@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import gc
 import os
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
-if TYPE_CHECKING:
-    from launcher.config import LaunchConfig
+from launcher.config import LaunchConfig
+from launcher.errors import LaunchError
+from launcher.packages import PackageIndex
+from launcher.xml.arguments import resolve_launch_arguments
+from launcher.xml.loader import XmlLoader
+
+__all__ = ["load", "load_arg_docs", "resolve_launch_arguments"]
 
 
 def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
@@ -20,11 +25,9 @@ def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, st
     is called with each warning as it happens (they are also in `config.warnings`).
     Raises LaunchError.
     """
-    from launcher.xml.loader import XmlLoader
     if environ is None:
         environ = os.environ
     if packages is None:
-        from launcher.packages import PackageIndex
         packages = PackageIndex(environ)
     loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=args_only, core=core, warn=warn)
     # A load allocates tens of thousands of objects and frees almost none of them, and makes no
@@ -45,7 +48,6 @@ def _load_file(loader: Any, filename: str) -> None:
         loader.load_file(filename)
     except RecursionError:
         # the loader follows the nesting of <group>s and <include>s; expat has no depth limit
-        from launcher.errors import LaunchError
         raise LaunchError("Invalid roslaunch XML syntax: elements or includes are nested too deeply "
                           "(maximum recursion depth exceeded)", filename) from None
 
@@ -53,19 +55,12 @@ def _load_file(loader: Any, filename: str) -> None:
 def load_arg_docs(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
                   packages: Any = None) -> dict[str, tuple[str | None, str | None]]:
     """The top-level `<arg>`s of the last file: name -> (doc, default), for `--ros-args`."""
-    from launcher.xml.loader import XmlLoader
     if environ is None:
         environ = os.environ
     if packages is None:
-        from launcher.packages import PackageIndex
         packages = PackageIndex(environ)
     loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=True)
     for f in files:
         _load_file(loader, f)
     return dict(loader.root_scope.arg_docs) if loader.root_scope is not None else {}
 
-
-def resolve_launch_arguments(positional: list[str], packages: Any) -> tuple[list[str], list[str]]:
-    """`[pkg] file.launch... name:=value...` -> (files, argv). Raises LaunchError."""
-    from launcher.xml.arguments import resolve_launch_arguments as _resolve
-    return _resolve(positional, packages)

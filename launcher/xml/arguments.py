@@ -7,6 +7,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from launcher.errors import LaunchError
 from launcher.names import REMAP, make_global_ns
+from launcher.packages import PackageNotFound
 
 
 def is_mapping(token: str) -> bool:
@@ -64,10 +65,8 @@ def resolve_launch_arguments(positional: list[str], packages: Any) -> tuple[list
         found = None
         try:
             found = packages.find_launch_file(words[0], words[1])
-        except LaunchError as e:
-            from launcher.packages import PackageNotFound
-            if not isinstance(e, PackageNotFound):
-                raise
+        except PackageNotFound:
+            pass
         if found:
             files = [found] + words[2:]
         else:

@@ -14,6 +14,7 @@ an older expat).
 from __future__ import annotations
 
 import pyexpat
+import sys
 from typing import Callable, Iterator
 
 from launcher.errors import LaunchError
@@ -258,7 +259,6 @@ def read_launch(filename: str, include_chain: tuple[tuple[str, int], ...] = ()) 
     """The `<launch>` element of `filename` (which may be anywhere in the document, but only once)."""
     try:
         if filename == "-":  # roslaunch reads launch XML from stdin for '-'
-            import sys
             data = sys.stdin.buffer.read()
         else:
             with open(filename, "rb") as f:

@@ -15,9 +15,11 @@ import re
 import sys
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig, Machine, Node, new_param
+from launcher.config import LaunchConfig, Machine, Node, Param, new_param
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
+from launcher.params.values import auto_value, convert_value
+from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
@@ -46,29 +48,12 @@ MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-par
 _MULTISLASH = re.compile("//+")
 
 
-def _auto_value(text: str) -> Any:
-    """`<param value=...>` with no type= (roslaunch's inference), via the params package."""
-    global _auto_value
-    from launcher.params.values import auto_value
-    _auto_value = auto_value
-    return auto_value(text)
-
-
-def _convert_value(text: str, ptype: str) -> Any:
-    """`<param type=...>` typing, via the params package (imported on first use)."""
-    global _convert_value
-    from launcher.params.values import convert_value
-    _convert_value = convert_value
-    return convert_value(text, ptype)
-
-
 class XmlLoader:
     """One load: files + command-line args -> LaunchConfig."""
 
     def __init__(self, *, environ: Mapping[str, str], packages: Any, argv: Iterable[str] = (),
                  args_only: bool = False, core: bool = True,
                  warn: Callable[[str], None] | None = None):
-        from launcher.xml.arguments import load_mappings, root_namespace
         self.environ = environ
         self.packages = packages
         self.argv = list(argv)
@@ -90,7 +75,9 @@ class XmlLoader:
         self._private_params: dict[tuple[str, str, int], tuple[tuple[str, int], ...]] = {}
         self._used_private: set[tuple[str, str, int]] = set()
         self._declared_args: set[str] = set()
+        self._used_args: set[str] = set()  # what $(arg) read, in every scope (see _undeclared_cli_args)
         self._clean_ns: str | None = None  # see _add_param
+        self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
@@ -125,23 +112,11 @@ class XmlLoader:
 
     def _undeclared_cli_args(self) -> None:
         """roslaunch silently ignores `name:=value` for an arg no file declares: say so (a typo, usually)."""
-        unknown = [a for a in self.cli_args if not a.startswith("__") and a not in self._declared_args]
-        if not unknown:
-            return
-        texts = []
-        for f in dict.fromkeys(self.files):
-            try:
-                with open(f, "r", encoding="utf-8", errors="replace") as fh:
-                    texts.append(fh.read())
-            except OSError:
-                pass
-        text = "\n".join(texts)
-        for a in unknown:
+        for a, value in self.cli_args.items():
             # roslaunch lets $(arg x) read an undeclared command-line arg: that counts as used
-            if re.search(r"arg(\s+|\(\s*['\"])%s\b" % re.escape(a), text):
-                continue
-            self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch file(s) "
-                             "and is ignored" % (a, self.cli_args[a]))
+            if not a.startswith("__") and a not in self._declared_args and a not in self._used_args:
+                self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch "
+                                 "file(s) and is ignored" % (a, value))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:
@@ -245,7 +220,7 @@ class XmlLoader:
         self.files.append(filename)
         scope = Scope(self.root_ns, filename, environ=self.environ,
                       find_package=self._find_package, find_resource=self._find_resource,
-                      args=dict(self.cli_args))
+                      args=dict(self.cli_args), used_args=self._used_args)
         self.root_scope = scope
         self._launch_tag(launch, scope)
         if not self.args_only:
@@ -276,53 +251,62 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
-        if_unless = self._if_unless
+        """Process the children of `parent_el` in order; returns the default machine after them."""
+        handlers = _TAG_HANDLERS
         for el in parent_el:
             tag = el.tag
-            # the element's if/unless allow it: decided here at once for the many that have neither
-            get = el.attrib.get
-            if tag == "arg":
+            if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
                 self._arg_tag(el, scope)
-            elif self.args_only:
                 continue
-            elif tag == "node":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._node_tag(el, scope, default_machine, is_test=False)
-            elif tag == "param":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._param_tag(el, scope)
-            elif tag == "group":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._check_attrs(el, scope, GROUP_ATTRS)
-                    child = self._ns_clear_params(el, scope, "group")
-                    child.params = list(child.params)
-                    default_machine = self._recurse(el, child, default_machine)
-            elif tag == "include":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    default_machine = self._include_tag(el, scope, default_machine)
-            elif tag == "remap":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    src, dst = self._remap_tag(el, scope)
-                    self._add_remap(scope, src, dst, el)
-            elif tag == "rosparam":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._rosparam_tag(el, scope)
-            elif tag == "env":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._env_tag(el, scope)
-            elif tag == "test":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    self._node_tag(el, scope, default_machine, is_test=True)
-            elif tag == "machine":
-                if (get("if") is None and get("unless") is None) or if_unless(el, scope):
-                    m, is_default = self._machine_tag(el, scope)
-                    if is_default:
-                        default_machine = m
-            elif tag == "master":
-                pass  # warned about once per file
-            else:
-                self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+            if self.args_only:
+                continue
+            handler = handlers.get(tag)
+            if handler is None:
+                if tag != "master":  # (<master> is warned about once per file)
+                    self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+                continue
+            get = el.attrib.get
+            # most elements have neither if nor unless: decided here without a call
+            if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
+                default_machine = handler(self, el, scope, default_machine)
         return default_machine
+
+    # Each handler takes (element, scope, default machine) and returns the default machine for
+    # the elements that follow (only <machine default="true"> and what <group>/<include> contain change it).
+    def _node_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._node_tag(el, scope, default_machine, is_test=False)
+        return default_machine
+
+    def _test_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._node_tag(el, scope, default_machine, is_test=True)
+        return default_machine
+
+    def _param_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._param_tag(el, scope)
+        return default_machine
+
+    def _rosparam_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._rosparam_tag(el, scope)
+        return default_machine
+
+    def _env_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._env_tag(el, scope)
+        return default_machine
+
+    def _remap_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        src, dst = self._remap_tag(el, scope)
+        self._add_remap(scope, src, dst, el)
+        return default_machine
+
+    def _group_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        self._check_attrs(el, scope, GROUP_ATTRS)
+        child = self._ns_clear_params(el, scope, "group")
+        child.params = list(child.params)
+        return self._recurse(el, child, default_machine)
+
+    def _machine_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
+        m, is_default = self._machine_tag(el, scope)
+        return m if is_default else default_machine
 
     # ------------------------------------------------------------------ ns + clear_params
     def _ns_clear_params(self, el: Any, scope: Scope, kind: str, node_name: str | None = None,
@@ -435,7 +419,7 @@ class XmlLoader:
                 value = self._sub(value, scope, el)
             value = value.strip()  # type: ignore[union-attr]
             if ptype == "auto":
-                typed = _auto_value(value)
+                typed = auto_value(value)
             elif ptype == "str" or ptype == "string":
                 typed = value  # (what convert_value does for these, without the calls)
             else:
@@ -455,7 +439,7 @@ class XmlLoader:
             # rosparam's angle tags exist only once a <rosparam> has been processed (an import side effect)
             return self._yaml(text, scope, el, angles=self._ros_yaml, what="<param> [%s]" % name)
         try:
-            return _convert_value(text, ptype)
+            return convert_value(text, ptype)
         except ValueError as e:
             if ptype in ("int", "double"):
                 msg = "value [%s] is not of type %s" % (text.strip(), ptype)
@@ -486,6 +470,7 @@ class XmlLoader:
         return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, name)
 
     def _run_command(self, command: str, name: str, scope: Scope, el: Any) -> str:
+        # (imported here: subprocess costs ~4 ms to import, and only <param command=...> needs it)
         import shlex
         import subprocess
         try:
@@ -530,17 +515,22 @@ class XmlLoader:
         # Parameters come in runs with the same namespace: once no prefix of a namespace is a
         # parameter, the next key in that namespace needs no new check (adding `ns/x` cannot make
         # a prefix of `ns` a parameter; every other way of adding params resets the check).
+        # A parent can only be a parameter of the length of some parameter's key: slicing and
+        # hashing every prefix of a key is quadratic in its length (a 100,000-segment name).
         ns_end = key.rfind(SEP)
         if ns_end <= 0 or key[:ns_end] != self._clean_ns:
             clean = True
+            key_lengths = self._key_lengths
             i = key.find(SEP, 1)
             while i > 0:
-                parent = key[:i]
-                if parent in params:
-                    clean = False
-                    self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
+                if i in key_lengths:
+                    parent = key[:i]
+                    if parent in params:
+                        clean = False
+                        self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
                 i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
+        self._key_lengths.add(len(key))
         params[key] = new_param(key, value, scope.source, el.sourceline or 0)
 
     # ------------------------------------------------------------------ YAML
@@ -728,6 +718,7 @@ class XmlLoader:
             node_params = scope.params + node_params
         ns = param_scope.ns
         params = self.params
+        key_lengths = self._key_lengths
         for key, value, pfile, pline in node_params:
             if key[:1] == "~":
                 key = key[1:]
@@ -735,6 +726,7 @@ class XmlLoader:
             if "//" in full or (full[-1:] == SEP and len(full) > 1):  # (canonical(), inline)
                 full = canonical(full)
             params[full] = new_param(full, value, pfile, pline)
+            key_lengths.add(len(full))
         self._clean_ns = None
 
         if respawn and required:
@@ -874,6 +866,14 @@ class XmlLoader:
             if unused:
                 raise self._fail(scope, el, "unused args [%s] for include of [%s]" % (", ".join(unused), inc_file))
         return default_machine
+
+
+# tag -> handler, for the children of <launch>, <group> and an included file's <launch>
+_TAG_HANDLERS: dict[str, Callable[[XmlLoader, Any, Scope, Machine | None], Machine | None]] = {
+    "node": XmlLoader._node_element, "test": XmlLoader._test_element, "param": XmlLoader._param_element,
+    "rosparam": XmlLoader._rosparam_element, "env": XmlLoader._env_element, "remap": XmlLoader._remap_element,
+    "group": XmlLoader._group_element, "include": XmlLoader._include_tag, "machine": XmlLoader._machine_element,
+}
 
 
 def _read_text(path: str) -> str:

@@ -64,8 +64,9 @@ class Scope(SubstitutionScope):
 
     def __init__(self, ns: str, filename: str, *, environ: Mapping[str, str],
                  find_package: Callable[[str], str], find_resource: Callable[[str, str], str],
-                 args: dict[str, str] | None = None):
-        super().__init__(args if args is not None else {}, {}, filename, environ, find_package, find_resource)
+                 args: dict[str, str] | None = None, used_args: set[str] | None = None):
+        super().__init__(args if args is not None else {}, {}, filename, environ, find_package, find_resource,
+                         used_args)
         self.ns = global_ns(ns)
         self.parent: Scope | None = None
         self.remaps: list[tuple[str, str]] = []
@@ -99,6 +100,7 @@ class Scope(SubstitutionScope):
         c.environ = self.environ
         c.find_package = self.find_package
         c.find_resource = self.find_resource
+        c.used_args = self.used_args
         c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
         c.parent = self
         c.remaps = []
@@ -126,6 +128,7 @@ class Scope(SubstitutionScope):
         c.environ = self.environ
         c.find_package = self.find_package
         c.find_resource = self.find_resource
+        c.used_args = self.used_args
         c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
         c.parent = self
         c.remaps = []

@@ -11,7 +11,7 @@ syntax tree over roslaunch's names, with an allowlist and a bound on the work.
 
 from __future__ import annotations
 
-import os.path
+import os
 import re
 from typing import Any, Callable, Mapping
 
@@ -38,17 +38,20 @@ class ArgNotSet(SubstitutionError):
 class SubstitutionScope:
     """What a substitution can see: the scope's args and anon names, the file, the environment, packages."""
 
-    __slots__ = ("args", "anon", "filename", "environ", "find_package", "find_resource")
+    __slots__ = ("args", "anon", "filename", "environ", "find_package", "find_resource", "used_args")
 
     def __init__(self, args: Mapping[str, str], anon: dict[str, str], filename: str | None,
                  environ: Mapping[str, str], find_package: Callable[[str], str],
-                 find_resource: Callable[[str, str], str]):
+                 find_resource: Callable[[str, str], str], used_args: set[str] | None = None):
         self.args = args
         self.anon = anon
         self.filename = filename
         self.environ = environ
         self.find_package = find_package
         self.find_resource = find_resource
+        # the names `$(arg)` (and `arg()` in `$(eval)`) have read: one set shared by a whole load,
+        # so that the loader can tell a command-line arg nothing reads (a typo, usually)
+        self.used_args = set() if used_args is None else used_args
 
 
 _SIMPLE_COMMAND = re.compile(r"\$\(([^$()]+)\)")
@@ -99,54 +102,112 @@ def resolve(text: str | None, scope: SubstitutionScope) -> str | None:
         return text
     if text.startswith("$(eval ") and text.endswith(")"):
         return evaluate(text[7:-1], scope)
-    resolved = text
-    for placeholder, body, cmd, args in _first_pass_plan(text):
-        if placeholder is None:
-            raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
-                                    % (body, list(VALID_COMMANDS)))
-        resolved = resolved.replace(placeholder, _first_pass(cmd, body, args, scope))
+    resolved = _first_pass_resolve(text, scope)
     if "$" in resolved:
-        for body, args in _find_plan(resolved):
-            if args is None:
-                raise SubstitutionError("Unknown substitution command [%s]. Valid commands are %s"
-                                        % (body, list(VALID_COMMANDS)))
-            resolved = _find(resolved, body, args, scope)
+        resolved = _find_pass_resolve(resolved, scope)
     return resolved
+
+
+def _unknown(body: str) -> SubstitutionError:
+    return SubstitutionError("Unknown substitution command [%s]. Valid commands are %s" % (body, list(VALID_COMMANDS)))
+
+
+def _is_simple(text: str) -> bool:
+    """Every '$' and every '(' of `text` opens a well-formed `$(...)`: then the `$(...)` texts in a
+    string made by replacing some of them are exactly those left, as long as no value brings a '$'."""
+    n = text.count("$(")
+    return n == text.count("$") == text.count("(") and len(_SIMPLE_COMMAND.findall(text)) == n
 
 
 # A launch tree repeats the same attribute texts many times (the same include's nodes and
 # params, once per include): what a text asks for is worked out once per distinct text. The
 # plans depend on the text alone; the values come from the scope at every use.
 _PLAN_MAX = 16384
-_FIRST_PLANS: dict[str, tuple[tuple[Any, ...], ...]] = {}
-_FIND_PLANS: dict[str, tuple[tuple[Any, ...], ...]] = {}
+_FIRST_PLANS: dict[str, _FirstPlan] = {}
+_FIND_PLANS: dict[str, _FindPlan] = {}
 
 
-def _first_pass_plan(text: str) -> tuple[tuple[Any, ...], ...]:
-    """(placeholder, body, command, args) for each non-find command of `text`, in order; an
-    unknown command is a step with placeholder None, where resolution stops with its error."""
-    plan = _FIRST_PLANS.get(text)
-    if plan is None:
-        steps: list[tuple[Any, ...]] = []
+class _FirstPlan:
+    """What the first pass does to one text.
+
+    roslaunch replaces, for each `$(...)` in order, every copy of its text in the string as it
+    stands; that is one scan of the whole string per `$(...)`, quadratic in a long attribute.
+    `commands` are the distinct non-find commands (body, command, args) in order, up to an
+    unknown one (command None), each evaluated once. For a simple text, `template` is a
+    str.format template with a field for each copy of each command (a `$(find)` stays as it is,
+    for the second pass): one format() call, in C, does all the replacing. `order` is every non-find body in order, for roslaunch's own way.
+    """
+
+    __slots__ = ("commands", "template", "order", "nothing")
+
+    def __init__(self, text: str):
+        commands: list[tuple[str, str | None, tuple[str, ...]]] = []
+        order: list[str] = []
+        index: dict[str, int] = {}  # body -> its value's position
         for body in collect_commands(text):  # (raises for a malformed text: nothing cached)
             words = body.split()
             if not words or words[0] not in VALID_COMMANDS:
-                steps.append((None, body, None, None))
+                commands.append((body, None, ()))
                 break
             if words[0] != "find":
-                steps.append(("$(%s)" % body, body, words[0], tuple(words[1:])))
-        plan = tuple(steps)
+                order.append(body)
+                if body not in index:
+                    index[body] = len(commands)
+                    commands.append((body, words[0], tuple(words[1:])))
+        self.commands = tuple(commands)
+        self.order = tuple(order)
+        self.nothing = not commands  # only $(find)s, for the second pass
+        self.template: str | None = None
+        if _is_simple(text):
+            pieces = _SIMPLE_COMMAND.split(text)
+            # (a $(find) is left as it is, for the second pass)
+            pieces[1::2] = ["{%d}" % index[b] if b in index else "$(%s)" % b for b in pieces[1::2]]
+            self.template = "".join(p if p[:1] == "{" and i % 2 else p.replace("{", "{{").replace("}", "}}")
+                                    for i, p in enumerate(pieces))
+
+
+def _first_pass_resolve(text: str, scope: SubstitutionScope) -> str:
+    plan = _FIRST_PLANS.get(text)
+    if plan is None:
+        plan = _FirstPlan(text)
         if len(_FIRST_PLANS) < _PLAN_MAX:
             _FIRST_PLANS[text] = plan
-    return plan
+    if plan.nothing:
+        return text
+    values = []
+    dollar = False
+    for body, cmd, args in plan.commands:
+        if cmd is None:
+            raise _unknown(body)
+        value = _first_pass(cmd, body, args, scope)
+        if "$" in value:
+            dollar = True
+        values.append(value)
+    if plan.template is not None and not dollar:
+        # every copy of a `$(...)` text gets its one value, as roslaunch's replace() gives it
+        return plan.template.format(*values)
+    # a value holds a '$' (it may make or be a `$(...)` text): roslaunch's replacements, one by one
+    by_body = {c[0]: v for c, v in zip(plan.commands, values)}
+    resolved = text
+    for body in plan.order:
+        resolved = resolved.replace("$(%s)" % body, by_body[body])
+    return resolved
 
 
-def _find_plan(resolved: str) -> tuple[tuple[Any, ...], ...]:
-    """(body, args) for each `$(find)` of the first pass's result, in order; an unknown command
-    is a step with args None, where resolution stops with its error."""
-    plan = _FIND_PLANS.get(resolved)
-    if plan is None:
-        steps: list[tuple[Any, ...]] = []
+class _FindPlan:
+    """What the second pass does to one first-pass result.
+
+    roslaunch replaces the first copy of each `$(find pkg)` text in turn, together with the path
+    that follows it up to a space. `steps` are (body, args) of the finds in order, up to an
+    unknown command (args None). When the string is simple and no path holds a '$', the k-th
+    step always meets the k-th find: `finds` are (body, args, path) of each, and `template` has
+    a field for each find and its path, so that one format() does what the steps do.
+    """
+
+    __slots__ = ("steps", "finds", "template")
+
+    def __init__(self, resolved: str):
+        steps: list[tuple[str, tuple[str, ...] | None]] = []
         for body in collect_commands(resolved):
             words = body.split()
             if not words or words[0] not in VALID_COMMANDS:
@@ -154,10 +215,53 @@ def _find_plan(resolved: str) -> tuple[tuple[Any, ...], ...]:
                 break
             if words[0] == "find":
                 steps.append((body, tuple(words[1:])))
-        plan = tuple(steps)
+        self.steps = tuple(steps)
+        self.finds: tuple[tuple[str, tuple[str, ...], str], ...] = ()
+        self.template: str | None = None
+        if steps and steps[-1][1] is not None and _is_simple(resolved):
+            finds = []
+            pieces: list[str] = []
+            pos = 0
+            for m in _SIMPLE_COMMAND.finditer(resolved):
+                words = m.group(1).split()
+                if words[0] != "find":
+                    continue
+                j = resolved.find(" ", m.end())
+                if j < 0:
+                    j = len(resolved)
+                path = resolved[m.end():j]
+                if "$" in path:
+                    return
+                pieces.append(resolved[pos:m.start()].replace("{", "{{").replace("}", "}}"))
+                pieces.append("{%d}" % len(finds))
+                finds.append((m.group(1), tuple(words[1:]), path))
+                pos = j
+            pieces.append(resolved[pos:].replace("{", "{{").replace("}", "}}"))
+            self.finds = tuple(finds)
+            self.template = "".join(pieces)
+
+
+def _find_pass_resolve(resolved: str, scope: SubstitutionScope) -> str:
+    plan = _FIND_PLANS.get(resolved)
+    if plan is None:
+        plan = _FindPlan(resolved)
         if len(_FIND_PLANS) < _PLAN_MAX:
             _FIND_PLANS[resolved] = plan
-    return plan
+    if plan.template is not None:
+        values = []
+        dollar = False
+        for body, args, path in plan.finds:
+            value = _find_value(body, args, path, scope)
+            if "$" in value:
+                dollar = True
+            values.append(value)
+        if not dollar:
+            return plan.template.format(*values)
+    for body, args in plan.steps:  # (a found path holds a '$': roslaunch's steps, one by one)
+        if args is None:
+            raise _unknown(body)
+        resolved = _find(resolved, body, args, scope)
+    return resolved
 
 
 def _first_pass(cmd: str, body: str, args: tuple[str, ...], scope: SubstitutionScope) -> str:
@@ -187,9 +291,11 @@ def _first_pass(cmd: str, body: str, args: tuple[str, ...], scope: SubstitutionS
 
 def _arg(name: str, scope: SubstitutionScope) -> str:
     try:
-        return scope.args[name]
+        value = scope.args[name]
     except KeyError:
         raise ArgNotSet(name) from None
+    scope.used_args.add(name)
+    return value
 
 
 def _env(name: str, scope: SubstitutionScope) -> str:
@@ -213,20 +319,25 @@ def _dirname(scope: SubstitutionScope) -> str:
 
 
 def _find(resolved: str, body: str, args: tuple[str, ...], scope: SubstitutionScope) -> str:
-    if len(args) != 1:
-        raise SubstitutionError("$(find pkg) command only accepts one argument [%s]" % body)
+    """roslaunch's step: the first copy of `$(find pkg)` and the path after it, up to a space, replaced."""
     cmd = "$(%s)" % body
     i = resolved.find(cmd)
     before, after = resolved[:i], resolved[i + len(cmd):]
-    # the path that follows, up to the first space, decides between executable, share file and source dir
     j = after.find(" ")
     path, rest = (after, "") if j < 0 else (after[:j], after[j:])
+    return before + _find_value(body, args, path, scope) + rest
+
+
+def _find_value(body: str, args: tuple[str, ...], path: str, scope: SubstitutionScope) -> str:
+    """`$(find pkg)path`: the path decides between executable, share file and source dir."""
+    if len(args) != 1:
+        raise SubstitutionError("$(find pkg) command only accepts one argument [%s]" % body)
     path = path.replace("\\", "/")
     if path.startswith("/"):
         path = path[1:]
     if path:
-        return before + scope.find_resource(args[0], path) + rest
-    return before + scope.find_package(args[0]) + rest
+        return scope.find_resource(args[0], path)
+    return scope.find_package(args[0])
 
 
 # ---------------------------------------------------------------------------
@@ -286,7 +397,9 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
         make = _SCOPE_FUNCTIONS.get(name)
         if make is not None:
             return make(scope)
-        return auto_value(scope.args[name])
+        value = scope.args[name]  # (KeyError: not an arg; the sandbox goes on to its builtins)
+        scope.used_args.add(name)
+        return auto_value(value)
 
     try:
         return str(sandbox.evaluate(expr, lookup))

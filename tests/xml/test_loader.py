@@ -593,3 +593,33 @@ def test_undeclared_command_line_arg_is_warned_unless_read(ld):
     c = ld.load(text, ["a:=2", "typo:=3", "used:=4", "__ns:=/x"])
     w = [x for x in c.warnings if "command-line argument" in x]
     assert len(w) == 1 and "[typo:=3]" in w[0]
+
+
+def test_undeclared_command_line_arg_counts_as_read_only_when_a_substitution_reads_it(ld):
+    """What $(arg) and $(eval arg()) read while loading counts, not the text of the files: an arg
+    named in a comment or in a skipped group is still ignored, and the warning says so."""
+    inc = ld.write("inc.launch", '<launch><param name="i" value="$(arg viainclude)"/></launch>')
+    text = """<launch>
+      <!-- $(arg incomment) -->
+      <group if="false"><param name="s" value="$(arg skipped)"/></group>
+      <param name="e" value="$(eval arg('ev') + 1)"/>
+      <include file="%s" pass_all_args="true"/>
+    </launch>""" % inc
+    c = ld.load(text, ["incomment:=1", "skipped:=2", "ev:=3", "viainclude:=4"])
+    w = sorted(x for x in c.warnings if "command-line argument" in x)
+    assert len(w) == 2 and "[incomment:=1]" in w[0] and "[skipped:=2]" in w[1]
+
+
+def test_a_very_deep_parameter_name_takes_linear_time(ld):
+    """A parameter name of 160,000 `ns/` segments took 11 s (every prefix sliced and looked up)."""
+    import time
+    deep = "ns/" * 160_000
+    path = ld.write("deep.launch", '<launch><param name="p" value="0"/><param name="%sx" value="1"/>'
+                                   '<param name="%sx/y" value="2"/></launch>' % (deep, deep))
+    start = time.monotonic()
+    config = ld.load([path])
+    elapsed = time.monotonic() - start
+    assert {k: p.value for k, p in config.params.items()} == {"/p": 0, "/" + deep + "x": 1, "/" + deep + "x/y": 2}
+    # the parent check still sees the parent parameter, however deep
+    assert any("conflicts with parent parameter [/%sx]" % deep in w for w in config.warnings)
+    assert elapsed < 2.0, "took %.1f s" % elapsed
