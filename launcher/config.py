@@ -34,6 +34,34 @@ class Machine(NamedTuple):
         return self.address in ("localhost", "127.0.0.1", "::1") or self.address.startswith("127.")
 
 
+class NodePolicy(NamedTuple):
+    """How a node is supervised beyond roslaunch (the extension attributes of `<node>`, or the
+    defaults a `<launch>`, `<group>` or `<include>` gives the nodes inside it; the nearest wins).
+
+    `Node.policy` is None when the launch uses none of them: behaviour is then exactly roslaunch's.
+    Times are seconds, sizes bytes; None means "not set" (no limit, the CLI's default).
+    """
+
+    respawn_on: str = "always"  # "always" (roslaunch) | "failure": not after a success
+    success_exit_codes: frozenset[int] = frozenset({0})
+    respawn_backoff: float = 1.0  # each consecutive failure multiplies the delay by this
+    respawn_delay_max: float | None = None  # cap of the growing delay
+    respawn_min_uptime: float = 1.0  # a run shorter than this is a failed start
+    respawn_max_retries: int | None = None  # consecutive failed runs before the node is FATAL
+    on_fatal: str = "none"  # "none" | "shutdown": a FATAL node ends the launch with status 1
+    restart_warn_threshold: int | None = None  # rosmon: warn once the node restarted this often
+    sigint_timeout: float | None = None  # this node's stop escalation (None: the CLI's)
+    sigterm_timeout: float | None = None
+    spawn_delay: float = 0.0  # start this long after the launch starts its nodes
+    wait_for: tuple[tuple[str, str], ...] = ()  # (kind, name): topic, service, param, node
+    wait_timeout: float = 60.0
+    hang_timeout: float | None = None  # no answer to getPid for this long = hung
+    memory_limit: int | None = None  # bytes, RSS of the whole process group
+    cpu_limit: float | None = None  # cores, over the last sample window
+    on_limit: str = "warn"  # "warn" | "restart"
+    enable_coredumps: bool = False
+
+
 class Node(NamedTuple):
     """A `<node>` (or, with `test_name` set, a `<test>`), fully substituted.
 
@@ -61,6 +89,7 @@ class Node(NamedTuple):
     test_name: str | None = None
     time_limit: float | None = None
     retry: int = 0
+    policy: NodePolicy | None = None  # the supervision extensions, if any are set (None: roslaunch's behaviour)
 
     @property
     def is_test(self) -> bool:

@@ -13,7 +13,11 @@ import signal
 import subprocess
 
 from launcher.command import NodeCommand
+from launcher.config import NodePolicy
 from launcher.process import console
+
+
+DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
 
 
 class ProcessSpec:
@@ -21,13 +25,15 @@ class ProcessSpec:
 
     # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
     # first spawn)
-    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required", "node_name")
+    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required", "node_name",
+                 "policy")
 
     def __init__(self, name: str, command: NodeCommand, stdout_path: str | None = None,
                  log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
-                 required: bool = False, node_name: str | None = None):
+                 required: bool = False, node_name: str | None = None, policy: NodePolicy | None = None):
         self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
         self.node_name = node_name or "/" + name  # the ROS node name, e.g. "/robot/driver": how status names it
+        self.policy = policy if policy is not None else DEFAULT_POLICY  # restart policy, readiness, limits
         self.command = command
         self.stdout_path = stdout_path  # None: inherit the terminal (output="screen")
         self.log_dir = log_dir  # for the "log file:" hint after a death
