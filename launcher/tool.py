@@ -1,0 +1,43 @@
+"""The `launcher` command: the operator's and CI's side of `launch` (`launch` stays the roslaunch/roscore drop-in).
+
+Each subcommand lives in its own module and is imported only when it runs, so
+that `launcher status` does not pay for the test runner. A subcommand module
+has `main(argv: list[str]) -> int`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from launcher import __version__
+
+# subcommand -> (module, one line of help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {}
+
+USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."
+
+
+def usage() -> str:
+    width = max((len(n) for n in SUBCOMMANDS), default=0)
+    return USAGE % "\n".join("  %-*s  %s" % (width, name, text) for name, (_, text) in sorted(SUBCOMMANDS.items()))
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage())
+        return 0 if args else 2
+    if args[0] == "--version":
+        print(__version__)
+        return 0
+    entry = SUBCOMMANDS.get(args[0])
+    if entry is None:
+        print("launcher: unknown command '%s'\n\n%s" % (args[0], usage()), file=sys.stderr)
+        return 2
+    module = importlib.import_module(entry[0])
+    return module.main(args[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
