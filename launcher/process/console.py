@@ -53,7 +53,7 @@ class _Writer:
         self._cond = threading.Condition()
         self._queue: collections.deque[tuple[TextIO, str]] = collections.deque()
         self._queued_chars = 0
-        self._dropped = 0
+        self._dropped: dict[TextIO, int] = {}  # lines dropped, by the stream they were for
         self._writing = False
         self._thread: threading.Thread | None = None
 
@@ -62,8 +62,9 @@ class _Writer:
             self._queue.append((stream, text))
             self._queued_chars += len(text)
             while self._queued_chars > MAX_QUEUED_CHARS and len(self._queue) > 1:
-                self._queued_chars -= len(self._queue.popleft()[1])
-                self._dropped += 1
+                lost_stream, lost = self._queue.popleft()
+                self._queued_chars -= len(lost)
+                self._dropped[lost_stream] = self._dropped.get(lost_stream, 0) + 1
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name="console", daemon=True)
                 self._thread.start()
@@ -83,11 +84,11 @@ class _Writer:
                 self._cond.wait_for(lambda: self._queue)
                 stream, text = self._queue.popleft()
                 self._queued_chars -= len(text)
-                dropped, self._dropped = self._dropped, 0
+                dropped, self._dropped = self._dropped, {}
                 self._writing = True
-            if dropped:
-                _write(stream, "[launch] %d console line%s dropped while the output was blocked\n"
-                       % (dropped, "" if dropped == 1 else "s"))
+            for lost_stream, count in dropped.items():  # said where the lines would have gone
+                _write(lost_stream, "[launch] %d console line%s dropped while the output was blocked\n"
+                       % (count, "" if count == 1 else "s"))
             _write(stream, text)
 
 
