@@ -9,6 +9,7 @@ import urllib.parse
 from typing import Any, Mapping
 
 from launcher.errors import LaunchError
+from launcher.net.open_files import raise_open_file_limit
 
 DEFAULT_ROSVERSION = "1.15.15"
 DEFAULT_ROSDISTRO = "noetic"
@@ -88,6 +89,7 @@ def run_core(opts: Any) -> int:
                 f.write("%d" % os.getpid())
         except OSError as e:
             raise LaunchError("cannot write the pid file %s: %s" % (pid_fn, e.strerror or e)) from None
+    raise_open_file_limit()  # every client connection is a file: the master's cap derives from the limit
     try:
         return asyncio.run(_core(port, run_id, environ))
     except KeyboardInterrupt:
