@@ -145,6 +145,7 @@ class _Connection(asyncio.Protocol):
             transport.close()
             return
         server._connections.add(self)
+        server._fresh[self] = None
         now = server._loop.time()
         self.last_activity = now
         # its first request head must arrive within header_timeout, like any later one
@@ -154,6 +155,7 @@ class _Connection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.closing = True
         self.server._connections.discard(self)
+        self.server._fresh.pop(self, None)
         if self.timer is not None:
             self.timer.cancel()
             self.timer = None
@@ -216,6 +218,8 @@ class _Connection(asyncio.Protocol):
                 self.transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
                 continue
             self.last_activity = self.server._loop.time()
+            if not self.requests_done:
+                self.server._fresh.pop(self, None)
             self.requests_done += 1
             self.partial_since = None
             if event.target not in RPC_PATHS:
@@ -380,6 +384,8 @@ class XmlRpcServer:
         self._server: asyncio.base_events.Server | None = None
         self._listeners: list[socket.socket] = []
         self._connections: set[_Connection] = set()
+        # the connections that have not completed a request yet, oldest first: the first evicted
+        self._fresh: dict[_Connection, None] = {}
         self._accept_failures: set[int | None] = set()  # the errnos already warned about
         self._loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
 
@@ -390,12 +396,15 @@ class XmlRpcServer:
         """Close the connection idle the longest to make room, preferring those that never completed
         a request (a flood of idle or half-sent connections must not lock real clients out);
         False if every connection awaits a reply."""
-        idle = [c for c in self._connections if not c.busy and not c.closing]
-        if not idle:
-            return False
-        oldest = min(idle, key=lambda c: (c.requests_done > 0, c.last_activity))
+        oldest = next(iter(self._fresh), None)  # (never busy: a reply needs a complete request)
+        if oldest is None:
+            idle = [c for c in self._connections if not c.busy and not c.closing]
+            if not idle:
+                return False
+            oldest = min(idle, key=lambda c: c.last_activity)
         oldest.closing = True
         self._connections.discard(oldest)
+        self._fresh.pop(oldest, None)
         if oldest.transport is not None:
             oldest.transport.close()
         return True
