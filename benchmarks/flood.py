@@ -151,7 +151,8 @@ def run_one(label: str, command: str, args: argparse.Namespace) -> dict:
             err_data = f.read()
     return {"label": label, "answered": answered, "attempted": attempted, "slowest_s": round(slowest, 3),
             "flood_peak": flooder.peak, "flood_dropped": flooder.dropped,
-            "stderr_lines": err_data.count(b"\n"), "stderr_bytes": len(err_data)}
+            "stderr_lines": err_data.count(b"\n"), "stderr_bytes": len(err_data),
+            "stderr_head": err_data.decode(errors="replace").splitlines()[:args.show_stderr]}
 
 
 def main() -> int:
@@ -161,6 +162,7 @@ def main() -> int:
     ap.add_argument("--nofile", type=int, default=1024, help="open-file limit (soft and hard) of each master")
     ap.add_argument("--interval", type=float, default=0.5, help="seconds between legitimate calls")
     ap.add_argument("--call-timeout", type=float, default=1.0, help="a legitimate call answered later fails")
+    ap.add_argument("--show-stderr", type=int, default=0, metavar="N", help="print the first N lines of stderr")
     ap.add_argument("--master", action="append", metavar="LABEL=COMMAND",
                     help="master command ({port} substituted); default: rosmaster and ours")
     args = ap.parse_args()
@@ -190,6 +192,8 @@ def main() -> int:
               "%d dropped by the master; master stderr %d lines (%d bytes)"
               % (label, r["answered"], r["attempted"], r["slowest_s"], r["flood_peak"], r["flood_dropped"],
                  r["stderr_lines"], r["stderr_bytes"]), flush=True)
+        for line in r["stderr_head"]:
+            print("    | " + line)
     return 0
 
 
