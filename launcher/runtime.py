@@ -51,6 +51,8 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
                     f.write(str(os.getpid()))
             except OSError as e:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
+        from launcher.net.open_files import raise_open_file_limit
+        raise_open_file_limit()  # every client of the master and the rosout node is a file
         launch = Launch(opts, watchdog)
         launch.load()
         launch.start_before_loop()
