@@ -528,7 +528,10 @@ class Launch:
                 except KeyError:
                     pass
             for key, value in params:
-                self.master.set_param(key, value)
+                try:
+                    self.master.set_param(key, value)
+                except ValueError as e:  # a value no client could read back (as setParam refuses it)
+                    raise LaunchError("Failed to set parameter: %s" % e) from None
             return
         if not params and not clear:
             return

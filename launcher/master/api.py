@@ -183,7 +183,7 @@ def param_updates(subscribers: reg.Registrations, key: str, value: Any, ignore_c
 # the handler
 # ---------------------------------------------------------------------------
 
-def _unsendable(value: Any) -> str:
+def unsendable(value: Any) -> str:
     """Why `value` could not be sent back over XML-RPC ("" if it can): what the codec reads but
     cannot write, an <i8> outside 32 bits or a <nil/>, anywhere inside the value."""
     stack = [value]
@@ -342,7 +342,7 @@ class MasterApi:
 
     def setParam(self, caller_id: str, key: str, value: Any) -> tuple:  # noqa: N802
         key = resolve(key, caller_id)
-        problem = _unsendable(value)
+        problem = unsendable(value)
         if problem:
             # stored, it would break every later getParam of it or of a namespace above it, '/'
             # included, for every client (rosmaster has this flaw)

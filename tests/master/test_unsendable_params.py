@@ -74,3 +74,41 @@ def test_unsendable_value_is_refused_and_the_tree_stays_readable(core_uri, value
     # values inside 32 bits, sent as <i8>, are still taken
     assert _set_raw(core_uri, "/ns/small", "<value><i8>2147483647</i8></value>")[0] == 1
     assert master.getParam("/t", "/ns")[2] == {"small": 2147483647}
+
+
+def test_in_process_set_param_refuses_it_too():
+    import asyncio
+
+    from launcher.master import Master
+
+    async def scenario():
+        master = Master(host="127.0.0.1", port=0, environ={"ROS_IP": "127.0.0.1"})
+        await master.start()
+        try:
+            master.set_param("/ok", 1)
+            with pytest.raises(ValueError, match=r"\[/cfg\].*32-bit"):
+                master.set_param("/cfg", {"deep": [1, 2**40]})
+            with pytest.raises(ValueError, match="nil"):
+                master.set_param("/none", None)
+            from launcher.net.xmlrpc import call
+            code, _msg, root = await call(master.uri, "getParam", "/t", "/")
+            assert code == 1 and root["ok"] == 1 and "cfg" not in root and "none" not in root
+        finally:
+            await master.stop()
+    asyncio.run(scenario())
+
+
+def test_launch_file_with_such_a_value_fails_cleanly(tmp_path):
+    launch = tmp_path / "big.launch"
+    launch.write_text('<launch><param name="big" value="4294967296"/></launch>')
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI="http://127.0.0.1:%d/" % port, ROS_IP="127.0.0.1",
+               ROS_HOME=str(tmp_path))
+    env.pop("ROS_HOSTNAME", None)
+    out = subprocess.run([sys.executable, "-m", "launcher", str(launch)], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=30)
+    assert out.returncode != 0
+    assert "[/big]" in out.stderr + out.stdout and "32-bit" in out.stderr + out.stdout
+    assert "Traceback" not in out.stderr and "internal error" not in out.stderr
