@@ -619,3 +619,58 @@ def test_blocking_client_reply_cut_short():
         with pytest.raises(X.XmlRpcError, match="before the reply was complete"):
             X.call_blocking("http://127.0.0.1:%d/" % srv.getsockname()[1], "echo", timeout=5.0)
         t.join(5)
+
+
+def test_expect_100_continue_over_a_socket(server):
+    body = X.dumps_request("echo", ["after-continue"])
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as c:
+        c.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nExpect: 100-continue\r\nContent-Length: %d\r\n\r\n" % len(body))
+        interim = b""
+        while b"\r\n\r\n" not in interim:
+            interim += c.recv(4096)
+        assert interim.startswith(b"HTTP/1.1 100 Continue\r\n\r\n")
+        c.sendall(body)
+        reply = interim[len(b"HTTP/1.1 100 Continue\r\n\r\n"):]
+        while b"</methodResponse>" not in reply:
+            reply += c.recv(4096)
+    assert reply.startswith(b"HTTP/1.1 200") and b"after-continue" in reply
+
+
+def test_a_connection_that_never_sends_a_head_is_closed_at_the_header_deadline():
+    s = ServerThread(header_timeout=0.3, request_timeout=5.0, idle_timeout=60)
+    try:
+        with socket.create_connection(("127.0.0.1", s.port), timeout=5) as c:
+            t0 = time.monotonic()
+            assert c.recv(4096) == b""  # closed by the server, long before the idle deadline
+            assert time.monotonic() - t0 < 3
+    finally:
+        s.close()
+
+
+def test_at_the_cap_half_sent_connections_are_evicted_before_established_clients():
+    s = ServerThread(max_connections=10)
+    try:
+        established = socket.create_connection(("127.0.0.1", s.port), timeout=5)
+        established.sendall(_post(X.dumps_request("echo", ["one"])))
+        reply = b""
+        while b"</methodResponse>" not in reply:
+            reply += established.recv(65536)
+        hogs = []
+        for _ in range(30):  # each new one takes the place of the oldest never-completed one
+            h = socket.create_connection(("127.0.0.1", s.port))
+            h.sendall(b"POST / HTTP/1.1\r\nContent-Le")
+            hogs.append(h)
+        try:
+            established.sendall(_post(X.dumps_request("echo", ["two"])))
+            reply = b""
+            while b"</methodResponse>" not in reply:
+                chunk = established.recv(65536)
+                assert chunk, "the established keep-alive client was evicted"
+                reply += chunk
+            assert b"two" in reply
+        finally:
+            for h in hogs:
+                h.close()
+            established.close()
+    finally:
+        s.close()
