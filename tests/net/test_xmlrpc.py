@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import time
 import xmlrpc.client
@@ -674,3 +675,52 @@ def test_at_the_cap_half_sent_connections_are_evicted_before_established_clients
             established.close()
     finally:
         s.close()
+
+
+_OUT_OF_FILES_SERVER = r"""
+import asyncio, resource, sys
+from launcher.net.xmlrpc_server import XmlRpcServer
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+async def main():
+    s = XmlRpcServer(lambda m, p: p, "127.0.0.1", 0, max_connections=1000)  # a cap above the limit
+    await s.start()
+    print(s.port, flush=True)
+    await asyncio.sleep(3600)
+asyncio.run(main())
+"""
+
+
+def test_accept_out_of_files_backs_off_with_one_warning():
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    proc = subprocess.Popen([sys.executable, "-c", _OUT_OF_FILES_SERVER], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=root))
+    hogs = []
+    try:
+        port = int(proc.stdout.readline())
+        for _ in range(120):  # more than the server's 64 files: accept() fails for a while
+            h = socket.create_connection(("127.0.0.1", port), timeout=5)
+            h.sendall(b"POST / HTTP/1.1\r\nContent-Le")
+            hogs.append(h)
+        import select
+        ready, _, _ = select.select([proc.stderr], [], [], 10)  # the server has run out of files
+        assert ready, "no warning"
+        first = proc.stderr.readline().decode(errors="replace")
+        assert "out of open files" in first
+        for h in hogs:
+            h.close()
+        hogs = []
+        deadline = time.monotonic() + 10
+        while True:  # once files are free again, clients are served
+            try:
+                assert X.call_blocking("http://127.0.0.1:%d/" % port, "echo", "back", timeout=2) == ["back"]
+                break
+            except OSError:
+                assert time.monotonic() < deadline
+    finally:
+        for h in hogs:
+            h.close()
+        proc.terminate()
+        _out, err = proc.communicate(timeout=10)
+    assert err.decode(errors="replace").splitlines() == [], "one warning, not one per failed accept"
