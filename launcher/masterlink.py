@@ -132,7 +132,10 @@ class LocalParams:
             if await self.has(ns):
                 await self.delete(ns)
         for key, value in params:
-            self.master.set_param(key, value)
+            try:
+                self.master.set_param(key, value)
+            except ValueError as e:  # a value no client could read back (setParam refuses it too)
+                raise LaunchError("Failed to set parameter: %s" % e) from None
 
 
 class RemoteParams:

@@ -28,6 +28,7 @@ from launcher.config import LaunchConfig
 from launcher.errors import LaunchError
 from launcher.masterlink import LocalParams, RemoteParams, is_local_host
 from launcher.names import ns_join
+from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
 from launcher.process.logdir import DEFAULT_THRESHOLD, log_root, parse_size, watch_log_disk
 from launcher.process.spawn import ProcessSpec
@@ -66,6 +67,7 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
                     f.write(str(os.getpid()))
             except OSError as e:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
+        raise_open_file_limit()  # every client of the master and the rosout node is a file
         plan = Plan.core(opts) if core else Plan.load(opts)
         status = asyncio.run(Run(opts, plan, watchdog).main())
     finally:

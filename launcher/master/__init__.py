@@ -120,10 +120,18 @@ class Master:
         self.shutdown_requested.set()
 
     def set_param(self, key: str, value: Any) -> None:
-        """Set a parameter in-process; parameter subscribers are notified."""
-        from launcher.master.api import resolve
+        """Set a parameter in-process; parameter subscribers are notified.
+
+        Raises ValueError for a value no client could read back (an int outside 32 bits, a
+        None), as setParam refuses it: stored, it would break getParam('/') for everyone.
+        """
+        from launcher.master.api import resolve, unsendable
         self._require_started()
-        self._api.set_param(resolve(key, "/"), copy_tree(value))
+        key = resolve(key, "/")
+        problem = unsendable(value)
+        if problem:
+            raise ValueError("parameter [%s] is not set: %s" % (key, problem))
+        self._api.set_param(key, copy_tree(value))
 
     def delete_param(self, key: str) -> None:
         """Delete a parameter in-process (KeyError if not set); subscribers get `{}`."""

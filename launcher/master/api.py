@@ -15,7 +15,7 @@ from typing import Any, Callable
 from launcher.master import registry as reg
 from launcher.master.notify import Notifier
 from launcher.params.tree import ParamTree, copy_tree
-from launcher.net.xmlrpc import Encoded, Fault, encode_value
+from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
 
 SEP = "/"
 ANYTYPE = "*"
@@ -183,6 +183,25 @@ def param_updates(subscribers: reg.Registrations, key: str, value: Any, ignore_c
 # the handler
 # ---------------------------------------------------------------------------
 
+def unsendable(value: Any) -> str:
+    """Why `value` could not be sent back over XML-RPC ("" if it can): what the codec reads but
+    cannot write, an <i8> outside 32 bits or a <nil/>, anywhere inside the value."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        t = type(v)
+        if t is int:
+            if not MININT <= v <= MAXINT:
+                return "the integer %d is outside the 32-bit range XML-RPC can send" % v
+        elif t is dict:
+            stack.extend(v.values())
+        elif t is list:
+            stack.extend(v)
+        elif v is None:
+            return "a nil value cannot be sent over XML-RPC"
+    return ""
+
+
 class MasterApi:
     """Method table and state of one master. `dispatch(method, params)` answers a call."""
 
@@ -323,6 +342,11 @@ class MasterApi:
 
     def setParam(self, caller_id: str, key: str, value: Any) -> tuple:  # noqa: N802
         key = resolve(key, caller_id)
+        problem = unsendable(value)
+        if problem:
+            # stored, it would break every later getParam of it or of a namespace above it, '/'
+            # included, for every client (rosmaster has this flaw)
+            return -1, "parameter [%s] is not set: %s" % (key, problem), 0
         self.set_param(key, value, caller_id)
         return 1, "parameter %s set" % key, 0
 

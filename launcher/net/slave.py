@@ -130,10 +130,13 @@ class SlaveNode:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
+        from launcher.net.open_files import connection_cap
         from launcher.net.xmlrpc_server import XmlRpcServer
         bind = bind_address(self.host)
         await self.tcpros.start(bind)
-        self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0)
+        # a node's API gets few clients (the master, rostopic/rosnode): a quarter of the master's
+        # share of files, so that both servers flooded at once still leave the launcher its files
+        self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0, max_connections=max(16, connection_cap() // 4))
         await self._xmlrpc.start()
         self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
 

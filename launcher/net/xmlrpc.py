@@ -1,6 +1,7 @@
 """XML-RPC for ROS 1: a hardened sans-I/O codec, and clients (asyncio and blocking).
 
-The codec turns bytes into values and back without touching a socket. Parsing
+The codec turns bytes into values and back without touching a socket; both
+clients frame the HTTP reply with `launcher.net.http.ResponseReader`. Parsing
 goes through expat with every DTD refused, so no entity can be declared: no
 XXE, no entity expansion ("billion laughs"); nesting depth is bounded. The
 HTTP server is `launcher.net.xmlrpc_server`. This module does not import asyncio
@@ -18,6 +19,8 @@ import sys
 import urllib.parse
 from typing import Any, Callable, Iterable
 from xml.parsers import expat
+
+from launcher.net import http
 
 __all__ = [
     "Encoded", "encode_value", "Fault", "XmlRpcError", "loads_request", "loads_response", "dumps_request",
@@ -460,34 +463,21 @@ def _http_request(uri: str, method: str, params: Iterable[Any]) -> tuple[str, in
     u = urllib.parse.urlsplit(uri)
     if u.scheme != "http" or not u.hostname:
         raise XmlRpcError("not an http:// XML-RPC URI: %r" % uri)
-    body = dumps_request(method, params)
     host_header = u.netloc.rsplit("@", 1)[-1]
-    head = ("POST %s HTTP/1.1\r\nHost: %s\r\nContent-Type: text/xml\r\nUser-Agent: launcher-xmlrpc\r\n"
-            "Content-Length: %d\r\nConnection: close\r\n\r\n" % (u.path or "/", host_header, len(body)))
-    return u.hostname, u.port or 80, head.encode("latin-1") + body
+    return u.hostname, u.port or 80, http.format_request(u.path or "/", host_header, dumps_request(method, params))
 
 
-def _status(uri: str, status_line: bytes) -> int:
-    parts = status_line.split(None, 2)
-    if len(parts) < 2 or not parts[0].startswith(b"HTTP/"):
-        raise XmlRpcError("bad HTTP response from %s" % uri)
-    return int(parts[1]) if parts[1].isdigit() else 0
+def _reply(uri: str, reader: http.ResponseReader) -> Any:
+    """The value of the complete response in `reader`."""
+    event = reader.next_event()
+    assert isinstance(event, http.Response)
+    if event.status != 200:
+        raise XmlRpcError("HTTP %d from %s" % (event.status, uri))
+    return loads_response(event.body)
 
 
-def _content_length(uri: str, line: bytes, length: int) -> int:
-    """`length`, or the value of a Content-Length header line (bounded)."""
-    name, _, value = line.partition(b":")
-    if name.strip().lower() == b"content-length" and value.strip().isdigit():
-        length = int(value.strip())
-        if length > MAX_RESPONSE_SIZE:
-            raise XmlRpcError("reply from %s is too large (%d bytes)" % (uri, length))
-    return length
-
-
-def _reply(uri: str, status: int, data: bytes) -> Any:
-    if status != 200:
-        raise XmlRpcError("HTTP %d from %s" % (status, uri))
-    return loads_response(data)
+def _bad_response(uri: str, e: http.HttpError) -> XmlRpcError:
+    return XmlRpcError("bad HTTP response from %s: %s" % (uri, e.reason))
 
 
 async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0) -> Any:
@@ -505,34 +495,16 @@ async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0
 async def _call(uri: str, method: str, params: tuple) -> Any:
     import asyncio
     host, port, request = _http_request(uri, method, params)
-    reader, writer = await asyncio.open_connection(host, port)
+    stream, writer = await asyncio.open_connection(host, port)
     try:
         writer.write(request)
-        status = _status(uri, await reader.readline())
-        length = -1
-        for _ in range(200):  # a bounded number of header lines
-            line = await reader.readline()
-            if line in (b"\r\n", b"\n", b""):
-                break
-            length = _content_length(uri, line, length)
-        if length >= 0:
-            data = await reader.readexactly(length)
-        else:  # no Content-Length: the body ends with the connection (bounded all the same)
-            data = await reader.read(MAX_RESPONSE_SIZE + 1)
-            while len(data) <= MAX_RESPONSE_SIZE:
-                more = await reader.read(MAX_RESPONSE_SIZE + 1 - len(data))
-                if not more:
-                    break
-                data += more
-            if len(data) > MAX_RESPONSE_SIZE:
-                raise XmlRpcError("reply from %s is too large" % uri)
-        return _reply(uri, status, data)
-    except asyncio.IncompleteReadError:
-        raise XmlRpcError("connection closed by %s before the reply was complete" % uri) from None
-    except ValueError as e:  # a header line longer than the stream's limit
-        if isinstance(e, XmlRpcError):
-            raise
-        raise XmlRpcError("bad HTTP response from %s: %s" % (uri, e)) from None
+        reader = http.ResponseReader(MAX_RESPONSE_SIZE)
+        try:
+            while reader.next_event() is http.NEED_DATA:
+                reader.receive_data(await stream.read(65536))
+        except http.HttpError as e:
+            raise _bad_response(uri, e) from None
+        return _reply(uri, reader)
     finally:
         writer.close()
 
@@ -544,20 +516,13 @@ def call_blocking(uri: str, method: str, *params: Any, timeout: float = 10.0) ->
     Returns the value; raises Fault, XmlRpcError (bad HTTP/XML) or OSError.
     """
     host, port, request = _http_request(uri, method, params)
+    reader = http.ResponseReader(MAX_RESPONSE_SIZE)
     with socket.create_connection((host, port), timeout=timeout) as sock:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.sendall(request)
-        with sock.makefile("rb") as f:
-            status = _status(uri, f.readline(65537))
-            length = -1
-            for _ in range(200):  # a bounded number of header lines
-                line = f.readline(65537)
-                if line in (b"\r\n", b"\n", b""):
-                    break
-                length = _content_length(uri, line, length)
-            data = f.read(length) if length >= 0 else f.read(MAX_RESPONSE_SIZE + 1)
-    if length >= 0 and len(data) < length:
-        raise XmlRpcError("connection closed by %s before the reply was complete" % uri)
-    if len(data) > MAX_RESPONSE_SIZE:
-        raise XmlRpcError("reply from %s is too large" % uri)
-    return _reply(uri, status, data)
+        try:
+            while reader.next_event() is http.NEED_DATA:
+                reader.receive_data(sock.recv(65536))
+        except http.HttpError as e:
+            raise _bad_response(uri, e) from None
+    return _reply(uri, reader)

@@ -1,8 +1,11 @@
 """The XML-RPC HTTP/1.1 server (asyncio) of the master and the nodes' slave APIs, and `system.multicall`.
 
 It speaks HTTP/1.1 with keep-alive on `/` and `/RPC2` (what rospy, roscpp's
-XmlRpc++ and rosjava expect), bounds header and body sizes, times out slow
-clients and answers every malformed call with a fault or an HTTP error. The
+XmlRpc++ and rosjava expect); the framing is `launcher.net.http`'s sans-I/O
+RequestReader (header and body sizes bounded there), and this module adds the
+sockets: accepting (backing off when out of files), deadlines for slow
+clients, a connection cap with eviction, in-order replies. Every malformed call
+gets a fault or an HTTP error. The
 codec it uses (`launcher.net.xmlrpc`) stays free of asyncio, so that a launch can
 talk to a running master before it starts its event loop.
 """
@@ -10,11 +13,19 @@ talk to a running master before it starts its event loop.
 from __future__ import annotations
 
 import asyncio
+import errno
+import functools
 import inspect
+import logging
+import os
 import socket
 from typing import Any, Awaitable, Callable
 
+from launcher.net.http import CONTINUE, NEED_DATA, HttpError, RequestLimits, RequestReader, format_response
+from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
+
+log = logging.getLogger("launcher.xmlrpc_server")
 
 __all__ = ["XmlRpcServer", "multicall", "Dispatch"]
 
@@ -99,103 +110,68 @@ def _multicall_part(dispatch: Dispatch, calls: list) -> Any:
 
 
 # ---------------------------------------------------------------------------
-# HTTP/1.1 server
+# HTTP/1.1 server: a thin asyncio protocol around launcher.net.http.RequestReader
 # ---------------------------------------------------------------------------
 
 RPC_PATHS = (b"/", b"/RPC2")
-
-
-def _http_response(status: int, reason: str, body: bytes, keep_alive: bool,
-                   content_type: bytes = b"text/xml") -> bytes:
-    return b"".join((
-        b"HTTP/1.1 %d %s\r\nServer: launcher-xmlrpc\r\nContent-Type: %s\r\nContent-Length: %d\r\n"
-        % (status, reason.encode("ascii"), content_type, len(body)),
-        b"" if keep_alive else b"Connection: close\r\n",
-        b"\r\n", body,
-    ))
-
-
-_OK_HEAD = b"HTTP/1.1 200 OK\r\nServer: launcher-xmlrpc\r\nContent-Type: text/xml\r\nContent-Length: "
-
-
-def _header_values(low_head: bytes, marker: bytes) -> list[bytes]:
-    """Stripped values of every header line starting with `marker` (b"\\r\\nname:")."""
-    out = []
-    i = low_head.find(marker)
-    while i >= 0:
-        start = i + len(marker)
-        end = low_head.find(b"\r\n", start)
-        out.append(low_head[start:end if end >= 0 else len(low_head)].strip())
-        i = low_head.find(marker, start)
-    return out
-
-
-class _HttpError(Exception):
-    def __init__(self, status: int, reason: str):
-        super().__init__(status, reason)
-        self.status = status
-        self.reason = reason
+ACCEPT_BATCH = 100  # connections accepted per turn of the event loop
+ACCEPT_BACKOFF = 0.5  # seconds without accepting after accept() failed (out of files)
+_OUT_OF_FILES = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 
 
 class _Connection(asyncio.Protocol):
-    """One client connection: buffered HTTP/1.1 parsing, in-order replies, bounded everything."""
+    """One client connection: requests framed by a RequestReader, replies in order, deadlines."""
 
     def __init__(self, server: "XmlRpcServer"):
         self.server = server
         self.transport: asyncio.Transport | None = None
-        self.buf = bytearray()
+        self.reader = RequestReader(server.limits)
         self.busy = False            # an asynchronous reply is being awaited
         self.closing = False
         self.reading_paused = False
         self.writing_paused = False
         self.partial_since: float | None = None  # when the pending, incomplete request began
-        self.last_activity = 0.0
+        self.last_activity = 0.0     # when the connection was made or last completed a request
+        self.requests_done = 0
         self.timer: asyncio.TimerHandle | None = None
         self.eof = False
 
     # -- asyncio callbacks --------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
-        if len(self.server._connections) >= self.server.max_connections and not self.server._evict_idle():
-            self.closing = True  # refused: every connection is in use
+        server = self.server
+        if len(server._connections) >= server.max_connections and not server._evict():
+            self.closing = True  # refused: every connection is busy with a reply
             transport.close()
             return
-        self.server._connections.add(self)
-        self.last_activity = self.server._loop.time()
-        self._arm_timer()
+        server._connections.add(self)
+        server._fresh[self] = None
+        now = server._loop.time()
+        self.last_activity = now
+        # its first request head must arrive within header_timeout, like any later one
+        self.partial_since = now
+        self.timer = server._loop.call_at(now + server.header_timeout, self._on_timer)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closing = True
         self.server._connections.discard(self)
+        self.server._fresh.pop(self, None)
         if self.timer is not None:
             self.timer.cancel()
             self.timer = None
-        self.buf = bytearray()
 
     def data_received(self, data: bytes) -> None:
         if self.closing:
             return
-        server = self.server
-        if not self.buf and not self.busy and not self.writing_paused:
-            # the usual case: this chunk is exactly one request whose head was seen before
-            end = data.find(b"\r\n\r\n")
-            if end >= 0:
-                parsed = server._head_cache.get(data[:end])
-                if parsed is not None and len(data) == end + 4 + parsed[1] and parsed[0] in RPC_PATHS:
-                    self.last_activity = server._loop.time()
-                    self._handle(data[end + 4:], parsed[2])
-                    return
-        buf = self.buf
-        if not buf and self.partial_since is None:
-            self._partial_started(server._loop.time())
-        buf += data
-        if len(buf) > self.server.max_request_size + self.server.max_header_size:
-            self._http_error(413, "Request Entity Too Large")
+        try:
+            self.reader.receive_data(data)
+        except HttpError as e:
+            self._http_error(e.status, e.reason)
             return
-        if not self.busy:
-            self._process()
-        else:
+        if self.busy:
             self._update_reading()  # pipelined requests wait in the socket, not in memory
+            return
+        self._process()
 
     def eof_received(self) -> bool:
         """The client will send no more: answer what is pending, then close."""
@@ -212,12 +188,12 @@ class _Connection(asyncio.Protocol):
     def resume_writing(self) -> None:
         self.writing_paused = False
         self._update_reading()
-        if not self.busy and self.buf:
+        if not self.busy:
             self._process()
 
     # -- request handling -----------------------------------------------------
     def _update_reading(self) -> None:
-        should_pause = self.writing_paused or (self.busy and len(self.buf) > self.server.max_header_size)
+        should_pause = self.writing_paused or (self.busy and self.reader.buffered > self.server.limits.max_header_size)
         if should_pause != self.reading_paused and self.transport is not None and not self.closing:
             self.reading_paused = should_pause
             if should_pause:
@@ -226,90 +202,31 @@ class _Connection(asyncio.Protocol):
                 self.transport.resume_reading()
 
     def _process(self) -> None:
-        """Answer every complete request in the buffer, in order."""
-        server = self.server
-        while self.buf and not self.busy and not self.closing and not self.writing_paused:
-            buf = self.buf
-            end = buf.find(b"\r\n\r\n")
-            if end < 0:
-                if len(buf) > server.max_header_size:
-                    self._http_error(431, "Request Header Fields Too Large")
+        """Answer every complete request received, in order."""
+        reader = self.reader
+        while not self.busy and not self.closing and not self.writing_paused:
+            try:
+                event = reader.next_event()
+            except HttpError as e:
+                self._http_error(e.status, e.reason)
                 return
-            if end > server.max_header_size:
-                self._http_error(431, "Request Header Fields Too Large")
+            if event is NEED_DATA:
+                if reader.buffered and self.partial_since is None:
+                    self._partial_started()
                 return
-            head = bytes(buf[:end])
-            parsed = server._head_cache.get(head)
-            if parsed is None:
-                # clients repeat the same few heads (only Content-Length moves): parse each once
-                try:
-                    parsed = self._parse_head(head)
-                except _HttpError as e:
-                    self._http_error(e.status, e.reason)
-                    return
-                if len(server._head_cache) >= 1024:
-                    server._head_cache.clear()
-                server._head_cache[head] = parsed
-            path, length, keep_alive, expect_continue = parsed
-            body_start = end + 4
-            if len(buf) < body_start + length:
-                if expect_continue and len(buf) == body_start:
-                    self.transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
-                return  # wait for the rest of the body
-            body = bytes(buf[body_start:body_start + length])
-            del buf[:body_start + length]
-            now = server._loop.time()
-            self.last_activity = now
-            self.partial_since = None
-            if buf:
-                self._partial_started(now)
-            if path not in RPC_PATHS:
-                self._reply(_http_response(404, "Not Found", b"No such page", keep_alive, b"text/plain"),
-                            keep_alive)
+            if event is CONTINUE:
+                self.transport.write(b"HTTP/1.1 100 Continue\r\n\r\n")
                 continue
-            self._handle(body, keep_alive)
-
-    def _parse_head(self, head: bytes) -> tuple[bytes, int, bool, bool]:
-        """(path, content length, keep-alive, expects 100-continue) of a request head."""
-        low = head.lower()  # header names are case-insensitive; only these few matter here
-        nl = low.find(b"\r\n")
-        request_line = (head if nl < 0 else head[:nl]).split()
-        if len(request_line) != 3 or not request_line[2].startswith(b"HTTP/1."):
-            raise _HttpError(400, "Bad Request")
-        method, target, version = request_line
-        if low.count(b"\r\n") > self.server.max_header_count:
-            raise _HttpError(431, "Request Header Fields Too Large")
-        if method != b"POST":
-            raise _HttpError(501, "Unsupported method (%s)" % method.decode("latin-1")[:16])
-        if b"\r\ntransfer-encoding:" in low:
-            raise _HttpError(501, "Transfer-Encoding not supported")
-        values = _header_values(low, b"\r\ncontent-length:")
-        if not values:
-            raise _HttpError(411, "Length Required")
-        try:
-            lengths = {int(v) for v in values}
-        except ValueError:
-            raise _HttpError(400, "Bad Request") from None
-        if len(lengths) != 1:
-            raise _HttpError(400, "Bad Request")
-        length = lengths.pop()
-        if length < 0:
-            raise _HttpError(400, "Bad Request")
-        if length > self.server.max_request_size:
-            raise _HttpError(413, "Request Entity Too Large")
-        keep_alive = version == b"HTTP/1.1"
-        if b"\r\nconnection:" in low:
-            for v in _header_values(low, b"\r\nconnection:"):
-                if b"close" in v:
-                    keep_alive = False
-                elif b"keep-alive" in v:
-                    keep_alive = True
-        expect_continue = b"\r\nexpect:" in low and b"100-continue" in _header_values(low, b"\r\nexpect:")
-        if b"?" in target:
-            target = target.split(b"?", 1)[0]
-        if target.startswith(b"http://"):  # absolute-form request target
-            target = b"/" + target[7:].partition(b"/")[2]
-        return target, length, keep_alive, expect_continue
+            self.last_activity = self.server._loop.time()
+            if not self.requests_done:
+                self.server._fresh.pop(self, None)
+            self.requests_done += 1
+            self.partial_since = None
+            if event.target not in RPC_PATHS:
+                self._reply(format_response(404, "Not Found", b"No such page", event.keep_alive,
+                                            b"text/plain"), event.keep_alive)
+                continue
+            self._handle(event.body, event.keep_alive)
 
     def _handle(self, body: bytes, keep_alive: bool) -> None:
         server = self.server
@@ -322,7 +239,8 @@ class _Connection(asyncio.Protocol):
         try:
             method, params = loads_request(body)
         except XmlRpcError as e:
-            self._reply_body(dumps_fault(1, "<class 'xml.parsers.expat.ExpatError'>:%s" % e), keep_alive)
+            self._reply(format_response(200, "OK", dumps_fault(
+                1, "<class 'xml.parsers.expat.ExpatError'>:%s" % e), keep_alive), keep_alive)
             return
         try:
             if method == "system.multicall" and server.multicall:
@@ -331,14 +249,15 @@ class _Connection(asyncio.Protocol):
                 result = server.dispatch(method, params)
         except Exception as e:  # noqa: BLE001 - a failing method answers with a fault
             f = _exception_fault(e)
-            self._reply_body(dumps_fault(f.faultCode, f.faultString), keep_alive)
+            self._reply(format_response(200, "OK", dumps_fault(f.faultCode, f.faultString), keep_alive),
+                        keep_alive)
             return
         if type(result) is not tuple and inspect.isawaitable(result):
             self.busy = True
             task = asyncio.ensure_future(result)
             task.add_done_callback(lambda t: self._async_done(t, keep_alive))
             return
-        self._reply_body(self._encode(result), keep_alive)
+        self._reply(format_response(200, "OK", self._encode(result), keep_alive), keep_alive)
 
     async def _handle_large(self, body: bytes) -> Any:
         server = self.server
@@ -375,20 +294,13 @@ class _Connection(asyncio.Protocol):
             body = dumps_fault(f.faultCode, f.faultString)
         else:
             body = self._encode(task.result())
-        self._reply_body(body, keep_alive)
+        self._reply(format_response(200, "OK", body, keep_alive), keep_alive)
         self._update_reading()
         if not self.closing:
             self._process()
         if self.eof and not self.busy and not self.closing and self.transport is not None:
             self.closing = True
             self.transport.close()
-
-    def _reply_body(self, body: bytes, keep_alive: bool) -> None:
-        if keep_alive and not self.closing:
-            # the common reply, without formatting a head
-            self.transport.write(b"".join((_OK_HEAD, b"%d" % len(body), b"\r\n\r\n", body)))
-            return
-        self._reply(_http_response(200, "OK", body, keep_alive), keep_alive)
 
     def _reply(self, data: bytes, keep_alive: bool) -> None:
         if self.closing or self.transport is None:
@@ -401,13 +313,14 @@ class _Connection(asyncio.Protocol):
     def _http_error(self, status: int, reason: str) -> None:
         reason = reason.encode("ascii", "replace").decode("ascii")
         body = ("%d %s\n" % (status, reason)).encode("ascii")
-        self._reply(_http_response(status, reason, body, False, b"text/plain"), False)
+        self._reply(format_response(status, reason, body, False, b"text/plain"), False)
 
-    # -- time-outs ----------------------------------------------------------------
-    def _partial_started(self, now: float) -> None:
-        """A request began arriving: it must be complete within request_timeout."""
+    # -- deadlines ----------------------------------------------------------------
+    def _partial_started(self) -> None:
+        """A request began arriving: its head is due within header_timeout."""
+        now = self.server._loop.time()
         self.partial_since = now
-        deadline = now + self.server.request_timeout
+        deadline = now + self.server.header_timeout
         timer = self.timer
         if timer is None or timer.when() > deadline:
             # the timer may be set for the (much later) idle deadline: bring it forward
@@ -415,31 +328,29 @@ class _Connection(asyncio.Protocol):
                 timer.cancel()
             self.timer = self.server._loop.call_at(deadline, self._on_timer)
 
-    def _arm_timer(self) -> None:
-        server = self.server
-        self.timer = server._loop.call_later(min(server.request_timeout, server.idle_timeout), self._on_timer)
-
     def _on_timer(self) -> None:
-        """Close a connection whose request is too slow to arrive, or that idles too long."""
+        """Close a connection whose request head or body is too slow to arrive, or that idles too long."""
         self.timer = None
         if self.closing or self.transport is None:
             return
         server = self.server
         now = server._loop.time()
+        reader = self.reader
         if self.busy:
             deadline = now + server.request_timeout  # our own reply is pending: not the client's fault
-        elif self.buf and self.partial_since is not None:
-            deadline = self.partial_since + server.request_timeout
+        elif self.partial_since is not None:
+            body_pending = reader.buffered and not reader.head_pending
+            deadline = self.partial_since + (server.request_timeout if body_pending else server.header_timeout)
         else:
             deadline = self.last_activity + server.idle_timeout
         if now >= deadline:
-            if self.buf and not self.busy:
+            if reader.buffered and not self.busy:
                 self._http_error(408, "Request Timeout")
             else:
                 self.closing = True
                 self.transport.close()
             return
-        self.timer = server._loop.call_later(deadline - now, self._on_timer)
+        self.timer = server._loop.call_at(deadline, self._on_timer)
 
 
 class XmlRpcServer:
@@ -448,47 +359,59 @@ class XmlRpcServer:
     `dispatch(method, params)` returns the reply value, or an awaitable of it;
     raising `Fault` answers with that fault, any other exception with fault 1.
     Parts of a reply may be `Encoded` fragments (sent as they are).
+
+    A client must send each request head within `header_timeout` (its first one
+    counted from the connection) and the body within `request_timeout`; an idle
+    keep-alive connection lasts `idle_timeout`. At `max_connections` (derived
+    from the open-file limit unless given), a new client takes the place of the
+    connection idle the longest, those that never completed a request first.
     """
 
     def __init__(self, dispatch: Dispatch, host: str | None = "0.0.0.0", port: int = 0, *,
                  multicall: bool = False, max_request_size: int = 64 * 1024 * 1024,
                  max_header_size: int = 16 * 1024, max_header_count: int = 100,
-                 request_timeout: float = 30.0, idle_timeout: float = 3600.0,
-                 max_connections: int = 4096):
+                 header_timeout: float = 10.0, request_timeout: float = 30.0, idle_timeout: float = 3600.0,
+                 max_connections: int | None = None):
         self.dispatch = dispatch
         self.host = host
         self.port = port
         self.multicall = multicall
-        self.max_request_size = max_request_size
-        self.max_header_size = max_header_size
-        self.max_header_count = max_header_count
+        self.limits = RequestLimits(max_request_size, max_header_size, max_header_count)
+        self.header_timeout = min(header_timeout, request_timeout)
         self.request_timeout = request_timeout
         self.idle_timeout = idle_timeout
-        self.max_connections = max_connections
+        self.max_connections = connection_cap() if max_connections is None else max_connections
         self._server: asyncio.base_events.Server | None = None
+        self._listeners: list[socket.socket] = []
         self._connections: set[_Connection] = set()
-        self._head_cache: dict[bytes, tuple[bytes, int, bool, bool]] = {}
+        # the connections that have not completed a request yet, oldest first: the first evicted
+        self._fresh: dict[_Connection, None] = {}
+        self._accept_failures: set[int | None] = set()  # the errnos already warned about
         self._loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
 
     def _protocol(self) -> asyncio.Protocol:
         return _Connection(self)
 
-    def _evict_idle(self) -> bool:
-        """Close the connection idle the longest to make room (a flood of idle sockets must not
-        lock real clients out); False if none is idle."""
-        idle = [c for c in self._connections if not c.busy and not c.buf and not c.closing]
-        if not idle:
-            return False
-        oldest = min(idle, key=lambda c: c.last_activity)
+    def _evict(self) -> bool:
+        """Close the connection idle the longest to make room, preferring those that never completed
+        a request (a flood of idle or half-sent connections must not lock real clients out);
+        False if every connection awaits a reply."""
+        oldest = next(iter(self._fresh), None)  # (never busy: a reply needs a complete request)
+        if oldest is None:
+            idle = [c for c in self._connections if not c.busy and not c.closing]
+            if not idle:
+                return False
+            oldest = min(idle, key=lambda c: c.last_activity)
         oldest.closing = True
         self._connections.discard(oldest)
+        self._fresh.pop(oldest, None)
         if oldest.transport is not None:
             oldest.transport.close()
         return True
 
     async def start(self) -> None:
         """Listen; raises OSError when the port is taken."""
-        self._loop = asyncio.get_running_loop()
+        self._loop = loop = asyncio.get_running_loop()
         if self.host == "::":
             # every address, IPv4 included, on one dual-stack socket (as Python's socketserver
             # gives rospy/rosmaster under ROS_IPV6=on); asyncio would make it IPv6-only
@@ -502,14 +425,51 @@ class XmlRpcServer:
             except OSError:
                 sock.close()
                 raise
-            self._server = await self._loop.create_server(self._protocol, sock=sock)
+            self._server = await loop.create_server(self._protocol, sock=sock, start_serving=False)
         else:
-            self._server = await self._loop.create_server(self._protocol, self.host, self.port,
-                                                          reuse_address=True, backlog=1024)
+            self._server = await loop.create_server(self._protocol, self.host, self.port,
+                                                    reuse_address=True, backlog=1024, start_serving=False)
+        # asyncio binds; the accepting is ours, so that running out of files backs off quietly
+        # (asyncio's own accept loop logs a traceback per attempt, hundreds of thousands in a flood)
+        for ts in self._server.sockets:
+            listener = socket.socket(fileno=os.dup(ts.fileno()))
+            listener.listen(1024)  # (asyncio listens only when it serves itself)
+            self._listeners.append(listener)
+            loop.add_reader(listener.fileno(), self._accept, listener)
         self.port = self._server.sockets[0].getsockname()[1]
+
+    def _accept(self, listener: socket.socket) -> None:
+        loop = self._loop
+        for _ in range(ACCEPT_BATCH):
+            try:
+                conn, _addr = listener.accept()
+            except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+                return
+            except OSError as e:
+                # out of files (or another failure): stop accepting for a while, warning once per
+                # cause; clients wait in the listen backlog meanwhile
+                if e.errno not in self._accept_failures:
+                    self._accept_failures.add(e.errno)
+                    log.warning("XML-RPC server on port %d: %s (%s); new connections wait",
+                                self.port, "out of open files" if e.errno in _OUT_OF_FILES
+                                else "accept() failed", e.strerror)
+                loop.remove_reader(listener.fileno())
+                loop.call_later(ACCEPT_BACKOFF, self._resume_accepting, listener)
+                return
+            conn.setblocking(False)
+            task = loop.create_task(loop.connect_accepted_socket(self._protocol, conn))
+            task.add_done_callback(functools.partial(_accepted, conn))
+
+    def _resume_accepting(self, listener: socket.socket) -> None:
+        if listener in self._listeners:
+            self._loop.add_reader(listener.fileno(), self._accept, listener)
 
     async def stop(self) -> None:
         """Stop listening and close every connection."""
+        for listener in self._listeners:
+            self._loop.remove_reader(listener.fileno())
+            listener.close()
+        self._listeners = []
         if self._server is not None:
             self._server.close()
         for conn in list(self._connections):
@@ -524,3 +484,7 @@ class XmlRpcServer:
             self._server = None
 
 
+def _accepted(conn: socket.socket, task: asyncio.Future) -> None:
+    """A connection that failed to become a transport (reset meanwhile, server stopping) is closed."""
+    if task.cancelled() or task.exception() is not None:
+        conn.close()

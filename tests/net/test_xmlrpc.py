@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import time
 import xmlrpc.client
@@ -513,6 +514,12 @@ def test_slow_request_after_a_long_idle_time_still_times_out():
     s = ServerThread(request_timeout=0.5, idle_timeout=60)
     try:
         with socket.create_connection(("127.0.0.1", s.port), timeout=10) as c:
+            # one complete call first: an idle keep-alive connection (a fresh one that sends nothing
+            # is closed at the header deadline)
+            c.sendall(_post(X.dumps_request("echo", ["x"])))
+            reply = b""
+            while b"</methodResponse>" not in reply:
+                reply += c.recv(4096)
             t_idle = time.time()
             while time.time() - t_idle < 0.8:  # past the first timer: it now waits for the idle deadline
                 time.sleep(0.05)
@@ -595,3 +602,107 @@ def test_blocking_client_reply_cut_short():
         with pytest.raises(X.XmlRpcError, match="before the reply was complete"):
             X.call_blocking("http://127.0.0.1:%d/" % srv.getsockname()[1], "echo", timeout=5.0)
         t.join(5)
+
+
+def test_expect_100_continue_over_a_socket(server):
+    body = X.dumps_request("echo", ["after-continue"])
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as c:
+        c.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nExpect: 100-continue\r\nContent-Length: %d\r\n\r\n" % len(body))
+        interim = b""
+        while b"\r\n\r\n" not in interim:
+            interim += c.recv(4096)
+        assert interim.startswith(b"HTTP/1.1 100 Continue\r\n\r\n")
+        c.sendall(body)
+        reply = interim[len(b"HTTP/1.1 100 Continue\r\n\r\n"):]
+        while b"</methodResponse>" not in reply:
+            reply += c.recv(4096)
+    assert reply.startswith(b"HTTP/1.1 200") and b"after-continue" in reply
+
+
+def test_a_connection_that_never_sends_a_head_is_closed_at_the_header_deadline():
+    s = ServerThread(header_timeout=0.3, request_timeout=5.0, idle_timeout=60)
+    try:
+        with socket.create_connection(("127.0.0.1", s.port), timeout=5) as c:
+            t0 = time.monotonic()
+            assert c.recv(4096) == b""  # closed by the server, long before the idle deadline
+            assert time.monotonic() - t0 < 3
+    finally:
+        s.close()
+
+
+def test_at_the_cap_half_sent_connections_are_evicted_before_established_clients():
+    s = ServerThread(max_connections=10)
+    try:
+        established = socket.create_connection(("127.0.0.1", s.port), timeout=5)
+        established.sendall(_post(X.dumps_request("echo", ["one"])))
+        reply = b""
+        while b"</methodResponse>" not in reply:
+            reply += established.recv(65536)
+        hogs = []
+        for _ in range(30):  # each new one takes the place of the oldest never-completed one
+            h = socket.create_connection(("127.0.0.1", s.port))
+            h.sendall(b"POST / HTTP/1.1\r\nContent-Le")
+            hogs.append(h)
+        try:
+            established.sendall(_post(X.dumps_request("echo", ["two"])))
+            reply = b""
+            while b"</methodResponse>" not in reply:
+                chunk = established.recv(65536)
+                assert chunk, "the established keep-alive client was evicted"
+                reply += chunk
+            assert b"two" in reply
+        finally:
+            for h in hogs:
+                h.close()
+            established.close()
+    finally:
+        s.close()
+
+
+_OUT_OF_FILES_SERVER = r"""
+import asyncio, resource, sys
+from launcher.net.xmlrpc_server import XmlRpcServer
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+async def main():
+    s = XmlRpcServer(lambda m, p: p, "127.0.0.1", 0, max_connections=1000)  # a cap above the limit
+    await s.start()
+    print(s.port, flush=True)
+    await asyncio.sleep(3600)
+asyncio.run(main())
+"""
+
+
+def test_accept_out_of_files_backs_off_with_one_warning():
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    proc = subprocess.Popen([sys.executable, "-c", _OUT_OF_FILES_SERVER], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=root))
+    hogs = []
+    try:
+        port = int(proc.stdout.readline())
+        for _ in range(120):  # more than the server's 64 files: accept() fails for a while
+            h = socket.create_connection(("127.0.0.1", port), timeout=5)
+            h.sendall(b"POST / HTTP/1.1\r\nContent-Le")
+            hogs.append(h)
+        import select
+        ready, _, _ = select.select([proc.stderr], [], [], 10)  # the server has run out of files
+        assert ready, "no warning"
+        first = proc.stderr.readline().decode(errors="replace")
+        assert "out of open files" in first
+        for h in hogs:
+            h.close()
+        hogs = []
+        deadline = time.monotonic() + 10
+        while True:  # once files are free again, clients are served
+            try:
+                assert X.call_blocking("http://127.0.0.1:%d/" % port, "echo", "back", timeout=2) == ["back"]
+                break
+            except OSError:
+                assert time.monotonic() < deadline
+    finally:
+        for h in hogs:
+            h.close()
+        proc.terminate()
+        _out, err = proc.communicate(timeout=10)
+    assert err.decode(errors="replace").splitlines() == [], "one warning, not one per failed accept"
