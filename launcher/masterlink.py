@@ -16,6 +16,7 @@ import urllib.parse
 from typing import Any, Mapping
 
 from launcher.errors import LaunchError
+from launcher.master import Master
 from launcher.net.xmlrpc import Fault, call
 
 CALLER_ID = "/roslaunch"
@@ -192,7 +193,6 @@ class RemoteParams:
 
 async def start_master(port: int, environ: Mapping[str, str]) -> Any:
     """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken."""
-    from launcher.master import Master
     master = Master(port=port, environ=environ)
     await master.start()
     rosversion, rosdistro = ros_version_params(environ)

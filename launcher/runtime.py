@@ -26,8 +26,11 @@ from launcher import masterlink
 from launcher.command import master_uri, node_command
 from launcher.config import LaunchConfig
 from launcher.errors import LaunchError
+from launcher.packages import PackageIndex
 from launcher.masterlink import LocalParams, RemoteParams, is_local_host
+from launcher.master import advertised_host
 from launcher.names import ns_join
+from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
 from launcher.process.logdir import DEFAULT_THRESHOLD, log_root, parse_size, watch_log_disk
@@ -36,6 +39,7 @@ from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
+from launcher.xml import load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 # Every node's state changes, one JSON object a line, in the run's log directory.
@@ -116,8 +120,6 @@ class Plan:
     @classmethod
     def load(cls, opts: Any) -> Plan:
         """Read the launch files; LaunchError (file and line) for bad input."""
-        from launcher.packages import PackageIndex
-        from launcher.xml import load, resolve_launch_arguments
         environ = dict(os.environ)
         warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
         packages = PackageIndex(environ, warn=warn)
@@ -129,7 +131,6 @@ class Plan:
         if opts.port:
             if not 0 < opts.port < 65536:
                 raise LaunchError("invalid port assignment: %s" % opts.port)
-            from launcher.master import advertised_host
             uri = "http://%s:%d/" % (advertised_host(environ), opts.port)
         threshold = DEFAULT_THRESHOLD
         if getattr(opts, "log_check_threshold", None):
@@ -325,7 +326,6 @@ class Run:
             self.master = await masterlink.start_master(port, self.plan.environ)
         except OSError as e:
             if self.core:
-                from launcher.master import advertised_host
                 raise LaunchError(
                     "RLException: roscore cannot run as another roscore/master is already running. \n"
                     "Please kill other roscore/master processes before relaunching.\n"
@@ -365,11 +365,6 @@ class Run:
         await self.params.set("/run_id", self.run_id)
 
     async def _start_rosout(self) -> None:
-        try:
-            from launcher.net.rosout import Rosout
-        except ImportError as e:
-            console.printerrlog("no built-in rosout available (%s): /rosout is not served" % e)
-            return
         rosout = Rosout(self.master_uri, self.log.run_dir, environ=self.plan.environ)
         try:
             await rosout.start(warm_up=False)  # warmed up once the nodes are spawned (Rosout.warm_up)
@@ -392,7 +387,7 @@ class Run:
                 if command == "delete":
                     await self.params.delete(key)
                 elif command == "dump" and filename:
-                    from launcher.params.rosyaml import dump_yaml
+                    from launcher.params.rosyaml import dump_yaml  # (PyYAML: 12-27 ms a run would pay for a rare tag)
                     value = await self.params.get(key)
                     with open(filename, "w") as f:
                         f.write(dump_yaml(value))

@@ -7,6 +7,9 @@ import os
 import socket
 from typing import Any, Mapping
 
+from launcher.master.api import MasterApi, resolve, unsendable
+from launcher.master.notify import Notifier
+from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.params.tree import ParamTree, copy_tree
 
 DEFAULT_MASTER_PORT = 11311
@@ -94,9 +97,6 @@ class Master:
 
     async def start(self) -> None:
         """Listen and serve; OSError if the port is taken."""
-        from launcher.master.api import MasterApi
-        from launcher.master.notify import Notifier
-        from launcher.net.xmlrpc_server import XmlRpcServer
 
         self._notifier = Notifier(timeout=self._notify_timeout)
         self._api = MasterApi(self._notifier, self._tree)
@@ -125,7 +125,6 @@ class Master:
         Raises ValueError for a value no client could read back (an int outside 32 bits, a
         None), as setParam refuses it: stored, it would break getParam('/') for everyone.
         """
-        from launcher.master.api import resolve, unsendable
         self._require_started()
         key = resolve(key, "/")
         problem = unsendable(value)
@@ -135,7 +134,6 @@ class Master:
 
     def delete_param(self, key: str) -> None:
         """Delete a parameter in-process (KeyError if not set); subscribers get `{}`."""
-        from launcher.master.api import resolve
         self._require_started()
         self._api.delete_param(resolve(key, "/"))
 

@@ -9,6 +9,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, BinaryIO
 
+from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import PublisherLink, ServiceServer, TopicType
 
 log = logging.getLogger("launcher.rosout")
@@ -311,7 +312,6 @@ class Rosout:
         return self._typestore if self._typestore is not None else self._build_typestore()
 
     async def _start_node(self, mtype: TopicType) -> None:
-        from launcher.net.slave import SlaveNode, default_host
         self.node = SlaveNode(self.name, self.master_uri,
                               host=self.host or default_host(self.environ))
         await self.node.start()

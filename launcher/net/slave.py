@@ -9,6 +9,9 @@ import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from launcher.net.open_files import connection_cap
+from launcher.net.xmlrpc import call
+from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.net.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
                              connect_publisher)
 
@@ -62,7 +65,6 @@ class Subscription:
                 self.connecting[uri] = task
 
     async def _connect(self, uri: str) -> None:
-        from launcher.net.xmlrpc import call
         try:
             reply = await call(uri, "requestTopic", self.node.name, self.topic, [["TCPROS"]],
                                timeout=10.0)
@@ -130,8 +132,6 @@ class SlaveNode:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        from launcher.net.open_files import connection_cap
-        from launcher.net.xmlrpc_server import XmlRpcServer
         bind = bind_address(self.host)
         await self.tcpros.start(bind)
         # a node's API gets few clients (the master, rostopic/rosnode): a quarter of the master's
@@ -141,7 +141,6 @@ class SlaveNode:
         self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
 
     async def _master(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
-        from launcher.net.xmlrpc import call
         code, status, value = await call(self.master_uri, method, self.name, *params,
                                          timeout=timeout)
         if code != 1:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
 import shutil
 import subprocess
 from typing import Awaitable, Callable, Mapping
 
+from launcher.errors import LaunchError
 from launcher.process import console
 
 # roslaunch's threshold: 1 GiB, though it says "1GB".
@@ -57,7 +59,6 @@ def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
     try:
         os.makedirs(run_dir, exist_ok=True)
     except OSError as e:
-        from launcher.errors import LaunchError
         raise LaunchError("unable to create directory for log files [%s]: %s" % (run_dir, e.strerror)) from None
     latest = os.path.join(root, "latest")
     try:
@@ -104,7 +105,6 @@ async def disk_usage_bytes(path: str) -> int:
     (a cancelled check never delays the shutdown); without `du`, a walk in a
     worker thread.
     """
-    import asyncio  # here, not at the top: making the run's log directory comes before asyncio is needed
     argv = _du_argv(path)
     if argv is None:
         return await asyncio.get_running_loop().run_in_executor(None, _walk_size, path)
@@ -163,7 +163,6 @@ async def watch_log_disk(root: str, threshold: int, *, first_delay: float = FIRS
     runs at low priority once start-up is over, so a big log directory never
     delays the nodes. Only warnings are repeated.
     """
-    import asyncio
     await asyncio.sleep(first_delay)
     first = True
     while True:
