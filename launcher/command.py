@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping
 
 from launcher.config import Node
 from launcher.errors import LaunchError
-from launcher.process.logdir import ros_home
+from launcher.roshome import ros_home
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 

@@ -33,7 +33,8 @@ from launcher.names import ns_join
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
-from launcher.process.logdir import DEFAULT_THRESHOLD, log_root, parse_size, watch_log_disk
+from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
+from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor

@@ -11,6 +11,7 @@ from typing import Awaitable, Callable, Mapping
 
 from launcher.errors import LaunchError
 from launcher.process import console
+from launcher.roshome import log_root
 
 # roslaunch's threshold: 1 GiB, though it says "1GB".
 DEFAULT_THRESHOLD = 1073741824
@@ -24,16 +25,6 @@ RECHECK_INTERVAL_S = 600.0
 
 _SIZE_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)(i?[bB]?)\s*$")
 _UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
-
-
-def ros_home(environ: Mapping[str, str]) -> str:
-    """`$ROS_HOME`, default `~/.ros` (rospkg.get_ros_home)."""
-    return environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
-
-
-def log_root(environ: Mapping[str, str]) -> str:
-    """`$ROS_LOG_DIR`, default `$ROS_HOME/log` (rospkg.get_log_dir)."""
-    return environ.get("ROS_LOG_DIR") or os.path.join(ros_home(environ), "log")
 
 
 def parse_size(text: str) -> int:
