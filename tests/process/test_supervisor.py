@@ -11,7 +11,7 @@ import time
 import pytest
 
 from launcher.command import NodeCommand
-from launcher.process.supervisor import ProcessSpec, Supervisor
+from launcher.process.supervisor import MIN_RESPAWN_INTERVAL_S, ProcessSpec, Supervisor
 
 PY = sys.executable
 
@@ -141,7 +141,8 @@ def test_respawn_immediately_and_with_delay(tmp_path, capsys):
         sup.registrations_complete()
         lat = []
         for _ in range(5):
-            await asyncio.sleep(0.15)  # a node that ran a while (a crash loop is paced: see below)
+            # a node that ran a while (a crash loop is paced: see below)
+            await wait_for(lambda: asyncio.get_running_loop().time() - fast.started_at > MIN_RESPAWN_INTERVAL_S)
             old = fast.pid
             t0 = time.monotonic()
             os.kill(old, signal.SIGKILL)
@@ -313,8 +314,7 @@ def test_children_left_by_earlier_runs_are_stopped_at_shutdown(tmp_path):
         sup = Supervisor(sigint_timeout=0.5, sigterm_timeout=0.5)
         code = "sleep 100 & echo $! >> %s; sleep 0.2; exit 1" % pids
         p = sup.start(spec("leaver-1", ["/bin/sh", "-c", code], tmp_path, respawn=True))
-        await wait_for(lambda: p.spawn_count >= 3)
-        await asyncio.sleep(0.05)
+        await wait_for(lambda: p.spawn_count >= 3 and pids.exists() and len(pids.read_text().split()) >= 3)
         left = [int(x) for x in pids.read_text().split()]
         alive_before = [q for q in left if pid_exists(q)]
         await sup.shutdown()
