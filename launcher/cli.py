@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped
         return runtime.run(opts, exit_process=argv is None)
     except LaunchError as e:
-        print(str(e), file=sys.stderr)
+        console.printfatal(str(e))  # (through the console: after the warnings already queued there)
         return 1
     except KeyboardInterrupt:
         return 130
@@ -131,6 +131,6 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # a bug of ours: say so in one line, the traceback only with -v
         if opts.verbose:
             raise
-        print("launch: internal error: %s: %s (run with -v for the traceback; please report it)"
-              % (type(e).__name__, e), file=sys.stderr)
+        console.printfatal("launch: internal error: %s: %s (run with -v for the traceback; please report it)"
+                           % (type(e).__name__, e))
         return 2

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import pyexpat
+import shlex
 import stat
 from collections.abc import Callable, Iterator, Mapping
 
@@ -44,12 +45,18 @@ class PackageNotFound(LaunchError):
 class ExecutableNotFound(LaunchError):
     """A `<node type=...>` with no executable file of that name in its package."""
 
-    def __init__(self, package: str, node_type: str):
+    def __init__(self, package: str, node_type: str, not_executable: str | None = None):
         self.package = package
         self.node_type = node_type
-        super().__init__(
-            "Cannot locate node of type [%s] in package [%s]. Make sure file exists in package path "
-            "and permission is set to executable (chmod +x)" % (node_type, package))
+        self.not_executable = not_executable
+        text = ("Cannot locate node of type [%s] in package [%s]. Make sure file exists in package path "
+                "and permission is set to executable (chmod +x)" % (node_type, package))
+        if not_executable:
+            # roslaunch stops at the sentence above; the usual cause is a script committed without its
+            # exec bit, and the file is right there
+            text += "\nThe file [%s] exists but is not executable: run  chmod +x %s" % (
+                not_executable, shlex.quote(not_executable))
+        super().__init__(text)
 
 
 class MultipleResources(LaunchError):
@@ -365,6 +372,7 @@ class PackageIndex:
         cached = self._nodes.get(key)
         if cached is not None:
             return cached
+        not_executable = None  # the first file of that name without the x bit, for the error
         for d in self._resource_dirs(pkg):
             for candidate in self._named(d, node_type):
                 try:
@@ -375,7 +383,9 @@ class PackageIndex:
                     found = os.path.abspath(candidate)
                     self._nodes[key] = found
                     return found
-        raise ExecutableNotFound(pkg, node_type)
+                if not_executable is None and stat.S_ISREG(mode):
+                    not_executable = os.path.abspath(candidate)
+        raise ExecutableNotFound(pkg, node_type, not_executable)
 
     def find_launch_file(self, pkg: str, filename: str) -> str | None:
         """`launch PKG FILE`: the one file called FILE in the package (or its catkin dirs).

@@ -47,3 +47,32 @@ def test_command_lines_only_argparse_reads_keep_its_errors():
     assert out.returncode == 2 and "unrecognized arguments: --bogus" in out.stderr
     out = subprocess.run([sys.executable, "-m", "launcher", "--nodes"], capture_output=True, text=True)
     assert out.returncode == 1 and "you must specify at least one input file" in out.stderr
+
+
+def test_the_fatal_error_is_the_most_visible_line_on_a_terminal(tmp_path):
+    """On a terminal the error that ends the launch is bold red, and it comes after the warnings before it."""
+    import os
+    import pty
+    import subprocess
+    import sys
+    f = tmp_path / "bad.launch"
+    f.write_text('<launch>\n<node pkg="nopkg" type="x" name="n" bogus="1"/>\n'
+                 '<include file="%s/missing.launch"/>\n</launch>\n' % tmp_path)
+    primary, secondary = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "launcher", "--nodes", str(f)], stdout=secondary, stderr=secondary)
+    os.close(secondary)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(primary, 4096)
+        except OSError:  # the terminal's other side closed: the launch has exited
+            break
+        if not chunk:
+            break
+        out += chunk
+    os.close(primary)
+    assert proc.wait(30) == 1
+    text = out.decode()
+    warning = text.index("unknown <node> attribute 'bogus'")
+    fatal = text.index("\x1b[1;31m%s:3: included file" % f)
+    assert warning < fatal

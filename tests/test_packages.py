@@ -196,14 +196,24 @@ def test_find_node_needs_user_read_and_execute_bits(tmp_path):
 
 
 def test_find_node_missing_executable_error(tmp_path):
-    d = make_pkg(tmp_path, "zz_pkg")
-    make_exe(d / "zz_node", mode=0o644)
+    make_pkg(tmp_path, "zz_pkg")
     with pytest.raises(ExecutableNotFound) as err:
         index(tmp_path).find_node("zz_pkg", "zz_node")
     assert isinstance(err.value, LaunchError)
     assert str(err.value) == (
         "Cannot locate node of type [zz_node] in package [zz_pkg]. Make sure file exists in package path "
         "and permission is set to executable (chmod +x)")
+
+
+def test_a_script_without_its_exec_bit_is_named_with_the_fix(tmp_path):
+    """roslaunch says only "Cannot locate node"; the file is there, and chmod +x is the fix."""
+    d = make_pkg(tmp_path, "zz_pkg")
+    script = make_exe(d / "scripts/zz node", mode=0o644)
+    with pytest.raises(ExecutableNotFound) as err:
+        index(tmp_path).find_node("zz_pkg", "zz node")
+    text = str(err.value)
+    assert text.startswith("Cannot locate node of type [zz node] in package [zz_pkg].")
+    assert "The file [%s] exists but is not executable: run  chmod +x '%s'" % (script, script) in text
 
 
 def test_find_node_requires_the_package_even_if_a_workspace_has_the_executable(tmp_path):

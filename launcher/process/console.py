@@ -136,3 +136,8 @@ def printlog_bold(msg: str) -> None:
 def printerrlog(msg: str) -> None:
     """A red line on stderr (roslaunch's `printerrlog`)."""
     _emit(sys.stderr, msg, "31")
+
+
+def printfatal(msg: str) -> None:
+    """The error that ends the launch: bold red on stderr, so it stands out from the (red) warnings before it."""
+    _emit(sys.stderr, msg, "1;31")
