@@ -107,6 +107,26 @@ async def probe(uri: str) -> tuple[bool, tuple[Any, Any] | None]:
     return True, None
 
 
+async def started_by_roscore(uri: str) -> bool:
+    """Is the master at `uri` a process of this machine whose parent is a roscore (roslaunch --core)?
+
+    Such a roscore sets /run_id itself a moment after its master answers, and dies
+    ("run_id on parameter server does not match declared run_id") if someone else set it
+    first; a launch that finds that master must leave it the first move.
+    """
+    try:
+        reply = await call(uri, "getPid", CALLER_ID, timeout=PROBE_TIMEOUT_S)
+        pid = int(reply[2])
+        with open("/proc/%d/stat" % pid, "rb") as f:
+            ppid = int(f.read().rsplit(b")", 1)[1].split()[1])
+        with open("/proc/%d/cmdline" % ppid, "rb") as f:
+            argv = [a.decode(errors="replace") for a in f.read().split(b"\0")]
+    except (Fault, OSError, ValueError, IndexError, TypeError, asyncio.TimeoutError):
+        return False  # another machine's master, or one that will not say: nothing to wait for
+    names = {os.path.basename(a) for a in argv[:2]}
+    return "roscore" in names or ("roslaunch" in names and "--core" in argv)
+
+
 class LocalParams:
     """The parameter server of our own, in-process master."""
 

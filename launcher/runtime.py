@@ -47,6 +47,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 EVENTS_FILE = "launcher-events.jsonl"
 # `--wait`: how often a master that is not up yet is asked again.
 WAIT_POLL_S = 0.1
+# How long a launch leaves a roscore that has just started its master to set /run_id itself.
+ROSCORE_RUN_ID_WAIT_S = 20.0
 
 
 class Stopped(Exception):
@@ -308,19 +310,31 @@ class Run:
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
         answers, reply = await masterlink.probe(self.master_uri)
-        if answers:
-            return True, reply
-        if self.opts.wait:
+        if not answers and self.opts.wait:
             console.printlog("master has not been started, waiting for it at %s ..." % self.master_uri)
             while not answers:
                 await asyncio.sleep(WAIT_POLL_S)
                 answers, reply = await masterlink.probe(self.master_uri)
+        if answers:
+            if (reply is not None and reply[0] != 1 and not self.opts.run_id
+                    and await masterlink.started_by_roscore(self.master_uri)):
+                reply = await self._wait_for_roscore_run_id(reply)
             return True, reply
         host = urllib.parse.urlsplit(self.master_uri).hostname or ""
         if not is_local_host(host, self.plan.environ):
             raise LaunchError("unable to contact ROS master at [%s]; it is not on this machine, so it cannot be "
                               "started here" % self.master_uri)
         return False, None
+
+    async def _wait_for_roscore_run_id(self, reply: tuple[Any, Any]) -> tuple[Any, Any]:
+        """A roscore's master answers before the roscore has set /run_id: let it (roscore dies if we set it
+        first); after ROSCORE_RUN_ID_WAIT_S without one, go on and set our own."""
+        deadline = asyncio.get_running_loop().time() + ROSCORE_RUN_ID_WAIT_S
+        while reply[0] != 1 and asyncio.get_running_loop().time() < deadline:
+            await asyncio.sleep(WAIT_POLL_S)
+            answers, new = await masterlink.probe(self.master_uri)
+            reply = new if answers and new is not None else reply
+        return reply
 
     async def _start_master(self, port: int) -> None:
         try:
