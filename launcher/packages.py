@@ -16,7 +16,9 @@ import shlex
 import stat
 from collections.abc import Callable, Iterator, Mapping
 
+from launcher.crawlcache import Crawl, CrawlCache
 from launcher.errors import LaunchError
+from launcher.roshome import ros_home
 
 PACKAGE_FILE = "package.xml"
 MANIFEST_FILE = "manifest.xml"  # rosbuild packages: the directory name is the package name
@@ -188,16 +190,57 @@ def read_package_xml(data: bytes) -> tuple[str | None, bool]:
     return "".join(name_text).strip(" \n\r\t"), is_meta
 
 
+def _crawl_path(root: str) -> Crawl:
+    """The packages under one ROS path entry (rospkg's list_by_path rules), and what they depend on."""
+    crawl = Crawl()
+    for d, dirs, files in _walk(root):
+        crawl.walked(d)
+        if "CATKIN_IGNORE" in files:
+            del dirs[:]
+            continue
+        if PACKAGE_FILE in files:
+            manifest = os.path.join(d, PACKAGE_FILE)
+            crawl.read(manifest)
+            name, is_meta = _package_name(manifest)
+            if name is None:
+                crawl.warnings.append("ignoring unreadable package manifest %s" % manifest)
+                del dirs[:]
+                continue
+            # rospkg's RosPack lists packages, not metapackages (those are "stacks").
+            if not is_meta:
+                crawl.packages.append((name, d))
+                del dirs[:]
+                continue
+        if MANIFEST_FILE in files:
+            crawl.packages.append((os.path.basename(d), d))
+            del dirs[:]
+            continue
+        if PACKAGE_FILE in files or "rospack_nosubdirs" in files or d.startswith(SYSTEM_SHARE + "/"):
+            del dirs[:]
+            continue
+        # rospkg removes hidden dirs with a list comprehension that mutates the list it
+        # iterates: the entry right after each removed one survives. Same result here.
+        i = 0
+        while i < len(dirs):
+            if dirs[i][0] == ".":
+                del dirs[i]
+            i += 1
+    return crawl
+
+
 class PackageIndex:
     """Where packages and their files are, for one run. Crawls lazily, each directory once."""
 
-    def __init__(self, environ: Mapping[str, str] | None = None, warn: Callable[[str], None] | None = None):
-        """`warn` is told each warning as the lazy crawl finds it (they also collect in `warnings`)."""
+    def __init__(self, environ: Mapping[str, str] | None = None, warn: Callable[[str], None] | None = None,
+                 use_cache: bool = True):
+        """`warn` is told each warning as the lazy crawl finds it (they also collect in `warnings`);
+        `use_cache`: keep crawls in ROS_HOME's crawl cache (launcher/crawlcache.py)."""
         env = os.environ if environ is None else environ
         self.ros_paths: list[str] = ros_paths(env)
         self.workspaces: list[str] = catkin_workspaces(env)
         self.warnings: list[str] = []
         self._warn = warn
+        self._cache = CrawlCache(ros_home(env) if use_cache else None)
         self._located: dict[str, str] = {}
         self._uncrawled = list(self.ros_paths)  # crawled in precedence order, on demand
         self._files: dict[str, dict[str, list[str]]] = {}  # dir -> file name -> paths, os.walk order
@@ -214,38 +257,17 @@ class PackageIndex:
     # -- packages ---------------------------------------------------------------------------
 
     def _crawl(self, path: str) -> None:
-        """Register the packages under one ROS path entry (rospkg's list_by_path rules)."""
+        """Register the packages under one ROS path entry, from the crawl cache while it is valid."""
+        root = os.path.abspath(path)
+        crawl = self._cache.lookup(root)
+        if crawl is None:
+            crawl = _crawl_path(root)
+            self._cache.store(root, crawl)
         found: set[str] = set()
-        for d, dirs, files in _walk(os.path.abspath(path)):
-            if "CATKIN_IGNORE" in files:
-                del dirs[:]
-                continue
-            if PACKAGE_FILE in files:
-                name, is_meta = _package_name(os.path.join(d, PACKAGE_FILE))
-                if name is None:
-                    self._warning("ignoring unreadable package manifest %s" % os.path.join(d, PACKAGE_FILE))
-                    del dirs[:]
-                    continue
-                # rospkg's RosPack lists packages, not metapackages (those are "stacks").
-                if not is_meta:
-                    self._register(name, d, found)
-                    del dirs[:]
-                    continue
-            if MANIFEST_FILE in files:
-                self._register(os.path.basename(d), d, found)
-                del dirs[:]
-                continue
-            if PACKAGE_FILE in files or "rospack_nosubdirs" in files or d.startswith(SYSTEM_SHARE + "/"):
-                del dirs[:]
-                continue
-            # rospkg removes hidden dirs with a list comprehension that mutates the list it
-            # iterates: the entry right after each removed one survives. Same result here.
-            i = 0
-            while i < len(dirs):
-                if dirs[i][0] == ".":
-                    del dirs[i]
-                i += 1
-
+        for name, d in crawl.packages:
+            self._register(name, d, found)
+        for text in crawl.warnings:
+            self._warning(text)
     def _register(self, name: str, d: str, found: set[str]) -> None:
         # first path entry wins; inside one entry the first directory in walk order wins
         if name not in found:

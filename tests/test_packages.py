@@ -40,7 +40,8 @@ def make_exe(path, mode=0o755, text="#!/bin/sh\n"):
 
 def index(*paths, workspaces=(), ros_root=None):
     env = {"ROS_PACKAGE_PATH": os.pathsep.join(str(p) for p in paths),
-           "CMAKE_PREFIX_PATH": os.pathsep.join(str(w) for w in workspaces)}
+           "CMAKE_PREFIX_PATH": os.pathsep.join(str(w) for w in workspaces),
+           "ROS_HOME": str(paths[0]) + "-roshome"}  # (the crawl cache goes beside the tree, not into ~/.ros)
     if ros_root:
         env["ROS_ROOT"] = str(ros_root)
     return PackageIndex(environ=env)
