@@ -1,8 +1,9 @@
 """The `launcher` command: the operator's and CI's side of `launch` (`launch` stays the roslaunch/roscore drop-in).
 
 Each subcommand lives in its own module and is imported only when it runs, so
-that `launcher status` does not pay for the test runner. A subcommand module
-has `main(argv: list[str]) -> int`.
+that `launcher status` does not pay for the test runner. A subcommand is
+`module` (its `main(argv) -> int`) or `module:function`; names starting with
+`_` are hidden from the help (the completion script's helper).
 """
 
 from __future__ import annotations
@@ -12,15 +13,19 @@ import sys
 
 from launcher import __version__
 
-# subcommand -> (module, one line of help)
-SUBCOMMANDS: dict[str, tuple[str, str]] = {}
+# subcommand -> (module[:function], one line of help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "completion": ("launcher.completion", "print the bash or zsh completion script for launch and launcher"),
+    "__complete": ("launcher.completion:complete_main", "(the completion script's helper)"),
+}
 
 USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."
 
 
 def usage() -> str:
     width = max((len(n) for n in SUBCOMMANDS), default=0)
-    return USAGE % "\n".join("  %-*s  %s" % (width, name, text) for name, (_, text) in sorted(SUBCOMMANDS.items()))
+    return USAGE % "\n".join("  %-*s  %s" % (width, name, text) for name, (_, text) in sorted(SUBCOMMANDS.items())
+                              if not name.startswith("_"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,8 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     if entry is None:
         print("launcher: unknown command '%s'\n\n%s" % (args[0], usage()), file=sys.stderr)
         return 2
-    module = importlib.import_module(entry[0])
-    return module.main(args[1:])
+    module_name, _, function = entry[0].partition(":")
+    return getattr(importlib.import_module(module_name), function or "main")(args[1:])
 
 
 if __name__ == "__main__":
