@@ -18,13 +18,41 @@ from launcher import __version__
 from launcher.errors import LaunchError
 from launcher.process import console
 
-USAGE = "launch [options] [package] <filename> [arg_name:=value...]\n       launch [options] <filename> [<filename>...] [arg_name:=value...]\n       launch --core [-p PORT]"
+USAGE = ("launch [options] [package] <filename> [arg_name:=value...]\n"
+         "       launch [options] <filename> [<filename>...] [arg_name:=value...]\n"
+         "       launch [options] - [arg_name:=value...]     (the launch XML from standard input)\n"
+         "       launch --core [-p PORT]")
+
+EPILOG = """examples:
+  launch my_robot bringup.launch sim:=true       a package's launch file, with an argument
+  launch robot.launch sensors.launch              several files as one launch
+  launch --nodes my_robot bringup.launch          list its nodes (also --args NODE, --dump-params, --files)
+  launch --core -p 11312                          a master, parameter server and rosout, as roscore
+  launch --wait my_robot bringup.launch           wait for a master started elsewhere (e.g. roscore)
+
+environment:
+  ROS_MASTER_URI     the master to use; a launch starts one there if none answers (default http://localhost:11311/)
+  ROS_IP, ROS_HOSTNAME   the address the master and nodes advertise
+  ROS_PACKAGE_PATH, CMAKE_PREFIX_PATH   where packages and node executables are found
+  ROS_HOME           default ~/.ros: node working directory, the package crawl cache
+  ROS_LOG_DIR        default $ROS_HOME/log: each run's logs in <run_id>/, and a latest link
+  ROS_NAMESPACE      the namespace of the launch's nodes
+
+exit status:
+  0  the launch ended normally (Ctrl-C, all nodes done, a required node exited 0)
+  1  bad input (the error names file and line), a master problem, or a required node failed
+  2  bad command line, or an internal error (please report it)
+  130  interrupted before the launch started
+
+shell completion:  eval "$(launcher completion bash)"   (or zsh); the operator's command is `launcher`."""
 
 
 def build_parser() -> argparse.ArgumentParser:
     import argparse
-    p = argparse.ArgumentParser(prog="launch", usage=USAGE, allow_abbrev=False,
-                                description="Launch ROS 1 nodes from launch XML, with a built-in master.")
+    p = argparse.ArgumentParser(prog="launch", usage=USAGE, allow_abbrev=False, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                description="Launch ROS 1 nodes from launch XML, with a built-in master "
+                                            "(roslaunch's options and behaviour; roscore with --core).")
     # introspection (print and exit), as roslaunch
     p.add_argument("--files", action="store_true", help="print the launch files loaded, including included ones")
     p.add_argument("--args", dest="node_args", metavar="NODE_NAME", help="print the command line of a node")
