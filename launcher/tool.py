@@ -16,6 +16,7 @@ from launcher import __version__
 # subcommand -> (module[:function], one line of help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "completion": ("launcher.completion", "print the bash or zsh completion script for launch and launcher"),
+    "doctor": ("launcher.doctor", "find set-up mistakes (host names, ROS_IP, master, package path, node executables)"),
     "__complete": ("launcher.completion:complete_main", "(the completion script's helper)"),
 }
 
