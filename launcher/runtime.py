@@ -299,6 +299,8 @@ class Run:
             console.printlog("auto-starting new master")
             if self.master is None:
                 await self._start_master(urllib.parse.urlsplit(self.master_uri).port or masterlink.DEFAULT_MASTER_PORT)
+        if self.master is not None and self.log.run_dir:
+            self.master.open_log(os.path.join(self.log.run_dir, "master.log"))
         self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.master_uri)
         console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
         await self.signals.guard(self._set_run_id(run_id_known))

@@ -9,6 +9,7 @@ reply never waits for a node.
 
 from __future__ import annotations
 
+import logging
 import os
 from typing import Any, Callable
 
@@ -16,6 +17,10 @@ from launcher.master import registry as reg
 from launcher.master.notify import Notifier
 from launcher.params.tree import ParamTree, copy_tree
 from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
+
+# rosmaster's logger and lines: the run's master.log reads as rosmaster's does (the runtime
+# gives it a file; without one, a disabled logger costs a level check per call)
+mlog = logging.getLogger("rosmaster.master")
 
 SEP = "/"
 ANYTYPE = "*"
@@ -338,6 +343,7 @@ class MasterApi:
             self.delete_param(key)
         except KeyError:
             return -1, "parameter [%s] is not set" % key, 0
+        mlog.info("-PARAM [%s] by %s", key, caller_id)
         return 1, "parameter %s deleted" % key, 0
 
     def setParam(self, caller_id: str, key: str, value: Any) -> tuple:  # noqa: N802
@@ -348,6 +354,7 @@ class MasterApi:
             # included, for every client (rosmaster has this flaw)
             return -1, "parameter [%s] is not set: %s" % (key, problem), 0
         self.set_param(key, value, caller_id)
+        mlog.info("+PARAM [%s] by %s", key, caller_id)
         return 1, "parameter %s set" % key, 0
 
     def getParam(self, caller_id: str, key: str) -> tuple:  # noqa: N802
@@ -371,12 +378,14 @@ class MasterApi:
         except KeyError:
             val = {}
         self.registry.register(reg.PARAM_SUBSCRIPTIONS, sub_key, caller_id, caller_api)
+        mlog.info("+CACHEDPARAM [%s] by %s", key, caller_id)
         return 1, "Subscribed to parameter [%s]" % key, val
 
     def unsubscribeParam(self, caller_id: str, caller_api: str, key: str) -> tuple:  # noqa: N802
         key = resolve(key, caller_id)
         sub_key = key if key == SEP else _canonicalize(key) + SEP
         self.registry.unregister(reg.PARAM_SUBSCRIPTIONS, sub_key, caller_id, caller_api)
+        mlog.info("-CACHEDPARAM [%s] by %s", key, caller_id)
         return 1, "Unsubscribe to parameter [%s]" % key, 1
 
     def hasParam(self, caller_id: str, key: str) -> tuple:  # noqa: N802
@@ -392,6 +401,7 @@ class MasterApi:
 
     def registerService(self, caller_id: str, service: str, service_api: str, caller_api: str) -> tuple:  # noqa: N802
         self.registry.register(reg.SERVICES, service, caller_id, caller_api, service_api)
+        mlog.info("+SERVICE [%s] %s %s", service, caller_id, caller_api)
         return 1, "Registered [%s] as provider of [%s]" % (caller_id, service), 1
 
     def lookupService(self, caller_id: str, service: str) -> tuple:  # noqa: N802
@@ -401,19 +411,25 @@ class MasterApi:
         return -1, "no provider", ""
 
     def unregisterService(self, caller_id: str, service: str, service_api: str) -> tuple:  # noqa: N802
-        return self.registry.unregister(reg.SERVICES, service, caller_id, None, service_api)
+        ret = self.registry.unregister(reg.SERVICES, service, caller_id, None, service_api)
+        mlog.info("-SERVICE [%s] %s %s", service, caller_id, service_api)
+        return ret
 
     def registerSubscriber(self, caller_id: str, topic: str, topic_type: str, caller_api: str) -> tuple:  # noqa: N802
         self.registry.register(reg.SUBSCRIPTIONS, topic, caller_id, caller_api)
+        mlog.info("+SUB [%s] %s %s", topic, caller_id, caller_api)
         if topic_type != ANYTYPE and topic not in self.topic_types:
             self.topic_types[topic] = topic_type
         return 1, "Subscribed to [%s]" % topic, self.registry.publishers.get_apis(topic)
 
     def unregisterSubscriber(self, caller_id: str, topic: str, caller_api: str) -> tuple:  # noqa: N802
-        return self.registry.unregister(reg.SUBSCRIPTIONS, topic, caller_id, caller_api)
+        ret = self.registry.unregister(reg.SUBSCRIPTIONS, topic, caller_id, caller_api)
+        mlog.info("-SUB [%s] %s %s", topic, caller_id, caller_api)
+        return ret
 
     def registerPublisher(self, caller_id: str, topic: str, topic_type: str, caller_api: str) -> tuple:  # noqa: N802
         self.registry.register(reg.PUBLICATIONS, topic, caller_id, caller_api)
+        mlog.info("+PUB [%s] %s %s", topic, caller_id, caller_api)
         if topic_type != ANYTYPE or topic not in self.topic_types:
             self.topic_types[topic] = topic_type
         self._notify_topic(topic)
@@ -421,6 +437,7 @@ class MasterApi:
 
     def unregisterPublisher(self, caller_id: str, topic: str, caller_api: str) -> tuple:  # noqa: N802
         ret = self.registry.unregister(reg.PUBLICATIONS, topic, caller_id, caller_api)
+        mlog.info("-PUB [%s] %s %s", topic, caller_id, caller_api)
         if ret[2]:
             self._notify_topic(topic)
         return ret

@@ -17,6 +17,7 @@ from typing import Any, Callable
 from launcher.net import xmlrpc
 
 log = logging.getLogger("launcher.master")
+mlog = logging.getLogger("rosmaster.master")  # master.log, in rosmaster's words
 
 MASTER_CALLER_ID = "/master"
 
@@ -82,15 +83,30 @@ class Notifier:
                 if item.topic is not None:
                     self._pending_pub.pop((api, item.topic), None)
                 async with self._slots:
+                    if item.method == "paramUpdate":
+                        mlog.info("paramUpdate[%s]", item.params[1])
+                    logged = item.method == "publisherUpdate" and mlog.isEnabledFor(logging.INFO)
+                    if logged:
+                        what = "publisherUpdate[%s] -> %s %s" % (item.topic, api, item.params[2])
+                        mlog.info(what)
+                        started = asyncio.get_running_loop().time()
                     try:
                         result = await xmlrpc.call(api, item.method, *item.params, timeout=self.timeout)
+                        if logged:
+                            mlog.info("%s: sec=%0.2f, result=%s", what, asyncio.get_running_loop().time() - started,
+                                      result)
                     except asyncio.CancelledError:
                         raise
                     except asyncio.TimeoutError:
                         log.warning("%s to %s timed out", item.method, api)
+                        if logged:
+                            mlog.info("%s: sec=%0.2f, exception=timed out", what, self.timeout)
                         continue
                     except Exception as e:  # noqa: BLE001 - a node that is gone or answers garbage
                         log.info("%s to %s failed: %s", item.method, api, e)
+                        if logged:
+                            mlog.info("%s: sec=%0.2f, exception=%s", what,
+                                      asyncio.get_running_loop().time() - started, e)
                         continue
                 if item.on_result is not None:
                     try:
