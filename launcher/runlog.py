@@ -1,13 +1,18 @@
-"""A run's own log: the run's log directory, the launch log file every console line goes to, and the summary.
+"""A run's own log: the run's log directory, the launch log, and the summary.
 
-The launch log is a convenience, never a reason to fail: a full or broken
-disk makes it a warning (said once) and the run goes on and ends as it
-would have.
+The launch log (`roslaunch-<host>-<pid>.log`) holds every console line and,
+beyond roslaunch's, what a user debugging a launch needs: the files, args and
+environment it ran with, every parameter, every node's full command line, each
+node's state changes with pids, exit codes and signals, and how long each phase
+of the start took (`note`). It is a convenience, never a reason to fail: a full
+or broken disk makes it a warning (said once) and the run goes on and ends as
+it would have.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import time
 from typing import Any, Mapping
@@ -39,6 +44,34 @@ class RunLog:
         console.add_handler(self._write)
         console.printlog("... logging to %s" % self.path)
         return self.run_dir
+
+    def note(self, msg: str) -> None:
+        """A line for the launch log only (not the console)."""
+        self._write("[launch] " + msg)
+
+    def timing(self, started: float, what: str) -> None:
+        """`what` happened, this long after the run started (time.monotonic() then)."""
+        self.note("+%.3f s: %s" % (time.monotonic() - started, what))
+
+    def state_change(self, status: Any) -> None:
+        """A Fleet listener: each node's state change, with what a reader of the log needs."""
+        text = "node [%s] (process %s) is %s" % (status.name, status.process, status.state)
+        if status.pid is not None:
+            text += ", pid %s" % status.pid
+        if status.exit_signal is not None:
+            try:
+                text += ", killed by %s" % signal.Signals(status.exit_signal).name
+            except ValueError:
+                text += ", killed by signal %d" % status.exit_signal
+        elif status.exit_code is not None and status.state != "running":
+            text += ", exit code %d" % status.exit_code
+        if status.restarts:
+            text += ", %d restart%s" % (status.restarts, "" if status.restarts == 1 else "s")
+        if status.next_start is not None:
+            text += ", next start in %.2f s" % max(0.0, status.next_start - time.time())
+        if status.reason:
+            text += " (%s)" % status.reason
+        self.note(text)
 
     def _write(self, msg: str) -> None:
         if self._file is None:

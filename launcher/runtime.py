@@ -19,6 +19,7 @@ import asyncio
 import os
 import signal
 import sys
+import time
 import urllib.parse
 from typing import Any, Awaitable
 
@@ -49,6 +50,11 @@ EVENTS_FILE = "launcher-events.jsonl"
 WAIT_POLL_S = 0.1
 # How long a launch leaves a roscore that has just started its master to set /run_id itself.
 ROSCORE_RUN_ID_WAIT_S = 20.0
+
+
+def _short_repr(value: Any, limit: int = 200) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "... (%d characters)" % len(text)
 
 
 class Stopped(Exception):
@@ -260,6 +266,7 @@ class Run:
         self.fleet: Fleet | None = None  # every node's state (process/state.py)
         self.run_id = ""
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
+        self._started = time.monotonic()  # (the launch log's timings count from here)
         self._tasks: list[asyncio.Future] = []
 
     async def main(self) -> int:
@@ -306,8 +313,11 @@ class Run:
         await self.signals.guard(self._set_run_id(run_id_known))
         if self.master is not None:
             await self.signals.guard(self._start_rosout())
+        self.log.timing(self._started, "master %s at %s" % ("found" if self.external else "started", self.master_uri))
         await self.signals.guard(self._set_parameters())
+        self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
         self._launch_nodes()
+        self.log.timing(self._started, "every node started")
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
@@ -422,8 +432,10 @@ class Run:
         """
         self.signals.check()
         specs, failed = node_specs(self.plan, self.opts, self.log.run_dir, self._process_count)
+        self._note_launch(specs)
         self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
                            warn=console.printerrlog)
+        self.fleet.listeners.append(self.log.state_change)
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
@@ -437,6 +449,20 @@ class Run:
         self.supervisor.registrations_complete()
         if self.rosout is not None:
             self.rosout.warm_up()
+
+    def _note_launch(self, specs: list[ProcessSpec]) -> None:
+        """What this run is, for the launch log: files, args, environment, parameters, command lines."""
+        note = self.log.note
+        note("launch files: %s" % " ".join(self.plan.config.files or ("(none)",)))
+        note("command line: %s" % " ".join(sys.argv))
+        note("ROS environment: %s" % ", ".join("%s=%s" % (k, v) for k, v in sorted(self.plan.environ.items())
+                                              if k.startswith("ROS_") or k == "CMAKE_PREFIX_PATH"))
+        for key, param in sorted(self.plan.config.params.items()):
+            note("param %s = %s" % (key, _short_repr(param.value)))
+        for spec in specs:
+            cmd = spec.command
+            note("node [%s] (process %s): %s%s" % (spec.node_name, spec.name, cmd.format_args(),
+                                                   " (cwd %s)" % cmd.cwd if cmd.cwd else ""))
 
     # ---- running ---------------------------------------------------------------------------------------
 

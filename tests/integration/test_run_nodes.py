@@ -272,3 +272,34 @@ def test_sigint_reaches_nodes_when_launcher_inherited_it_ignored(tmp_path, pkgs)
         assert "escalating" not in lp.stderr
     finally:
         lp.close()
+
+
+def test_launch_log_holds_what_a_debugging_user_needs(tmp_path, pkgs):
+    """Beyond the console: the environment, every parameter, each node's command line, exits and timings."""
+    port = free_port()
+    launch = write_launch(str(tmp_path), """
+      <param name="answer" value="42"/>
+      <node pkg="run_tests" type="exiter" name="flaky" respawn="true" respawn_delay="0.2">
+        <env name="EXIT_AFTER" value="0.1"/><env name="EXIT_CODE" value="3"/></node>
+    """)
+    env = ros_env(str(tmp_path), port, pkgs)
+    lp = Launcher([launch], env, str(tmp_path))
+    try:
+        path = lp.wait_output(r"\.\.\. logging to (\S+)").group(1)
+
+        def exits_logged():
+            with open(path) as f:
+                text = f.read()
+            return text if text.count("is respawning") >= 2 else None
+        text = poll(exits_logged, 30, what="two exits in the launch log")
+        assert "[launch] launch files: %s" % launch in text
+        assert "ROS_MASTER_URI=%s" % env["ROS_MASTER_URI"] in text
+        assert "[launch] param /answer = 42" in text
+        assert re.search(r'\[launch\] node \[/flaky\] \(process flaky-2\): EXIT_AFTER="0.1" EXIT_CODE="3" '
+                         r'\S+/exiter __name:=flaky __log:=\S+ \(cwd \S+\)', text), text
+        assert re.search(r"\[launch\] node \[/flaky\] \(process flaky-2\) is running, pid \d+", text)
+        assert re.search(r"is respawning, pid \d+, exit code 3, 1 restart, next start in 0\.\d\d s", text), text
+        assert re.search(r"\[launch\] \+\d+\.\d{3} s: every node started", text)
+        assert "process[flaky-2]: started with pid" in text  # and the console lines, as before
+    finally:
+        lp.close()
