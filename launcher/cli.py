@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-log-check", dest="skip_log_check", action="store_true", help="do not check the log directory's size")
     p.add_argument("--log-check-threshold", dest="log_check_threshold", default="1GB", metavar="SIZE",
                    help="warn when the log directory is larger than this (default 1GB)")
+    p.add_argument("--log-max-size", dest="log_max_size", default="100MB", metavar="SIZE",
+                   help="rotate a node's output log past this size (default 100MB; 0: never)")
+    p.add_argument("--log-backups", dest="log_backups", type=int, default=4, metavar="N",
+                   help="rotated copies of a node's output log to keep (default 4)")
     p.add_argument("--sigint-timeout", dest="sigint_timeout", type=float, default=15.0, metavar="SECONDS",
                    help="seconds from SIGINT to SIGTERM when stopping a node (default 15)")
     p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=2.0, metavar="SECONDS",
@@ -100,7 +104,7 @@ _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params"
           "-v": "verbose", "--disable-title": "disable_title"}
 _DEFAULTS: dict[str, object] = dict(
     {dest: False for dest in _FLAGS.values()}, node_args=None, find_node=None, port=None,
-    log_check_threshold="1GB", sigint_timeout=15.0, sigterm_timeout=2.0, pid_fn=None, run_id=None,
+    log_check_threshold="1GB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0, pid_fn=None, run_id=None,
     num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None)
 
 

@@ -34,6 +34,7 @@ from launcher.names import ns_join
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
+from launcher.process.logrotate import LogRotator
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
@@ -113,6 +114,7 @@ class Plan:
         self.core = core
         self.packages = packages
         self.log_threshold = log_threshold
+        self.log_max_size = 0  # node output logs are rotated past this size (0: never)
         self.core_port = core_port
 
     @classmethod
@@ -148,6 +150,10 @@ class Plan:
             except ValueError as e:
                 raise LaunchError("--log-check-threshold: %s" % e) from None
         plan = cls(config, uri, environ, packages=packages, log_threshold=threshold)
+        try:
+            plan.log_max_size = parse_size(getattr(opts, "log_max_size", "0") or "0")
+        except ValueError as e:
+            raise LaunchError("--log-max-size: %s" % e) from None
         plan.check_nodes(opts)
         return plan
 
@@ -264,6 +270,7 @@ class Run:
         self.rosout: Any = None
         self.supervisor: Supervisor | None = None
         self.fleet: Fleet | None = None  # every node's state (process/state.py)
+        self.rotator: LogRotator | None = None  # node output logs under --log-max-size
         self.run_id = ""
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
@@ -447,6 +454,11 @@ class Run:
         for name, required in failed:
             self.supervisor.not_started(name, required)
         self.supervisor.registrations_complete()
+        self.rotator = LogRotator(self.plan.log_max_size, getattr(self.opts, "log_backups", 4), self.log.note)
+        for spec in specs:
+            if spec.stdout_path:
+                self.rotator.watch(spec.stdout_path)
+        self.rotator.start()
         if self.rosout is not None:
             self.rosout.warm_up()
 
@@ -486,6 +498,8 @@ class Run:
     async def _teardown(self) -> None:
         for t in self._tasks:
             t.cancel()
+        if self.rotator is not None:
+            self.rotator.close()
         if self.supervisor is not None:
             await self.supervisor.shutdown()
             self.supervisor.close()

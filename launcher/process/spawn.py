@@ -77,8 +77,9 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
     """
     stdout = None
     if spec.stdout_path:
-        # roslaunch: append when respawning, so earlier runs' output survives
-        flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | (os.O_APPEND if append or spec.respawn else os.O_TRUNC)
+        # roslaunch: append when respawning, so earlier runs' output survives; always O_APPEND, so
+        # that a rotation's truncation (process/logrotate.py) moves the node's writes to the start
+        flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (0 if append or spec.respawn else os.O_TRUNC)
         try:
             stdout = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object to build per node)
         except OSError as e:

@@ -1,0 +1,69 @@
+"""Node output log files kept under a size: rotation by copy and truncate, which roslaunch never had (ros/ros_comm#79).
+
+A node with `output="log"` writes its stdout straight into `<name>-stdout.log`
+(the launcher does not sit in the path of the data). Once a second the sizes
+are looked at; a file past `max_size` is copied to `.1` (older copies shift to
+`.2` ... up to `backups`) and truncated in place. The node's descriptor is
+opened with O_APPEND, so its next write lands at the new end and nothing needs
+to be reopened; what it writes between the copy and the truncation (a few
+milliseconds) is lost, as with logrotate's copytruncate. The copy runs in a
+worker thread, so a large file never stalls the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+from typing import Callable
+
+CHECK_PERIOD_S = 1.0
+
+
+class LogRotator:
+    def __init__(self, max_size: int, backups: int, note: Callable[[str], None],
+                 period: float = CHECK_PERIOD_S):
+        self.max_size = max_size
+        self.backups = max(1, backups)
+        self.note = note  # told of each rotation (the launch log)
+        self.period = period
+        self.paths: list[str] = []
+        self._task: asyncio.Task | None = None
+
+    def watch(self, path: str) -> None:
+        if path not in self.paths:
+            self.paths.append(path)
+
+    def start(self) -> None:
+        if self.max_size > 0 and self.paths and self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._run())
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await asyncio.sleep(self.period)
+            for path in self.paths:
+                try:
+                    size = os.stat(path).st_size
+                except OSError:
+                    continue
+                if size > self.max_size:
+                    try:
+                        await loop.run_in_executor(None, self.rotate, path)
+                    except OSError as e:  # a full disk: say so, try again next time
+                        self.note("cannot rotate %s: %s" % (path, e.strerror or e))
+                    else:
+                        self.note("rotated %s at %d bytes (keeping %d older copies)" % (path, size, self.backups))
+
+    def rotate(self, path: str) -> None:
+        for i in range(self.backups - 1, 0, -1):
+            older = "%s.%d" % (path, i)
+            if os.path.exists(older):
+                os.replace(older, "%s.%d" % (path, i + 1))
+        shutil.copyfile(path, path + ".1")  # (copy_file_range/sendfile in the kernel where it can)
+        os.truncate(path, 0)
