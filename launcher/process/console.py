@@ -3,17 +3,21 @@
 The launcher's stdout is often something it does not control: a terminal paused
 with Ctrl-S, a pipe nobody reads, a slow SSH link. A `write` there blocks, and
 if the event loop made it, the embedded master would stop answering and
-respawns would stop. So a message is handed to the console's writer thread
-through a bounded queue and the caller goes on at once. When the queue is full
-the oldest lines are dropped, and the writer says how many once output flows
-again. The extra sinks (the launch's own log file) get every message in full,
-at once, from the caller.
+respawns would stop. So a line is written by the caller only when that cannot
+block: nothing is queued before it, and the stream is in memory or its
+descriptor is ready for a write of that size (`select`; a line of at most
+PIPE_BUF bytes then goes through whole). Otherwise it is handed to the
+console's writer thread through a bounded queue and the caller goes on at once.
+When the queue is full the oldest lines are dropped, and the writer says how
+many once output flows again. The extra sinks (the launch's own log file) get
+every message in full, at once, from the caller.
 """
 
 from __future__ import annotations
 
 import atexit
 import collections
+import select
 import sys
 import threading
 from typing import Callable, TextIO
@@ -22,6 +26,7 @@ from typing import Callable, TextIO
 _handlers: list[Callable[[str], None]] = []
 
 MAX_QUEUED_CHARS = 128 * 1024  # console text held while the terminal or pipe does not take it
+PIPE_BUF = select.PIPE_BUF  # a write this small to a ready pipe or terminal is taken whole
 
 
 def add_handler(fn: Callable[[str], None]) -> None:
@@ -59,6 +64,10 @@ class _Writer:
 
     def put(self, stream: TextIO, text: str) -> None:
         with self._cond:
+            size = len(text) if text.isascii() else len(text.encode(errors="replace"))
+            if not self._queue and not self._writing and size <= PIPE_BUF and _ready(stream):
+                _write(stream, text)  # the common case: at once, in order, from the caller
+                return
             self._queue.append((stream, text))
             self._queued_chars += len(text)
             while self._queued_chars > MAX_QUEUED_CHARS and len(self._queue) > 1:
@@ -90,6 +99,18 @@ class _Writer:
                 _write(lost_stream, "[launch] %d console line%s dropped while the output was blocked\n"
                        % (count, "" if count == 1 else "s"))
             _write(stream, text)
+
+
+def _ready(stream: TextIO) -> bool:
+    """Would a short write to `stream` go through without blocking?"""
+    try:
+        fd = stream.fileno()
+    except (OSError, ValueError, AttributeError):
+        return True  # an in-memory stream (a test's capture) never blocks
+    try:
+        return bool(select.select((), (fd,), (), 0)[1])
+    except (OSError, ValueError):
+        return False
 
 
 def _write(stream: TextIO, text: str) -> None:
