@@ -311,14 +311,14 @@ class Supervisor:
             self._fatal(proc, exit_code, exit_signal)
             return
         delay = self._respawn_delay(proc)
-        self._schedule_respawn(proc, delay)
         if policy.respawn_backoff != 1.0 or retries is not None:
             console.printlog("[%s] respawning in %.3g s (%d failed start%s in a row)"
-                             % (proc.name, max(0.0, proc.respawn_at - self.loop.time()), proc.failures,
-                                "" if proc.failures == 1 else "s"))
+                             % (proc.name, delay, proc.failures, "" if proc.failures == 1 else "s"))
+        # recorded before the start is scheduled: a start without delay happens right away, and its
+        # `running` must come after this
         self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
-                          next_start=time.time() + max(0.0, proc.respawn_at - self.loop.time()), reason=reason,
-                          failures=proc.failures)
+                          next_start=time.time() + delay, reason=reason, failures=proc.failures)
+        self._schedule_respawn(proc, delay)
 
     def _stays_down(self, proc: NodeProcess, new_state: str, exit_code: int | None, exit_signal: int | None,
                     reason: str) -> None:
@@ -343,16 +343,17 @@ class Supervisor:
         self._stays_down(proc, state.FATAL, exit_code, exit_signal, why)
 
     def _respawn_delay(self, proc: NodeProcess) -> float:
-        """respawn_delay, multiplied by respawn_backoff for each failed start in a row after the first,
-        capped by respawn_delay_max. Growing from 0 would stay 0: the backoff then starts from the pace
-        of a crash loop (MIN_RESPAWN_INTERVAL_S)."""
+        """How long from now until the next start: respawn_delay, multiplied by respawn_backoff for each
+        failed start in a row after the first, capped by respawn_delay_max (growing from 0 would stay 0:
+        the backoff then starts from MIN_RESPAWN_INTERVAL_S). respawn_delay counts from the death, as
+        roslaunch; a crash loop is paced, not spun."""
         policy = proc.spec.policy
         delay = proc.spec.respawn_delay
         if policy.respawn_backoff != 1.0 and proc.failures > 1:
             delay = (delay or MIN_RESPAWN_INTERVAL_S) * policy.respawn_backoff ** (proc.failures - 1)
         if policy.respawn_delay_max is not None:
             delay = min(delay, policy.respawn_delay_max)
-        return delay
+        return max(0.0, delay, proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
 
     def _check_group(self, proc: NodeProcess) -> bool:
         """Is anything left in the node's process group? Forget it in the guard when not."""
@@ -363,8 +364,6 @@ class Supervisor:
         return proc.group_alive
 
     def _schedule_respawn(self, proc: NodeProcess, delay: float) -> None:
-        # respawn_delay counts from the death, as roslaunch; a crash loop is paced, not spun
-        delay = max(0.0, delay, proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
         proc.respawn_at = self.loop.time() + delay
         if delay == 0.0:
             self._respawn(proc)

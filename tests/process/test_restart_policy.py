@@ -87,3 +87,14 @@ def test_without_a_policy_roslaunch_behaviour_and_words(tmp_path, capsys):
     assert "respawning in" not in out and "FATAL" not in err and "WARNING" not in err
     assert all(0.0 <= d <= 0.1 + 0.3 for d in delays(evs))
     assert "fatal" not in {e["state"] for e in evs}
+
+
+def test_an_immediate_restart_is_recorded_after_the_respawning(tmp_path):
+    # a run longer than the crash-loop pace is restarted at once, inside the exit's handling: its
+    # `running` must still follow the `respawning`, and the status must say running
+    script = ["/bin/sh", "-c", "sleep 0.3; exit 2"]
+    evs = run_until(tmp_path, [spec("s-1", script, tmp_path, respawn=True)],
+                    lambda fleet: "/s-1" in fleet.nodes and fleet.nodes["/s-1"].restarts >= 2
+                    and fleet.nodes["/s-1"].state == state.RUNNING)
+    states = [e["state"] for e in evs]
+    assert states[:5] == ["running", "respawning", "running", "respawning", "running"]
