@@ -47,7 +47,7 @@ class NodePolicy(NamedTuple):
     respawn_backoff: float = 1.0  # each consecutive failure multiplies the delay by this
     respawn_delay_max: float | None = None  # cap of the growing delay
     respawn_min_uptime: float = 1.0  # a run shorter than this is a failed start
-    respawn_max_retries: int | None = None  # consecutive failed runs before the node is FATAL
+    respawn_max_retries: int | None = None  # restarts after failed starts in a row; one more failure: FATAL
     on_fatal: str = "none"  # "none" | "shutdown": a FATAL node ends the launch with status 1
     restart_warn_threshold: int | None = None  # rosmon: warn once the node restarted this often
     sigint_timeout: float | None = None  # this node's stop escalation (None: the CLI's)

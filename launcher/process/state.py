@@ -40,7 +40,7 @@ class NodeStatus:
     """One node as a reader sees it. Times are wall-clock seconds (time.time())."""
 
     __slots__ = ("name", "process", "host", "state", "pid", "started_at", "restarts", "exit_code", "exit_signal",
-                 "next_start", "reason", "cpu", "rss", "history")
+                 "next_start", "reason", "failures", "cpu", "rss", "history")
 
     def __init__(self, name: str, process: str = "", host: str = "localhost"):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -54,6 +54,7 @@ class NodeStatus:
         self.exit_signal: int | None = None  # the signal that ended the last run, if one did
         self.next_start: float | None = None  # when respawning
         self.reason = ""  # why the last change happened, in words
+        self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
         self.cpu: float | None = None  # cores used over the last sample period
         self.rss: int | None = None  # bytes, the node's whole process group
         self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
@@ -67,7 +68,7 @@ class NodeStatus:
         return {"name": self.name, "process": self.process, "host": self.host, "state": self.state, "pid": self.pid,
                 "started_at": self.started_at, "uptime": self.uptime(), "restarts": self.restarts,
                 "exit_code": self.exit_code, "exit_signal": self.exit_signal, "next_start": self.next_start,
-                "reason": self.reason, "cpu": self.cpu, "rss": self.rss}
+                "reason": self.reason, "failures": self.failures, "cpu": self.cpu, "rss": self.rss}
 
 
 class Fleet:
@@ -92,8 +93,11 @@ class Fleet:
         return status
 
     def change(self, name: str, state: str, *, pid: int | None = None, exit_code: int | None = None,
-               exit_signal: int | None = None, next_start: float | None = None, reason: str = "") -> NodeStatus:
-        """Record that `name` is now in `state` (a transition; the same state again is an event too)."""
+               exit_signal: int | None = None, next_start: float | None = None, reason: str = "",
+               failures: int | None = None) -> NodeStatus:
+        """Record that `name` is now in `state` (a transition; the same state again is an event too).
+
+        `failures` (failed starts in a row) is kept as it was when not given."""
         assert state in STATES, state
         status = self.add(name)
         now = time.time()
@@ -108,11 +112,14 @@ class Fleet:
         status.state = state
         status.next_start = next_start if state == RESPAWNING else None
         status.reason = reason
+        if failures is not None:
+            status.failures = failures
         if state != RUNNING:
             status.cpu = None
         self._write({"time": round(now, 6), "node": name, "state": state, "pid": status.pid,
                      "exit_code": status.exit_code, "exit_signal": status.exit_signal,
-                     "restarts": status.restarts, "next_start": status.next_start, "reason": reason})
+                     "restarts": status.restarts, "failures": status.failures, "next_start": status.next_start,
+                     "reason": reason})
         for listener in self.listeners:
             listener(status)
         return status

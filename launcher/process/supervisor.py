@@ -20,6 +20,14 @@ inside a master call (init_node makes several; so does any rospy.get_param) dead
 own handler, which unregisters through the same non-reentrant proxy lock; its SIGTERM handler
 is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, as roslaunch
 does (checked side by side); sending SIGINT again would not help.
+
+A node's `NodePolicy` (`spec.policy`; the default one is roslaunch's behaviour) adds to this:
+a delayed first start (`spawn_delay`), per-node stop timeouts, and the restart policy, all
+decided in `_run_ended`: `respawn_on="failure"` with `success_exit_codes`; a delay that grows
+by `respawn_backoff` with each failed start in a row (a run shorter than `respawn_min_uptime`)
+up to `respawn_delay_max`; and after `respawn_max_retries` restarts that failed in a row, the
+node is FATAL (kept in the fleet's status, not restarted), which ends the launch with status 1
+when `on_fatal="shutdown"`.
 """
 
 from __future__ import annotations
@@ -58,7 +66,7 @@ class NodeProcess:
     # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
     __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
                  "group_alive", "stopping", "sigkilled", "respawn_handle", "respawn_at", "timers", "stopped",
-                 "group_poll", "pacing_slot")
+                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned")
 
     def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
                  group_alive: bool = False):
@@ -80,6 +88,9 @@ class NodeProcess:
         self.stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
         self.group_poll: asyncio.TimerHandle | None = None
         self.pacing_slot = False  # holds one of the shutdown pacing slots
+        self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime)
+        self.restarts = 0  # starts after the first (restart_warn_threshold counts them)
+        self.restart_warned = False
 
     @property
     def name(self) -> str:
@@ -158,7 +169,8 @@ class Supervisor:
         self.fleet = fleet if fleet is not None else state.Fleet()  # every node's state: the supervisor writes it
         self.procs: list[NodeProcess] = []
         self.done = asyncio.Event()
-        self.required_failed = False  # a required node exited non-zero / by signal, or could not start
+        # a required node exited non-zero / by signal or could not start, or a FATAL node has on_fatal="shutdown"
+        self.required_failed = False
         self.shutdown_errors: list[str] = []
         self.shutting_down = False
         self._registrations_complete = False
@@ -176,8 +188,22 @@ class Supervisor:
         proc = NodeProcess(spec)
         self.procs.append(proc)
         self.fleet.add(spec.node_name, process=spec.name)
+        delay = spec.policy.spawn_delay
+        if delay > 0:
+            # held like a pending respawn: shutdown cancels it, and the launch is not "all dead" meanwhile
+            console.printlog("[%s] waiting %g s before starting (spawn_delay)" % (spec.name, delay))
+            proc.respawn_at = self.loop.time() + delay
+            proc.respawn_handle = self.loop.call_later(delay, self._delayed_start, proc)
+            self.fleet.change(spec.node_name, state.WAITING, reason="spawn_delay %g s" % delay)
+            return proc
         self._start(proc)
         return proc if proc.alive or proc.respawn_handle is not None else None
+
+    def _delayed_start(self, proc: NodeProcess) -> None:
+        proc.respawn_handle = None
+        if self.shutting_down or self.done.is_set():
+            return
+        self._start(proc)
 
     def not_started(self, name: str, required: bool = False) -> None:
         """A node that was never started (already reported by name): what that means for the launch."""
@@ -266,15 +292,68 @@ class Supervisor:
                 console.printlog_bold("[%s] %s" % (proc.name, desc))
         exit_code, exit_signal = _exit_code_and_signal(proc.exit_code) if started else (None, None)
         reason = "" if started else "could not be started"
-        if proc.spec.respawn:
-            # a failed start too: an executable briefly missing (a package being reinstalled) comes back
-            self._schedule_respawn(proc)
-            self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
-                              next_start=time.time() + max(0.0, proc.respawn_at - self.loop.time()), reason=reason)
+        policy = proc.spec.policy
+        if not proc.spec.respawn:
+            self._stays_down(proc, state.EXITED, exit_code, exit_signal, reason)
+            return
+        if policy.respawn_on == "failure" and exit_code in policy.success_exit_codes:
+            why = "exit code %d counts as success (respawn_on=\"failure\")" % exit_code
+            console.printlog("[%s] not restarted: %s" % (proc.name, why))
+            self._stays_down(proc, state.EXITED, exit_code, exit_signal, why)
+            return
+        # a failed start too: an executable briefly missing (a package being reinstalled) comes back
+        if started and self.loop.time() - proc.started_at >= policy.respawn_min_uptime:
+            proc.failures = 0
         else:
-            self.fleet.change(proc.spec.node_name, state.EXITED, exit_code=exit_code, exit_signal=exit_signal,
-                              reason=reason)
-            self._check_all_dead()
+            proc.failures += 1
+        retries = policy.respawn_max_retries
+        if retries is not None and proc.failures > retries:
+            self._fatal(proc, exit_code, exit_signal)
+            return
+        delay = self._respawn_delay(proc)
+        if policy.respawn_backoff != 1.0 or retries is not None:
+            console.printlog("[%s] respawning in %.3g s (%d failed start%s in a row)"
+                             % (proc.name, delay, proc.failures, "" if proc.failures == 1 else "s"))
+        # recorded before the start is scheduled: a start without delay happens right away, and its
+        # `running` must come after this
+        self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
+                          next_start=time.time() + delay, reason=reason, failures=proc.failures)
+        self._schedule_respawn(proc, delay)
+
+    def _stays_down(self, proc: NodeProcess, new_state: str, exit_code: int | None, exit_signal: int | None,
+                    reason: str) -> None:
+        self.fleet.change(proc.spec.node_name, new_state, exit_code=exit_code, exit_signal=exit_signal,
+                          reason=reason, failures=proc.failures)
+        self._check_all_dead()
+
+    def _fatal(self, proc: NodeProcess, exit_code: int | None, exit_signal: int | None) -> None:
+        """The node failed more starts in a row than respawn_max_retries allows: it stays down, reported."""
+        policy = proc.spec.policy
+        why = ("failed %d starts in a row (respawn_max_retries=%d), not restarted"
+               % (proc.failures, policy.respawn_max_retries))
+        console.printerrlog("[%s] FATAL: %s" % (proc.name, why))
+        if policy.on_fatal == "shutdown":
+            self.fleet.change(proc.spec.node_name, state.FATAL, exit_code=exit_code, exit_signal=exit_signal,
+                              reason=why, failures=proc.failures)
+            console.printerrlog("=" * 80 + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\n"
+                                "Initiating shutdown!\n" % proc.name + "=" * 80)
+            self.required_failed = True
+            self.done.set()
+            return
+        self._stays_down(proc, state.FATAL, exit_code, exit_signal, why)
+
+    def _respawn_delay(self, proc: NodeProcess) -> float:
+        """How long from now until the next start: respawn_delay, multiplied by respawn_backoff for each
+        failed start in a row after the first, capped by respawn_delay_max (growing from 0 would stay 0:
+        the backoff then starts from MIN_RESPAWN_INTERVAL_S). respawn_delay counts from the death, as
+        roslaunch; a crash loop is paced, not spun."""
+        policy = proc.spec.policy
+        delay = proc.spec.respawn_delay
+        if policy.respawn_backoff != 1.0 and proc.failures > 1:
+            delay = (delay or MIN_RESPAWN_INTERVAL_S) * policy.respawn_backoff ** (proc.failures - 1)
+        if policy.respawn_delay_max is not None:
+            delay = min(delay, policy.respawn_delay_max)
+        return max(0.0, delay, proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
 
     def _check_group(self, proc: NodeProcess) -> bool:
         """Is anything left in the node's process group? Forget it in the guard when not."""
@@ -284,10 +363,7 @@ class Supervisor:
                 self.watchdog.forget(proc.pgid)
         return proc.group_alive
 
-    def _schedule_respawn(self, proc: NodeProcess) -> None:
-        # respawn_delay counts from the death, as roslaunch; a crash loop is paced, not spun
-        delay = max(0.0, proc.spec.respawn_delay,
-                    proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
+    def _schedule_respawn(self, proc: NodeProcess, delay: float) -> None:
         proc.respawn_at = self.loop.time() + delay
         if delay == 0.0:
             self._respawn(proc)
@@ -299,6 +375,12 @@ class Supervisor:
         if self.shutting_down or self.done.is_set():
             return
         console.printlog("[%s] restarting process" % proc.name)
+        proc.restarts += 1
+        threshold = proc.spec.policy.restart_warn_threshold
+        if threshold is not None and proc.restarts > threshold and not proc.restart_warned:
+            proc.restart_warned = True  # once: the status keeps counting
+            console.printerrlog("[%s] WARNING: restarted %d times, more than its restart_warn_threshold (%d)"
+                                % (proc.name, proc.restarts, threshold))
         self._start(proc, append=True)
 
     def _check_all_dead(self) -> None:
@@ -324,6 +406,8 @@ class Supervisor:
             if p.respawn_handle is not None:
                 p.respawn_handle.cancel()
                 p.respawn_handle = None
+                if not p.alive:
+                    self.fleet.change(p.spec.node_name, state.STOPPED, reason="stopped before its next start")
         to_stop = []
         for p in reversed(self.procs):
             if p.alive or (p.group_alive and self._check_group(p)):
@@ -350,7 +434,8 @@ class Supervisor:
             p.stopping = True
             p.pacing_slot = True
             _signal_group(p.pgid, signal.SIGINT)
-            p.timers.append(self.loop.call_later(self.sigint_timeout, self._escalate_term, p))
+            sigint_timeout = p.spec.policy.sigint_timeout or self.sigint_timeout  # (the node's, or the CLI's)
+            p.timers.append(self.loop.call_later(sigint_timeout, self._escalate_term, p))
             if not p.alive:
                 self._stopping_progress(p)  # only leftovers of the group: watch them
 
@@ -365,7 +450,8 @@ class Supervisor:
             return
         console.printerrlog("[%s] escalating to SIGTERM" % p.name)
         _signal_group(p.pgid, signal.SIGTERM)
-        p.timers.append(self.loop.call_later(self.sigterm_timeout, self._escalate_kill, p))
+        sigterm_timeout = p.spec.policy.sigterm_timeout or self.sigterm_timeout
+        p.timers.append(self.loop.call_later(sigterm_timeout, self._escalate_kill, p))
 
     def _escalate_kill(self, p: NodeProcess) -> None:
         if p.stopped is None or p.stopped.done():

@@ -15,19 +15,22 @@ import re
 import sys
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig, Machine, Node, Param, new_param
+from launcher.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.document import element_text, read_launch
+from launcher.xml.policy import POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
 
-# roslaunch's per-tag attribute lists; anything else is warned about
-NODE_ATTRS = frozenset(("pkg", "type", "machine", "name", "args", "output", "respawn", "respawn_delay", "cwd",
-                        "ns", "clear_params", "launch-prefix", "required", "if", "unless"))
-TEST_ATTRS = NODE_ATTRS | {"test-name", "time-limit", "retry"}
+# roslaunch's per-tag attribute lists, plus our supervision extensions (xml/policy.py) where they
+# apply; anything else is warned about
+ROSLAUNCH_NODE_ATTRS = frozenset(("pkg", "type", "machine", "name", "args", "output", "respawn", "respawn_delay",
+                                  "cwd", "ns", "clear_params", "launch-prefix", "required", "if", "unless"))
+NODE_ATTRS = ROSLAUNCH_NODE_ATTRS | POLICY_ATTR_NAMES
+TEST_ATTRS = ROSLAUNCH_NODE_ATTRS | {"test-name", "time-limit", "retry"}  # (rostest runs tests: no policy)
 PARAM_ATTRS = frozenset(("name", "value", "type", "textfile", "binfile", "command", "if", "unless"))
 ROSPARAM_ATTRS = frozenset(("command", "ns", "file", "param", "subst_value", "if", "unless"))
 ARG_ATTRS = frozenset(("name", "value", "default", "doc", "if", "unless"))
@@ -35,9 +38,9 @@ MACHINE_ATTRS = frozenset(("name", "address", "env-loader", "ssh-port", "user", 
                            "timeout", "if", "unless"))
 REMAP_ATTRS = frozenset(("from", "to", "if", "unless"))
 ENV_ATTRS = frozenset(("name", "value", "if", "unless"))
-INCLUDE_ATTRS = frozenset(("file", "ns", "clear_params", "pass_all_args", "if", "unless"))
-GROUP_ATTRS = frozenset(("ns", "clear_params", "if", "unless"))
-LAUNCH_ATTRS = frozenset(("deprecated", "if", "unless"))
+INCLUDE_ATTRS = frozenset(("file", "ns", "clear_params", "pass_all_args", "if", "unless")) | POLICY_ATTR_NAMES
+GROUP_ATTRS = frozenset(("ns", "clear_params", "if", "unless")) | POLICY_ATTR_NAMES
+LAUNCH_ATTRS = frozenset(("deprecated", "if", "unless")) | POLICY_ATTR_NAMES
 
 TEST_TIME_LIMIT_DEFAULT = 60.0
 MACHINE_TIMEOUT_DEFAULT = 10.0
@@ -213,6 +216,21 @@ class XmlLoader:
         raise self._fail(scope, el, "invalid value for %s=: [%s] is not a 'bool' type "
                                     "(use true, false, 1 or 0)" % (label, v))
 
+    def _policy(self, el: Any, scope: Scope) -> dict[str, Any]:
+        """The supervision fields an element's extension attributes set ({} if none)."""
+        try:
+            return read_policy(el.attrib, lambda text: self._sub(text, scope, el) or "")
+        except PolicyError as e:
+            raise self._fail(scope, el, "Invalid <%s> tag: %s" % (el.tag, e)) from None
+
+    def _scope_policy(self, el: Any, scope: Scope, inner: Scope) -> None:
+        """A <launch>, <group> or <include> that sets extension attributes (read in `scope`): defaults for
+        the nodes of `inner`, the scope it opens."""
+        if POLICY_ATTR_NAMES.isdisjoint(el.attrib.keys()):
+            return
+        fields = self._policy(el, scope)
+        inner.policy = {**inner.policy, **fields} if inner.policy else fields
+
     # ------------------------------------------------------------------ files
     def load_file(self, filename: str) -> None:
         doc = read_launch(filename)
@@ -235,6 +253,8 @@ class XmlLoader:
         deprecated = launch.attrib.get("deprecated")
         if deprecated:
             self._warn(scope, launch, "DEPRECATED: %s" % deprecated)
+        if not self.args_only:
+            self._scope_policy(launch, scope, scope)
 
     def _realpath(self, filename: str) -> str:
         """os.path.realpath, once per file name in a load (include cycle checks ask for each level)."""
@@ -302,6 +322,7 @@ class XmlLoader:
         self._check_attrs(el, scope, GROUP_ATTRS)
         child = self._ns_clear_params(el, scope, "group")
         child.params = list(child.params)
+        self._scope_policy(el, scope, child)
         return self._recurse(el, child, default_machine)
 
     def _machine_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
@@ -621,6 +642,7 @@ class XmlLoader:
         test_name = None
         time_limit: float | None = None
         retry = 0
+        own_policy: dict[str, Any] = {}  # the node's own extension attributes
         if is_test:
             self._check_attrs(el, scope, TEST_ATTRS)
             name = a(el, "name", scope)
@@ -645,8 +667,9 @@ class XmlLoader:
             if not name:
                 name = test_name
         else:
-            if not NODE_ATTRS.issuperset(el.attrib):
+            if not ROSLAUNCH_NODE_ATTRS.issuperset(el.attrib):  # (the usual case: no extension either)
                 self._check_attrs(el, scope, NODE_ATTRS)
+                own_policy = self._policy(el, scope)
             name = self._reqd(el, "name", scope)
         if not is_legal_name(name):
             self._warn(scope, el, "illegal <%s> name '%s' (see http://ros.org/wiki/Names); this will likely "
@@ -670,6 +693,9 @@ class XmlLoader:
             self._warn(scope, el, "respawn_delay has no effect without respawn=\"true\"")
         required = False if required_s is None else self._bool(required_s, False, "required", scope, el)
         respawn = False if respawn_s is None else self._bool(respawn_s, False, "respawn", scope, el)
+        if own_policy and not respawn:
+            for attr in sorted(RESPAWN_ONLY.intersection(el.attrib.keys())):
+                self._warn(scope, el, "%s has no effect without respawn=\"true\"" % attr)
         if respawn_delay_s is None:
             respawn_delay = 0.0
         elif not respawn_delay_s:
@@ -754,7 +780,7 @@ class XmlLoader:
         node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
                      required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
                      el.sourceline or 0, test_name, (time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None,
-                     retry)
+                     retry, None if is_test else self._node_policy(scope.policy, own_policy, namespace, name or ""))
         if is_test:
             self.tests.append(node)
             return
@@ -766,6 +792,18 @@ class XmlLoader:
                                             "that $(anon id) use different ids." % full)
             self.node_names.add(full)
         self.nodes.append(node)
+
+    @staticmethod
+    def _node_policy(defaults: dict[str, Any] | None, own: dict[str, Any], namespace: str,
+                     name: str) -> NodePolicy | None:
+        """The node's NodePolicy: its scope's defaults under its own attributes; None if neither sets any."""
+        if not defaults and not own:
+            return None
+        fields = {**defaults, **own} if defaults else own
+        if "wait_for" in fields:
+            fields = dict(fields, wait_for=resolve_wait_names(fields["wait_for"], namespace,
+                                                              ns_join(namespace, name)))
+        return NodePolicy(**fields)
 
     # ------------------------------------------------------------------ <machine>
     def _machine_tag(self, el: Any, scope: Scope) -> tuple[Machine, bool]:
@@ -825,6 +863,7 @@ class XmlLoader:
         if "pass_all_args" in el.attrib:
             pass_all = self._bool(self._attr(el, "pass_all_args", scope), False, "pass_all_args", scope, el)
         child = self._ns_clear_params(el, scope, "include", include_file=inc_file)
+        self._scope_policy(el, scope, child)
         if pass_all:
             for k, v in scope.args.items():
                 child.add_arg(k, value=v)

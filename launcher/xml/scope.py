@@ -60,7 +60,7 @@ def global_ns(ns: str) -> str:
 class Scope(SubstitutionScope):
     __slots__ = ("ns", "parent", "remaps", "_remap_cache", "params", "env_args", "arg_docs", "arg_names",
                  "include_args", "include_arg_docs", "pass_all_args", "args_passed",
-                 "source", "include_chain")
+                 "source", "include_chain", "policy")
 
     def __init__(self, ns: str, filename: str, *, environ: Mapping[str, str],
                  find_package: Callable[[str], str], find_resource: Callable[[str, str], str],
@@ -82,6 +82,10 @@ class Scope(SubstitutionScope):
         self.args_passed: list[str] = []
         self.source = filename  # the file whose elements are being read (for errors)
         self.include_chain: tuple[tuple[str, int], ...] = ()
+        # the supervision defaults (NodePolicy field -> value) that <launch>, <group> and <include>
+        # give the nodes inside; None when none is set. Never changed in place: a scope that sets
+        # defaults gets a new dict, so a child may share its parent's.
+        self.policy: dict[str, Any] | None = None
 
     def _child_ns(self, ns: str | None) -> str:
         """The namespace a child scope with `ns=` gets (global, `~`, or relative to ours)."""
@@ -115,6 +119,7 @@ class Scope(SubstitutionScope):
         c.args_passed = []
         c.source = self.source
         c.include_chain = self.include_chain
+        c.policy = self.policy
         return c
 
     def node_child(self, ns: str | None) -> Scope:
@@ -143,6 +148,7 @@ class Scope(SubstitutionScope):
         c.args_passed = []
         c.source = self.source
         c.include_chain = self.include_chain
+        c.policy = self.policy
         return c
 
     def include_child(self, ns: str | None, filename: str) -> Scope:

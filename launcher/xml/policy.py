@@ -1,0 +1,214 @@
+"""The supervision extension attributes (`respawn_on`, `memory_limit`, ... and rosmon's spellings): names and values.
+
+They are accepted on `<node>`, and on `<launch>`, `<group>` and `<include>` as
+defaults for the nodes inside (the nearest one wins, attribute by attribute).
+This module turns an element's attributes (already substituted) into a dict of
+`NodePolicy` field -> value; the loader keeps the scoped dicts and builds
+`Node.policy` from them. A bad value is a `PolicyError` whose message the loader
+prefixes with file and line.
+
+Units: times are seconds (a decimal number); sizes are bytes, with an optional
+unit, case-insensitive: `k`/`kB` = 1000, `M`/`MB`, `G`/`GB`, `T`/`TB` (powers of
+1000, as rosmon), `KiB`/`Ki`, `MiB`, `GiB`, `TiB` (powers of 1024), `B` or none
+= bytes (`500MB`, `1.5GiB`, `200k`). CPU is in cores (`0.5` = half of one core;
+rosmon's `rosmon-cpu-limit` has the same unit).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Callable
+
+from launcher.names import is_legal_name
+
+
+class PolicyError(ValueError):
+    """A bad extension attribute value; the loader adds file and line."""
+
+
+WAIT_KINDS = ("topic", "service", "param", "node")
+
+_SIZE = re.compile(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([A-Za-z]*)\s*\Z")
+_SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
+               "t": 10**12, "tb": 10**12, "ki": 2**10, "kib": 2**10, "mi": 2**20, "mib": 2**20,
+               "gi": 2**30, "gib": 2**30, "ti": 2**40, "tib": 2**40}
+
+
+def parse_size(text: str) -> int:
+    """`500MB`, `1.5GiB`, `200k`, `4096` -> bytes (see the module docstring for the units)."""
+    m = _SIZE.match(text)
+    unit = m and _SIZE_UNITS.get(m.group(2).lower())
+    if unit is None or not m:
+        raise PolicyError("a size such as 500MB, 1.5GiB, 200k or a number of bytes")
+    size = int(float(m.group(1)) * unit)
+    if size <= 0:
+        raise PolicyError("a size greater than zero")
+    return size
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise PolicyError(what) from None
+    if not math.isfinite(value):
+        raise PolicyError(what)
+    return value
+
+
+def _seconds(positive: bool) -> Callable[[str], float]:
+    what = "a number of seconds greater than zero" if positive else "a number of seconds (0 or more)"
+
+    def parse(text: str) -> float:
+        value = _number(text, what)
+        if value < 0 or (positive and value == 0):
+            raise PolicyError(what)
+        return value
+    return parse
+
+
+def _backoff(text: str) -> float:
+    value = _number(text, "a factor of 1 or more")
+    if value < 1:
+        raise PolicyError("a factor of 1 or more")
+    return value
+
+
+def _cores(text: str) -> float:
+    value = _number(text, "a number of cores greater than zero (0.5 = half of one core)")
+    if value <= 0:
+        raise PolicyError("a number of cores greater than zero (0.5 = half of one core)")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise PolicyError("a whole number (0 or more)") from None
+    if value < 0:
+        raise PolicyError("a whole number (0 or more)")
+    return value
+
+
+def _exit_codes(text: str) -> frozenset[int]:
+    codes = set()
+    for word in text.replace(",", " ").split():
+        try:
+            code = int(word)
+        except ValueError:
+            code = -1
+        if not 0 <= code <= 255:
+            raise PolicyError("exit codes from 0 to 255, separated by spaces")
+        codes.add(code)
+    if not codes:
+        raise PolicyError("exit codes from 0 to 255, separated by spaces")
+    return frozenset(codes)
+
+
+def _bool(text: str) -> bool:
+    low = text.lower()
+    if low in ("true", "1"):
+        return True
+    if low in ("false", "0"):
+        return False
+    raise PolicyError("true or false")
+
+
+def _choice(*choices: str) -> Callable[[str], str]:
+    def parse(text: str) -> str:
+        if text not in choices:
+            raise PolicyError(" or ".join(choices))
+        return text
+    return parse
+
+
+def parse_wait_for(text: str) -> tuple[tuple[str, str], ...]:
+    """`topic:/scan service:static_map` -> (("topic", "/scan"), ("service", "static_map")); names as written."""
+    out = []
+    for word in text.split():
+        kind, sep, name = word.partition(":")
+        if not sep or kind not in WAIT_KINDS:
+            raise PolicyError("kind:name items with a kind of %s (got '%s')" % (", ".join(WAIT_KINDS), word))
+        if not name or not is_legal_name(name):
+            raise PolicyError("kind:name items with a valid ROS name (got '%s')" % word)
+        out.append((kind, name))
+    if not out:
+        raise PolicyError("kind:name items, e.g. topic:/scan service:/static_map")
+    return tuple(out)
+
+
+# attribute -> (NodePolicy field, parser of its substituted text)
+POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
+    "respawn_on": ("respawn_on", _choice("always", "failure")),
+    "success_exit_codes": ("success_exit_codes", _exit_codes),
+    "respawn_backoff": ("respawn_backoff", _backoff),
+    "respawn_delay_max": ("respawn_delay_max", _seconds(positive=False)),
+    "respawn_min_uptime": ("respawn_min_uptime", _seconds(positive=False)),
+    "respawn_max_retries": ("respawn_max_retries", _count),
+    "on_fatal": ("on_fatal", _choice("none", "shutdown")),
+    "restart_warn_threshold": ("restart_warn_threshold", _count),
+    "sigint_timeout": ("sigint_timeout", _seconds(positive=True)),
+    "sigterm_timeout": ("sigterm_timeout", _seconds(positive=True)),
+    "spawn_delay": ("spawn_delay", _seconds(positive=False)),
+    "wait_for": ("wait_for", parse_wait_for),
+    "wait_timeout": ("wait_timeout", _seconds(positive=True)),
+    "hang_timeout": ("hang_timeout", _seconds(positive=True)),
+    "memory_limit": ("memory_limit", parse_size),
+    "cpu_limit": ("cpu_limit", _cores),
+    "on_limit": ("on_limit", _choice("warn", "restart")),
+    "enable_coredumps": ("enable_coredumps", _bool),
+    # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
+    # our sigint_timeout (the SIGTERM step after it stays the default).
+    "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),
+    "rosmon-memory-limit": ("memory_limit", parse_size),
+    "rosmon-cpu-limit": ("cpu_limit", _cores),
+    "rosmon-spawn-delay": ("spawn_delay", _seconds(positive=False)),
+    "rosmon-restart-warn-threshold": ("restart_warn_threshold", _count),
+    "enable-coredumps": ("enable_coredumps", _bool),
+}
+POLICY_ATTR_NAMES = frozenset(POLICY_ATTRS)
+# the attributes that only matter for a node that respawns (a <node> that sets one without
+# respawn="true" is warned about, as roslaunch does for respawn_delay)
+RESPAWN_ONLY = frozenset(("respawn_on", "success_exit_codes", "respawn_backoff", "respawn_delay_max",
+                          "respawn_min_uptime", "respawn_max_retries", "on_fatal", "restart_warn_threshold",
+                          "rosmon-restart-warn-threshold"))
+
+
+def read_policy(attrib: Any, substitute: Callable[[str], str]) -> dict[str, Any]:
+    """The policy fields an element's attributes set ({} if none). `substitute` resolves `$(...)`.
+
+    Raises PolicyError naming the attribute; two spellings of one field on one element are an error.
+    """
+    fields: dict[str, Any] = {}
+    given: dict[str, str] = {}
+    for attr, text in attrib.items():
+        entry = POLICY_ATTRS.get(attr)
+        if entry is None:
+            continue
+        field, parse = entry
+        if field in given:
+            raise PolicyError("'%s' and '%s' both set %s: use one" % (given[field], attr, field))
+        given[field] = attr
+        value = substitute(text) if "$" in text else text
+        if not value.strip():
+            raise PolicyError("value for %s must be non-empty" % attr)
+        try:
+            fields[field] = parse(value.strip())
+        except PolicyError as e:
+            raise PolicyError("invalid value for %s: '%s' (expected %s)" % (attr, value, e)) from None
+    return fields
+
+
+def resolve_wait_names(wait_for: tuple[tuple[str, str], ...], namespace: str,
+                       node_name: str) -> tuple[tuple[str, str], ...]:
+    """wait_for names resolved as the node itself would: relative to its namespace, `~x` under its name."""
+    out = []
+    for kind, name in wait_for:
+        if name.startswith("~"):
+            name = node_name.rstrip("/") + "/" + name[1:].lstrip("/")
+        elif not name.startswith("/"):
+            name = namespace.rstrip("/") + "/" + name
+        out.append((kind, name))
+    return tuple(out)
