@@ -30,7 +30,11 @@ from launcher.masterlink import LocalParams, RemoteParams, is_local_host
 from launcher.names import ns_join
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
+from launcher.process.coredumps import CoreDumpReporter
+from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, log_root, parse_size, watch_log_disk
+from launcher.process.readiness import Readiness
+from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor
@@ -257,6 +261,7 @@ class Run:
         self.run_id = ""
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
         self._tasks: list[asyncio.Future] = []
+        self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
 
     async def main(self) -> int:
         self.signals = StopSignals(asyncio.get_running_loop())
@@ -415,6 +420,7 @@ class Run:
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
+        self._watch_health()
         stop = self.signals.event
         for spec in specs:
             if stop.is_set():
@@ -425,6 +431,16 @@ class Run:
         self.supervisor.registrations_complete()
         if self.rosout is not None:
             self.rosout.warm_up()
+
+    def _watch_health(self) -> None:
+        """wait_for holds, hang probes, core dump reports, and the resource sampling of every node."""
+        sup = self.supervisor
+        sup.readiness = Readiness(self.master_uri, sup)
+        hang = HangDetector(self.master_uri, sup)
+        sup.watchers += [hang, CoreDumpReporter()]
+        self._health += [sup.readiness, hang]
+        monitor = ResourceMonitor(sup, getattr(self.opts, "monitor_period", None) or DEFAULT_PERIOD_S)
+        self._tasks.append(asyncio.ensure_future(monitor.run()))
 
     # ---- running ---------------------------------------------------------------------------------------
 
@@ -448,6 +464,8 @@ class Run:
     async def _teardown(self) -> None:
         for t in self._tasks:
             t.cancel()
+        for h in self._health:
+            h.close()
         if self.supervisor is not None:
             await self.supervisor.shutdown()
             self.supervisor.close()
