@@ -92,3 +92,25 @@ def test_read_groups_sums_a_group_and_ignores_others(tmp_path):
         finally:
             await sup.shutdown()
     asyncio.run(main())
+
+
+# over the limit, back under (the block freed: CPython unmaps large blocks), over again
+CYCLER = ("import time\n"
+          "for _ in range(2):\n"
+          "    block = b'x' * (80 << 20)\n"
+          "    time.sleep(1.0)\n"
+          "    del block\n"
+          "    time.sleep(1.0)\n"
+          "time.sleep(100)")
+
+
+def test_memory_limit_warns_again_after_going_back_under(tmp_path, capsys):
+    policy = NodePolicy(memory_limit=40 * MB)
+    seen = []
+
+    def two_crossings(sup, events):
+        seen.append(capsys.readouterr().err)
+        status = sup.fleet.nodes["/cycler"]
+        return "".join(seen).count("[cycler-1] WARNING: uses ") >= 2 and status.rss < 40 * MB
+    run(tmp_path, [python_node(tmp_path, "cycler", CYCLER, policy=policy)], two_crossings, timeout=30)
+    assert "".join(seen).count("[cycler-1] WARNING: uses ") == 2
