@@ -40,3 +40,14 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
         held = [e for e in map(json.loads, f) if e["node"] == "/held"]
     assert [e["state"] for e in held] == ["waiting", "exited"]
     assert held[1]["reason"] == "still waiting after 1 s for param:/never, node:/nobody"
+
+
+def test_monitor_period_must_be_positive(tmp_path):
+    import subprocess
+    import sys
+    for value in ("0", "-1", "nan"):
+        p = subprocess.run([sys.executable, "-m", "launcher", "--monitor-period", value, str(tmp_path / "a.launch")],
+                           capture_output=True, text=True, timeout=60)
+        assert p.returncode != 0
+        assert "--monitor-period must be greater than zero" in p.stderr
+        assert "Traceback" not in p.stderr
