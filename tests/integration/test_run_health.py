@@ -13,6 +13,7 @@ from launcher.packages import PackageIndex
 from launcher.runtime import EVENTS_FILE, Plan, Run
 
 from tests.integration.running import free_port, make_package
+from tests.process.health import console_err
 
 
 def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends_it(tmp_path, capsys):
@@ -31,7 +32,7 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
     run = Run(opts, plan)
     status = asyncio.run(asyncio.wait_for(run.main(), 60))
     assert status == 1
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert "REQUIRED process [held-3] failed to start: still waiting after 1 s for param:/never, node:/nobody" in err
     plain = run.fleet.nodes["/plain"]
     assert len(plain.history) >= 5  # sampled every 0.1 s during the second of waiting

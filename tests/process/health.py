@@ -10,6 +10,7 @@ import time
 from launcher.command import NodeCommand
 from launcher.config import NodePolicy
 from launcher.masterlink import start_master
+from launcher.process import console
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor
@@ -72,3 +73,9 @@ async def supervisor_with_master(environ=None):
     master = await start_master(0, dict(environ or os.environ))
     sup = Supervisor(exit_when_all_dead=False, sigint_timeout=5.0, sigterm_timeout=1.0)
     return master, sup
+
+
+def console_err(capsys) -> str:
+    """What the console wrote to stderr so far (its writer thread flushed first)."""
+    console.flush()
+    return capsys.readouterr().err

@@ -12,7 +12,7 @@ from launcher.config import NodePolicy
 from launcher.process.coredumps import CoreDumpReporter, core_location
 from launcher.process.supervisor import Supervisor
 
-from tests.process.health import python_node
+from tests.process.health import console_err, python_node
 
 ABORT = "import os\nos.abort()"
 
@@ -40,7 +40,7 @@ def test_a_node_with_enable_coredumps_dumps_core_and_says_where(tmp_path, capsys
     soft_before = resource.getrlimit(resource.RLIMIT_CORE)
     proc = crash(tmp_path, NodePolicy(enable_coredumps=True))
     assert resource.getrlimit(resource.RLIMIT_CORE) == soft_before  # the launcher's own limit is unchanged
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert "[crasher-1] dumped core (signal 6): " in err
     if pattern.startswith("|"):
         assert ("coredumpctl gdb %d" % proc.pid in err) or "apport" in err or "piped to" in err
@@ -54,7 +54,7 @@ def test_without_enable_coredumps_no_core_and_no_word(tmp_path, capsys):
     if resource.getrlimit(resource.RLIMIT_CORE)[0] != 0:
         pytest.skip("the launcher's own core limit is not 0 here")
     crash(tmp_path, None)
-    assert "dumped core" not in capsys.readouterr().err
+    assert "dumped core" not in console_err(capsys)
     assert not cores(tmp_path)
 
 

@@ -13,7 +13,7 @@ from launcher.config import NodePolicy
 from launcher.process import state
 from launcher.process.hang import HangDetector
 
-from tests.process.health import Events, supervisor_with_master, talker, until
+from tests.process.health import Events, console_err, supervisor_with_master, talker, until
 
 pytestmark = pytest.mark.usefixtures("ros_env")
 
@@ -53,7 +53,7 @@ def test_a_sigstopped_rospy_node_is_found_hung_killed_and_respawned(tmp_path, ca
     hung_at = events.of("/talker", state.HUNG)[0][0]
     assert hung_at - stopped_at <= HANG_TIMEOUT + 1.0
     assert hung_at - stopped_at >= HANG_TIMEOUT - HANG_TIMEOUT / 3 - 0.1  # not before it could know
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert "[talker-1] is hung (no answer to getPid for 3 s): killing process group %d" % first_pid in err
     sequence = [e[2] for e in events.items if e[1] == "/talker"]
     assert sequence[:2] == [state.RUNNING, state.HUNG]
@@ -67,7 +67,7 @@ def test_a_hung_required_node_ends_the_launch(tmp_path, capsys):
     sup, events, stopped_at, _pid = run_hang_scenario(tmp_path, required=True)
     assert events.of("/talker", state.HUNG)
     assert sup.required_failed
-    assert "REQUIRED process [talker-1] has died!" in capsys.readouterr().err
+    assert "REQUIRED process [talker-1] has died!" in console_err(capsys)
 
 
 def test_a_healthy_node_is_not_hung(tmp_path):

@@ -11,7 +11,7 @@ from launcher.config import NodePolicy
 from launcher.process import state
 from launcher.process.readiness import Readiness
 
-from tests.process.health import Events, python_node, supervisor_with_master, talker, until
+from tests.process.health import Events, console_err, python_node, supervisor_with_master, talker, until
 
 pytestmark = pytest.mark.usefixtures("ros_env")
 
@@ -67,7 +67,7 @@ def test_wait_timeout_names_what_was_missing_and_ends_a_required_node(tmp_path, 
             await sup.shutdown()
             await master.stop()
     sup, waited = asyncio.run(main())
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert "[optional-1] failed to start: still waiting after 1 s for service:/static_map, topic:/scan" in err
     assert "REQUIRED process [vital-1] failed to start: still waiting after 1 s for service:/static_map" in err
     assert 1.0 <= waited < 5.0

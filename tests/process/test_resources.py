@@ -10,7 +10,7 @@ from launcher.process import state
 from launcher.process.resources import ResourceMonitor, read_groups
 from launcher.process.supervisor import Supervisor
 
-from tests.process.health import Events, python_node, until
+from tests.process.health import Events, console_err, python_node, until
 
 MB = 1 << 20
 # allocates (and touches) 80 MB in a child of its own process group: the limit is on the group
@@ -45,9 +45,11 @@ def test_samples_cpu_and_rss_of_the_whole_process_group(tmp_path):
         if grower.rss is not None and grower.rss > 80 * MB and len(spinner.history) >= 5:
             return grower.cpu, spinner.cpu, list(spinner.history)
     _sup, _events, _procs, (grower_cpu, spinner_cpu, history) = run(
-        tmp_path, [python_node(tmp_path, "grower", GROWER), python_node(tmp_path, "spinner", SPINNER)], grown)
-    assert spinner_cpu > 0.3  # a busy loop (on a shared machine: not always a whole core)
-    assert grower_cpu < 0.5
+        tmp_path, [python_node(tmp_path, "grower", GROWER), python_node(tmp_path, "spinner", SPINNER)], grown,
+        timeout=40)
+    # a busy loop (on a shared, loaded machine: far from always a whole core) against an idle one
+    assert max(cpu for _t, cpu, _rss in history) > 0.25
+    assert grower_cpu < spinner_cpu
     assert all(cpu >= 0 and rss > 0 for _t, cpu, rss in history)
 
 
@@ -55,7 +57,7 @@ def test_memory_limit_warns_once_per_crossing(tmp_path, capsys):
     policy = NodePolicy(memory_limit=40 * MB)
     sup, events, procs, _ = run(tmp_path, [python_node(tmp_path, "grower", GROWER, policy=policy)],
                                 lambda sup, events: len(sup.fleet.nodes["/grower"].history) >= 8)
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert err.count("[grower-1] WARNING: uses ") == 1
     assert " of memory, over its limit of 40.0 MB" in err
     assert procs[0].spawn_count == 1  # warned, not restarted
@@ -65,7 +67,7 @@ def test_memory_limit_restart_restarts_the_node(tmp_path, capsys):
     policy = NodePolicy(memory_limit=40 * MB, on_limit="restart")
     sup, events, procs, _ = run(tmp_path, [python_node(tmp_path, "grower", GROWER, policy=policy)],
                                 lambda sup, events: len(events.of("/grower", state.RUNNING)) >= 2)
-    err = capsys.readouterr().err
+    err = console_err(capsys)
     assert "[grower-1] restarting: uses " in err
     respawning = events.of("/grower", state.RESPAWNING)
     assert respawning and "over its limit of 40.0 MB" in respawning[0][3]
@@ -75,7 +77,7 @@ def test_memory_limit_restart_restarts_the_node(tmp_path, capsys):
 def test_cpu_limit_warns(tmp_path, capsys):
     policy = NodePolicy(cpu_limit=0.2)
     run(tmp_path, [python_node(tmp_path, "spinner", SPINNER, policy=policy)],
-        lambda sup, events: "[spinner-1] WARNING: uses " in capsys.readouterr().err or None)
+        lambda sup, events: "[spinner-1] WARNING: uses " in console_err(capsys) or None)
 
 
 def test_read_groups_sums_a_group_and_ignores_others(tmp_path):
@@ -109,7 +111,7 @@ def test_memory_limit_warns_again_after_going_back_under(tmp_path, capsys):
     seen = []
 
     def two_crossings(sup, events):
-        seen.append(capsys.readouterr().err)
+        seen.append(console_err(capsys))
         status = sup.fleet.nodes["/cycler"]
         return "".join(seen).count("[cycler-1] WARNING: uses ") >= 2 and status.rss < 40 * MB
     run(tmp_path, [python_node(tmp_path, "cycler", CYCLER, policy=policy)], two_crossings, timeout=30)
