@@ -80,6 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds from SIGINT to SIGTERM when stopping a node (default 15)")
     p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=2.0, metavar="SECONDS",
                    help="seconds from SIGTERM to SIGKILL when stopping a node (default 2)")
+    p.add_argument("--monitor-period", dest="monitor_period", type=float, default=1.0, metavar="SECONDS",
+                   help="seconds between two samples of the nodes' CPU and memory (default 1)")
     p.add_argument("--pid", dest="pid_fn", metavar="PID_FN", help="write launch's pid to this file")
     p.add_argument("--run_id", dest="run_id", help="run_id of the session")
     p.add_argument("-v", dest="verbose", action="store_true", help="verbose printing")
@@ -104,7 +106,8 @@ _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params"
           "-v": "verbose", "--disable-title": "disable_title"}
 _DEFAULTS: dict[str, object] = dict(
     {dest: False for dest in _FLAGS.values()}, node_args=None, find_node=None, port=None,
-    log_check_threshold="1GB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0, pid_fn=None, run_id=None,
+    log_check_threshold="1GB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0,
+    monitor_period=1.0, pid_fn=None, run_id=None,
     num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None)
 
 
@@ -133,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if opts.sigint_timeout <= 0 or opts.sigterm_timeout <= 0:
             raise LaunchError("--sigint-timeout and --sigterm-timeout must be greater than zero")
+        if not opts.monitor_period > 0:
+            raise LaunchError("--monitor-period must be greater than zero")
         if opts.child_name or opts.server_uri:
             raise LaunchError("roslaunch's child mode (-c/-u) is not supported")
         if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:

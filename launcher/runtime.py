@@ -34,8 +34,12 @@ from launcher.names import ns_join
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
-from launcher.process.logrotate import LogRotator
+from launcher.process.coredumps import CoreDumpReporter
+from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
+from launcher.process.logrotate import LogRotator
+from launcher.process.readiness import Readiness
+from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Fleet
@@ -275,6 +279,7 @@ class Run:
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
         self._tasks: list[asyncio.Future] = []
+        self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
 
     async def main(self) -> int:
         self.signals = StopSignals(asyncio.get_running_loop())
@@ -446,6 +451,7 @@ class Run:
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
+        self._watch_health()
         stop = self.signals.event
         for spec in specs:
             if stop.is_set():
@@ -476,6 +482,16 @@ class Run:
             note("node [%s] (process %s): %s%s" % (spec.node_name, spec.name, cmd.format_args(),
                                                    " (cwd %s)" % cmd.cwd if cmd.cwd else ""))
 
+    def _watch_health(self) -> None:
+        """wait_for holds, hang probes, core dump reports, and the resource sampling of every node."""
+        sup = self.supervisor
+        sup.readiness = Readiness(self.master_uri, sup)
+        hang = HangDetector(self.master_uri, sup)
+        sup.watchers += [hang, CoreDumpReporter()]
+        self._health += [sup.readiness, hang]
+        monitor = ResourceMonitor(sup, getattr(self.opts, "monitor_period", None) or DEFAULT_PERIOD_S)
+        self._tasks.append(asyncio.ensure_future(monitor.run()))
+
     # ---- running ---------------------------------------------------------------------------------------
 
     async def _wait_for_the_end(self) -> None:
@@ -500,6 +516,8 @@ class Run:
             t.cancel()
         if self.rotator is not None:
             self.rotator.close()
+        for h in self._health:
+            h.close()
         if self.supervisor is not None:
             await self.supervisor.shutdown()
             self.supervisor.close()

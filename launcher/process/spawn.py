@@ -15,6 +15,7 @@ import subprocess
 from launcher.command import NodeCommand
 from launcher.config import NodePolicy
 from launcher.process import console
+from launcher.process.coredumps import raise_core_limit, restore_core_limit
 
 
 DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
@@ -85,6 +86,7 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
     command = spec.command
+    core_limit = raise_core_limit() if spec.policy.enable_coredumps else None  # inherited by this node only
     try:
         try:
             return subprocess.Popen(command.argv, cwd=command.cwd or None, env=command.env, stdout=stdout,
@@ -105,6 +107,8 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
     finally:
         if stdout is not None:
             os.close(stdout)
+        if core_limit is not None:
+            restore_core_limit(core_limit)
 
 
 def _ignore(signum, frame) -> None:

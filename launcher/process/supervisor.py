@@ -66,7 +66,7 @@ class NodeProcess:
     # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
     __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
                  "group_alive", "stopping", "sigkilled", "respawn_handle", "respawn_at", "timers", "stopped",
-                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned")
+                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned", "held", "restart_reason")
 
     def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
                  group_alive: bool = False):
@@ -91,6 +91,8 @@ class NodeProcess:
         self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime)
         self.restarts = 0  # starts after the first (restart_warn_threshold counts them)
         self.restart_warned = False
+        self.held = False  # not started yet: its wait_for conditions are not met (process/readiness.py)
+        self.restart_reason = ""  # set when the supervisor kills the run in order to start it again
 
     @property
     def name(self) -> str:
@@ -177,6 +179,9 @@ class Supervisor:
         self._any_died = False
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
+        # health hooks (see "health" below): what holds a node's start, and what watches each run
+        self.readiness = None  # process/readiness.Readiness: holds nodes that have wait_for conditions
+        self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
 
     # ---- starting ---------------------------------------------------------------------------------
 
@@ -196,6 +201,8 @@ class Supervisor:
             proc.respawn_handle = self.loop.call_later(delay, self._delayed_start, proc)
             self.fleet.change(spec.node_name, state.WAITING, reason="spawn_delay %g s" % delay)
             return proc
+        if self._hold_until_ready(proc):
+            return proc
         self._start(proc)
         return proc if proc.alive or proc.respawn_handle is not None else None
 
@@ -203,7 +210,16 @@ class Supervisor:
         proc.respawn_handle = None
         if self.shutting_down or self.done.is_set():
             return
-        self._start(proc)
+        if not self._hold_until_ready(proc):
+            self._start(proc)
+
+    def _hold_until_ready(self, proc: NodeProcess) -> bool:
+        """Hand a first start with wait_for conditions to the readiness watch (True), which starts it later."""
+        if self.readiness is None or not proc.spec.policy.wait_for:
+            return False
+        proc.held = True
+        self.readiness.hold(proc)
+        return True
 
     def not_started(self, name: str, required: bool = False) -> None:
         """A node that was never started (already reported by name): what that means for the launch."""
@@ -248,12 +264,16 @@ class Supervisor:
                 lambda _f, p=proc, po=popen: self.loop.call_soon(self._on_exit, p, po))
         if self.on_spawn is not None:
             self.on_spawn(proc)
+        for watcher in self.watchers:
+            watcher.started(proc)
 
     # ---- watching ---------------------------------------------------------------------------------
 
     def _on_exit(self, proc: NodeProcess, popen: subprocess.Popen | None = None) -> None:
         if popen is not None and popen is not proc.popen:
             return  # a stale notification from an earlier run of this node
+        for watcher in self.watchers:
+            watcher.exiting(proc)  # (before the process is reaped: a watcher may still look at it)
         if proc.pidfd is not None:
             self.loop.remove_reader(proc.pidfd)
             os.close(proc.pidfd)
@@ -266,6 +286,9 @@ class Supervisor:
         self._check_group(proc)
         if proc.stopping or self.shutting_down:
             self._stopping_progress(proc)
+            return
+        if proc.restart_reason:
+            self._restarted(proc)
             return
         self._run_ended(proc)
 
@@ -386,7 +409,7 @@ class Supervisor:
     def _check_all_dead(self) -> None:
         if not (self.exit_when_all_dead and self._registrations_complete and self._any_died):
             return
-        if any(p.alive or p.respawn_handle is not None for p in self.procs):
+        if any(p.alive or p.respawn_handle is not None or p.held for p in self.procs):
             return
         if not self.done.is_set():
             console.printlog("all processes on machine have died, roslaunch will exit")
@@ -396,6 +419,42 @@ class Supervisor:
         console.printerrlog("=" * 80 + "REQUIRED process [%s] %s!\nInitiating shutdown!\n" % (name, why) + "=" * 80)
         self.required_failed = True
         self.done.set()
+
+    # ---- health: held starts, restarts asked for by a watcher ---------------------------------------
+
+    def release(self, proc: NodeProcess) -> None:
+        """A held node's wait_for conditions are met: start it now."""
+        proc.held = False
+        if not (self.shutting_down or self.done.is_set()):
+            self._start(proc)
+
+    def give_up_waiting(self, proc: NodeProcess, why: str) -> None:
+        """A held node's conditions were not met in time: it failed to start (a required one ends the launch)."""
+        proc.held = False
+        self.fleet.change(proc.spec.node_name, state.EXITED, reason=why)
+        if proc.spec.required:
+            self._required_gone(proc.name, "failed to start: " + why)
+        else:
+            console.printerrlog("[%s] failed to start: %s" % (proc.name, why))
+            self.not_started(proc.name)
+
+    def restart(self, proc: NodeProcess, reason: str) -> None:
+        """Kill the node's current run and start it again, respawn or not (`on_limit="restart"`)."""
+        if not proc.alive or proc.stopping or proc.restart_reason or self.shutting_down:
+            return
+        console.printerrlog("[%s] restarting: %s" % (proc.name, reason))
+        proc.restart_reason = reason
+        # at once rather than by the stop escalation: a node past its memory limit may be taking the
+        # machine down with it
+        _signal_group(proc.pgid, signal.SIGKILL)
+
+    def _restarted(self, proc: NodeProcess) -> None:
+        code, sig = _exit_code_and_signal(proc.exit_code)
+        self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=code, exit_signal=sig,
+                          next_start=time.time(), reason=proc.restart_reason)
+        proc.restart_reason = ""
+        if not self.done.is_set():
+            self._start(proc, append=True)
 
     # ---- stopping ---------------------------------------------------------------------------------
 
@@ -408,6 +467,9 @@ class Supervisor:
                 p.respawn_handle = None
                 if not p.alive:
                     self.fleet.change(p.spec.node_name, state.STOPPED, reason="stopped before its next start")
+            if p.held:
+                p.held = False
+                self.fleet.change(p.spec.node_name, state.STOPPED, reason="stopped while waiting to start")
         to_stop = []
         for p in reversed(self.procs):
             if p.alive or (p.group_alive and self._check_group(p)):
