@@ -40,7 +40,9 @@ environment:
 
 exit status:
   0  the launch ended normally (Ctrl-C, all nodes done, a required node exited 0)
-  1  bad input (the error names file and line), a master problem, or a required node failed
+  N  a required node ended the launch with exit code N (128 + S when signal S killed it)
+  1  bad input (the error names file and line), a master problem, a required node that could
+     not start, or a FATAL node with on_fatal="shutdown"
   2  bad command line, or an internal error (please report it)
   130  interrupted before the launch started
 

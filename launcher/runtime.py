@@ -292,8 +292,8 @@ class Run:
         finally:
             await self._teardown()
             self.signals.close()
-        if self.supervisor is not None and self.supervisor.required_failed:
-            status = 1
+        if self.supervisor is not None:
+            status = self.supervisor.exit_status
         return status
 
     # ---- start -----------------------------------------------------------------------------------------

@@ -112,6 +112,13 @@ class NodeProcess:
         return text
 
 
+def _exit_status(returncode: int | None) -> int:
+    """A shell's exit status for a process's Popen returncode: the code, or 128 + the killing signal."""
+    if returncode is None:
+        return 1
+    return 128 - returncode if returncode < 0 else returncode
+
+
 def _exit_code_and_signal(returncode: int | None) -> tuple[int | None, int | None]:
     """Popen's returncode (negative: killed by that signal) as (exit code, signal)."""
     if returncode is not None and returncode < 0:
@@ -172,7 +179,9 @@ class Supervisor:
         self.procs: list[NodeProcess] = []
         self.done = asyncio.Event()
         # a required node exited non-zero / by signal or could not start, or a FATAL node has on_fatal="shutdown"
-        self.required_failed = False
+        # the launch's exit status when a node ended it: a required node's own exit code (128 + the
+        # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
+        self.exit_status = 0
         self.shutdown_errors: list[str] = []
         self.shutting_down = False
         self._registrations_complete = False
@@ -182,6 +191,11 @@ class Supervisor:
         # health hooks (see "health" below): what holds a node's start, and what watches each run
         self.readiness = None  # process/readiness.Readiness: holds nodes that have wait_for conditions
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
+
+    @property
+    def required_failed(self) -> bool:
+        """A node ended the launch with a failure (a required node's non-zero exit, or a failed start)."""
+        return self.exit_status != 0
 
     # ---- starting ---------------------------------------------------------------------------------
 
@@ -303,8 +317,7 @@ class Supervisor:
                 return
             console.printerrlog("=" * 80 + "REQUIRED process [%s] has died!\n%s\nInitiating shutdown!\n"
                                 % (proc.name, proc.exit_description()) + "=" * 80)
-            if proc.exit_code != 0:
-                self.required_failed = True
+            self.exit_status = _exit_status(proc.exit_code)
             self.done.set()
             return
         if started:
@@ -360,7 +373,7 @@ class Supervisor:
                               reason=why, failures=proc.failures)
             console.printerrlog("=" * 80 + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\n"
                                 "Initiating shutdown!\n" % proc.name + "=" * 80)
-            self.required_failed = True
+            self.exit_status = 1
             self.done.set()
             return
         self._stays_down(proc, state.FATAL, exit_code, exit_signal, why)
@@ -417,7 +430,7 @@ class Supervisor:
 
     def _required_gone(self, name: str, why: str) -> None:
         console.printerrlog("=" * 80 + "REQUIRED process [%s] %s!\nInitiating shutdown!\n" % (name, why) + "=" * 80)
-        self.required_failed = True
+        self.exit_status = 1
         self.done.set()
 
     # ---- health: held starts, restarts asked for by a watcher ---------------------------------------

@@ -84,7 +84,7 @@ def test_respawn_and_respawn_delay_with_real_nodes(tmp_path, pkgs):
         lp.close()
 
 
-@pytest.mark.parametrize("code,status", [(0, 0), (3, 1)])
+@pytest.mark.parametrize("code,status", [(0, 0), (3, 3)])  # the required node's own code (ros/ros_comm#2082)
 def test_required_node_exit_ends_launch(tmp_path, pkgs, code, status):
     port = free_port()
     launch = write_launch(str(tmp_path), """
@@ -301,5 +301,17 @@ def test_launch_log_holds_what_a_debugging_user_needs(tmp_path, pkgs):
         assert re.search(r"is respawning, pid \d+, exit code 3, 1 restart, next start in 0\.\d\d s", text), text
         assert re.search(r"\[launch\] \+\d+\.\d{3} s: every node started", text)
         assert "process[flaky-2]: started with pid" in text  # and the console lines, as before
+    finally:
+        lp.close()
+
+
+def test_required_node_killed_by_a_signal_ends_launch_with_128_plus_it(tmp_path, pkgs):
+    port = free_port()
+    launch = write_launch(str(tmp_path), '<node pkg="run_tests" type="spinner" name="boss" required="true"/>')
+    lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
+    try:
+        pid = int(lp.wait_output(r"process\[boss-\d+\]: started with pid \[(\d+)\]").group(1))
+        os.kill(pid, signal.SIGKILL)
+        assert lp.wait(60) == 128 + signal.SIGKILL
     finally:
         lp.close()
