@@ -12,8 +12,15 @@ import sys
 
 from launcher import __version__
 
-# subcommand -> (module, one line of help)
-SUBCOMMANDS: dict[str, tuple[str, str]] = {}
+# subcommand -> (module, or module:function when one module serves several, one line of help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "status": ("launcher.operate.status", "every node's state, pid, uptime, restarts, last exit, CPU, RSS, host"),
+    "start": ("launcher.operate.control:start", "start the nodes a name, glob or regex selects"),
+    "stop": ("launcher.operate.control:stop", "stop the nodes a name, glob or regex selects (not respawned)"),
+    "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
+    "logs": ("launcher.operate.logs", "a node's output (-f follows it)"),
+    "events": ("launcher.operate.events", "the run's state changes (-f follows them)"),
+}
 
 USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."
 
@@ -35,8 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     if entry is None:
         print("launcher: unknown command '%s'\n\n%s" % (args[0], usage()), file=sys.stderr)
         return 2
-    module = importlib.import_module(entry[0])
-    return module.main(args[1:])
+    module_name, _, function = entry[0].partition(":")
+    module = importlib.import_module(module_name)
+    return getattr(module, function or "main")(args[1:])
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ from launcher.net.slave import bind_address, default_host
 from launcher.net.xmlrpc import Fault
 from launcher.operate import patterns, token as run_token
 
-REFUSED = 2  # faultCode of a mutating call without the run's token
 REFUSED_TEXT = ("refused: %s needs this run's token (the file %s, readable only by the user who started "
                 "the launch); `launcher %s` reads it for you")
 
@@ -148,9 +147,15 @@ class LaunchServer:
         fleet = run.fleet
         nodes = []
         if fleet is not None:
+            outputs = {p.spec.node_name: p.spec for p in self._records()}
             for status in fleet:
                 d = status.as_dict()
-                d.pop("history", None)
+                spec = outputs.get(status.name)
+                if spec is not None and spec.log_dir:
+                    # where `launcher logs` finds the node's output: its stdout file (output="log"), else
+                    # the node's own log file (__log:=), as the screen's copy is the terminal's
+                    d["stdout_log"] = spec.stdout_path or ""
+                    d["node_log"] = os.path.join(spec.log_dir, spec.log_name + ".log")
                 nodes.append(d)
         log_dir = run.log.run_dir or ""
         info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
@@ -161,7 +166,7 @@ class LaunchServer:
 
     def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
         if not run_token.matches(self.token, given_token):
-            raise Fault(REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
+            raise Fault(run_token.REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
                                                  "directory", verb))
         supervisor = self.run.supervisor
         if not isinstance(pattern, str):

@@ -13,6 +13,7 @@ import os
 import secrets
 
 TOKEN_FILE = "launcher-token"
+REFUSED = 2  # the faultCode of a start/stop/restart call without the token
 
 
 def create(run_dir: str) -> tuple[str, str]:

@@ -409,7 +409,8 @@ class Supervisor:
             p.stopped.set_result(None)
             code, sig = _exit_code_and_signal(p.exit_code)
             self.fleet.change(p.spec.node_name, state.STOPPED, exit_code=code, exit_signal=sig,
-                              reason="killed with SIGKILL" if p.sigkilled else "")
+                              reason="killed with SIGKILL" if p.sigkilled
+                              else "" if self.shutting_down else "stopped by operator")
 
     def kill_now(self) -> list[str]:
         """A second Ctrl-C: SIGKILL to every node still stopping; their process names."""
