@@ -290,7 +290,9 @@ class Supervisor:
                     proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
         proc.respawn_at = self.loop.time() + delay
         if delay == 0.0:
-            self._respawn(proc)
+            # on the next turn of the loop, not now: the caller records the node as respawning first,
+            # which would otherwise overwrite the new run's "running"
+            proc.respawn_handle = self.loop.call_soon(self._respawn, proc)  # type: ignore[assignment]
         else:
             proc.respawn_handle = self.loop.call_later(delay, self._respawn, proc)
 
