@@ -51,6 +51,9 @@ def launches(master_uri: str) -> dict[str, str]:
                         EXIT_NO_LAUNCH) from None
     if code != 1 or not isinstance(value, dict):
         return {}
+    if len(value) == 1:
+        # the usual case: no probe (the call that follows says it if that launch is gone)
+        return {k: v for k, v in value.items() if isinstance(v, str)}
     alive = {}
     for key, uri in sorted(value.items()):
         if not isinstance(uri, str):
@@ -111,12 +114,17 @@ def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
                         EXIT_NO_LAUNCH) from None
 
 
-def status(uri: str) -> dict[str, Any]:
-    """The run and its nodes (launcher_status)."""
+def status_text(uri: str) -> str:
+    """The run and its nodes as the launch sends them: one JSON object (launcher_status)."""
     code, msg, text = call(uri, "launcher_status")
     if code != 1:
         raise ToolError("status: %s" % msg)
-    return json.loads(text)
+    return text
+
+
+def status(uri: str) -> dict[str, Any]:
+    """The run and its nodes (launcher_status)."""
+    return json.loads(status_text(uri))
 
 
 def find_node(info: dict[str, Any], name: str) -> dict[str, Any]:

@@ -16,12 +16,14 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import time
 from typing import Any
 
 from launcher.net.slave import bind_address, default_host
-from launcher.net.xmlrpc import Fault
+from launcher.net.xmlrpc import Fault, encode_value
 from launcher.operate import patterns, token as run_token
 
+STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
 REFUSED_TEXT = ("refused: %s needs this run's token (the file %s, readable only by the user who started "
                 "the launch); `launcher %s` reads it for you")
 
@@ -43,6 +45,9 @@ class LaunchServer:
         self.token_path = ""
         self._server: Any = None
         self._packages: dict[str, str] = {}  # process name -> package, for process_info
+        self._status: Any = None  # the last launcher_status text, XML-encoded
+        self._status_at = 0.0
+        self._listening = False
 
     async def start(self) -> None:
         from launcher.net.xmlrpc_server import XmlRpcServer
@@ -143,6 +148,22 @@ class LaunchServer:
     # ---- launcher's additions ----------------------------------------------------------------------
 
     def launcher_status(self) -> list:
+        # Built at most once per STATUS_MAX_AGE_S, and again after any state change: ten operators
+        # polling a 500-node launch every second would otherwise cost it several % of a core.
+        now = time.monotonic()
+        fleet = self.run.fleet
+        if fleet is not None and not self._listening:
+            fleet.listeners.append(self._state_changed)
+            self._listening = True
+        if self._status is None or now - self._status_at > STATUS_MAX_AGE_S:
+            self._status = encode_value(self._build_status())
+            self._status_at = now
+        return [1, "status", self._status]
+
+    def _state_changed(self, _status: Any) -> None:
+        self._status = None
+
+    def _build_status(self) -> str:
         run = self.run
         fleet = run.fleet
         nodes = []
@@ -162,7 +183,7 @@ class LaunchServer:
                 "log_dir": log_dir, "token_file": self.token_path,
                 "events_file": os.path.join(log_dir, "launcher-events.jsonl") if log_dir else "",
                 "launch_files": list(run.plan.config.files), "nodes": nodes}
-        return [1, "status", json.dumps(info, separators=(",", ":"))]
+        return json.dumps(info, separators=(",", ":"))
 
     def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
         if not run_token.matches(self.token, given_token):

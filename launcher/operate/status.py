@@ -8,7 +8,6 @@ object (fields as in launcher-events.jsonl); `--watch` redraws every second.
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import time
@@ -76,12 +75,11 @@ def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     uri = client.find_launch(opts)
     if not opts.watch:
-        info = client.status(uri)
-        sys.stdout.write(json.dumps(info, indent=1) + "\n" if opts.json else table(info) + "\n")
+        # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
+        sys.stdout.write((client.status_text(uri) if opts.json else table(client.status(uri))) + "\n")
         return client.EXIT_OK
     while True:
-        info = client.status(uri)
-        text = json.dumps(info) if opts.json else table(info)
+        text = client.status_text(uri) if opts.json else table(client.status(uri))
         # clear and redraw from the top; a pipe gets one snapshot after another
         prefix = "\x1b[H\x1b[2J" if sys.stdout.isatty() else ""
         sys.stdout.write(prefix + text + "\n")
