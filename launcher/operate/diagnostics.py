@@ -3,11 +3,10 @@
 One DiagnosticStatus per node, named after the node: OK while it runs,
 WARN while it respawns or is stopped, ERROR when it is fatal, hung, or
 exited with a failure. rqt_robot_monitor and `rostopic echo /diagnostics`
-show the fleet. The message definition and md5sum come from rosbags (read
-once, on a worker thread: rosbags' type store costs ~100 ms to load); the
-message itself is serialized here, which for 500 nodes is a fraction of
-what building rosbags' message objects would cost each second. Nothing is
-built while nobody subscribes.
+show the fleet. The message definition and md5sum are rosbags' (kept as
+constants, checked against rosbags by the tests); the message is serialized
+here, which for 500 nodes is a fraction of what building rosbags' message
+objects would cost each second. Nothing is built while nobody subscribes.
 """
 
 from __future__ import annotations
@@ -91,14 +90,21 @@ def serialize(nodes: Iterable[Any], seq: int, now: float) -> bytes:
     return b"".join(out)
 
 
-def topic_type() -> Any:
-    """diagnostic_msgs/DiagnosticArray's md5sum and full definition, from rosbags."""
-    from rosbags.typesys import Stores, get_typestore
+# diagnostic_msgs/DiagnosticArray as rosbags' ROS1_NOETIC store gives it (tests/operate/test_diagnostics.py
+# checks): constants, because loading that store costs ~100 ms of CPU, taken from the launch as it starts.
+MD5 = "60810da900de1dd6ddd437c3503511da"
+_SEP = "=" * 80 + "\n"
+DEFINITION = (
+    "std_msgs/Header header\ndiagnostic_msgs/DiagnosticStatus[] status\n"
+    + _SEP + "MSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n"
+    + _SEP + "MSG: diagnostic_msgs/DiagnosticStatus\nbyte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\n"
+    "byte level\nstring name\nstring message\nstring hardware_id\ndiagnostic_msgs/KeyValue[] values\n"
+    + _SEP + "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n")
 
+
+def topic_type() -> Any:
     from launcher.net.tcpros import TopicType
-    typestore = get_typestore(Stores.ROS1_NOETIC)
-    definition, md5 = typestore.generate_msgdef("diagnostic_msgs/msg/DiagnosticArray")
-    return TopicType(TYPE, md5, definition)
+    return TopicType(TYPE, MD5, DEFINITION)
 
 
 class Diagnostics:
@@ -117,7 +123,7 @@ class Diagnostics:
 
     async def start(self) -> None:
         from launcher.net.slave import SlaveNode, default_host
-        mtype = await asyncio.get_running_loop().run_in_executor(None, topic_type)
+        mtype = topic_type()
         self.node = SlaveNode(NODE_NAME, self.master_uri, host=default_host(self.environ))
         await self.node.start()
         try:

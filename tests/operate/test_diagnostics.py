@@ -33,5 +33,7 @@ def test_each_node_is_one_status_named_after_it():
     assert {kv.key: kv.value for kv in by_name["/again"].values}["exit_signal"] == "9"
 
 
-def test_md5_is_diagnostic_msgs():
-    assert diagnostics.topic_type().md5sum == "60810da900de1dd6ddd437c3503511da"
+def test_type_is_rosbags_diagnostic_array():
+    definition, md5 = get_typestore(Stores.ROS1_NOETIC).generate_msgdef("diagnostic_msgs/msg/DiagnosticArray")
+    mtype = diagnostics.topic_type()
+    assert (mtype.name, mtype.md5sum, mtype.definition) == ("diagnostic_msgs/DiagnosticArray", md5, definition)
