@@ -84,9 +84,24 @@ def find_launch(opts: argparse.Namespace, environ: dict[str, str] | None = None)
                             % (opts.launch, master_uri, _listing(found)), EXIT_USAGE)
         return chosen[0]
     if len(found) > 1:
+        if sys.stdin.isatty() and sys.stderr.isatty():
+            return _ask(found)
         raise ToolError("%d launches use the master at %s; choose one with --launch KEY:\n%s"
                         % (len(found), master_uri, _listing(found)), EXIT_USAGE)
     return next(iter(found.values()))
+
+
+def _ask(found: dict[str, str]) -> str:
+    """At a terminal: list the launches and ask which (a script gets exit status 2 instead)."""
+    uris = list(found.values())
+    sys.stderr.write("several launches use this master:\n%s\n" % "\n".join(
+        "  %d) %s" % (i + 1, line.strip()) for i, line in enumerate(_listing(found).split("\n"))))
+    sys.stderr.write("which one? [1-%d] " % len(uris))
+    sys.stderr.flush()
+    answer = sys.stdin.readline().strip()
+    if not answer.isdigit() or not 1 <= int(answer) <= len(uris):
+        raise ToolError("no launch chosen (next time, --launch KEY picks one)", EXIT_USAGE)
+    return uris[int(answer) - 1]
 
 
 def _pid(uri: str) -> int | None:

@@ -395,3 +395,32 @@ def test_master_allow_refuses_clients_from_other_networks(tmp_path, netns):
         assert master_proxy(port).getPid("/local")[0] == 1  # this machine is always served
     finally:
         lp.close()
+
+
+def test_several_launches_on_one_master(tmp_path, pkgs):
+    from running import RosMaster
+    master = RosMaster(str(tmp_path))
+    env = ros_env(str(tmp_path), master.port, pkgs)
+    env["READY_DIR"] = str(tmp_path / "ready")
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    one = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="one"/>', "one.launch")],
+                   env, str(tmp_path))
+    two = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="two"/>', "two.launch")],
+                   env, str(tmp_path))
+    try:
+        poll(lambda: len((get_param(master.port, "/roslaunch") or {}).get("uris", {})) == 2, 60, 0.2,
+             what="both launches registered")
+        r = tool(env, "status")
+        assert r.returncode == 2 and "2 launches use the master" in r.stderr and "--launch" in r.stderr
+        assert "(pid %d)" % one.pid in r.stderr and "(pid %d)" % two.pid in r.stderr
+        r = tool(env, "status", "--json", "--launch", str(two.pid))
+        assert r.returncode == 0 and [n["name"] for n in json.loads(r.stdout)["nodes"]] == ["/two"]
+        one.close()
+        # the launch that ended took its key off the master: the other is found alone again
+        poll(lambda: len(get_param(master.port, "/roslaunch")["uris"]) == 1, 30, 0.2, what="key removed")
+        r = tool(env, "status", "--json")
+        assert r.returncode == 0 and json.loads(r.stdout)["pid"] == two.pid
+    finally:
+        one.close()
+        two.close()
+        master.stop()
