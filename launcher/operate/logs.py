@@ -85,6 +85,9 @@ def _main(argv: list[str]) -> int:
         _write(data)
     except FileNotFoundError:
         if not opts.follow:
+            if not node.get("stdout_log"):
+                raise client.ToolError("node [%s] writes to the launch's terminal (output=\"screen\") and has no "
+                                       "log file of its own yet (%s)" % (node["name"], path)) from None
             raise client.ToolError("node [%s] has written no output yet (%s)" % (node["name"], path)) from None
     if opts.follow:
         follow(path, offset, _write)
