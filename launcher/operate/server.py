@@ -126,7 +126,8 @@ class LaunchServer:
         for p in self._records():
             if p.name == process_name and self._active(p):
                 spec = p.spec
-                info = {"spawn_count": p.spawn_count, "args": list(spec.argv), "env": dict(spec.command.env),
+                env = spec.command.env if spec.command.env is not None else os.environ
+                info = {"spawn_count": p.spawn_count, "args": list(spec.argv), "env": dict(env),
                         "package": self._packages.get(p.name, ""), "name": p.name, "alive": p.alive,
                         "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay),
                         "required": spec.required, "pid": p.pid if p.pid is not None else 0,
@@ -183,7 +184,8 @@ class LaunchServer:
                 "log_dir": log_dir, "token_file": self.token_path,
                 "events_file": os.path.join(log_dir, "launcher-events.jsonl") if log_dir else "",
                 "launch_files": list(run.plan.config.files), "nodes": nodes}
-        return json.dumps(info, separators=(",", ":"))
+        # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
+        return json.dumps(info, separators=(",", ":"), default=str)
 
     def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
         if not run_token.matches(self.token, given_token):
