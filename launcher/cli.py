@@ -84,6 +84,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds from SIGTERM to SIGKILL when stopping a node (default 2)")
     p.add_argument("--monitor-period", dest="monitor_period", type=float, default=1.0, metavar="SECONDS",
                    help="seconds between two samples of the nodes' CPU and memory (default 1)")
+    # operating a running launch (the `launcher` command)
+    p.add_argument("--no-start", dest="no_start", action="store_true",
+                   help="load and set the parameters but start no node (start them with `launcher start`)")
+    p.add_argument("--no-diagnostics", dest="no_diagnostics", action="store_true",
+                   help="do not publish the nodes' states on /diagnostics")
+    p.add_argument("--master-allow", "--allow", dest="master_allow", action="append", metavar="CIDR",
+                   help="the master started here answers only clients from these networks (repeat the "
+                        "option or separate with commas), loopback and this machine's addresses")
     p.add_argument("--pid", dest="pid_fn", metavar="PID_FN", help="write launch's pid to this file")
     p.add_argument("--run_id", dest="run_id", help="run_id of the session")
     p.add_argument("-v", dest="verbose", action="store_true", help="verbose printing")
@@ -105,12 +113,13 @@ def build_parser() -> argparse.ArgumentParser:
 _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params", "--ros-args": "ros_args",
           "--core": "core", "--screen": "screen", "--log": "log", "--required": "required", "--wait": "wait",
           "--local": "local", "--no-summary": "no_summary", "--skip-log-check": "skip_log_check",
-          "-v": "verbose", "--disable-title": "disable_title"}
+          "-v": "verbose", "--disable-title": "disable_title", "--no-start": "no_start",
+          "--no-diagnostics": "no_diagnostics"}
 _DEFAULTS: dict[str, object] = dict(
     {dest: False for dest in _FLAGS.values()}, node_args=None, find_node=None, port=None,
     log_check_threshold="1GB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0,
     monitor_period=1.0, pid_fn=None, run_id=None,
-    num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None)
+    num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None, master_allow=None)
 
 
 def parse_simple_args(args: list[str]) -> SimpleNamespace | None:

@@ -211,9 +211,11 @@ class RemoteParams:
                 raise LaunchError("Failed to set parameter: %s" % msg)
 
 
-async def start_master(port: int, environ: Mapping[str, str]) -> Any:
-    """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken."""
-    master = Master(port=port, environ=environ)
+async def start_master(port: int, environ: Mapping[str, str], allow: Any = None) -> Any:
+    """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken.
+
+    `allow` (a launcher.net.allow.AllowList) closes it to clients from other networks."""
+    master = Master(port=port, environ=environ, allow=allow)
     await master.start()
     rosversion, rosdistro = ros_version_params(environ)
     master.set_param("/rosversion", rosversion)

@@ -21,7 +21,7 @@ import signal
 import sys
 import time
 import urllib.parse
-from typing import Any, Awaitable
+from typing import Any, Awaitable, Callable
 
 from launcher import masterlink
 from launcher.command import master_uri, node_command
@@ -31,6 +31,7 @@ from launcher.packages import PackageIndex
 from launcher.masterlink import LocalParams, RemoteParams, is_local_host
 from launcher.master import advertised_host
 from launcher.names import ns_join
+from launcher.net.allow import AllowList
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
@@ -190,8 +191,15 @@ class StopSignals:
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self.loop = loop
         self.event = asyncio.Event()
+        # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
+        self.while_stopping: Callable[[], None] | None = None
         for sig in STOP_SIGNALS:
-            loop.add_signal_handler(sig, self.event.set)
+            loop.add_signal_handler(sig, self._on_signal)
+
+    def _on_signal(self) -> None:
+        if self.while_stopping is not None:
+            self.while_stopping()
+        self.event.set()
 
     def check(self) -> None:
         if self.event.is_set():
@@ -257,6 +265,12 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     return specs, failed
 
 
+def packages_of(plan: Plan, specs: list[ProcessSpec]) -> dict[str, str]:
+    """process name -> the node's package (roslaunch's process_info reports it)."""
+    by_node = {ns_join(n.namespace, n.name): n.package for n in plan.config.nodes}
+    return {spec.name: by_node.get(spec.node_name, "") for spec in specs}
+
+
 class Run:
     """One run on the running loop; the steps are methods so that the order reads like roslaunch's."""
 
@@ -276,6 +290,8 @@ class Run:
         self.fleet: Fleet | None = None  # every node's state (process/state.py)
         self.rotator: LogRotator | None = None  # node output logs under --log-max-size
         self.run_id = ""
+        self.server: Any = None  # roslaunch's XML-RPC API of this run (launcher.operate.server)
+        self.diagnostics: Any = None  # the /diagnostics publisher (launcher.operate.diagnostics)
         self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
         self._tasks: list[asyncio.Future] = []
@@ -323,17 +339,24 @@ class Run:
         self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.master_uri)
         console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
         await self.signals.guard(self._set_run_id(run_id_known))
+        if not self.core:
+            await self.signals.guard(self._start_server())
         if self.master is not None:
             await self.signals.guard(self._start_rosout())
         self.log.timing(self._started, "master %s at %s" % ("found" if self.external else "started", self.master_uri))
         await self.signals.guard(self._set_parameters())
         self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
         self._launch_nodes()
+        if not self.core and not getattr(self.opts, "no_diagnostics", False):
+            await self.signals.guard(self._start_diagnostics())
         self.log.timing(self._started, "every node started")
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
         answers, reply = await masterlink.probe(self.master_uri)
+        if answers and getattr(self.opts, "master_allow", None):
+            console.printerrlog("WARNING: --master-allow has no effect: the master at %s is not started "
+                                "by this launch" % self.master_uri)
         if not answers and self.opts.wait:
             console.printlog("master has not been started, waiting for it at %s ..." % self.master_uri)
             while not answers:
@@ -360,9 +383,20 @@ class Run:
             reply = new if answers and new is not None else reply
         return reply
 
-    async def _start_master(self, port: int) -> None:
+    def _master_allow(self) -> Any:
+        """`--master-allow` / `--core --allow`: the AllowList of our master, or None (open, as rosmaster)."""
+        cidrs = [c for arg in getattr(self.opts, "master_allow", None) or () for c in arg.split(",") if c.strip()]
+        if not cidrs:
+            return None
         try:
-            self.master = await masterlink.start_master(port, self.plan.environ)
+            return AllowList(cidrs)
+        except ValueError as e:
+            raise LaunchError("--master-allow: %s" % e) from None
+
+    async def _start_master(self, port: int) -> None:
+        allow = self._master_allow()
+        try:
+            self.master = await masterlink.start_master(port, self.plan.environ, allow=allow)
         except OSError as e:
             if self.core:
                 raise LaunchError(
@@ -373,6 +407,8 @@ class Run:
             raise LaunchError("unable to start the master on port %d: %s" % (port, e.strerror or e)) from None
         if self.core:
             self.master_uri = self.master.uri
+        if allow is not None:
+            console.printlog("master answers only clients from loopback, this machine and: %s" % allow)
 
     def _summary_params(self) -> dict[str, Any]:
         params = {k: p.value for k, p in self.plan.config.params.items()}
@@ -402,6 +438,31 @@ class Run:
                 return
         console.printlog_bold("setting /run_id to %s" % self.run_id)
         await self.params.set("/run_id", self.run_id)
+
+    async def _start_server(self) -> None:
+        """roslaunch's XML-RPC API, registered on the master as roslaunch registers it."""
+        from launcher.operate.server import LaunchServer
+        server = LaunchServer(self, self.plan.environ)
+        try:
+            await server.start()
+            await self.params.set(server.param_key, server.uri)
+        except (OSError, LaunchError) as e:  # the launch runs on, without its operator's side
+            console.printerrlog("could not start the roslaunch server: %s" % e)
+            await server.stop()
+            return
+        server.set_packages({})
+        self.server = server
+        console.printlog_bold("started roslaunch server %s" % server.uri)
+
+    async def _start_diagnostics(self) -> None:
+        try:
+            from launcher.operate.diagnostics import Diagnostics
+            diagnostics = Diagnostics(self.master_uri, self.fleet, environ=self.plan.environ)
+            await diagnostics.start()
+        except Exception as e:  # noqa: BLE001 - the launch goes on without /diagnostics
+            console.printerrlog("could not publish /diagnostics: %s" % e)
+            return
+        self.diagnostics = diagnostics
 
     async def _start_rosout(self) -> None:
         rosout = Rosout(self.master_uri, self.log.run_dir, environ=self.plan.environ)
@@ -452,11 +513,17 @@ class Run:
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
         self._watch_health()
+        if self.server is not None:
+            self.server.set_packages(packages_of(self.plan, specs))
         stop = self.signals.event
+        no_start = getattr(self.opts, "no_start", False)
         for spec in specs:
             if stop.is_set():
                 break
-            self.supervisor.start(spec)
+            if no_start:
+                self.supervisor.add(spec)  # started later by `launcher start`
+            else:
+                self.supervisor.start(spec)
         for name, required in failed:
             self.supervisor.not_started(name, required)
         self.supervisor.registrations_complete()
@@ -511,6 +578,21 @@ class Run:
 
     # ---- shutdown --------------------------------------------------------------------------------------
 
+    def _kill_now(self) -> None:
+        """A stop signal while nodes are being stopped: kill what is left, and say so."""
+        killed = self.supervisor.kill_now() if self.supervisor is not None else []
+        if killed:
+            console.printerrlog("second stop signal: killing %d node(s) still stopping with SIGKILL: %s"
+                                % (len(killed), ", ".join(killed)))
+
+    async def _stop_server(self) -> None:
+        if self.external:  # a master that outlives us must not list a launch that is gone
+            try:
+                await asyncio.wait_for(self.params.delete(self.server.param_key), 3.0)
+            except (Exception, asyncio.TimeoutError):  # noqa: BLE001 - the master may be gone already
+                pass
+        await self.server.stop()
+
     async def _teardown(self) -> None:
         for t in self._tasks:
             t.cancel()
@@ -518,11 +600,17 @@ class Run:
             self.rotator.close()
         for h in self._health:
             h.close()
+        if self.diagnostics is not None:
+            await self.diagnostics.stop()
         if self.supervisor is not None:
+            self.signals.while_stopping = self._kill_now
             await self.supervisor.shutdown()
+            self.signals.while_stopping = None
             self.supervisor.close()
         if self.fleet is not None:
             self.fleet.close()
+        if self.server is not None:
+            await self._stop_server()
         if self.rosout is not None:
             if not self.core:
                 console.printlog("[rosout-1] killing on exit")

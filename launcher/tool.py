@@ -18,6 +18,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "completion": ("launcher.completion", "print the bash or zsh completion script for launch and launcher"),
     "doctor": ("launcher.doctor", "find set-up mistakes (host names, ROS_IP, master, package path, node executables)"),
     "__complete": ("launcher.completion:complete_main", "(the completion script's helper)"),
+    "status": ("launcher.operate.status", "every node's state, pid, uptime, restarts, last exit, CPU, RSS, host"),
+    "start": ("launcher.operate.control:start", "start the nodes a name, glob or regex selects"),
+    "stop": ("launcher.operate.control:stop", "stop the nodes a name, glob or regex selects (not respawned)"),
+    "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
+    "logs": ("launcher.operate.logs", "a node's output (-f follows it)"),
+    "events": ("launcher.operate.events", "the run's state changes (-f follows them)"),
 }
 
 USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."

@@ -78,7 +78,8 @@ class Master:
 
     def __init__(self, host: str | None = None, port: int = DEFAULT_MASTER_PORT, *,
                  uri_host: str | None = None, environ: Mapping[str, str] | None = None,
-                 notify_timeout: float = 15.0):
+                 notify_timeout: float = 15.0, allow: Any = None):
+        self._allow = allow  # a launcher.net.allow.AllowList: clients from elsewhere are refused
         self._environ = os.environ if environ is None else environ
         self.host = host if host is not None else bind_address(self._environ)
         self.port = port
@@ -108,7 +109,8 @@ class Master:
         self._notifier = Notifier(timeout=self._notify_timeout)
         self._api = MasterApi(self._notifier, self._tree)
         self._api.on_shutdown = self._on_shutdown
-        self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True)
+        self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True,
+                                    allow=self._allow.allows if self._allow is not None else None)
         try:
             await self._server.start()
         except OSError:

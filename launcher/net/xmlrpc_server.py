@@ -371,8 +371,10 @@ class XmlRpcServer:
                  multicall: bool = False, max_request_size: int = 64 * 1024 * 1024,
                  max_header_size: int = 16 * 1024, max_header_count: int = 100,
                  header_timeout: float = 10.0, request_timeout: float = 30.0, idle_timeout: float = 3600.0,
-                 max_connections: int | None = None):
+                 max_connections: int | None = None, allow: Callable[[str], bool] | None = None):
         self.dispatch = dispatch
+        # who may connect (launcher.net.allow): others are closed at accept, unanswered
+        self.allow = allow
         self.host = host
         self.port = port
         self.multicall = multicall
@@ -442,7 +444,7 @@ class XmlRpcServer:
         loop = self._loop
         for _ in range(ACCEPT_BATCH):
             try:
-                conn, _addr = listener.accept()
+                conn, addr = listener.accept()
             except (BlockingIOError, InterruptedError, ConnectionAbortedError):
                 return
             except OSError as e:
@@ -456,6 +458,9 @@ class XmlRpcServer:
                 loop.remove_reader(listener.fileno())
                 loop.call_later(ACCEPT_BACKOFF, self._resume_accepting, listener)
                 return
+            if self.allow is not None and not self.allow(addr[0]):
+                conn.close()
+                continue
             conn.setblocking(False)
             task = loop.create_task(loop.connect_accepted_socket(self._protocol, conn))
             task.add_done_callback(functools.partial(_accepted, conn))

@@ -402,7 +402,9 @@ class Supervisor:
     def _schedule_respawn(self, proc: NodeProcess, delay: float) -> None:
         proc.respawn_at = self.loop.time() + delay
         if delay == 0.0:
-            self._respawn(proc)
+            # on the next turn of the loop, not now: the caller records the node as respawning first,
+            # which would otherwise overwrite the new run's "running"
+            proc.respawn_handle = self.loop.call_soon(self._respawn, proc)  # type: ignore[assignment]
         else:
             proc.respawn_handle = self.loop.call_later(delay, self._respawn, proc)
 
@@ -486,7 +488,8 @@ class Supervisor:
         to_stop = []
         for p in reversed(self.procs):
             if p.alive or (p.group_alive and self._check_group(p)):
-                p.stopped = self.loop.create_future()
+                if p.stopped is None or p.stopped.done():  # (an operator's stop in progress goes on)
+                    p.stopped = self.loop.create_future()
                 to_stop.append(p)
         for p in to_stop:
             console.printlog("[%s] killing on exit" % p.name)
@@ -528,10 +531,11 @@ class Supervisor:
         sigterm_timeout = p.spec.policy.sigterm_timeout or self.sigterm_timeout
         p.timers.append(self.loop.call_later(sigterm_timeout, self._escalate_kill, p))
 
-    def _escalate_kill(self, p: NodeProcess) -> None:
-        if p.stopped is None or p.stopped.done():
+    def _escalate_kill(self, p: NodeProcess, quiet: bool = False) -> None:
+        if p.stopped is None or p.stopped.done() or p.sigkilled:
             return
-        console.printerrlog("[%s] escalating to SIGKILL" % p.name)
+        if not quiet:
+            console.printerrlog("[%s] escalating to SIGKILL" % p.name)
         self.shutdown_errors.append("process[%s, pid %s]: required SIGKILL. May still be running." % (p.name, p.pid))
         p.sigkilled = True
         _signal_group(p.pgid, signal.SIGKILL)
@@ -568,7 +572,78 @@ class Supervisor:
             p.stopped.set_result(None)
             code, sig = _exit_code_and_signal(p.exit_code)
             self.fleet.change(p.spec.node_name, state.STOPPED, exit_code=code, exit_signal=sig,
-                              reason="killed with SIGKILL" if p.sigkilled else "")
+                              reason="killed with SIGKILL" if p.sigkilled
+                              else "" if self.shutting_down else "stopped by operator")
+
+    def kill_now(self) -> list[str]:
+        """A second Ctrl-C: SIGKILL to every node still stopping; their process names."""
+        killed = []
+        for p in self.procs:
+            if p.stopped is not None and not p.stopped.done():
+                killed.append(p.name)
+                self._escalate_kill(p, quiet=True)
+        return killed
+
+    # ---- operator control: start, stop, restart one node by name (launcher start|stop|restart) --------
+
+    def add(self, spec: ProcessSpec) -> NodeProcess:
+        """A node that is not started now (`--no-start`): stopped until an operator starts it."""
+        proc = NodeProcess(spec)
+        self.procs.append(proc)
+        self.fleet.add(spec.node_name, process=spec.name)
+        self.fleet.change(spec.node_name, state.STOPPED, reason="not started (--no-start)")
+        return proc
+
+    def node(self, node_name: str) -> NodeProcess | None:
+        """The node's record: the first one made for it (leftover groups of earlier runs come later)."""
+        for p in self.procs:
+            if p.spec.node_name == node_name:
+                return p
+        return None
+
+    def start_node(self, node_name: str) -> bool:
+        """Start a node that is not running (a pending respawn happens now); False if it already runs."""
+        proc = self.node(node_name)
+        if proc is None or self.shutting_down:
+            return False
+        if proc.alive or (proc.stopped is not None and not proc.stopped.done()):
+            return False
+        if proc.respawn_handle is not None:
+            proc.respawn_handle.cancel()
+            proc.respawn_handle = None
+        proc.stopping = proc.sigkilled = False
+        proc.stopped = None
+        console.printlog("[%s] starting process (operator)" % proc.name)
+        self._start(proc, append=proc.spawn_count > 0)
+        return True
+
+    def stop_node(self, node_name: str) -> asyncio.Future | None:
+        """Stop a node with the shutdown escalation (SIGINT, SIGTERM, SIGKILL) and keep it stopped: a
+        respawning node is not restarted. A future done once it is down; None if it was not running."""
+        proc = self.node(node_name)
+        if proc is None:
+            return None
+        if proc.respawn_handle is not None:  # between two runs: just don't start it again
+            proc.respawn_handle.cancel()
+            proc.respawn_handle = None
+            self.fleet.change(node_name, state.STOPPED, reason="stopped by operator")
+            return None
+        if proc.stopped is not None and not proc.stopped.done():
+            return proc.stopped  # already being stopped
+        if not proc.alive:
+            return None
+        console.printlog("[%s] stopping process (operator)" % proc.name)
+        proc.stopped = self.loop.create_future()
+        proc.stopping = True
+        _signal_group(proc.pgid, signal.SIGINT)
+        proc.timers.append(self.loop.call_later(self.sigint_timeout, self._escalate_term, proc))
+        return proc.stopped
+
+    async def restart_node(self, node_name: str) -> bool:
+        stopping = self.stop_node(node_name)
+        if stopping is not None:
+            await stopping
+        return self.start_node(node_name)
 
     def close(self) -> None:
         """Drop loop registrations (after shutdown)."""

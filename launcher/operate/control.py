@@ -1,0 +1,66 @@
+"""`launcher start|stop|restart PATTERN`: steer the nodes a node name, glob or regex selects (as rosmon).
+
+Needs the run's token (launcher.operate.token), read from the file the
+launch wrote in its log directory: only the user who started the launch can.
+Prints each node it changed; no node matching is an error naming the pattern.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from launcher.net.xmlrpc import Fault
+from launcher.operate import client
+from launcher.operate import token as run_token
+
+# a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation (15 s + 2 s by default)
+CONTROL_TIMEOUT_S = 600.0
+
+
+def _parser(verb: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher %s" % verb, description="%s the nodes PATTERN selects: a node "
+                                "name (/ns/name, or name), a glob (/ns/*) or a regular expression" % verb)
+    p.add_argument("pattern", metavar="PATTERN")
+    p.add_argument("--token-file", dest="token_file", help="the run's token file (default: the one the launch "
+                   "wrote in its log directory)")
+    client.add_launch_options(p)
+    return p
+
+
+def _control(verb: str, argv: list[str]) -> int:
+    opts = _parser(verb).parse_args(argv)
+    uri = client.find_launch(opts)
+    info = client.status(uri)
+    path = opts.token_file or info.get("token_file") or ""
+    if not path:
+        raise client.ToolError("the launch at %s has no token file: %s is refused" % (uri, verb),
+                               client.EXIT_REFUSED)
+    try:
+        token = run_token.read(path)
+    except OSError as e:
+        raise client.ToolError("cannot read the run's token [%s]: %s (only the user who started the launch may "
+                               "start, stop or restart its nodes)" % (path, e.strerror), client.EXIT_REFUSED) from None
+    try:
+        code, msg, names = client.call(uri, "%s_nodes" % verb, token, opts.pattern, timeout=CONTROL_TIMEOUT_S)
+    except Fault as e:
+        status = client.EXIT_REFUSED if e.faultCode == run_token.REFUSED else client.EXIT_FAILED
+        raise client.ToolError(e.faultString, status) from None
+    if code != 1:
+        raise client.ToolError(msg)
+    past = {"start": "started", "stop": "stopped", "restart": "restarted"}[verb]
+    for name in names:
+        sys.stdout.write("%s %s\n" % (past, name))
+    return client.EXIT_OK
+
+
+def start(argv: list[str]) -> int:
+    return client.run_tool(lambda a: _control("start", a), argv)
+
+
+def stop(argv: list[str]) -> int:
+    return client.run_tool(lambda a: _control("stop", a), argv)
+
+
+def restart(argv: list[str]) -> int:
+    return client.run_tool(lambda a: _control("restart", a), argv)

@@ -1,0 +1,82 @@
+"""`launcher events [-f] [--json]`: the run's node state changes, from its launcher-events.jsonl.
+
+One line per change: time, node, state, pid, exit, restarts, reason; `--json`
+prints the file's own JSON lines. `-f` follows new events until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from launcher.operate import client
+from launcher.operate.logs import follow, tail
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher events", description=__doc__.split("\n")[0])
+    p.add_argument("-f", "--follow", action="store_true", help="keep printing new events")
+    p.add_argument("-n", "--lines", type=int, default=-1, metavar="N", help="only the last N events first")
+    p.add_argument("--json", action="store_true", help="print the events as JSON lines")
+    client.add_launch_options(p)
+    return p
+
+
+def describe(event: dict) -> str:
+    when = time.strftime("%H:%M:%S", time.localtime(event.get("time", 0))) + ".%03d" % (event.get("time", 0) % 1 * 1000)
+    parts = [when, event.get("node", "?"), event.get("state", "?")]
+    if event.get("pid"):
+        parts.append("pid %s" % event["pid"])
+    if event.get("exit_signal") is not None:
+        parts.append("signal %s" % event["exit_signal"])
+    elif event.get("exit_code") is not None:
+        parts.append("exit code %s" % event["exit_code"])
+    parts.append("restarts %s" % event.get("restarts", 0))
+    if event.get("reason"):
+        parts.append("(%s)" % event["reason"])
+    return " ".join(parts)
+
+
+def _main(argv: list[str]) -> int:
+    opts = parser().parse_args(argv)
+    info = client.status(client.find_launch(opts))
+    path = info.get("events_file")
+    if not path:
+        raise client.ToolError("the launch has no log directory, hence no events file")
+    pending = b""
+
+    def write(data: bytes) -> None:
+        nonlocal pending
+        pending += data
+        *lines, pending = pending.split(b"\n")  # a line still being written waits for its end
+        out = []
+        for line in lines:
+            if not line.strip():
+                continue
+            if opts.json:
+                out.append(line.decode("utf-8", "replace"))
+                continue
+            try:
+                out.append(describe(json.loads(line)))
+            except ValueError:
+                out.append(line.decode("utf-8", "replace"))
+        if out:
+            sys.stdout.write("\n".join(out) + "\n")
+            sys.stdout.flush()
+
+    offset = 0
+    try:
+        data, offset = tail(path, opts.lines)
+        write(data)
+    except FileNotFoundError:
+        if not opts.follow:
+            raise client.ToolError("no events yet (%s)" % path) from None
+    if opts.follow:
+        follow(path, offset, write)
+    return client.EXIT_OK
+
+
+def main(argv: list[str]) -> int:
+    return client.run_tool(_main, argv)

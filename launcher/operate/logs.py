@@ -1,0 +1,98 @@
+"""`launcher logs NODE [-f] [-n LINES]`: a node's output, from the files the launch writes.
+
+A node with output="log" has its stdout in `<name>-stdout.log`; a node with
+output="screen" writes to the launch's terminal, which no file holds, so its
+own log file (`__log:=`, where rospy and roscpp's file logger write each log
+call) is shown. `-f` follows the file as it grows, across the node's
+restarts, until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import deque
+from typing import Callable
+
+from launcher.operate import client
+
+FOLLOW_PERIOD_S = 0.2
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher logs", description=__doc__.split("\n")[0])
+    p.add_argument("node", metavar="NODE", help="node name (/ns/name) or process name (ns/name-2)")
+    p.add_argument("-f", "--follow", action="store_true", help="keep printing what the node writes")
+    p.add_argument("-n", "--lines", type=int, default=10, metavar="LINES", help="print the last LINES lines "
+                   "first (default 10; 0: none, -1: all)")
+    client.add_launch_options(p)
+    return p
+
+
+def tail(path: str, lines: int) -> tuple[bytes, int]:
+    """The last `lines` lines of a file (all for a negative count) and the offset after them."""
+    with open(path, "rb") as f:
+        if lines < 0:
+            data = f.read()
+            return data, f.tell()
+        kept: deque[bytes] = deque(maxlen=max(lines, 0) or 1)
+        for line in f:
+            kept.append(line)
+        end = f.tell()
+    return (b"".join(kept) if lines > 0 else b""), end
+
+
+def follow(path: str, offset: int, write: Callable[[bytes], None], keep_going: Callable[[], bool] = lambda: True,
+           period: float = FOLLOW_PERIOD_S) -> None:
+    """Write what is appended to `path` from `offset` on; a file truncated or replaced is read from its start."""
+    inode = None
+    while keep_going():
+        try:
+            st = os.stat(path)
+        except FileNotFoundError:
+            time.sleep(period)
+            continue
+        if inode is not None and st.st_ino != inode or st.st_size < offset:
+            offset = 0  # rotated or truncated (a node restarted without respawn's append)
+        inode = st.st_ino
+        if st.st_size > offset:
+            with open(path, "rb") as f:
+                f.seek(offset)
+                data = f.read()
+            offset += len(data)
+            write(data)
+            continue
+        time.sleep(period)
+
+
+def _write(data: bytes) -> None:
+    sys.stdout.buffer.write(data)
+    sys.stdout.buffer.flush()
+
+
+def _main(argv: list[str]) -> int:
+    opts = parser().parse_args(argv)
+    info = client.status(client.find_launch(opts))
+    node = client.find_node(info, opts.node)
+    path = node.get("stdout_log") or node.get("node_log")
+    if not path:
+        raise client.ToolError("node [%s] has no output file (the launch has no log directory)" % node["name"])
+    offset = 0
+    try:
+        data, offset = tail(path, opts.lines)
+        _write(data)
+    except FileNotFoundError:
+        if not opts.follow:
+            if not node.get("stdout_log"):
+                raise client.ToolError("node [%s] writes to the launch's terminal (output=\"screen\") and has no "
+                                       "log file of its own yet (%s)" % (node["name"], path)) from None
+            raise client.ToolError("node [%s] has written no output yet (%s)" % (node["name"], path)) from None
+    if opts.follow:
+        follow(path, offset, _write)
+    return client.EXIT_OK
+
+
+def main(argv: list[str]) -> int:
+    return client.run_tool(_main, argv)

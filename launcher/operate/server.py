@@ -1,0 +1,229 @@
+"""roslaunch's XML-RPC API, served by a running launch: what `launcher` and roslaunch's own tools read and steer.
+
+Read calls answer as Debian's roslaunch does (checked side by side):
+`list_processes`, `process_info`, `get_pid`, `get_node_names`. The URI is
+registered on the master as `/roslaunch/uris/host_<host>__<port>`, which is
+how `roslaunch.netapi` and `launcher` find running launches.
+
+Added calls: `launcher_status` (the run and every node's state as one JSON
+text: a 500-node status must cost the launcher little), and
+`start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
+refused with a fault unless `token` is the run's (`launcher.operate.token`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import time
+from typing import Any
+
+from launcher.net.slave import bind_address, default_host
+from launcher.net.xmlrpc import Fault, encode_value
+from launcher.operate import patterns, token as run_token
+
+STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
+REFUSED_TEXT = ("refused: %s needs this run's token (the file %s, readable only by the user who started "
+                "the launch); `launcher %s` reads it for you")
+
+
+def rosname_of_host(host: str) -> str:
+    """roslaunch's `_hostname_to_rosname`: `host_` and the host lowercased, other characters as `_`."""
+    return "host_" + "".join(c if "a" <= c <= "z" or "0" <= c <= "9" else "_" for c in host.lower())
+
+
+class LaunchServer:
+    """The API of one run. `run` is the runtime's Run: its supervisor, fleet, master, rosout, log dir."""
+
+    def __init__(self, run: Any, environ: dict[str, str]):
+        self.run = run
+        self.host = default_host(environ)
+        self.uri = ""
+        self.param_key = ""
+        self.token = ""
+        self.token_path = ""
+        self._server: Any = None
+        self._packages: dict[str, str] = {}  # process name -> package, for process_info
+        self._status: Any = None  # the last launcher_status text, XML-encoded
+        self._status_at = 0.0
+        self._listening = False
+
+    async def start(self) -> None:
+        from launcher.net.xmlrpc_server import XmlRpcServer
+        run_dir = self.run.log.run_dir
+        if run_dir:
+            try:
+                self.token, self.token_path = run_token.create(run_dir)
+            except OSError as e:  # control stays closed; reading still works
+                from launcher.process import console
+                console.printerrlog("WARNING: cannot write the run's token in [%s]: %s; start/stop/restart "
+                                    "are refused" % (run_dir, e.strerror))
+        self._server = XmlRpcServer(self._dispatch, bind_address(self.host), 0, max_connections=64)
+        await self._server.start()
+        host = "[%s]" % self.host if ":" in self.host else self.host
+        self.uri = "http://%s:%d/" % (host, self._server.port)
+        self.param_key = "/roslaunch/uris/%s__%d" % (rosname_of_host(self.host), self._server.port)
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            await self._server.stop()
+            self._server = None
+
+    def set_packages(self, packages: dict[str, str]) -> None:
+        self._packages = packages
+
+    # ---- dispatch ----------------------------------------------------------------------------------
+
+    def _dispatch(self, method: str, params: list) -> Any:
+        handler = self._API.get(method)
+        if handler is None:
+            # the words of roslaunch's server (Python's SimpleXMLRPCServer)
+            raise Fault(1, "<class 'Exception'>:method \"%s\" is not supported" % method)
+        try:
+            return handler(self, *params)
+        except TypeError as e:
+            raise Fault(1, "<class 'TypeError'>:%s" % e) from None
+
+    # ---- what runs ---------------------------------------------------------------------------------
+
+    def _records(self) -> list[Any]:
+        """Each node's current process record, in start order (leftover groups of earlier runs skipped)."""
+        supervisor = self.run.supervisor
+        if supervisor is None:
+            return []
+        seen: set[str] = set()
+        out = []
+        for p in supervisor.procs:
+            if p.spec.node_name not in seen:
+                seen.add(p.spec.node_name)
+                out.append(p)
+        return out
+
+    def _core(self) -> list[list]:
+        """roslaunch lists the master it started and its rosout as processes."""
+        core = []
+        if self.run.master is not None and not self.run.core:
+            core.append(["master", 1])
+        if self.run.rosout is not None:
+            core.append(["rosout-1", 1])
+        return core
+
+    @staticmethod
+    def _active(p: Any) -> bool:
+        # roslaunch keeps a process in its list while it runs or will respawn
+        return p.alive or p.respawn_handle is not None
+
+    # ---- roslaunch's API ---------------------------------------------------------------------------
+
+    def list_processes(self) -> list:
+        actives, deads = self._core(), []
+        for p in self._records():
+            (actives if self._active(p) else deads).append([p.name, p.spawn_count])
+        return [1, "processes on parent machine", [actives, deads]]
+
+    def process_info(self, process_name: str) -> list:
+        for p in self._records():
+            if p.name == process_name and self._active(p):
+                spec = p.spec
+                env = spec.command.env if spec.command.env is not None else os.environ
+                info = {"spawn_count": p.spawn_count, "args": list(spec.argv), "env": dict(env),
+                        "package": self._packages.get(p.name, ""), "name": p.name, "alive": p.alive,
+                        "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay),
+                        "required": spec.required, "pid": p.pid if p.pid is not None else 0,
+                        "run_id": self.run.run_id, "log_output": spec.stdout_path is not None}
+                if p.exit_code is not None:
+                    info["exit_code"] = p.exit_code
+                return [1, "process info", info]
+        return [-1, "no process by that name", {}]
+
+    def get_pid(self) -> list:
+        pid = os.getpid()
+        return [1, str(pid), pid]
+
+    def get_node_names(self) -> list:
+        names = [name for name, _ in self._core()]
+        names += [p.name for p in self._records() if self._active(p)]
+        return [1, "node names", names]
+
+    # ---- launcher's additions ----------------------------------------------------------------------
+
+    def launcher_status(self) -> list:
+        # Built at most once per STATUS_MAX_AGE_S, and again after any state change: ten operators
+        # polling a 500-node launch every second would otherwise cost it several % of a core.
+        now = time.monotonic()
+        fleet = self.run.fleet
+        if fleet is not None and not self._listening:
+            fleet.listeners.append(self._state_changed)
+            self._listening = True
+        if self._status is None or now - self._status_at > STATUS_MAX_AGE_S:
+            self._status = encode_value(self._build_status())
+            self._status_at = now
+        return [1, "status", self._status]
+
+    def _state_changed(self, _status: Any) -> None:
+        self._status = None
+
+    def _build_status(self) -> str:
+        run = self.run
+        fleet = run.fleet
+        nodes = []
+        if fleet is not None:
+            outputs = {p.spec.node_name: p.spec for p in self._records()}
+            for status in fleet:
+                d = status.as_dict()
+                spec = outputs.get(status.name)
+                if spec is not None and spec.log_dir:
+                    # where `launcher logs` finds the node's output: its stdout file (output="log"), else
+                    # the node's own log file (__log:=), as the screen's copy is the terminal's
+                    d["stdout_log"] = spec.stdout_path or ""
+                    d["node_log"] = os.path.join(spec.log_dir, spec.log_name + ".log")
+                nodes.append(d)
+        log_dir = run.log.run_dir or ""
+        info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
+                "log_dir": log_dir, "token_file": self.token_path,
+                "events_file": os.path.join(log_dir, "launcher-events.jsonl") if log_dir else "",
+                "launch_files": list(run.plan.config.files), "nodes": nodes}
+        # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
+        return json.dumps(info, separators=(",", ":"), default=str)
+
+    def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
+        if not run_token.matches(self.token, given_token):
+            raise Fault(run_token.REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
+                                                 "directory", verb))
+        supervisor = self.run.supervisor
+        if not isinstance(pattern, str):
+            raise Fault(1, "%s: the pattern must be a string" % verb)
+        names = patterns.match(pattern, [p.spec.node_name for p in self._records()]) if supervisor else []
+        if not names:
+            return [-1, "no node matches [%s]" % pattern, []]
+        if verb == "start":
+            for name in names:
+                supervisor.start_node(name)
+            return [1, "started %d node(s)" % len(names), names]
+        if verb == "stop":
+            pending = [f for f in (supervisor.stop_node(n) for n in names) if f is not None]
+        else:
+            pending = [asyncio.ensure_future(supervisor.restart_node(n)) for n in names]
+        return self._when_done(verb, names, pending)
+
+    async def _when_done(self, verb: str, names: list[str], pending: list) -> list:
+        if pending:
+            await asyncio.gather(*pending)
+        return [1, "%s %d node(s)" % ("stopped" if verb == "stop" else "restarted", len(names)), names]
+
+    def start_nodes(self, token: Any, pattern: Any) -> Any:
+        return self._control("start", token, pattern)
+
+    def stop_nodes(self, token: Any, pattern: Any) -> Any:
+        return self._control("stop", token, pattern)
+
+    def restart_nodes(self, token: Any, pattern: Any) -> Any:
+        return self._control("restart", token, pattern)
+
+    _API: dict[str, Any] = {}
+
+
+LaunchServer._API = {name: getattr(LaunchServer, name) for name in (
+    "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status",
+    "start_nodes", "stop_nodes", "restart_nodes")}

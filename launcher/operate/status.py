@@ -1,0 +1,91 @@
+"""`launcher status [--json] [--watch]`: every node of a running launch, one line each.
+
+Columns: node, state, pid, uptime, restarts, last exit (code or signal),
+CPU (cores), RSS, host. `--json` prints the run and its nodes as one JSON
+object (fields as in launcher-events.jsonl); `--watch` redraws every second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from typing import Any
+
+from launcher.operate import client
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher status", description=__doc__.split("\n")[0])
+    p.add_argument("--json", action="store_true", help="print the status as JSON")
+    p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
+    client.add_launch_options(p)
+    return p
+
+
+def duration(seconds: float | None) -> str:
+    if seconds is None:
+        return "-"
+    s = int(seconds)
+    if s < 60:
+        return "%ds" % s
+    if s < 3600:
+        return "%dm%02ds" % (s // 60, s % 60)
+    if s < 86400:
+        return "%dh%02dm" % (s // 3600, s % 3600 // 60)
+    return "%dd%02dh" % (s // 86400, s % 86400 // 3600)
+
+
+def size(n: int | None) -> str:
+    if n is None:
+        return "-"
+    for unit in ("B", "K", "M", "G"):
+        if n < 1024 or unit == "G":
+            return ("%d%s" if unit == "B" else "%.1f%s") % (n, unit)
+        n /= 1024  # type: ignore[assignment]
+    return "-"
+
+
+def last_exit(node: dict[str, Any]) -> str:
+    if node.get("exit_signal") is not None:
+        try:
+            return signal.Signals(node["exit_signal"]).name
+        except ValueError:
+            return "signal %d" % node["exit_signal"]
+    if node.get("exit_code") is not None:
+        return "code %d" % node["exit_code"]
+    return "-"
+
+
+def table(info: dict[str, Any]) -> str:
+    rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
+    for n in info["nodes"]:
+        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
+                     duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
+                     "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]), size(n.get("rss")),
+                     n.get("host", "")))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    return "launch %s (pid %s, run_id %s)\n%s" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"),
+                                                  "\n".join(lines))
+
+
+def _main(argv: list[str]) -> int:
+    opts = parser().parse_args(argv)
+    uri = client.find_launch(opts)
+    if not opts.watch:
+        # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
+        sys.stdout.write((client.status_text(uri) if opts.json else table(client.status(uri))) + "\n")
+        return client.EXIT_OK
+    while True:
+        text = client.status_text(uri) if opts.json else table(client.status(uri))
+        # clear and redraw from the top; a pipe gets one snapshot after another
+        prefix = "\x1b[H\x1b[2J" if sys.stdout.isatty() else ""
+        sys.stdout.write(prefix + text + "\n")
+        sys.stdout.flush()
+        time.sleep(1.0)
+
+
+def main(argv: list[str]) -> int:
+    return client.run_tool(_main, argv)

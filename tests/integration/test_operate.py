@@ -1,0 +1,426 @@
+"""Operating a running launch with real rospy/roscpp nodes: status, start/stop/restart, the token, logs,
+events, --no-start, the second Ctrl-C, /diagnostics (read by Debian's rostopic), and roslaunch's API
+compared with Debian's roslaunch."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+import xmlrpc.client
+
+import pytest
+
+from running import (ROS_PATH, ROS_PYTHON, Launcher, compile_roscpp, free_port, get_param, make_package, master_proxy,
+                     master_up, pid_alive, poll, ros_env, write_launch)
+
+pytestmark = pytest.mark.integration
+
+# READY_FILE is written once init_node has returned (a SIGINT during init_node can wedge rospy:
+# see test_run_shutdown.py), so that stops in these tests are clean
+Spinner = """#!%s
+import os, rospy
+rospy.init_node("spinner")
+if os.environ.get("READY_DIR"):
+    open(os.path.join(os.environ["READY_DIR"], rospy.get_name().replace("/", "_") + "-%%d" %% os.getpid()), "w").close()
+rospy.spin()
+""" % ROS_PYTHON
+Ticker = """#!%s
+import rospy
+rospy.init_node("ticker")
+n = 0
+while not rospy.is_shutdown():
+    n += 1
+    rospy.loginfo("tick %%d", n)
+    rospy.sleep(0.2)
+""" % ROS_PYTHON
+IgnoreIntTerm = "#!/bin/sh\ntrap '' INT TERM\nexec sleep 1000\n"
+
+
+@pytest.fixture
+def pkgs(tmp_path, ros_env):
+    pkg = make_package(str(tmp_path / "pkgs"), "op_tests",
+                       {"spinner": Spinner, "ticker": Ticker, "ignore_int_term": IgnoreIntTerm})
+    compile_roscpp("param_node.cpp", os.path.join(pkg, "param_cpp"))
+    return str(tmp_path / "pkgs")
+
+
+def tool(env: dict, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def status(env: dict, starting: bool = False) -> dict:
+    """The nodes by name; with `starting`, {} while the launch is not up yet (exit status 3)."""
+    r = tool(env, "status", "--json")
+    if starting and r.returncode == 3:
+        return {}
+    assert r.returncode == 0, r.stderr
+    return {n["name"]: n for n in json.loads(r.stdout)["nodes"]}
+
+
+def ready(tmp_path, name: str, pid: int) -> bool:
+    return os.path.exists(tmp_path / "ready" / ("%s-%d" % (name.replace("/", "_"), pid)))
+
+
+def start_launch(tmp_path, pkgs, body: str, *args: str) -> tuple[Launcher, dict]:
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    env = ros_env(str(tmp_path), free_port(), pkgs)
+    env["READY_DIR"] = str(tmp_path / "ready")
+    launch = write_launch(str(tmp_path), body)
+    return Launcher(list(args) + [launch], env, str(tmp_path)), env
+
+
+def running_ready(tmp_path, env, names) -> dict:
+    """Wait until every node in `names` runs and its rospy init is complete; the status."""
+    def check():
+        st = status(env, starting=True)
+        return st if st and all(st[n]["state"] == "running" and ready(tmp_path, n, st[n]["pid"]) for n in names) \
+            else None
+    return poll(check, 60, 0.2, what="nodes %s running and initialized" % (names,))
+
+
+def test_status_reports_real_pids_and_restart_counts(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="spinner" name="py" respawn="true"/>
+      <node pkg="op_tests" type="param_cpp" name="cpp"><param name="out" value="%s/cpp.txt"/></node>
+    """ % tmp_path)
+    try:
+        poll(lambda: os.path.exists(tmp_path / "cpp.txt"), 60, what="roscpp node up")
+        st = running_ready(tmp_path, env, ["/py"])
+        pids = lp.started_pids()
+        assert st["/py"]["pid"] == pids["py-2"] and st["/cpp"]["pid"] == pids["cpp-3"]
+        assert st["/py"]["restarts"] == 0 and st["/cpp"]["state"] == "running"
+        os.kill(pids["py-2"], signal.SIGKILL)
+        st = poll(lambda: (lambda s: s if s["/py"]["restarts"] == 1 and s["/py"]["state"] == "running" else None)(
+            status(env)), 30, 0.2, what="respawn seen in status: %s" % lp.stdout[-2000:])
+        assert st["/py"]["pid"] == lp.started_pids()["py-2"] != pids["py-2"]
+        assert st["/py"]["exit_signal"] is None  # a running node shows its run, the exit is in the events
+        table = tool(env, "status")
+        assert table.returncode == 0
+        row = [line.split() for line in table.stdout.splitlines() if line.startswith("/py ")][0]
+        assert row[1:3] == ["running", str(st["/py"]["pid"])] and row[4] == "1"
+        events = tool(env, "events", "--json")
+        lines = [json.loads(line) for line in events.stdout.splitlines()]
+        assert {"node": "/py", "state": "respawning", "exit_signal": 9}.items() <= \
+            [e for e in lines if e["state"] == "respawning"][0].items()
+    finally:
+        lp.close()
+
+
+def test_stop_start_restart_by_name_glob_and_regex(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="spinner" name="a"/>
+      <group ns="g">
+        <node pkg="op_tests" type="spinner" name="b" respawn="true"/>
+        <node pkg="op_tests" type="spinner" name="c"/>
+      </group>
+    """)
+    try:
+        before = running_ready(tmp_path, env, ["/a", "/g/b", "/g/c"])
+        r = tool(env, "stop", "/g/*")
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.split("\n")[:2] == ["stopped /g/b", "stopped /g/c"]
+        st = status(env)
+        assert st["/g/b"]["state"] == st["/g/c"]["state"] == "stopped"  # /g/b respawns on exit, not after a stop
+        assert not pid_alive(before["/g/b"]["pid"]) and not pid_alive(before["/g/c"]["pid"])
+        assert st["/a"]["state"] == "running" and st["/a"]["pid"] == before["/a"]["pid"]
+        assert master_proxy(int(env["ROS_MASTER_URI"].rsplit(":", 1)[1].strip("/"))).lookupNode("/t", "/g/b")[0] != 1
+
+        r = tool(env, "start", "g/.*")  # a regex (as a glob it names nothing)
+        assert r.returncode == 0 and r.stdout.split() == ["started", "/g/b", "started", "/g/c"], r.stderr
+        after = running_ready(tmp_path, env, ["/g/b", "/g/c"])
+        assert after["/g/b"]["pid"] != before["/g/b"]["pid"] and after["/g/b"]["restarts"] == 1
+        assert after["/a"]["pid"] == before["/a"]["pid"]
+
+        r = tool(env, "restart", "a")  # a name
+        assert r.returncode == 0 and r.stdout == "restarted /a\n", r.stderr
+        again = running_ready(tmp_path, env, ["/a"])
+        assert again["/a"]["pid"] != before["/a"]["pid"] and not pid_alive(before["/a"]["pid"])
+        assert again["/g/b"]["pid"] == after["/g/b"]["pid"] and again["/g/c"]["pid"] == after["/g/c"]["pid"]
+
+        r = tool(env, "stop", "/nothing*")
+        assert r.returncode == 1 and "no node matches [/nothing*]" in r.stderr
+        r = tool(env, "logs", "/nosuch")
+        assert r.returncode == 1 and "unknown node [/nosuch]" in r.stderr
+        r = tool(env, "restart", "a", "--uri", "http://127.0.0.1:%d/" % free_port())
+        assert r.returncode == 3 and "does not answer" in r.stderr
+    finally:
+        lp.close()
+
+
+def test_mutating_call_without_the_token_is_refused(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, '<node pkg="op_tests" type="spinner" name="a"/>')
+    try:
+        running_ready(tmp_path, env, ["/a"])
+        info = json.loads(tool(env, "status", "--json").stdout)
+        assert stat.S_IMODE(os.stat(info["token_file"]).st_mode) == 0o600
+        api = xmlrpc.client.ServerProxy(info["uri"])
+        for verb in ("stop", "start", "restart"):
+            with pytest.raises(xmlrpc.client.Fault) as e:
+                getattr(api, verb + "_nodes")("not-the-token", "/a")
+            assert e.value.faultCode == 2 and "needs this run's token" in e.value.faultString
+        wrong = tmp_path / "wrong-token"
+        wrong.write_text("0123\n")
+        r = tool(env, "stop", "a", "--token-file", str(wrong))
+        assert r.returncode == 4 and "needs this run's token" in r.stderr
+        r = tool(env, "stop", "a", "--token-file", str(tmp_path / "missing"))
+        assert r.returncode == 4 and "cannot read the run's token" in r.stderr
+        st = status(env)
+        assert st["/a"]["state"] == "running" and st["/a"]["pid"] == lp.started_pids()["a-2"]
+        # with the token (what `launcher` reads from the file) it is obeyed
+        with open(info["token_file"]) as f:
+            assert api.stop_nodes(f.read().strip(), "/a")[2] == ["/a"]
+        assert status(env)["/a"]["state"] == "stopped"
+    finally:
+        lp.close()
+
+
+def test_logs_follow_a_screen_node_and_a_log_node(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="ticker" name="scr" output="screen"/>
+      <node pkg="op_tests" type="ticker" name="lg" output="log"/>
+    """)
+    followers = []
+    try:
+        lp.wait_output(r"process\[lg-3\]: started")
+        for node in ("/scr", "/lg"):
+            out = open(tmp_path / ("follow%s.txt" % node.replace("/", "_")), "w")
+            followers.append((node, out, subprocess.Popen([sys.executable, "-m", "launcher.tool", "logs", "-f", node],
+                                                          env=env, stdout=out, stderr=subprocess.STDOUT)))
+        import re
+
+        def ticks(node):
+            with open(tmp_path / ("follow%s.txt" % node.replace("/", "_"))) as f:
+                return [int(n) for n in re.findall(r"tick (\d+)", f.read())]
+        for node, _, _ in followers:
+            first = poll(lambda: ticks(node), 60, 0.2, what="%s's output followed" % node)
+            # it keeps following: later ticks arrive while the node runs
+            poll(lambda: max(ticks(node)) >= max(first) + 3, 30, 0.2, what="%s's new output followed" % node)
+        r = tool(env, "logs", "lg", "-n", "2")
+        assert r.returncode == 0 and len(r.stdout.splitlines()) == 2 and "tick" in r.stdout
+    finally:
+        for _, out, proc in followers:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(10)
+            out.close()
+        lp.close()
+
+
+def test_no_start_then_launcher_start(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <param name="shared/value" value="set"/>
+      <node pkg="op_tests" type="spinner" name="a"/>
+      <node pkg="op_tests" type="spinner" name="b"/>
+    """, "--no-start")
+    try:
+        port = int(env["ROS_MASTER_URI"].rsplit(":", 1)[1].strip("/"))
+        st = poll(lambda: (lambda s: s if len(s) == 2 else None)(status(env, starting=True)) if master_up(port) and get_param(port, "/shared/value")
+                  else None, 30, 0.2, what="launch up with its parameters")
+        assert st["/a"]["state"] == st["/b"]["state"] == "stopped" and st["/a"]["pid"] is None
+        assert "started with pid" not in lp.stdout
+        r = tool(env, "start", "a")
+        assert r.returncode == 0, r.stderr
+        st = running_ready(tmp_path, env, ["/a"])
+        assert st["/a"]["pid"] == lp.started_pids()["a-2"] and st["/b"]["state"] == "stopped"
+    finally:
+        lp.close()
+
+
+def test_second_ctrl_c_kills_the_nodes_still_stopping(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="ignore_int_term" name="stubborn"/>
+      <node pkg="op_tests" type="ignore_int_term" name="stubborn2"/>
+    """)
+    try:
+        lp.wait_output(r"process\[stubborn2-3\]: started")
+        pids = lp.started_pids()
+        lp.signal(signal.SIGINT)
+        lp.wait_output(r"\[stubborn-2\] killing on exit")
+        t0 = time.monotonic()
+        lp.signal(signal.SIGINT)
+        assert lp.wait(30) == 0
+        assert time.monotonic() - t0 < 5.0  # not the 15 s + 2 s of the escalation
+        assert not pid_alive(pids["stubborn-2"]) and not pid_alive(pids["stubborn2-3"])
+        assert "second stop signal: killing 2 node(s) still stopping with SIGKILL: stubborn2-3, stubborn-2" \
+            in lp.stderr or "second stop signal: killing 2 node(s) still stopping with SIGKILL: stubborn-2, " \
+            "stubborn2-3" in lp.stderr
+    finally:
+        lp.close()
+
+
+def test_diagnostics_read_by_rostopic_echo(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="spinner" name="a"/>
+      <group ns="g"><node pkg="op_tests" type="spinner" name="b"/></group>
+    """)
+    try:
+        running_ready(tmp_path, env, ["/a", "/g/b"])
+        ros = dict(env, PATH=ROS_PATH)
+        echo = subprocess.run(["rostopic", "echo", "-n", "1", "/diagnostics"], env=ros, capture_output=True,
+                              text=True, timeout=60)
+        assert echo.returncode == 0, echo.stderr
+        out = echo.stdout
+        assert 'name: "/a"' in out and 'name: "/g/b"' in out and "level: 0" in out and 'message: "running"' in out
+        assert 'value: "%d"' % lp.started_pids()["a-2"] in out
+    finally:
+        lp.close()
+    lp, env = start_launch(tmp_path, pkgs, '<node pkg="op_tests" type="spinner" name="a"/>', "--no-diagnostics")
+    try:
+        running_ready(tmp_path, env, ["/a"])
+        topics = subprocess.run(["rostopic", "list"], env=dict(env, PATH=ROS_PATH), capture_output=True, text=True,
+                                timeout=60).stdout.split()
+        assert "/rosout" in topics and "/diagnostics" not in topics
+    finally:
+        lp.close()
+
+
+def _api_answers(uri: str) -> dict:
+    api = xmlrpc.client.ServerProxy(uri)
+    info = api.process_info("a-2")
+    info[2].pop("env", None)
+    info[2].pop("pid", None)
+    info[2].pop("run_id", None)
+    info[2]["args"] = [a for a in info[2]["args"] if not a.startswith("__log:=")]
+    return {"list_processes": api.list_processes(), "get_node_names": api.get_node_names(),
+            "process_info": info, "unknown": api.process_info("nosuch"), "pid": api.get_pid()[0]}
+
+
+def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
+    body = """
+      <node pkg="op_tests" type="spinner" name="a"/>
+      <group ns="g"><node pkg="op_tests" type="spinner" name="b" respawn="true"/></group>
+      <node pkg="op_tests" type="spinner" name="c"/>
+    """
+    answers = {}
+    for which in ("roslaunch", "ours"):
+        port = free_port()
+        env = ros_env(str(tmp_path / which), port, pkgs)
+        env["READY_DIR"] = str(tmp_path / "ready")
+        os.makedirs(tmp_path / "ready", exist_ok=True)
+        launch = write_launch(str(tmp_path), body, "%s.launch" % which)
+        if which == "roslaunch":
+            proc = subprocess.Popen(["roslaunch", launch, "-p", str(port)], env=dict(env, PATH=ROS_PATH),
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        else:
+            lp = Launcher([launch, "-p", str(port)], env, str(tmp_path))
+        try:
+            uris = poll(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(port, "/roslaunch")),
+                        60, 0.2, what="%s registered on its master" % which)["uris"]
+            (key, uri), = uris.items()
+            assert key == "host_127_0_0_1__%s" % uri.rsplit(":", 1)[1].strip("/")
+            api = xmlrpc.client.ServerProxy(uri)
+            poll(lambda: sum(1 for f in os.listdir(tmp_path / "ready")) >= (3 if which == "roslaunch" else 6), 60,
+                 0.2, what="nodes up")
+            b_pid = api.process_info("g/b-3")[2]["pid"]
+            c_pid = api.process_info("c-4")[2]["pid"]
+            os.kill(b_pid, signal.SIGKILL)  # respawned: active, spawned twice
+            os.kill(c_pid, signal.SIGKILL)  # dead
+            poll(lambda: api.process_info("g/b-3")[2].get("spawn_count") == 2 and api.list_processes()[2][1], 30,
+                 0.2, what="%s saw the deaths" % which)
+            answers[which] = _api_answers(uri)
+        finally:
+            if which == "roslaunch":
+                os.killpg(proc.pid, signal.SIGINT)
+                proc.wait(30)
+            else:
+                lp.close()
+    assert answers["ours"] == answers["roslaunch"]
+
+
+CLIENT = """
+import socket, sys, xmlrpc.client
+class Transport(xmlrpc.client.Transport):
+    def make_connection(self, host):
+        conn = super().make_connection(host)
+        conn.source_address = (sys.argv[2], 0)
+        return conn
+try:
+    print(xmlrpc.client.ServerProxy(sys.argv[1], transport=Transport()).getPid("/outsider")[0])
+except (OSError, xmlrpc.client.ProtocolError) as e:
+    print("refused: %r" % e)
+"""
+
+
+@pytest.fixture
+def netns(tmp_path):
+    """A network namespace on a veth pair: this machine is 10.231.77.1, clients are .2 and .3 (not ours)."""
+    if os.geteuid() != 0 or subprocess.run(["ip", "netns", "list"], capture_output=True).returncode != 0:
+        pytest.skip("needs root and iproute2 to make a network namespace")
+    name = "launcher-op-%d" % os.getpid()
+    host_if, ns_if = "lop%dh" % (os.getpid() % 10000), "lop%dn" % (os.getpid() % 10000)
+    steps = [["ip", "netns", "add", name],
+             ["ip", "link", "add", host_if, "type", "veth", "peer", "name", ns_if],
+             ["ip", "link", "set", ns_if, "netns", name],
+             ["ip", "addr", "add", "10.231.77.1/29", "dev", host_if],
+             ["ip", "link", "set", host_if, "up"],
+             ["ip", "-n", name, "addr", "add", "10.231.77.2/29", "dev", ns_if],
+             ["ip", "-n", name, "addr", "add", "10.231.77.3/29", "dev", ns_if],
+             ["ip", "-n", name, "link", "set", ns_if, "up"],
+             ["ip", "-n", name, "link", "set", "lo", "up"]]
+    try:
+        for step in steps:
+            r = subprocess.run(step, capture_output=True, text=True)
+            if r.returncode != 0:
+                pytest.skip("cannot make a network namespace: %s: %s" % (" ".join(step), r.stderr.strip()))
+        yield name
+    finally:
+        subprocess.run(["ip", "link", "del", host_if], capture_output=True)
+        subprocess.run(["ip", "netns", "del", name], capture_output=True)
+
+
+def test_master_allow_refuses_clients_from_other_networks(tmp_path, netns):
+    port = free_port()
+    env = dict(os.environ)
+    for key in ("ROS_IP", "ROS_HOSTNAME", "ROS_MASTER_URI"):
+        env.pop(key, None)  # the master listens on every interface
+    env.update(ROS_HOME=str(tmp_path / "home"), ROS_LOG_DIR=str(tmp_path / "log"))
+    lp = Launcher(["--core", "-p", str(port), "--allow", "10.231.77.2/32"], env, str(tmp_path))
+    try:
+        poll(lambda: master_up(port), 30, what="master up")
+        lp.wait_output(r"master answers only clients from loopback, this machine and: 10\.231\.77\.2/32")
+
+        def from_outside(source: str) -> str:
+            return subprocess.run(["ip", "netns", "exec", netns, sys.executable, "-c", CLIENT,
+                                   "http://10.231.77.1:%d/" % port, source], capture_output=True, text=True,
+                                  timeout=30).stdout.strip()
+        assert from_outside("10.231.77.2") == "1"  # allowed: served
+        refused = from_outside("10.231.77.3")
+        # closed unanswered (reset, broken pipe or an empty reply): never an XML-RPC answer or fault
+        assert refused.startswith("refused:"), refused
+        assert master_proxy(port).getPid("/local")[0] == 1  # this machine is always served
+    finally:
+        lp.close()
+
+
+def test_several_launches_on_one_master(tmp_path, pkgs):
+    from running import RosMaster
+    master = RosMaster(str(tmp_path))
+    env = ros_env(str(tmp_path), master.port, pkgs)
+    env["READY_DIR"] = str(tmp_path / "ready")
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    one = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="one"/>', "one.launch")],
+                   env, str(tmp_path))
+    two = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="two"/>', "two.launch")],
+                   env, str(tmp_path))
+    try:
+        poll(lambda: len((get_param(master.port, "/roslaunch") or {}).get("uris", {})) == 2, 60, 0.2,
+             what="both launches registered")
+        r = tool(env, "status")
+        assert r.returncode == 2 and "2 launches use the master" in r.stderr and "--launch" in r.stderr
+        assert "(pid %d)" % one.pid in r.stderr and "(pid %d)" % two.pid in r.stderr
+        r = tool(env, "status", "--json", "--launch", str(two.pid))
+        assert r.returncode == 0 and [n["name"] for n in json.loads(r.stdout)["nodes"]] == ["/two"]
+        one.close()
+        # the launch that ended took its key off the master: the other is found alone again
+        poll(lambda: len(get_param(master.port, "/roslaunch")["uris"]) == 1, 30, 0.2, what="key removed")
+        r = tool(env, "status", "--json")
+        assert r.returncode == 0 and json.loads(r.stdout)["pid"] == two.pid
+    finally:
+        one.close()
+        two.close()
+        master.stop()
