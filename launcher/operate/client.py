@@ -162,3 +162,15 @@ def run_tool(main_body: Any, argv: list[str]) -> int:
         return EXIT_OK
     except BrokenPipeError:
         return EXIT_OK
+
+
+def complete_node_names(environ: dict[str, str]) -> list[str]:
+    """The node names of the one launch on ROS_MASTER_URI, for shell completion (none when it is not clear which)."""
+    try:
+        master_uri = environ.get("ROS_MASTER_URI") or DEFAULT_MASTER_URI
+        found = launches(master_uri)
+        if len(found) != 1:
+            return []
+        return [node["name"] for node in status(next(iter(found.values())))["nodes"]]
+    except (ToolError, OSError, ValueError, KeyError, TypeError):
+        return []

@@ -64,3 +64,7 @@ def stop(argv: list[str]) -> int:
 
 def restart(argv: list[str]) -> int:
     return client.run_tool(lambda a: _control("restart", a), argv)
+
+
+# (offered by `launcher __complete` for this subcommand's node argument)
+complete_node_names = client.complete_node_names

@@ -96,3 +96,7 @@ def _main(argv: list[str]) -> int:
 
 def main(argv: list[str]) -> int:
     return client.run_tool(_main, argv)
+
+
+# (offered by `launcher __complete` for this subcommand's node argument)
+complete_node_names = client.complete_node_names

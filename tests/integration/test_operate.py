@@ -424,3 +424,19 @@ def test_several_launches_on_one_master(tmp_path, pkgs):
         one.close()
         two.close()
         master.stop()
+
+
+def test_completion_offers_the_running_launchs_node_names(tmp_path, pkgs):
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="spinner" name="arm_driver"/>
+      <node pkg="op_tests" type="spinner" name="arm_camera"/>
+      <node pkg="op_tests" type="spinner" name="base"/>
+    """)
+    try:
+        poll(lambda: len(status(env, starting=True)) == 3, 60, 0.2, what="the launch answers")
+        for line in ("launcher restart /arm", "launcher logs /arm_c"):
+            r = tool(env, "__complete", line)
+            expected = ["/arm_camera", "/arm_driver"] if line.endswith("/arm") else ["/arm_camera"]
+            assert r.returncode == 0 and r.stdout.split() == expected, (line, r.stdout, r.stderr)
+    finally:
+        lp.close()
