@@ -20,6 +20,7 @@ from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.xml.arguments import load_mappings, root_namespace
+from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
@@ -44,7 +45,6 @@ LAUNCH_ATTRS = frozenset(("deprecated", "if", "unless")) | POLICY_ATTR_NAMES
 
 TEST_TIME_LIMIT_DEFAULT = 60.0
 MACHINE_TIMEOUT_DEFAULT = 10.0
-COMMAND_PARAM_TIMEOUT = 60.0  # seconds a <param command=...> may run
 CORE_NODE_NAMES = ("/rosout",)
 MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-params loads
 
@@ -72,6 +72,7 @@ class XmlLoader:
         self.machines: dict[str, Machine] = {}
         self.files: list[str] = []
         self.rosparam_commands: list[tuple[str, str, str | None]] = []
+        self._commands: list[CommandParam] = []  # <param command=...>, run at the end (xml/commands.py)
         self.node_names: set[str] = set(CORE_NODE_NAMES) if core else set()
         self.root_scope: Scope | None = None
         # launch-level ~params, to warn about those that no later node picks up
@@ -87,6 +88,7 @@ class XmlLoader:
 
     # ------------------------------------------------------------------ output
     def config(self) -> LaunchConfig:
+        self._run_commands()
         self._late_warnings()
         seen: dict[str, None] = {}
         for f in self.files:
@@ -488,45 +490,31 @@ class XmlLoader:
                 raise self._fail(scope, el, "Invalid <param> tag: cannot read binfile [%s]: %s"
                                  % (binfile, e.strerror or e)) from None
         assert command is not None
-        return self._convert(self._run_command(command, name, scope, el), ptype, scope, el, name)
+        return self._command_param(command, name, ptype, scope, el)
 
-    def _run_command(self, command: str, name: str, scope: Scope, el: Any) -> str:
-        # (imported here: subprocess costs ~4 ms to import, and only <param command=...> needs it)
-        import shlex
-        import subprocess
-        try:
-            argv = shlex.split(command)
-        except ValueError as e:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: cannot split command [%s]: %s"
-                             % (name, command, e)) from None
-        if not argv:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: the command is empty" % name)
-        try:
-            p = subprocess.run(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               timeout=COMMAND_PARAM_TIMEOUT, env=dict(self.environ))
-        except FileNotFoundError:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: no such command [%s]"
-                             % (name, argv[0])) from None
-        except subprocess.TimeoutExpired:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: command [%s] did not finish "
-                                        "within %g seconds" % (name, command, COMMAND_PARAM_TIMEOUT)) from None
-        except OSError as e:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: cannot run [%s]: %s"
-                             % (name, command, e.strerror or e)) from None
-        err = p.stderr.decode("utf-8", "replace")
-        if p.returncode != 0:
-            msg = "Cannot load command parameter [%s]: command [%s] returned with code [%s]" % (
-                name, command, p.returncode)
-            if err.strip():
-                msg += "\nstderr of the command:\n" + err.rstrip()
-            raise self._fail(scope, el, msg)
-        if err:
-            sys.stderr.write(err)  # roslaunch lets the command's stderr through
-        try:
-            return p.stdout.decode("utf-8")
-        except UnicodeDecodeError:
-            raise self._fail(scope, el, "Cannot load command parameter [%s]: the output of [%s] is not UTF-8"
-                             % (name, command)) from None
+    def _command_param(self, command: str, name: str, ptype: str, scope: Scope, el: Any) -> CommandParam:
+        """A stand-in for the value, run with the others once the launch is read (xml/commands.py)."""
+        def finish(outcome: str | CommandError) -> Any:
+            if isinstance(outcome, CommandError):
+                raise self._fail(scope, el, str(outcome))
+            return self._convert(outcome, ptype, scope, el, name)
+        pending = CommandParam(command, name, finish)
+        self._commands.append(pending)
+        return pending
+
+    def _run_commands(self) -> None:
+        """Run the command parameters whose parameter is still set (in file order), and put their values in."""
+        params = self.params
+        live = {id(p.value) for p in params.values() if type(p.value) is CommandParam}
+        pending = [c for c in self._commands if id(c) in live]
+        self._commands.clear()
+        if not pending:
+            return
+        terminal = sys.stderr if sys.stderr.isatty() else None
+        run_all(pending, self.environ, terminal)
+        for key, p in params.items():
+            if type(p.value) is CommandParam:
+                params[key] = p._replace(value=p.value.result)
 
     def _add_param(self, key: str, value: Any, scope: Scope, el: Any) -> None:
         if "//" in key or (key[-1:] == SEP and len(key) > 1):  # (canonical(), inline: nearly all keys are)
