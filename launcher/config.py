@@ -60,6 +60,8 @@ class NodePolicy(NamedTuple):
     cpu_limit: float | None = None  # cores, over the last sample window
     on_limit: str = "warn"  # "warn" | "restart"
     enable_coredumps: bool = False
+    log_max_size: int | None = None  # rotate this node's output log past this size (None: --log-max-size)
+    log_backups: int | None = None  # rotated copies to keep (None: --log-backups)
 
 
 class Node(NamedTuple):

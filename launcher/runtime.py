@@ -530,7 +530,7 @@ class Run:
         self.rotator = LogRotator(self.plan.log_max_size, getattr(self.opts, "log_backups", 4), self.log.note)
         for spec in specs:
             if spec.stdout_path:
-                self.rotator.watch(spec.stdout_path)
+                self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
         self.rotator.start()
         if self.rosout is not None:
             self.rosout.warm_up()

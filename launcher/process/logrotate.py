@@ -27,15 +27,17 @@ class LogRotator:
         self.backups = max(1, backups)
         self.note = note  # told of each rotation (the launch log)
         self.period = period
-        self.paths: list[str] = []
+        self.paths: dict[str, tuple[int, int]] = {}  # path -> (max size, backups)
         self._task: asyncio.Task | None = None
 
-    def watch(self, path: str) -> None:
-        if path not in self.paths:
-            self.paths.append(path)
+    def watch(self, path: str, max_size: int | None = None, backups: int | None = None) -> None:
+        """Keep `path` under `max_size` (a node's log_max_size; the launch's when None)."""
+        size = self.max_size if max_size is None else max_size
+        if size > 0:
+            self.paths[path] = (size, max(1, self.backups if backups is None else backups))
 
     def start(self) -> None:
-        if self.max_size > 0 and self.paths and self._task is None:
+        if self.paths and self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._run())
 
     def close(self) -> None:
@@ -47,21 +49,21 @@ class LogRotator:
         loop = asyncio.get_running_loop()
         while True:
             await asyncio.sleep(self.period)
-            for path in self.paths:
+            for path, (max_size, backups) in self.paths.items():
                 try:
                     size = os.stat(path).st_size
                 except OSError:
                     continue
-                if size > self.max_size:
+                if size > max_size:
                     try:
-                        await loop.run_in_executor(None, self.rotate, path)
+                        await loop.run_in_executor(None, self.rotate, path, backups)
                     except OSError as e:  # a full disk: say so, try again next time
                         self.note("cannot rotate %s: %s" % (path, e.strerror or e))
                     else:
-                        self.note("rotated %s at %d bytes (keeping %d older copies)" % (path, size, self.backups))
+                        self.note("rotated %s at %d bytes (keeping %d older copies)" % (path, size, backups))
 
-    def rotate(self, path: str) -> None:
-        for i in range(self.backups - 1, 0, -1):
+    def rotate(self, path: str, backups: int) -> None:
+        for i in range(backups - 1, 0, -1):
             older = "%s.%d" % (path, i)
             if os.path.exists(older):
                 os.replace(older, "%s.%d" % (path, i + 1))

@@ -159,6 +159,8 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "cpu_limit": ("cpu_limit", _cores),
     "on_limit": ("on_limit", _choice("warn", "restart")),
     "enable_coredumps": ("enable_coredumps", _bool),
+    "log_max_size": ("log_max_size", parse_size),
+    "log_backups": ("log_backups", _count),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),

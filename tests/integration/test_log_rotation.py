@@ -56,3 +56,23 @@ def test_a_fast_writer_is_rotated_and_bounded(tmp_path):
         assert "rotated %s at " % stdout_log in open(launch_log).read()
     finally:
         lp.close()
+
+
+def test_a_node_sets_its_own_limit(tmp_path):
+    """log_max_size/log_backups on the node win over --log-max-size (here 0: no rotation for the others)."""
+    pkgs = str(tmp_path / "pkgs")
+    make_package(pkgs, "rot", {"writer": Writer})
+    env = ros_env(str(tmp_path), free_port(), pkgs)
+    env["TOTAL"] = str(tmp_path / "total")
+    launch = write_launch(str(tmp_path), '<node pkg="rot" type="writer" name="chatty" output="log" '
+                                         'log_max_size="1MiB" log_backups="1"/>')
+    lp = Launcher(["--log-max-size", "0", launch], env, str(tmp_path))
+    try:
+        run_dir = os.path.dirname(lp.wait_output(r"\.\.\. logging to (\S+)").group(1))
+        stdout_log = os.path.join(run_dir, "chatty-2-stdout.log")
+        poll(lambda: os.path.exists(stdout_log + ".1") and os.path.getsize(stdout_log + ".1") > 0, 60,
+             what="a rotation")
+        poll(lambda: int(open(env["TOTAL"]).read()) > 2 * (MAX + 2 * RATE), 60, what="more written")
+        assert sorted(glob.glob(stdout_log + "*")) == [stdout_log, stdout_log + ".1"]
+    finally:
+        lp.close()
