@@ -30,11 +30,9 @@ class RunLog:
         self.path = ""
         self._file: Any = None
 
-    def open(self, run_id: str, *, launch_log: bool = True) -> str:
-        """Make the run's directory (and `latest`), start the launch log unless told not to; the directory."""
+    def open(self, run_id: str) -> str:
+        """Make the run's directory (and `latest`) and start the launch log; the directory."""
         self.run_dir = make_run_log_dir(self.environ, run_id)
-        if not launch_log:
-            return self.run_dir
         self.path = os.path.join(self.run_dir, "roslaunch-%s-%d.log" % (socket.gethostname(), os.getpid()))
         try:
             self._file = open(self.path, "a", buffering=1)

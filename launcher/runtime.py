@@ -320,7 +320,7 @@ class Run:
         if self.core:
             await self._start_master(self.plan.core_port)  # first: a busy port is all a core has to say
             self.run_id = self._decide_run_id(None)
-            self.log.open(self.run_id, launch_log=False)
+            self.log.open(self.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
             console.printlog("ros_comm version %s" % masterlink.ros_version_params(env)[0].strip())
         else:
             self.external, reply = await self.signals.guard(self._find_master())

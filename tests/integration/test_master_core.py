@@ -273,3 +273,33 @@ def test_pid_file_is_written_and_removed(ros_env, tmp_path):
         os.killpg(p.pid, signal.SIGINT)
         assert p.wait(10) == 0
     assert not pid_fn.exists()
+
+
+def test_core_logs_to_its_run_directory_as_roscore(tmp_path):
+    """roscore's first line is where it logs; the run directory gets the launch log, master.log and `latest`."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+
+    from running import free_port, master_up, poll
+    port = free_port()
+    out = tmp_path / "core.out"
+    env = dict(os.environ, ROS_HOME=str(tmp_path / "home"))
+    env.pop("ROS_LOG_DIR", None)
+    with open(out, "wb") as f:
+        proc = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], env=env, stdout=f,
+                                stderr=subprocess.STDOUT)
+    try:
+        poll(lambda: master_up(port), 30, what="core up")
+        first = out.read_text().splitlines()[0]
+        m = re.match(r"\.\.\. logging to (\S+)/roslaunch-[^/]+-%d\.log$" % proc.pid, first)
+        assert m, first
+        run_dir = m.group(1)
+        assert os.path.dirname(run_dir) == str(tmp_path / "home" / "log")
+        assert os.path.realpath(tmp_path / "home" / "log" / "latest") == os.path.realpath(run_dir)
+        assert os.path.exists(os.path.join(run_dir, "master.log"))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
