@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import asyncio
-import logging
 import os
 import socket
 from typing import Any, Mapping
 
 from launcher.master.api import MasterApi, resolve, unsendable
+from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.params.tree import ParamTree, copy_tree
@@ -63,11 +63,6 @@ def _local_address(environ: Mapping[str, str]) -> str:
     return "::1" if environ.get("ROS_IPV6") == "on" else "127.0.0.1"
 
 
-# master.log: rosmaster's loggers and its format (/etc/ros/python_logging.conf)
-MASTER_LOGGERS = ("rosmaster.main", "rosmaster.master")
-MASTER_LOG_FORMAT = "[%(name)s][%(levelname)s] %(asctime)s: %(message)s"
-
-
 class Master:
     """A ROS master on the running asyncio loop.
 
@@ -92,7 +87,6 @@ class Master:
         self._notifier: Any = None
         self._api: Any = None
         self._tree = ParamTree()
-        self._log_handler: logging.Handler | None = None
 
     @property
     def params(self) -> ParamTree:
@@ -125,31 +119,16 @@ class Master:
         self._api.uri = self.uri
 
     def open_log(self, path: str) -> None:
-        """Write master.log as rosmaster does: registrations, parameter changes, callbacks to nodes,
-        in its logger names and format. An unwritable file is no reason to stop the master."""
-        try:
-            handler = logging.FileHandler(path, encoding="utf-8")
-        except OSError:
-            return
-        handler.setFormatter(logging.Formatter(MASTER_LOG_FORMAT))
-        for name in MASTER_LOGGERS:
-            logger = logging.getLogger(name)
-            logger.addHandler(handler)
-            logger.setLevel(logging.INFO)
-            logger.propagate = False
-        self._log_handler = handler
-        logging.getLogger("rosmaster.main").info("initialization complete, waiting for shutdown")
-        logging.getLogger("rosmaster.main").info("Starting ROS Master Node")
-        logging.getLogger("rosmaster.master").info("Master initialized: port[%s], uri[%s]", self.port, self.uri)
+        """Write master.log as rosmaster does (master/masterlog.py); an unwritable file only costs the log."""
+        if mlog.open(path):
+            mlog.info("initialization complete, waiting for shutdown", logger="rosmaster.main")
+            mlog.info("Starting ROS Master Node", logger="rosmaster.main")
+            mlog.info("Master initialized: port[%s], uri[%s]", self.port, self.uri)
 
     def _close_log(self) -> None:
-        if self._log_handler is None:
-            return
-        logging.getLogger("rosmaster.main").info("stopping master...")
-        for name in MASTER_LOGGERS:
-            logging.getLogger(name).removeHandler(self._log_handler)
-        self._log_handler.close()
-        self._log_handler = None
+        if mlog.enabled:
+            mlog.info("stopping master...", logger="rosmaster.main")
+            mlog.close()
 
     def _on_shutdown(self, reason: str) -> None:
         self.shutdown_reason = reason

@@ -9,18 +9,15 @@ reply never waits for a node.
 
 from __future__ import annotations
 
-import logging
 import os
 from typing import Any, Callable
 
 from launcher.master import registry as reg
+from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier
 from launcher.params.tree import ParamTree, copy_tree
 from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
 
-# rosmaster's logger and lines: the run's master.log reads as rosmaster's does (the runtime
-# gives it a file; without one, a disabled logger costs a level check per call)
-mlog = logging.getLogger("rosmaster.master")
 
 SEP = "/"
 ANYTYPE = "*"

@@ -14,10 +14,11 @@ import collections
 import logging
 from typing import Any, Callable
 
+from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.net import xmlrpc
 
 log = logging.getLogger("launcher.master")
-mlog = logging.getLogger("rosmaster.master")  # master.log, in rosmaster's words
+
 
 MASTER_CALLER_ID = "/master"
 
@@ -85,7 +86,7 @@ class Notifier:
                 async with self._slots:
                     if item.method == "paramUpdate":
                         mlog.info("paramUpdate[%s]", item.params[1])
-                    logged = item.method == "publisherUpdate" and mlog.isEnabledFor(logging.INFO)
+                    logged = item.method == "publisherUpdate" and mlog.enabled
                     if logged:
                         what = "publisherUpdate[%s] -> %s %s" % (item.topic, api, item.params[2])
                         mlog.info(what)
