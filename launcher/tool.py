@@ -13,7 +13,9 @@ import sys
 from launcher import __version__
 
 # subcommand -> (module, one line of help)
-SUBCOMMANDS: dict[str, tuple[str, str]] = {}
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
+}
 
 USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."
 
