@@ -14,6 +14,7 @@ from launcher import __version__
 
 # subcommand -> (module, one line of help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
 
