@@ -227,6 +227,12 @@ class TestFile:
         watchdog = Watchdog.start()
         scratch = tempfile.mkdtemp(prefix="launcher-test-")
         seen: set[str] = set()
+        broken_fixture = []  # rostest: the test fails when the nodes it runs against cannot be launched
+        for node in fixture.nodes:
+            try:
+                self.packages.find_node(node.package, node.type)
+            except LaunchError:
+                broken_fixture.append(node.full_name)
         try:
             for test in config.tests:
                 problem = None
@@ -234,6 +240,8 @@ class TestFile:
                     self.packages.find_node(test.package, test.type)
                 except LaunchError:
                     problem = "Test node [%s/%s] does not exist or is not executable" % (test.package, test.type)
+                if problem is None and broken_fixture:
+                    problem = "Test Fixture Nodes %s failed to launch" % broken_fixture
                 if problem is None and test.test_name in seen:
                     problem = "Duplicate tests named [%s] in rostest suite" % test.test_name
                 seen.add(test.test_name)

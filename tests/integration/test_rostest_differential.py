@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from running import ROS_PATH, compile_roscpp, make_package
+from running import ROS_PATH, RosMaster, compile_roscpp, make_package
 
 pytestmark = pytest.mark.integration
 
@@ -98,6 +98,10 @@ TESTS = {
               '<test test-name="paramtest" pkg="rostest" type="paramtest" name="pt">\n'
               '  <param name="param_name_target" value="/robot/speed"/>\n'
               '  <param name="param_value_expected" value="3"/><param name="test_duration" value="1.0"/>\n</test>'),
+    "clean": '<param name="fresh" value="1"/>\n<test test-name="clean" pkg="rttest" type="clean_node.py"/>',
+    "missing": '<test test-name="ghost" pkg="rttest" type="no_such_test.py"/>',
+    "badfixture": ('<node name="ghost" pkg="rttest" type="no_such_node.py"/>\n'
+                   '<test test-name="passing" pkg="rttest" type="pass_node.py"/>'),
     "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
                 '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
                 '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
@@ -110,7 +114,8 @@ def workspace(tmp_path_factory, ros_env):
     src = os.path.join(root, "src")
     pkg = make_package(src, "rttest", {"pass_node.py": PASS_NODE, "fail_node.py": FAIL_NODE,
                                        "segv_node.py": SEGV_NODE, "sleep_node.py": SLEEP_NODE,
-                                       "flaky_node.py": FLAKY_NODE, "talker.py": TALKER})
+                                       "flaky_node.py": FLAKY_NODE, "talker.py": TALKER,
+                                       "clean_node.py": NO_STALE_NODE})
     try:
         compile_roscpp("gtest_node.cpp", os.path.join(pkg, "gtest_node"), libs=("-lgtest", "-lpthread"))
     except subprocess.CalledProcessError:
@@ -142,6 +147,19 @@ def _test_file(pkg: str, name: str, who: str) -> str:
     with open(mine, "w") as f:
         f.write('<launch>\n%s\n</launch>\n' % TESTS["retry"].format(counter=os.path.abspath(counter)))
     return mine
+
+
+NO_STALE_NODE = ROS_PY + '''import unittest
+import rospy, rostest
+class Clean(unittest.TestCase):
+    def test_no_stale_param(self):
+        self.assertFalse(rospy.has_param("/stale"), "a parameter of an earlier run is still set")
+    def test_own_param(self):
+        self.assertEqual(rospy.get_param("/fresh"), 1)
+if __name__ == "__main__":
+    rospy.init_node("clean_node")
+    rostest.rosrun("rttest", "clean", Clean)
+'''
 
 
 class Summary:
@@ -249,3 +267,46 @@ def test_two_runs_of_one_file_in_parallel_do_not_interfere(workspace):
         assert "RESULT: SUCCESS" in out
     uris = [re.search(r"ROS_MASTER_URI=(\S+)", out).group(1) for out in outs]
     assert uris[0] != uris[1]
+
+
+@pytest.mark.parametrize("clear", [False, True])
+def test_reuse_master_and_clear_like_rostest(workspace, tmp_path, clear):
+    root, pkg = workspace
+    master = RosMaster(str(tmp_path))
+    try:
+        results = {}
+        for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+            env = _env(root, who)
+            env["ROS_MASTER_URI"] = "http://127.0.0.1:%d/" % master.port
+            # (rostest insists on a /run_id, as roscore sets it)
+            subprocess.run(["rosparam", "set", "/run_id", "reused"], env=env, check=True, timeout=60)
+            subprocess.run(["rosparam", "set", "/stale", "1"], env=env, check=True, timeout=60)
+            extra = ["--reuse-master"] + (["--clear"] if clear else [])
+            proc = subprocess.run(argv + extra + ["rttest", "clean.test"], env=env, capture_output=True, text=True,
+                                  timeout=180)
+            results[who] = Summary(proc)
+        theirs, mine = results["rostest"], results["ours"]
+        assert theirs.rc == (0 if clear else 2), theirs
+        assert mine.rc == theirs.rc, mine
+        assert mine.cases == theirs.cases, (mine, theirs)
+        # the master outlives the runs (it was not ours to stop)
+        assert master.proc.poll() is None
+    finally:
+        master.stop()
+
+
+def test_missing_test_executable_and_broken_fixture(workspace):
+    root, pkg = workspace
+    for name, words in (("missing", "Test node [rttest/no_such_test.py] does not exist"),
+                        ("badfixture", "Test Fixture Nodes ['/ghost'] failed to launch")):
+        theirs, mine = rostest(root, pkg, name), ours(root, pkg, name)
+        assert theirs.rc == 1 and not theirs.success, theirs
+        assert mine.rc == 1 and not mine.success and words in mine.out, mine
+        assert len(mine.failed_runs) == 1
+
+
+def test_text_mode_shows_the_test_output_and_passes_on_exit_status(workspace):
+    root, pkg = workspace
+    mine = ours(root, pkg, "pass", "--text")
+    assert mine.rc == 0, mine
+    assert "test_param" in mine.out  # the unittest's own report, on the screen
