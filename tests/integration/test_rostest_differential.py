@@ -98,6 +98,11 @@ TESTS = {
               '<test test-name="paramtest" pkg="rostest" type="paramtest" name="pt">\n'
               '  <param name="param_name_target" value="/robot/speed"/>\n'
               '  <param name="param_value_expected" value="3"/><param name="test_duration" value="1.0"/>\n</test>'),
+    "advertise": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
+                  '<test test-name="advertisetest" pkg="rostest" type="advertisetest" name="adv">\n'
+                  '  <rosparam>\n    topics:\n      - name: /chatter\n        timeout: 10\n'
+                  '        type: std_msgs/String\n      - name: /nobody\n        timeout: 1\n        negative: true\n'
+                  '  </rosparam>\n</test>'),
     "clean": '<param name="fresh" value="1"/>\n<test test-name="clean" pkg="rttest" type="clean_node.py"/>',
     "missing": '<test test-name="ghost" pkg="rttest" type="no_such_test.py"/>',
     "badfixture": ('<node name="ghost" pkg="rttest" type="no_such_node.py"/>\n'
@@ -192,7 +197,8 @@ def ours(root: str, pkg: str, name: str, *extra: str) -> Summary:
 
 
 @pytest.mark.parametrize("name, rc", [("pass", 0), ("fail", 2), ("gtest", 2), ("retry", 0), ("hz", 0),
-                                      ("param", 0), ("publish", 0)])
+                                      ("param", 0), ("publish", 0),
+                                      ("advertise", 0)])
 def test_same_results_as_rostest(workspace, name, rc):
     root, pkg = workspace
     theirs, mine = rostest(root, pkg, name), ours(root, pkg, name)
