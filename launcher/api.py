@@ -32,6 +32,7 @@ from launcher.roshome import log_root
 
 CALLER_ID = "/launcher_api"
 POLL_S = 0.05  # how often a wait asks the master again
+PORT_ATTEMPTS = 3  # free ports tried for our own master
 
 
 class LaunchFailed(RuntimeError):
@@ -73,6 +74,20 @@ class Launch:
         """Start the launcher and wait until its master answers (LaunchFailed if it exits first)."""
         if self.process is not None:
             raise RuntimeError("this Launch was already started")
+        for attempt in range(PORT_ATTEMPTS):
+            try:
+                self._start()
+                return self
+            except LaunchFailed as e:
+                # the free port was taken between our look and the launcher's bind: another one
+                if not self.own_master or "unable to start the master" not in str(e) or attempt + 1 == PORT_ATTEMPTS:
+                    raise
+                self.process = None
+                self.port = _free_port()
+                self.master_uri = "http://127.0.0.1:%d/" % self.port
+        return self
+
+    def _start(self) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="launcher-api-")
         self.output_path = os.path.join(self._dir.name, "launch.out")
         env = dict(self.env)
@@ -97,7 +112,6 @@ class Launch:
         except BaseException:
             self.stop()
             raise
-        return self
 
     def stop(self) -> int | None:
         """Stop the launch (SIGINT, then SIGKILL of its process group after `stop_timeout`); its exit status."""

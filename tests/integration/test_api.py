@@ -124,3 +124,16 @@ def test_pytest_fixture_runs_a_launch_in_a_plain_pytest_test(demo, tmp_path):
                           timeout=300, cwd=str(tmp_path))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "2 passed" in proc.stdout
+
+
+def test_a_port_taken_before_the_launcher_binds_it_is_replaced(demo):
+    launch_file, env = demo
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        launch = Launch(launch_file, env=env)
+        launch.port = busy.getsockname()[1]  # as if another program took the free port just after we looked
+        launch.master_uri = "http://127.0.0.1:%d/" % launch.port
+        with launch:
+            assert launch.port != busy.getsockname()[1]
+            launch.wait_for_publisher("/chatter", timeout=60)
