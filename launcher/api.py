@@ -33,10 +33,20 @@ from launcher.roshome import log_root
 CALLER_ID = "/launcher_api"
 POLL_S = 0.05  # how often a wait asks the master again
 PORT_ATTEMPTS = 3  # free ports tried for our own master
+CALL_TIMEOUT_S = 5.0  # one XML-RPC call to the master (something else on the port may never answer)
 
 
 class LaunchFailed(RuntimeError):
     """The launcher exited, or did not come up: the message holds the end of its output."""
+
+
+class _Transport(xmlrpc.client.Transport):
+    """xmlrpc.client's transport, with a time-out on every connection."""
+
+    def make_connection(self, host: Any) -> Any:
+        conn = super().make_connection(host)
+        conn.timeout = CALL_TIMEOUT_S
+        return conn
 
 
 def _free_port() -> int:
@@ -161,7 +171,7 @@ class Launch:
             return ""
 
     def master(self) -> xmlrpc.client.ServerProxy:
-        return xmlrpc.client.ServerProxy(self.master_uri)
+        return xmlrpc.client.ServerProxy(self.master_uri, transport=_Transport())
 
     def system_state(self) -> tuple[list, list, list]:
         """The master's (publishers, subscribers, services): [[name, [node, ...]], ...] each."""
