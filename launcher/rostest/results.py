@@ -36,6 +36,8 @@ class CaseResult(NamedTuple):
 class TestOutcome(NamedTuple):
     """One `<test>`'s final attempt: its cases (from its result file) and why the run itself failed, if it did."""
 
+    __test__ = False  # (not a pytest test class, whatever its name)
+
     test_name: str
     cases: tuple[CaseResult, ...] = ()
     problem: str | None = None  # "exited with code 3", "died by signal SIGSEGV", "timed out after 60 s", ...
