@@ -2,9 +2,10 @@
 
 Nothing is started. The files are loaded by the real loader (`xml.XmlLoader`):
 once with the args given, then once for each combination of `true` and
-`false` of the boolean args a user may set (declared with a default, or
-required) that decide an `if`/`unless` (`$(arg sim)`, `$(eval ...)`): the
-values the file can produce. Each load's error (roslaunch would refuse the
+`false` of the args a user may set (declared with a default, or required)
+that decide an `if`/`unless` (`$(arg sim)`, `$(eval ...)`), and of the boolean
+ones the files read (they may decide a condition in an included file under
+another name): the values the file can produce. Each load's error (roslaunch would refuse the
 file: kind "load"), and what the loaded configuration gets wrong at run time
 (kind "run": a node or test whose package or executable does not exist, a
 `machine=` that names no `<machine>`, a `$(find pkg)/path` that does not
@@ -66,10 +67,13 @@ class ConditionLoader(XmlLoader):
         super().__init__(**kw)
         self.conditions: list[str] = []
         self.errors: list[LaunchError] = []
+        # (file, line) of each <node>/<test> -> its include chain (a Node does not carry it)
+        self.chains: dict[tuple[str, int], tuple[tuple[str, int], ...]] = {}
 
-    def _node_tag(self, *args: Any, **kw: Any) -> None:
+    def _node_tag(self, el: Any, scope: Any, *args: Any, **kw: Any) -> None:
+        self.chains[(scope.source, el.sourceline or 0)] = tuple(scope.include_chain)
         try:
-            super()._node_tag(*args, **kw)
+            super()._node_tag(el, scope, *args, **kw)
         except LaunchError as e:
             self.errors.append(e)
 
@@ -143,17 +147,23 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
         for f in loader.files:
             loaded_files.setdefault(os.path.abspath(f))
         if config is not None:
-            for finding in _check_config(config, packages, branch):
+            for finding in _check_config(config, packages, branch, loader.chains):
                 _add(findings, finding)
         # the args a user may set (declared with a default, or required) that decide a condition
         free = {} if loader.root_scope is None else \
             {n: d for n, (_doc, d) in loader.root_scope.arg_docs.items() if n not in given}
-        new = False
+        deciding = set()
         for cond in loader.conditions:
-            for name in sorted(condition_args(cond, free)):
-                if name not in varied:
-                    varied[name] = _branch_values(name, free[name])
-                    new = True
+            deciding |= condition_args(cond, free)
+        # a boolean arg passed on to an included file may decide a condition there under another name
+        # (<arg name="sim" value="$(arg use_sim)"/>): every boolean arg the files read is varied too
+        deciding |= {n for n in loader._used_args if n in free and free[n] is not None
+                     and free[n].strip().lower() in _BOOLEAN}
+        new = False
+        for name in sorted(deciding):
+            if name not in varied:
+                varied[name] = _branch_values(name, free[name])
+                new = True
         if new:
             todo.extend(_combinations(varied))
     located = {(os.path.abspath(f.filename), f.line) for f in findings.values() if f.filename}
@@ -181,20 +191,23 @@ def _add(findings: dict[str, Finding], finding: Finding) -> None:
     findings.setdefault(finding.message, finding)
 
 
-def _located(node: Any, msg: str) -> str:
-    return LaunchError(msg, node.filename or None, node.line or None).format()
+def _located(node: Any, chain: tuple[tuple[str, int], ...], msg: str) -> str:
+    return LaunchError(msg, node.filename or None, node.line or None, chain).format()
 
 
-def _check_config(config: Any, packages: Any, branch: tuple[str, ...]) -> Iterable[Finding]:
+def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
+                  chains: dict[tuple[str, int], tuple[tuple[str, int], ...]]) -> Iterable[Finding]:
     for node in config.nodes + config.tests:
+        chain = chains.get((node.filename, node.line), ())
+
         kind = "test" if node.is_test else "node"
         try:
             packages.find_node(node.package, node.type)
         except LaunchError as e:
-            yield Finding("error", _located(node, "<%s> [%s]: %s" % (kind, node.full_name, e.message)),
+            yield Finding("error", _located(node, chain, "<%s> [%s]: %s" % (kind, node.full_name, e.message)),
                           node.filename, node.line, branch, "run")
         if node.machine_name and node.machine_name not in config.machines:
-            yield Finding("error", _located(node, "<%s> [%s] uses machine [%s], which no <machine> tag declares"
+            yield Finding("error", _located(node, chain, "<%s> [%s] uses machine [%s], which no <machine> tag declares"
                                             % (kind, node.full_name, node.machine_name)),
                           node.filename, node.line, branch, "run")
 

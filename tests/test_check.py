@@ -65,6 +65,17 @@ def test_error_behind_if_arg_is_found_with_its_line_and_branch(ws):
                 and "no_such_sim" in f.message]
 
 
+def test_condition_in_an_included_file_decided_by_a_top_level_arg(ws):
+    tmp, env = ws
+    inner = write(tmp, "inner.launch", '<arg name="sim"/>\n'
+                  '<node if="$(arg sim)" name="fake" pkg="robot" type="no_such_sim.py"/>')   # line 4
+    path = write(tmp, "outer.launch", '<arg name="use_sim" default="false"/>\n'
+                 '<include file="%s"><arg name="sim" value="$(arg use_sim)"/></include>' % inner)  # line 4
+    fs = [f for f in findings(env, path) if f.severity == "error"]
+    assert len(fs) == 1 and fs[0].branch == ("use_sim:=true",), fs
+    assert "inner.launch:4:" in fs[0].message and "included from %s:4" % path in fs[0].message
+
+
 def test_unless_branch_yaml_and_undefined_arg(ws):
     tmp, env = ws
     path = write(tmp, "robot.launch", '<arg name="real" default="true"/>\n'
