@@ -27,7 +27,7 @@ import sys
 from typing import Any, Iterable, NamedTuple
 
 from launcher.errors import LaunchError
-from launcher.packages import PackageIndex
+from launcher.packages import PackageIndex, package_of
 from launcher.xml import resolve_launch_arguments
 from launcher.xml.document import read_launch
 from launcher.xml.loader import XmlLoader
@@ -241,21 +241,26 @@ def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:
                               (), "run")
 
 
-def junit_xml(findings: list[Finding], files: list[str]) -> str:
-    """roslaunch-check's JUnit layout: one test case per file checked, failures for errors."""
-    from xml.sax.saxutils import quoteattr, escape
+def junit_xml(findings: list[Finding], files: list[str]) -> bytes:
+    """roslaunch-check's JUnit layout: a suite named after the file, one `roslaunch.RoslaunchCheck` case
+    named `<pkg>_<path in the package>`, failed with every error (each with its branch) when there is one."""
+    import xml.etree.ElementTree as ET  # (only with --junit-xml)
+    name = files[-1]
+    try:
+        pkg, pkg_dir = package_of(name)
+        outname = os.path.abspath(name)[len(pkg_dir) + 1:].replace(".", "_").replace(os.sep, "_")
+    except LaunchError:
+        pkg, outname = "", os.path.basename(name).replace(".", "_")
     errors = [f for f in findings if f.severity == "error"]
-    cases = []
-    for name in files:
-        mine = [f for f in errors if f.filename is None or os.path.abspath(f.filename) == os.path.abspath(name)
-                or name == files[-1] and f.filename not in [os.path.abspath(x) for x in files]]
-        body = "".join('<failure message=%s type="">%s</failure>' % (quoteattr(f.message.split("\n", 1)[0]),
-                                                                      escape(f.format())) for f in mine)
-        cases.append('  <testcase name=%s classname="Results" status="run" time="0">%s</testcase>'
-                     % (quoteattr(os.path.basename(name)), body))
-    failures = sum(1 for c in cases if "<failure" in c)
-    return ('<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="roslaunch_check" tests="%d" failures="%d" '
-            'errors="0" time="0">\n%s\n</testsuite>\n' % (len(files), failures, "\n".join(cases)))
+    suite = ET.Element("testsuite", tests="1", failures="1" if errors else "0", time="1", errors="0", name=name)
+    case = ET.SubElement(suite, "testcase", name="%s_%s" % (pkg, outname) if pkg else outname, status="run", time="1",
+                         classname="roslaunch.RoslaunchCheck")
+    if errors:
+        failure = ET.SubElement(case, "failure", message="roslaunch check [%s] failed" % name, type="")
+        failure.text = "\n".join(f.format() for f in errors)  # (CI pages show a failure's text)
+    out = ET.SubElement(suite, "system-out")
+    out.text = "\n".join(f.format() for f in findings)
+    return ET.tostring(suite, encoding="utf-8", xml_declaration=True)
 
 
 def main(argv: list[str]) -> int:
@@ -287,7 +292,7 @@ def main(argv: list[str]) -> int:
     if opts.junit_xml:
         try:
             os.makedirs(os.path.dirname(os.path.abspath(opts.junit_xml)), exist_ok=True)
-            with open(opts.junit_xml, "w") as out:
+            with open(opts.junit_xml, "wb") as out:
                 out.write(junit_xml(findings, files))
         except OSError as e:
             print("cannot write [%s]: %s" % (opts.junit_xml, e.strerror), file=sys.stderr)

@@ -119,7 +119,7 @@ def test_clean_file_gives_no_error_and_junit_says_so(ws):
     assert p.returncode == 0, p.stdout + p.stderr
     with open(out) as f:
         text = f.read()
-    assert 'tests="1" failures="0"' in text
+    assert 'tests="1" failures="0"' in text and 'classname="roslaunch.RoslaunchCheck"' in text
 
 
 def test_junit_lists_the_errors(ws):
@@ -130,7 +130,7 @@ def test_junit_lists_the_errors(ws):
     assert p.returncode == 1
     with open(out) as f:
         text = f.read()
-    assert 'failures="1"' in text and "missing.py" in text
+    assert 'failures="1"' in text and "roslaunch check [%s] failed" % path in text and "missing.py" in text
 
 
 def _corpus_cases():

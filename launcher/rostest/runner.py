@@ -35,7 +35,7 @@ from launcher.config import Node
 from launcher.errors import LaunchError
 from launcher.masterlink import RemoteParams
 from launcher.names import ns_join
-from launcher.packages import PackageIndex, read_package_xml
+from launcher.packages import PackageIndex, package_of
 from launcher.process import console
 from launcher.process.spawn import ProcessSpec, start_process
 from launcher.process.watchdog import Watchdog
@@ -165,22 +165,6 @@ def _signal_group(pgid: int, sig: int) -> None:
         os.killpg(pgid, sig)
     except OSError:
         pass
-
-
-def package_of(path: str) -> tuple[str, str]:
-    """(name, directory) of the package holding `path` (rospkg.get_package_name: the nearest package.xml up)."""
-    d = os.path.dirname(os.path.abspath(path))
-    while True:
-        manifest = os.path.join(d, "package.xml")
-        if os.path.isfile(manifest):
-            with open(manifest, "rb") as f:
-                name, _meta = read_package_xml(f.read())
-            if name:
-                return name, d
-        parent = os.path.dirname(d)
-        if parent == d:
-            raise LaunchError("[%s] is not inside a ROS package (no package.xml above it)" % path)
-        d = parent
 
 
 def rostest_name_from_path(pkg_dir: str, test_file: str) -> str:
