@@ -228,6 +228,22 @@ def _crawl_path(root: str) -> Crawl:
     return crawl
 
 
+def package_of(path: str) -> tuple[str, str]:
+    """(name, directory) of the package holding `path` (rospkg.get_package_name: the nearest package.xml up)."""
+    d = os.path.dirname(os.path.abspath(path))
+    while True:
+        manifest = os.path.join(d, "package.xml")
+        if os.path.isfile(manifest):
+            with open(manifest, "rb") as f:
+                name, _meta = read_package_xml(f.read())
+            if name:
+                return name, d
+        parent = os.path.dirname(d)
+        if parent == d:
+            raise LaunchError("[%s] is not inside a ROS package (no package.xml above it)" % path)
+        d = parent
+
+
 class PackageIndex:
     """Where packages and their files are, for one run. Crawls lazily, each directory once."""
 

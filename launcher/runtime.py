@@ -232,7 +232,7 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     config = plan.config
     if config.tests:
         # roslaunch skips <test> tags without a word; say so, they are the user's
-        console.printlog("ignoring %d <test> node(s) (%s): run them with rostest"
+        console.printlog("ignoring %d <test> node(s) (%s): run them with `launcher test` (or rostest)"
                          % (len(config.tests), ", ".join(t.test_name or t.name for t in config.tests)))
     specs: list[ProcessSpec] = []
     failed: list[tuple[str, bool]] = []

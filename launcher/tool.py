@@ -24,6 +24,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
     "logs": ("launcher.operate.logs", "a node's output (-f follows it)"),
     "events": ("launcher.operate.events", "the run's state changes (-f follows them)"),
+    "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
+    "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
 
 USAGE = "usage: launcher <command> [options]\n\ncommands:\n%s\n\n'launcher <command> --help' tells more."

@@ -26,3 +26,11 @@ def test_every_runtime_dependency_is_imported_by_launcher():
         module = MODULE_OF.get(name, name.replace("-", "_"))
         assert re.search(r"^\s*(?:import|from) %s\b" % re.escape(module), code, re.M), \
             "%s is a runtime dependency but no launcher module imports %s" % (name, module)
+
+
+def test_pytest_plugin_is_registered_by_entry_point():
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as f:
+        project = tomllib.load(f)["project"]
+    module = project["entry-points"]["pytest11"]["launcher"]
+    assert os.path.isfile(os.path.join(ROOT, *module.split(".")) + ".py")
+    assert "def ros_launch" in open(os.path.join(ROOT, *module.split(".")) + ".py").read()

@@ -54,8 +54,9 @@ def make_package(root: str, name: str, scripts: dict[str, str]) -> str:
     return pkg
 
 
-def compile_roscpp(source_name: str, dest: str) -> str:
-    """Compile tests/integration/nodes/<source_name> against Debian's roscpp (cached by content)."""
+def compile_roscpp(source_name: str, dest: str, libs: tuple[str, ...] = ()) -> str:
+    """Compile tests/integration/nodes/<source_name> against Debian's roscpp (cached by content), and `libs`
+    (e.g. "-lgtest")."""
     src = os.path.join(HERE, "nodes", source_name)
     with open(src, "rb") as f:
         digest = hashlib.sha1(f.read()).hexdigest()[:12]
@@ -69,7 +70,7 @@ def compile_roscpp(source_name: str, dest: str) -> str:
             flags = ("-lroscpp -lboost_chrono -lboost_filesystem -lrosconsole -lrosconsole_log4cxx "
                      "-lrosconsole_backend_interface -llog4cxx -lboost_regex -lboost_system -lboost_thread "
                      "-lroscpp_serialization -lxmlrpcpp -lrostime -lcpp_common").split()
-        subprocess.run(["g++", "-O1", "-o", exe + ".tmp", src] + flags, check=True)
+        subprocess.run(["g++", "-O1", "-o", exe + ".tmp", src] + flags + list(libs), check=True)
         os.replace(exe + ".tmp", exe)
     shutil.copy2(exe, dest)
     return dest

@@ -1,0 +1,1 @@
+"""`launcher test`: rostest's runner (`runner`) and its JUnit results (`results`)."""

@@ -1,0 +1,327 @@
+"""`launcher test [pkg] file.test [name:=value ...]`: rostest's runner, each `<test>` on its own master and fixture.
+
+As rostest (Debian's rostest/runner.py), every `<test>` gets a fresh run of the
+file: a master (ours, on a free port, so that several runs go in parallel;
+the one at ROS_MASTER_URI with `--reuse-master`), the file's parameters and
+`<node>`s, then the test node with `--gtest_output=xml:RESULT` appended to its
+args, until it exits or its `time-limit` passes. A run is `runtime.Run` with
+three steps changed: where the master comes from, and, instead of waiting for
+a stop signal, running the test node.
+
+Where rostest is wrong, this runner is not: a test that exits non-zero, dies by
+a signal, times out or writes no results fails with that reason (rostest passes
+a test that wrote its results and then segfaulted, ros_comm#2265), and test
+cases are counted from the file's `<testcase>`s, not its `failures=` attribute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import shlex
+import shutil
+import signal
+import sys
+import tempfile
+import time
+from types import SimpleNamespace
+from typing import Any
+
+from launcher import masterlink
+from launcher.cli import _DEFAULTS as LAUNCH_DEFAULTS
+from launcher.command import node_command
+from launcher.config import Node
+from launcher.errors import LaunchError
+from launcher.masterlink import RemoteParams
+from launcher.names import ns_join
+from launcher.packages import PackageIndex, package_of
+from launcher.process import console
+from launcher.process.spawn import ProcessSpec, start_process
+from launcher.process.watchdog import Watchdog
+from launcher.rostest.results import TestOutcome, judge, results_dir, safe_test_name, summary, write_junit
+from launcher.runtime import Plan, Run, Stopped
+from launcher.xml import resolve_launch_arguments
+
+DEFAULT_TIME_LIMIT = 60.0  # rostest's default time-limit
+# a test node that outlives its time-limit: SIGINT, then SIGTERM, then SIGKILL after these many seconds
+STOP_GRACE_S = (5.0, 2.0)
+# parameters `--clear` keeps (rostest's whitelist; /roslaunch/* too)
+CLEAR_KEEP = ("/run_id", "/rosversion", "/rosdistro")
+
+
+def printlog(msg: str) -> None:
+    console.printlog("[ROSTEST]" + msg)
+
+
+class TestAttempt(Run):
+    """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
+
+    def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
+                 reuse_master: bool, clear: bool, text: bool):
+        super().__init__(opts, plan, watchdog)
+        self.test = test
+        self.result_file = result_file
+        self.reuse_master = reuse_master
+        self.clear = clear
+        self.text = text
+        self.returncode: int | None = None
+        self.timed_out = False
+        self.start_problem: str | None = None
+        self.interrupted = False
+
+    async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
+        if not self.reuse_master:
+            return False, None  # always our own master
+        answers, reply = await masterlink.probe(self.master_uri)
+        if not answers:
+            raise LaunchError("--reuse-master: no ROS master answers at [%s]" % self.master_uri)
+        if self.clear:
+            params = RemoteParams(self.master_uri)
+            for key in await params._call("getParamNames"):
+                if key not in CLEAR_KEEP and not key.startswith("/roslaunch/"):
+                    await params.delete(key)
+        return True, reply
+
+    async def _start_master(self, port: int) -> None:
+        # a free port of the kernel's choosing: parallel runs never meet
+        await super()._start_master(0)
+        self.master_uri = self.plan.master_uri = self.master.uri
+
+    async def _wait_for_the_end(self) -> None:
+        self.signals.check()
+        try:
+            await self.signals.guard(self._run_test())
+        except Stopped:
+            self.interrupted = True
+            raise
+
+    async def _run_test(self) -> None:
+        test = self.test
+        extra = "--gtest_output=xml:" + shlex.quote(self.result_file)
+        if self.text:
+            extra += " --text"
+        node = test._replace(args=(test.args + " " + extra) if test.args else extra)
+        self._process_count += 1
+        name = ("%s-%d" % (ns_join(node.namespace, node.name), self._process_count)).lstrip("/")
+        run_dir = self.log.run_dir
+        log_name = name.replace("/", "-")
+        try:
+            command = node_command(node, master_uri=self.master_uri, environ=self.plan.environ,
+                                   packages=self.plan.packages,
+                                   log_file=os.path.join(run_dir, log_name + ".log") if run_dir else None)
+        except LaunchError as e:
+            self.start_problem = str(e)
+            return
+        screen = self.text or node.output == "screen"
+        spec = ProcessSpec(name, command, log_dir=run_dir, node_name=ns_join(node.namespace, node.name),
+                           stdout_path=os.path.join(run_dir, log_name + "-stdout.log") if run_dir and not screen
+                           else None)
+        printlog("running test %s" % test.test_name)
+        popen = start_process(spec, self.watchdog)
+        if popen is None:
+            self.start_problem = "test [%s] could not be started" % test.test_name
+            return
+        loop = asyncio.get_running_loop()
+        exited = loop.create_future()
+        pidfd = os.pidfd_open(popen.pid)
+        loop.add_reader(pidfd, lambda: exited.done() or exited.set_result(None))
+        try:
+            limit = test.time_limit if test.time_limit is not None else DEFAULT_TIME_LIMIT
+            try:
+                await asyncio.wait_for(asyncio.shield(exited), limit)
+            except asyncio.TimeoutError:
+                self.timed_out = True
+                console.printerrlog("[ROSTEST]test [%s] timed out" % test.test_name)
+                await self._stop(popen, exited)
+        finally:
+            loop.remove_reader(pidfd)
+            os.close(pidfd)
+            if popen.poll() is None:  # cancelled (a stop signal): no grace
+                _signal_group(popen.pid, signal.SIGKILL)
+            self.returncode = popen.wait()
+            _signal_group(popen.pid, signal.SIGKILL)  # whatever the test left behind in its group
+            if self.watchdog is not None:
+                self.watchdog.forget(popen.pid)
+        if self.returncode and not self.timed_out:
+            console.printerrlog("[%s] process has died [pid %s, exit code %s, cmd %s]."
+                                % (name, popen.pid, self.returncode, " ".join(command.argv)))
+        printlog("test [%s] finished" % test.test_name)
+
+    async def _stop(self, popen: Any, exited: asyncio.Future) -> None:
+        for sig, grace in zip((signal.SIGINT, signal.SIGTERM), STOP_GRACE_S):
+            _signal_group(popen.pid, sig)
+            try:
+                await asyncio.wait_for(asyncio.shield(exited), grace)
+                return
+            except asyncio.TimeoutError:
+                pass
+        _signal_group(popen.pid, signal.SIGKILL)
+        await exited
+
+
+def _signal_group(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except OSError:
+        pass
+
+
+def rostest_name_from_path(pkg_dir: str, test_file: str) -> str:
+    """rosunit's name of a test file's results: its package-relative path, `/` as `_`, without extension."""
+    path = os.path.abspath(test_file)
+    if path.startswith(pkg_dir):
+        path = path[len(pkg_dir):].lstrip(os.sep)
+    name = path.replace(os.sep, "_")
+    return name[:name.rfind(".")] if "." in name else name
+
+
+class TestFile:
+    """Every `<test>` of one file, each in its own attempts; the outcomes, in file order."""
+
+    def __init__(self, opts: argparse.Namespace):
+        self.opts = opts
+        self.environ = dict(os.environ)
+        self.packages = PackageIndex(self.environ, warn=lambda m: console.printerrlog("WARNING: %s" % m))
+        files, self.argv = resolve_launch_arguments(list(opts.positional), self.packages)
+        if not files:
+            raise LaunchError("you must supply a test file argument")
+        if len(files) != 1:
+            raise LaunchError("only a single test file is accepted")
+        self.test_file = files[0]
+        if opts.pkg_dir and opts.package:
+            self.pkg, self.pkg_dir = opts.package, opts.pkg_dir
+        else:
+            self.pkg, self.pkg_dir = package_of(self.test_file)
+        if opts.results_filename:
+            outname = opts.results_filename
+            outname = outname[:outname.rfind(".")] if "." in outname else outname
+        else:
+            outname = rostest_name_from_path(self.pkg_dir, self.test_file)
+        self.results_dir = os.path.join(results_dir(self.environ, opts.results_base_dir), self.pkg)
+        self.junit_path = opts.junit_xml or os.path.join(self.results_dir, "rostest-%s.xml" % safe_test_name(outname))
+        self.launch_opts = SimpleNamespace(**dict(LAUNCH_DEFAULTS, positional=[self.test_file] + self.argv,
+                                                  screen=bool(opts.text)))
+
+    def run(self) -> int:
+        plan = Plan.load(self.launch_opts)
+        config = plan.config
+        fixture = config._replace(tests=())
+        outcomes: list[TestOutcome] = []
+        watchdog = Watchdog.start()
+        scratch = tempfile.mkdtemp(prefix="launcher-test-")
+        seen: set[str] = set()
+        broken_fixture = []  # rostest: the test fails when the nodes it runs against cannot be launched
+        for node in fixture.nodes:
+            try:
+                self.packages.find_node(node.package, node.type)
+            except LaunchError:
+                broken_fixture.append(node.full_name)
+        try:
+            for test in config.tests:
+                problem = None
+                try:
+                    self.packages.find_node(test.package, test.type)
+                except LaunchError:
+                    problem = "Test node [%s/%s] does not exist or is not executable" % (test.package, test.type)
+                if problem is None and broken_fixture:
+                    problem = "Test Fixture Nodes %s failed to launch" % broken_fixture
+                if problem is None and test.test_name in seen:
+                    problem = "Duplicate tests named [%s] in rostest suite" % test.test_name
+                seen.add(test.test_name)
+                if problem is not None:
+                    console.printerrlog(problem)
+                    outcomes.append(TestOutcome(test.test_name, problem=problem))
+                    continue
+                outcome = self._run_test(test, fixture, plan, watchdog, scratch)
+                if outcome is None:  # interrupted
+                    return 130
+                outcomes.append(outcome)
+        finally:
+            if watchdog is not None:
+                watchdog.close()
+            shutil.rmtree(scratch, ignore_errors=True)
+        write_junit(self.junit_path, "rostest", outcomes)
+        console.printlog(summary(outcomes))
+        console.printlog("test results are in %s" % self.junit_path)
+        if any(o.problem is not None for o in outcomes):
+            return 1
+        return 2 if any(not o.passed for o in outcomes) else 0
+
+    def _run_test(self, test: Node, fixture: Any, plan: Plan, watchdog: Any, scratch: str) -> TestOutcome | None:
+        """Attempts of one test until it passes or its retries are used up; None when a stop signal came."""
+        retries = test.retry
+        attempt = 0
+        # the test writes into this run's own directory (parallel runs of one file never share a result
+        # file); the final one is then copied where rostest keeps it, rosunit-<test>.xml
+        private = os.path.join(scratch, "rosunit-%s.xml" % safe_test_name(test.test_name))
+        limit = test.time_limit if test.time_limit is not None else DEFAULT_TIME_LIMIT
+        while True:
+            attempt += 1
+            if os.path.exists(private):
+                os.remove(private)
+            printlog("Running test [%s]" % test.test_name)
+            started = time.monotonic()
+            run = TestAttempt(self.launch_opts, Plan(fixture, plan.master_uri, plan.environ, packages=self.packages),
+                              watchdog, test, private, reuse_master=self.opts.reuse_master, clear=self.opts.clear,
+                              text=self.opts.text)
+            asyncio.run(run.main())
+            if run.interrupted:
+                return None
+            elapsed = time.monotonic() - started
+            if run.start_problem is not None:
+                outcome = TestOutcome(test.test_name, problem=run.start_problem, time=elapsed, attempts=attempt)
+            else:
+                outcome = judge(test.test_name, run.returncode, run.timed_out, limit, private, elapsed, attempt,
+                                text=self.opts.text,
+                                prefix="%s.%s" % (self.pkg, os.path.splitext(os.path.basename(private))[0]))
+            if outcome.passed or retries <= 0:
+                break
+            retries -= 1
+            printlog("test [%s] failed (%s), retrying. Retries left: %d"
+                     % (test.test_name, outcome.problem or "failing test cases", retries))
+        if outcome.result_file:
+            final = os.path.join(self.results_dir, os.path.basename(private))
+            os.makedirs(self.results_dir, exist_ok=True)
+            shutil.copyfile(private, final + ".tmp%d" % os.getpid())
+            os.replace(final + ".tmp%d" % os.getpid(), final)
+            outcome = outcome._replace(result_file=final)
+        printlog("test [%s] results summary: %d errors, %d failures, %d tests%s"
+                 % (test.test_name, outcome.errors, outcome.failures, len(outcome.cases),
+                    "" if outcome.problem is None else " (%s)" % outcome.problem))
+        return outcome
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher test", usage="launcher test [options] [package] <file.test> [name:=value ...]",
+                                description="Run a rostest file: its nodes, then each <test> node, on a fresh master.")
+    p.add_argument("-t", "--text", action="store_true", help="test output on the screen instead of XML results")
+    p.add_argument("--pkgdir", dest="pkg_dir", metavar="PKG_DIR", help="package dir (with --package)")
+    p.add_argument("--package", metavar="PACKAGE", help="package (with --pkgdir)")
+    p.add_argument("--results-filename", metavar="RESULTS_FILENAME", help="name of the results file (rostest-NAME.xml)")
+    p.add_argument("--results-base-dir", metavar="RESULTS_BASE_DIR",
+                   help="base directory of the test results (a PKG subdirectory is made in it)")
+    p.add_argument("-r", "--reuse-master", action="store_true",
+                   help="connect to the ROS master at ROS_MASTER_URI instead of starting one per test")
+    p.add_argument("-c", "--clear", action="store_true", help="clear all parameters of the reused master first")
+    p.add_argument("--junit-xml", metavar="PATH", help="write the JUnit results here instead")
+    p.add_argument("positional", nargs="*", metavar="ARG", help="[package] file.test name:=value ...")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    parser = build_parser()
+    opts = parser.parse_intermixed_args(argv)
+    if opts.clear and not opts.reuse_master:
+        print("The --clear option is only valid with --reuse-master", file=sys.stderr)
+        return 1
+    try:
+        status = TestFile(opts).run()
+    except LaunchError as e:
+        console.flush()
+        print(str(e), file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        status = 130
+    console.flush()
+    return status

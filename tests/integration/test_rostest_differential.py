@@ -1,0 +1,318 @@
+"""`launcher test` against Debian's `rostest` on the same test files: same pass/fail per test case, same counts,
+same exit status, except where rostest is wrong (a test that segfaults after writing its results)."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+
+import pytest
+
+from running import ROS_PATH, RosMaster, compile_roscpp, make_package
+
+pytestmark = pytest.mark.integration
+
+ROS_PY = "#!/usr/bin/env python3\n"
+
+PASS_NODE = ROS_PY + '''import unittest
+import rospy, rostest
+class Passing(unittest.TestCase):
+    def test_param(self):
+        self.assertEqual(rospy.get_param("/answer"), 42)
+    def test_truth(self):
+        self.assertTrue(True)
+if __name__ == "__main__":
+    rospy.init_node("pass_node")
+    rostest.rosrun("rttest", "passing", Passing)
+'''
+
+FAIL_NODE = ROS_PY + '''import unittest
+import rospy, rostest
+class Failing(unittest.TestCase):
+    def test_good(self):
+        self.assertTrue(True)
+    def test_bad(self):
+        self.assertEqual(1, 2, "one is not two")
+    def test_error(self):
+        raise RuntimeError("boom")
+if __name__ == "__main__":
+    rospy.init_node("fail_node")
+    rostest.rosrun("rttest", "failing", Failing)
+'''
+
+# writes a passing result file as gtest would, then dies by SIGSEGV (a crash in a destructor at exit)
+SEGV_NODE = ROS_PY + '''import os, signal, sys
+out = [a for a in sys.argv if a.startswith("--gtest_output=xml:")][0].split(":", 1)[1]
+with open(out, "w") as f:
+    f.write('<?xml version="1.0"?><testsuites tests="1" failures="0" errors="0"><testsuite name="Crash" '
+            'tests="1" failures="0" errors="0"><testcase name="works" classname="Crash" status="run"/>'
+            '</testsuite></testsuites>')
+os.kill(os.getpid(), signal.SIGSEGV)
+'''
+
+SLEEP_NODE = ROS_PY + '''import time
+time.sleep(600)
+'''
+
+# fails on its first run, passes on the next (the count is kept in the file given as the first argument)
+FLAKY_NODE = ROS_PY + '''import os, sys, unittest
+import rostest
+counter = sys.argv[1]
+runs = int(open(counter).read()) if os.path.exists(counter) else 0
+open(counter, "w").write(str(runs + 1))
+class Flaky(unittest.TestCase):
+    def test_second_time_lucky(self):
+        self.assertGreater(runs, 0, "first run fails")
+if __name__ == "__main__":
+    rostest.rosrun("rttest", "flaky", Flaky, sysargs=sys.argv)
+'''
+
+TALKER = ROS_PY + '''import rospy
+from std_msgs.msg import String
+rospy.init_node("talker")
+pub = rospy.Publisher("chatter", String, queue_size=10)
+rate = rospy.Rate(20)
+while not rospy.is_shutdown():
+    pub.publish(String("hello"))
+    try:
+        rate.sleep()
+    except rospy.ROSInterruptException:
+        break
+'''
+
+TESTS = {
+    "pass": '<param name="answer" value="42"/>\n<test test-name="passing" pkg="rttest" type="pass_node.py"/>',
+    "fail": '<test test-name="failing" pkg="rttest" type="fail_node.py"/>',
+    "gtest": '<test test-name="gtest" pkg="rttest" type="gtest_node"/>',
+    "timeout": '<test test-name="sleeper" pkg="rttest" type="sleep_node.py" time-limit="3"/>',
+    "segv": '<test test-name="crash" pkg="rttest" type="segv_node.py"/>',
+    "retry": '<test test-name="flaky" pkg="rttest" type="flaky_node.py" retry="2" args="{counter}"/>',
+    "hz": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
+           '<test test-name="hztest" pkg="rostest" type="hztest" name="hz">\n'
+           '  <param name="topic" value="chatter"/><param name="hz" value="20.0"/>\n'
+           '  <param name="hzerror" value="5.0"/><param name="test_duration" value="2.0"/>\n</test>'),
+    "param": ('<param name="robot/speed" value="3"/>\n'
+              '<test test-name="paramtest" pkg="rostest" type="paramtest" name="pt">\n'
+              '  <param name="param_name_target" value="/robot/speed"/>\n'
+              '  <param name="param_value_expected" value="3"/><param name="test_duration" value="1.0"/>\n</test>'),
+    "advertise": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
+                  '<test test-name="advertisetest" pkg="rostest" type="advertisetest" name="adv">\n'
+                  '  <rosparam>\n    topics:\n      - name: /chatter\n        timeout: 10\n'
+                  '        type: std_msgs/String\n      - name: /nobody\n        timeout: 1\n        negative: true\n'
+                  '  </rosparam>\n</test>'),
+    "clean": '<param name="fresh" value="1"/>\n<test test-name="clean" pkg="rttest" type="clean_node.py"/>',
+    "missing": '<test test-name="ghost" pkg="rttest" type="no_such_test.py"/>',
+    "badfixture": ('<node name="ghost" pkg="rttest" type="no_such_node.py"/>\n'
+                   '<test test-name="passing" pkg="rttest" type="pass_node.py"/>'),
+    "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
+                '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
+                '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
+}
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory, ros_env):
+    root = str(tmp_path_factory.mktemp("rostest"))
+    src = os.path.join(root, "src")
+    pkg = make_package(src, "rttest", {"pass_node.py": PASS_NODE, "fail_node.py": FAIL_NODE,
+                                       "segv_node.py": SEGV_NODE, "sleep_node.py": SLEEP_NODE,
+                                       "flaky_node.py": FLAKY_NODE, "talker.py": TALKER,
+                                       "clean_node.py": NO_STALE_NODE})
+    try:
+        compile_roscpp("gtest_node.cpp", os.path.join(pkg, "gtest_node"), libs=("-lgtest", "-lpthread"))
+    except subprocess.CalledProcessError:
+        pytest.fail("cannot compile the gtest node (libgtest-dev installed?)")
+    for name, body in TESTS.items():
+        with open(os.path.join(pkg, name + ".test"), "w") as f:
+            f.write('<launch>\n%s\n</launch>\n' % body)
+    return root, pkg
+
+
+def _env(root: str, who: str) -> dict[str, str]:
+    env = dict(os.environ)
+    # Debian's python first: the test nodes' `#!/usr/bin/env python3` must find rospy
+    env.update(PATH=ROS_PATH + ":" + env.get("PATH", ""), ROS_HOME=os.path.join(root, who, "home"),
+               ROS_LOG_DIR=os.path.join(root, who, "log"),
+               ROS_PACKAGE_PATH=os.path.join(root, "src") + ":/usr/share", ROS_IP="127.0.0.1")
+    for k in ("ROS_MASTER_URI", "ROS_NAMESPACE", "ROS_HOSTNAME", "ROS_TEST_RESULTS_DIR"):
+        env.pop(k, None)
+    return env
+
+
+def _test_file(pkg: str, name: str, who: str) -> str:
+    """The test file as `who` runs it (retry's counter is per runner)."""
+    path = os.path.join(pkg, name + ".test")
+    if name != "retry":
+        return path
+    counter = os.path.join(os.path.dirname(pkg), "..", "flaky-%s-%d" % (who, time.monotonic_ns()))
+    mine = os.path.join(pkg, "retry_%s.test" % who)
+    with open(mine, "w") as f:
+        f.write('<launch>\n%s\n</launch>\n' % TESTS["retry"].format(counter=os.path.abspath(counter)))
+    return mine
+
+
+NO_STALE_NODE = ROS_PY + '''import unittest
+import rospy, rostest
+class Clean(unittest.TestCase):
+    def test_no_stale_param(self):
+        self.assertFalse(rospy.has_param("/stale"), "a parameter of an earlier run is still set")
+    def test_own_param(self):
+        self.assertEqual(rospy.get_param("/fresh"), 1)
+if __name__ == "__main__":
+    rospy.init_node("clean_node")
+    rostest.rosrun("rttest", "clean", Clean)
+'''
+
+
+class Summary:
+    def __init__(self, proc: subprocess.CompletedProcess):
+        self.rc = proc.returncode
+        self.out = proc.stdout + proc.stderr
+        text = re.sub(r"\x1b\[[0-9;]*m", "", proc.stdout)
+        self.cases = {m.group(1): m.group(2) for m in re.finditer(r"^\[([^\]]+/[^\]]+)\]\[(passed|FAILURE|ERROR)\]",
+                                                                    text, re.M)}
+        self.failed_runs = re.findall(r"^\[(test[^\]]+)\]\[failed\]", text, re.M)
+        counts = {k: int(v) for k, v in re.findall(r"^ \* (TESTS|ERRORS|FAILURES): (\d+)", text, re.M)}
+        self.tests, self.errors, self.failures = counts.get("TESTS"), counts.get("ERRORS"), counts.get("FAILURES")
+        self.success = "RESULT: SUCCESS" in text
+
+    def __repr__(self) -> str:
+        return "rc=%s cases=%s failed_runs=%s\n%s" % (self.rc, self.cases, self.failed_runs, self.out[-3000:])
+
+
+def rostest(root: str, pkg: str, name: str) -> Summary:
+    proc = subprocess.run(["rostest", "rttest", os.path.basename(_test_file(pkg, name, "rostest"))],
+                          env=_env(root, "rostest"), capture_output=True, text=True, timeout=180)
+    return Summary(proc)
+
+
+def ours(root: str, pkg: str, name: str, *extra: str) -> Summary:
+    proc = subprocess.run([sys.executable, "-m", "launcher.tool", "test", *extra, "rttest",
+                           os.path.basename(_test_file(pkg, name, "ours"))],
+                          env=_env(root, "ours"), capture_output=True, text=True, timeout=180)
+    return Summary(proc)
+
+
+@pytest.mark.parametrize("name, rc", [("pass", 0), ("fail", 2), ("gtest", 2), ("retry", 0), ("hz", 0),
+                                      ("param", 0), ("publish", 0),
+                                      ("advertise", 0)])
+def test_same_results_as_rostest(workspace, name, rc):
+    root, pkg = workspace
+    theirs, mine = rostest(root, pkg, name), ours(root, pkg, name)
+    assert theirs.rc == rc, theirs
+    assert mine.rc == rc, mine
+    assert mine.cases == theirs.cases, (mine, theirs)
+    assert (mine.tests, mine.errors, mine.failures) == (theirs.tests, theirs.errors, theirs.failures), (mine, theirs)
+    assert mine.cases and mine.success == (rc == 0)
+
+
+def test_failing_cases_are_named(workspace):
+    root, pkg = workspace
+    mine = ours(root, pkg, "fail")
+    assert mine.cases == {"rttest.rosunit-failing/test_good": "passed", "rttest.rosunit-failing/test_bad": "FAILURE",
+                          "rttest.rosunit-failing/test_error": "ERROR"}, mine
+    assert "one is not two" in mine.out
+
+
+def test_timeout_fails_like_rostest_with_the_reason(workspace):
+    root, pkg = workspace
+    theirs, mine = rostest(root, pkg, "timeout"), ours(root, pkg, "timeout")
+    # rostest counts the timed-out test as a runner error ("TESTS: 0, ERRORS: 1"); we say which test failed and why
+    assert theirs.rc == 1 and theirs.errors == 1 and "max time [3.0s]" in theirs.out, theirs
+    assert mine.rc == 1 and mine.failed_runs == ["testsleeper"] and mine.failures == 1, mine
+    assert "timed out after 3 s" in mine.out
+
+
+def test_segfault_after_results_is_a_failure_where_rostest_says_success(workspace):
+    root, pkg = workspace
+    theirs, mine = rostest(root, pkg, "segv"), ours(root, pkg, "segv")
+    # rostest is wrong here (ros_comm#2265): it trusts the result file and ignores the SIGSEGV
+    assert theirs.rc == 0 and theirs.success, theirs
+    assert mine.rc == 1 and not mine.success, mine
+    assert mine.failed_runs == ["testcrash"] and "died by signal SIGSEGV" in mine.out, mine
+    assert mine.cases == theirs.cases == {"rttest.rosunit-crash/works": "passed"}
+
+
+def test_junit_results_merge_each_tests_cases(workspace):
+    from lxml import etree
+    root, pkg = workspace
+    out = os.path.join(root, "merged.xml")
+    mine = ours(root, pkg, "fail", "--junit-xml", out)
+    assert mine.rc == 2, mine
+    suite = etree.parse(out).getroot()
+    names = [c.get("name") for c in suite.iter("testcase")]
+    assert names == ["testfailing", "rttest.rosunit-failing/test_bad", "rttest.rosunit-failing/test_error",
+                     "rttest.rosunit-failing/test_good"], names
+    assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("4", "1", "1")
+    # rostest's own place for it is untouched by --junit-xml, and the test's own file is where rostest keeps it
+    assert os.path.isfile(os.path.join(root, "ours", "home", "test_results", "rttest", "rosunit-failing.xml"))
+
+
+def test_default_results_file_is_rostests(workspace):
+    root, pkg = workspace
+    mine = ours(root, pkg, "pass")
+    assert mine.rc == 0, mine
+    path = os.path.join(root, "ours", "home", "test_results", "rttest", "rostest-pass.xml")
+    with open(path) as f:
+        text = f.read()
+    assert 'name="testpassing"' in text and 'rttest.rosunit-passing/test_param' in text
+
+
+def test_two_runs_of_one_file_in_parallel_do_not_interfere(workspace):
+    root, pkg = workspace
+    env = _env(root, "parallel")
+    procs = [subprocess.Popen([sys.executable, "-m", "launcher.tool", "test", "--results-filename", "p%d.xml" % i,
+                               "rttest", "param.test"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True) for i in range(2)]
+    outs = [p.communicate(timeout=180)[0] for p in procs]
+    for p, out in zip(procs, outs):
+        assert p.returncode == 0, out
+        assert "RESULT: SUCCESS" in out
+    uris = [re.search(r"ROS_MASTER_URI=(\S+)", out).group(1) for out in outs]
+    assert uris[0] != uris[1]
+
+
+@pytest.mark.parametrize("clear", [False, True])
+def test_reuse_master_and_clear_like_rostest(workspace, tmp_path, clear):
+    root, pkg = workspace
+    master = RosMaster(str(tmp_path))
+    try:
+        results = {}
+        for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+            env = _env(root, who)
+            env["ROS_MASTER_URI"] = "http://127.0.0.1:%d/" % master.port
+            # (rostest insists on a /run_id, as roscore sets it)
+            subprocess.run(["rosparam", "set", "/run_id", "reused"], env=env, check=True, timeout=60)
+            subprocess.run(["rosparam", "set", "/stale", "1"], env=env, check=True, timeout=60)
+            extra = ["--reuse-master"] + (["--clear"] if clear else [])
+            proc = subprocess.run(argv + extra + ["rttest", "clean.test"], env=env, capture_output=True, text=True,
+                                  timeout=180)
+            results[who] = Summary(proc)
+        theirs, mine = results["rostest"], results["ours"]
+        assert theirs.rc == (0 if clear else 2), theirs
+        assert mine.rc == theirs.rc, mine
+        assert mine.cases == theirs.cases, (mine, theirs)
+        # the master outlives the runs (it was not ours to stop)
+        assert master.proc.poll() is None
+    finally:
+        master.stop()
+
+
+def test_missing_test_executable_and_broken_fixture(workspace):
+    root, pkg = workspace
+    for name, words in (("missing", "Test node [rttest/no_such_test.py] does not exist"),
+                        ("badfixture", "Test Fixture Nodes ['/ghost'] failed to launch")):
+        theirs, mine = rostest(root, pkg, name), ours(root, pkg, name)
+        assert theirs.rc == 1 and not theirs.success, theirs
+        assert mine.rc == 1 and not mine.success and words in mine.out, mine
+        assert len(mine.failed_runs) == 1
+
+
+def test_text_mode_shows_the_test_output_and_passes_on_exit_status(workspace):
+    root, pkg = workspace
+    mine = ours(root, pkg, "pass", "--text")
+    assert mine.rc == 0, mine
+    assert "test_param" in mine.out  # the unittest's own report, on the screen
