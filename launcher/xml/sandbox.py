@@ -23,7 +23,7 @@ from __future__ import annotations
 import ast
 import math
 import re
-from typing import Any, Callable, Mapping
+from typing import Any, Callable
 
 MAX_STEPS = 100_000  # comprehension iterations (a real launch file uses a few)
 MAX_SIZE = 1_000_000  # the weight of any one value: characters, items
