@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import os
-import re
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
 
 from running import (ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
-                     pid_alive, ros_env, write_launch)
+                     ros_env, write_launch)
 
 Spinner = """#!%s
 import rospy

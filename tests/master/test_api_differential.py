@@ -13,7 +13,6 @@ import random
 import subprocess
 import xmlrpc.client
 
-import pytest
 
 from launcher.master.api import MasterApi
 from launcher.net.xmlrpc import dumps_response

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
-from launcher.net import xmlrpc, xmlrpc_server
+from launcher.net import xmlrpc_server
 from launcher.master.notify import Notifier
 
 
