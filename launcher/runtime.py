@@ -156,12 +156,20 @@ class Plan:
             if node.respawn and node.required:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
                                   node.filename or None, node.line or None)
-            if self.remote(node) and not getattr(opts, "local", False):
-                machine = self.config.machines[node.machine_name]
-                raise LaunchError(
-                    "node [%s] is assigned to machine [%s] at [%s]: launching nodes on other machines is "
-                    "not supported (use --local to skip them)" % (node.full_name, machine.name, machine.address),
-                    node.filename or None, node.line or None)
+        if not getattr(opts, "local", False):
+            from launcher.remote import ssh
+            from launcher.remote.parent import check_addresses
+            machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
+            for machine in sorted(machines, key=lambda m: m.name):
+                ssh.check_machine(machine)
+            if machines:
+                from launcher.master import advertised_host
+                check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
+
+    def remote_nodes(self) -> dict[str, list[Any]]:
+        """The nodes to launch on other machines, by machine name."""
+        from launcher.remote.parent import machine_nodes
+        return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
 class StopSignals:
@@ -211,8 +219,10 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     number = first_number
     for node in config.nodes:
         if plan.remote(node):
-            console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)" % node.full_name)
-            continue
+            if getattr(opts, "local", False):
+                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)"
+                                    % node.full_name)
+            continue  # (else its machine's child runs it: launcher.remote)
         number += 1
         name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
         log_name = name.replace("/", "-")
@@ -252,6 +262,7 @@ class Run:
         self.params: Any = None  # LocalParams or RemoteParams
         self.external = False  # a master was already running
         self.rosout: Any = None
+        self.remote: Any = None  # launcher.remote.parent.RemoteParent, when nodes run on other machines
         self.supervisor: Supervisor | None = None
         self.fleet: Fleet | None = None  # every node's state (process/state.py)
         self.run_id = ""
@@ -302,6 +313,7 @@ class Run:
             await self.signals.guard(self._start_rosout())
         await self.signals.guard(self._set_parameters())
         self._launch_nodes()
+        await self._start_remote()
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
@@ -426,6 +438,22 @@ class Run:
         if self.rosout is not None:
             self.rosout.warm_up()
 
+    async def _start_remote(self) -> None:
+        """The other machines' children (after the local nodes, as roslaunch; they start on their own tasks)."""
+        if getattr(self.opts, "local", False):
+            return
+        by_machine = self.plan.remote_nodes()
+        if not by_machine:
+            return
+        from launcher.master import advertised_host
+        from launcher.remote.parent import RemoteParent
+        self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=self.run_id,
+                                   master_uri=self.master_uri, host=advertised_host(self.plan.environ),
+                                   environ=self.plan.environ, fleet=self.fleet, supervisor=self.supervisor,
+                                   watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
+                                   sigterm_timeout=self.opts.sigterm_timeout)
+        await self.remote.start()
+
     # ---- running ---------------------------------------------------------------------------------------
 
     async def _wait_for_the_end(self) -> None:
@@ -448,8 +476,11 @@ class Run:
     async def _teardown(self) -> None:
         for t in self._tasks:
             t.cancel()
+        stops = [self.remote.shutdown()] if self.remote is not None else []
         if self.supervisor is not None:
-            await self.supervisor.shutdown()
+            stops.append(self.supervisor.shutdown())
+        await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
+        if self.supervisor is not None:
             self.supervisor.close()
         if self.fleet is not None:
             self.fleet.close()
