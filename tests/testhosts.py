@@ -38,6 +38,8 @@ def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
 class TestHost:
     """One namespace: its name, address, env-loader, and the root-side end of its link."""
 
+    __test__ = False
+
     def __init__(self, index: int, netns: str, address: str, link: str, env_loader: str):
         self.index = index
         self.netns = netns
@@ -75,6 +77,8 @@ class TestHost:
 
 class TestHosts:
     """`count` test hosts; use as a context manager (or call close())."""
+
+    __test__ = False  # (pytest: not a test class)
 
     def __init__(self, count: int = 2, *, client_alive: bool = False, env: dict[str, str] | None = None):
         self.dir = tempfile.mkdtemp(prefix="launcher-hosts-")
