@@ -176,6 +176,7 @@ class RemoteParent:
         if self.watchdog is not None:
             self.watchdog.watch(proc.pid)  # a killed launcher takes ssh down, and the pty hangup the child
         reader = asyncio.ensure_future(self._read_output(child, proc))
+        heartbeat = asyncio.ensure_future(self._heartbeat(proc))
         try:
             registered = asyncio.ensure_future(child.registered.wait())
             await asyncio.wait((registered, reader), timeout=m.timeout, return_when=asyncio.FIRST_COMPLETED)
@@ -192,6 +193,7 @@ class RemoteParent:
             if self.watchdog is not None:
                 self.watchdog.forget(proc.pid)
             reader.cancel()
+            heartbeat.cancel()
             child.ssh = None
             if child.launched and not self.stopping:
                 self._nodes_lost(child)
@@ -206,6 +208,16 @@ class RemoteParent:
             if text:
                 child.output.append(text)
         await proc.wait()
+
+    async def _heartbeat(self, proc: asyncio.subprocess.Process) -> None:
+        """A newline every HEARTBEAT_S through the session: the remote watch loop stops the child without it."""
+        assert proc.stdin is not None
+        try:
+            while proc.returncode is None:
+                proc.stdin.write(b"\n")  # (1 byte a second: a stalled ssh never fills the pipe)
+                await asyncio.sleep(ssh.HEARTBEAT_S)
+        except (OSError, RuntimeError):
+            pass  # ssh is gone
 
     async def _launch_on(self, child: RemoteChild) -> None:
         console.printlog("remote[%s]: ssh connection created" % child.name)

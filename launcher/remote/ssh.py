@@ -23,6 +23,12 @@ from launcher.errors import LaunchError
 # ssh's own keep-alive: a link that is cut is noticed after INTERVAL * COUNT_MAX seconds
 SERVER_ALIVE_INTERVAL_S = 1
 SERVER_ALIVE_COUNT_MAX = 3
+# the parent's heartbeat through the session (see remote_command)
+# (a cut link's nodes must be gone within 5 s: TIMEOUT + S + NODE_GRACE ~ 4 s, and the launcher's loop
+# never stalls anywhere near TIMEOUT, which would stop a healthy machine's nodes)
+HEARTBEAT_S = 0.5
+HEARTBEAT_TIMEOUT_S = 2.5
+NODE_GRACE_S = 1.0  # after a cut, how long the nodes get to handle SIGINT
 SSH_FAILED = 255  # ssh's exit status for its own errors (the remote command's is passed through)
 
 
@@ -44,7 +50,22 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     argv = ["env", "ROS_MASTER_URI=%s" % master_uri, machine.env_loader or "", program, "-c", child_name,
             "-u", parent_uri, "--run_id", run_id, "--sigint-timeout", str(sigint_timeout),
             "--sigterm-timeout", str(sigterm_timeout)]
-    return " ".join(shlex.quote(a) for a in argv)
+    child = " ".join(shlex.quote(a) for a in argv)
+    # The child runs in the background of a small POSIX sh watch loop: the parent writes a newline
+    # every HEARTBEAT_S seconds through the session's pty. When none arrives for HEARTBEAT_TIMEOUT_S,
+    # the link is cut (neither side's TCP notices for minutes) and the loop stops the nodes itself:
+    # the child would try to report each step to the unreachable parent and hang there. (`timeout
+    # --foreground`: in a pgrp of its own, head would be stopped by SIGTTIN reading the tty.) It freezes
+    # the child (so that nothing is respawned), SIGINTs its nodes (each in a session of its own, so
+    # by parent pid), SIGKILLs what is left after NODE_GRACE_S, then the child. When the pty hangs
+    # up instead (the launcher stopped or was killed), the child gets SIGHUP and stops its nodes.
+    script = ("%s & child=$!\n"
+              "while kill -0 $child 2>/dev/null && timeout --foreground %s head -c 1 >/dev/null 2>&1; do :; done\n"
+              "kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
+              "while [ $i -lt %d ] && pgrep -P $child >/dev/null; do sleep 0.1; i=$((i+1)); done\n"
+              "pkill -KILL -P $child; kill -KILL $child 2>/dev/null"
+              % (child, HEARTBEAT_TIMEOUT_S, int(NODE_GRACE_S * 10)))
+    return "sh -c %s" % shlex.quote(script)
 
 
 def ssh_argv(machine: Machine, command: str, environ: Mapping[str, str]) -> list[str]:

@@ -184,5 +184,29 @@ def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched)
     poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 60, what="remote nodes")
     la.proc.kill()
     la.proc.wait()
-    poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1,
-         what="no process left on the test hosts (%s)" % (h1.process_lines() + h2.process_lines()))
+    try:
+        poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the test hosts")
+    except AssertionError as e:
+        raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
+
+
+def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched):
+    la, env = launched(TALKER % "" + LISTENER % "")
+    h1, h2 = hosts.hosts
+    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    poll(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
+    h1.cut()
+    try:
+        # (the host's sshd keeps its half of the dead connection: only ssh's own processes may stay)
+        try:
+            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                 period=0.1, what="host one's nodes stopped after its link was cut")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
+        assert on_host(h2, "__name:=listener"), la.stdout + la.stderr  # the other machine carries on
+        la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
+    finally:
+        h1.restore()
+    again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
+    assert again[0] != first
+    poll(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
