@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import stat
 import tempfile
 from typing import Any
 
@@ -67,6 +68,7 @@ class Child:
         loop = asyncio.get_running_loop()
         for sig in (2, 15, 1):  # SIGINT, SIGTERM, SIGHUP (the ssh session's pty hung up)
             loop.add_signal_handler(sig, self.stop.set)
+        self._watch_session(loop)
         run_dir = self.log.open(self.run_id, launch_log=False)
         self.fleet = Fleet(os.path.join(run_dir, "launcher-events-%s.jsonl" % self.name) if run_dir else None,
                            warn=console.printerrlog)
@@ -99,6 +101,35 @@ class Child:
         await self.server.stop()
         self.fleet.close()
         return 0
+
+    def _watch_session(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Stop when the ssh session closes, if stdin is that session's channel.
+
+        Debian's roslaunch parent (paramiko) runs the child without a pty, so no SIGHUP comes when
+        the parent dies; but the channel, our stdin, then ends. (Under our parent stdin is the
+        watch loop's /dev/null, and the pty's hangup does it.)
+        """
+        try:
+            mode = os.fstat(0).st_mode
+        except OSError:
+            return
+        if not (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)):
+            return
+
+        def readable() -> None:
+            try:
+                data = os.read(0, 4096)
+            except BlockingIOError:
+                return
+            except OSError:
+                data = b""
+            if not data:
+                loop.remove_reader(0)
+                console.printerrlog("the ssh session to the parent closed: stopping")
+                self.stop.set()
+
+        os.set_blocking(0, False)
+        loop.add_reader(0, readable)
 
     async def _shutdown(self) -> None:
         if self.supervisor is not None and not self.supervisor.shutting_down:

@@ -32,12 +32,35 @@ def hosts(ros_env, ros_part_missing):
         yield th
 
 
-def launch_file(tmp_path, hosts: TestHosts, nodes: str, machines: str | None = None) -> str:
+def our_child_loaders(tmp_path, hosts: TestHosts) -> list[str]:
+    """env-loaders that put our launcher first on the host's PATH, as `launch` and as `roslaunch`."""
+    bin_dir = os.path.join(str(tmp_path), "bin")
+    os.makedirs(bin_dir, exist_ok=True)
+    for name in ("launch", "roslaunch"):
+        path = os.path.join(bin_dir, name)
+        with open(path, "w") as f:
+            f.write('#!/bin/sh\nPYTHONPATH=%s exec %s -m launcher "$@"\n' % (os.getcwd(), sys.executable))
+        os.chmod(path, 0o755)
+    loaders = []
+    for host in hosts.hosts:
+        with open(host.env_loader) as f:
+            text = f.read().replace('exec "$@"', 'export PATH=%s:$PATH\nexec "$@"' % bin_dir)
+        path = os.path.join(str(tmp_path), "ours-%d.sh" % host.index)
+        with open(path, "w") as f:
+            f.write(text)
+        os.chmod(path, 0o755)
+        loaders.append(path)
+    return loaders
+
+
+def launch_file(tmp_path, hosts: TestHosts, nodes: str, machines: str | None = None,
+                loaders: list[str] | None = None) -> str:
     h1, h2 = hosts.hosts
+    l1, l2 = loaders or (h1.env_loader, h2.env_loader)
     if machines is None:
         machines = ('  <machine name="one" address="%s" env-loader="%s"/>\n'
                     '  <machine name="two" address="%s" env-loader="%s"/>\n'
-                    % (h1.address, h1.env_loader, h2.address, h2.env_loader))
+                    % (h1.address, l1, h2.address, l2))
     path = os.path.join(str(tmp_path), "robot.launch")
     with open(path, "w") as f:
         f.write("<launch>\n%s%s</launch>\n" % (machines, nodes))
@@ -72,9 +95,14 @@ LOCAL = '<node pkg="rostopic" type="rostopic" name="local_echo" args="echo /chat
 def launched(tmp_path, hosts):
     started: list[Launcher] = []
 
-    def start(nodes: str, machines: str | None = None, **env: str) -> tuple[Launcher, dict[str, str]]:
+    def start(nodes: str, machines: str | None = None, child: str = "debian",
+              **env: str) -> tuple[Launcher, dict[str, str]]:
+        loaders = None
+        if child == "ours":  # our launch as the child, run by its own name
+            loaders = our_child_loaders(tmp_path, hosts)
+            env.setdefault("LAUNCHER_REMOTE_PROGRAM", "launch")
         e = run_env(tmp_path, hosts, **env)
-        la = Launcher([launch_file(tmp_path, hosts, nodes, machines)], e, str(tmp_path))
+        la = Launcher([launch_file(tmp_path, hosts, nodes, machines, loaders)], e, str(tmp_path))
         started.append(la)
         return la, e
 
@@ -89,8 +117,9 @@ def launched(tmp_path, hosts):
                 pass
 
 
-def test_nodes_on_three_hosts_register_and_talk(hosts, launched):
-    la, env = launched(TALKER % "" + LISTENER % "" + LOCAL)
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "" + LOCAL, child=child)
     poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 60, period=0.5,
          what="nodes of all three hosts registered")
     h1, h2 = hosts.hosts
@@ -104,8 +133,9 @@ def test_nodes_on_three_hosts_register_and_talk(hosts, launched):
     assert re.search(r"topic: /chatter\s+\* to: /talker", r.stdout), r.stdout
 
 
-def test_remote_node_killed_is_reported_and_respawned(hosts, launched):
-    la, env = launched(TALKER % ' respawn="true"')
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_remote_node_killed_is_reported_and_respawned(hosts, launched, child):
+    la, env = launched(TALKER % ' respawn="true"', child=child)
     h1 = hosts.hosts[0]
     first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
     la.wait_output(r"\[talker-1\]: started with pid", 30)
@@ -178,8 +208,9 @@ def test_required_node_on_a_failed_machine_ends_the_launch_with_status_1(tmp_pat
     assert la.wait(60) == 1
 
 
-def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched):
-    la, env = launched(TALKER % "" + LISTENER % "")
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "", child=child)
     h1, h2 = hosts.hosts
     poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 60, what="remote nodes")
     la.proc.kill()
@@ -190,8 +221,9 @@ def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched)
         raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
 
 
-def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched):
-    la, env = launched(TALKER % "" + LISTENER % "")
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "", child=child)
     h1, h2 = hosts.hosts
     first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
     poll(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
@@ -210,3 +242,43 @@ def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(
     again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
     assert again[0] != first
     poll(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
+
+
+def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
+    """Debian's roslaunch runs `roslaunch -c` on the hosts, which there is our launcher."""
+    from running import descendants
+    loaders = our_child_loaders(tmp_path, hosts)
+    env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
+    path = launch_file(tmp_path, hosts, TALKER % ' respawn="true"' + LISTENER % "" + LOCAL, loaders=loaders)
+    la = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                          start_new_session=True)
+    h1, h2 = hosts.hosts
+    local: set[int] = set()
+    try:
+        poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 90, period=0.5,
+             what="nodes of all three hosts registered")
+        assert [line for line in h1.process_lines() if "-m launcher -c" in line]  # our child runs there
+        r = subprocess.run(["rostopic", "echo", "-n", "1", "/chatter"], env=env, capture_output=True, text=True,
+                           timeout=60)
+        assert 'data: "hello"' in r.stdout
+        first = on_host(h1, "__name:=talker")[0]
+        os.kill(first, signal.SIGKILL)
+        poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
+        # SIGKILL of Debian's roslaunch: its ssh channel closes, and our child stops the nodes
+        local = descendants(la.pid)
+        la.kill()
+        la.wait()
+        try:
+            poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the hosts")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
+    finally:
+        if la.poll() is None:
+            local = descendants(la.pid)
+            la.kill()
+            la.wait()
+        for pid in local:  # Debian's master and rosout, in sessions of their own
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
