@@ -300,6 +300,7 @@ class Run:
             if reply is not None:
                 run_id_known = True if reply[0] == 1 else False if reply[0] == -1 else None
             self.log.open(self.run_id)
+            await self._start_remote()  # the other machines' children start while this one sets up
         if not self.opts.no_summary:
             console.printlog(summary(self.plan.config, self._summary_params()))
         if not self.external:
@@ -313,7 +314,6 @@ class Run:
             await self.signals.guard(self._start_rosout())
         await self.signals.guard(self._set_parameters())
         self._launch_nodes()
-        await self._start_remote()
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
@@ -427,6 +427,8 @@ class Run:
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
+        if self.remote is not None:
+            self.remote.attach(self.fleet, self.supervisor)
         stop = self.signals.event
         for spec in specs:
             if stop.is_set():
@@ -439,7 +441,7 @@ class Run:
             self.rosout.warm_up()
 
     async def _start_remote(self) -> None:
-        """The other machines' children (after the local nodes, as roslaunch; they start on their own tasks)."""
+        """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
         if getattr(self.opts, "local", False):
             return
         by_machine = self.plan.remote_nodes()
@@ -449,8 +451,7 @@ class Run:
         from launcher.remote.parent import RemoteParent
         self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=self.run_id,
                                    master_uri=self.master_uri, host=advertised_host(self.plan.environ),
-                                   environ=self.plan.environ, fleet=self.fleet, supervisor=self.supervisor,
-                                   watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
+                                   environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
                                    sigterm_timeout=self.opts.sigterm_timeout)
         await self.remote.start()
 

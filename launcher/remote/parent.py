@@ -102,15 +102,18 @@ class RemoteParent:
     """The parent's XML-RPC server and every machine's child (see module docstring)."""
 
     def __init__(self, by_machine: dict[str, list[Node]], machines: Mapping[str, Machine], *, run_id: str,
-                 master_uri: str, host: str, environ: Mapping[str, str], fleet: state.Fleet, supervisor: Any,
-                 watchdog: Any = None, sigint_timeout: float = 15.0, sigterm_timeout: float = 2.0,
+                 master_uri: str, host: str, environ: Mapping[str, str], watchdog: Any = None, sigint_timeout: float = 15.0, sigterm_timeout: float = 2.0,
                  program: str | None = None):
         self.run_id = run_id
         self.master_uri = master_uri
         self.host = host
         self.environ = environ
-        self.fleet = fleet
-        self.supervisor = supervisor
+        # set by attach(): the children are started before them (ssh and a remote roslaunch take
+        # a second; that second overlaps the master's start and the parameters), but get their
+        # nodes only once the parameters are set
+        self.fleet: state.Fleet = None  # type: ignore[assignment]
+        self.supervisor: Any = None
+        self.attached = asyncio.Event()
         self.watchdog = watchdog
         self.sigint_timeout = sigint_timeout
         self.sigterm_timeout = sigterm_timeout
@@ -121,8 +124,6 @@ class RemoteParent:
             machine = machines[mname]
             child = RemoteChild("%s-%d" % (machine.address, counter), machine, nodes)
             self.children[child.name] = child
-            for node in nodes:
-                fleet.add(node.full_name, process=node.full_name.lstrip("/"), host=machine.address)
         self.server = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
         self.uri = ""
         self.stopping = False
@@ -137,6 +138,14 @@ class RemoteParent:
         for child in self.children.values():
             child.task = asyncio.ensure_future(self._keep(child))
 
+    def attach(self, fleet: state.Fleet, supervisor: Any) -> None:
+        """The parameters are set: the nodes' states go to `fleet`, required ends to `supervisor`."""
+        self.fleet, self.supervisor = fleet, supervisor
+        for child in self.children.values():
+            for node in child.nodes:
+                fleet.add(node.full_name, process=node.full_name.lstrip("/"), host=child.machine.address)
+        self.attached.set()
+
     async def _keep(self, child: RemoteChild) -> None:
         """Run the child; after a drop, try again with a growing delay while the launch runs."""
         delay = RETRY_FIRST_S
@@ -145,6 +154,7 @@ class RemoteParent:
             if self.stopping:
                 return
             if not child.ever_launched:
+                await self.attached.wait()
                 self._machine_failed(child)
                 return
             console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
@@ -186,6 +196,7 @@ class RemoteParent:
                     child.output.append("the remote roslaunch did not register within %s s (<machine timeout=...>)"
                                         % m.timeout)
                 return
+            await self.attached.wait()
             await self._launch_on(child)
             await reader  # the session runs until ssh ends
         finally:
@@ -284,6 +295,8 @@ class RemoteParent:
                 self.supervisor.end(failed=True)
 
     def _process_died(self, process_name: str, exit_code: Any) -> None:
+        if self.fleet is None:
+            return
         for child in self.children.values():
             node = child.node_for_process(process_name)
             if node is None:
@@ -332,7 +345,7 @@ class RemoteParent:
             m = _STARTED.search(message)
             child = self.children.get(client)
             node = child.node_for_process(m.group("proc")) if m and child else None
-            if node is not None:
+            if node is not None and self.fleet is not None:
                 self.fleet.change(node.full_name, state.RUNNING, pid=int(m.group("pid")))
         else:
             console.printlog(text)
@@ -340,14 +353,14 @@ class RemoteParent:
 
     def list_processes(self) -> list:
         active, dead = [], []
-        for status in self.fleet:
+        for status in self.fleet or ():
             if status.host == "localhost":
                 (active if status.state in (state.RUNNING, state.RESPAWNING) else dead).append(
                     [status.process, status.restarts + 1])
         return [1, "processes on parent machine", [active, dead]]
 
     def process_info(self, process_name: str) -> list:
-        for status in self.fleet:
+        for status in self.fleet or ():
             if status.process == process_name and status.host == "localhost":
                 return [1, "process info", {"name": status.process, "pid": status.pid or 0,
                                             "alive": status.state == state.RUNNING,
@@ -359,7 +372,7 @@ class RemoteParent:
         return [1, str(pid), pid]
 
     def get_node_names(self) -> list:
-        return [1, "node names", [s.name for s in self.fleet if s.host == "localhost" and s.state == state.RUNNING]]
+        return [1, "node names", [s.name for s in self.fleet or () if s.host == "localhost" and s.state == state.RUNNING]]
 
     _API = {"register": register, "list_children": list_children, "process_died": process_died, "log": log,
             "list_processes": list_processes, "process_info": process_info, "get_pid": get_pid,

@@ -73,7 +73,8 @@ def ssh_argv(machine: Machine, command: str, environ: Mapping[str, str]) -> list
     argv = shlex.split(environ.get("LAUNCHER_SSH_COMMAND") or "ssh")
     argv += ["-tt", "-o", "BatchMode=yes", "-o", "ServerAliveInterval=%d" % SERVER_ALIVE_INTERVAL_S,
              "-o", "ServerAliveCountMax=%d" % SERVER_ALIVE_COUNT_MAX,
-             "-o", "ConnectTimeout=%d" % max(1, int(machine.timeout)), "-p", str(machine.ssh_port)]
+             # half the registration timeout: an unreachable host is reported as such, not as a late child
+             "-o", "ConnectTimeout=%d" % max(1, int(machine.timeout / 2)), "-p", str(machine.ssh_port)]
     if environ.get("ROSLAUNCH_SSH_UNKNOWN") == "1":
         # as roslaunch: an unknown host is accepted (and remembered); a changed key is still refused
         argv += ["-o", "StrictHostKeyChecking=accept-new"]
