@@ -107,7 +107,13 @@ def main() -> int:
         return 2
     scratch = tempfile.mkdtemp(prefix="launcher-remote-bench-")
     pkgs = build_package(os.path.join(scratch, "pkgs"))
-    with TestHosts(2, env={"ROS_PACKAGE_PATH": pkgs}) as hosts:
+    # `launch` on the hosts' PATH: our launcher as the child too (LAUNCHER_REMOTE_PROGRAM=launch)
+    bin_dir = os.path.join(scratch, "bin")
+    os.makedirs(bin_dir)
+    with open(os.path.join(bin_dir, "launch"), "w") as f:
+        f.write('#!/bin/sh\nPYTHONPATH=%s exec %s -m launcher "$@"\n' % (ROOT, sys.executable))
+    os.chmod(os.path.join(bin_dir, "launch"), 0o755)
+    with TestHosts(2, env={"ROS_PACKAGE_PATH": pkgs, "PATH": bin_dir + ":" + ROS_PATH}) as hosts:
         port = 11000 + os.getpid() % 1000
         master_uri = "http://%s:%d/" % (hosts.gateway, port)
         menv = dict(os.environ, PATH=ROS_PATH, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
@@ -134,15 +140,18 @@ def main() -> int:
             env = hosts.env(ROS_MASTER_URI=master_uri, PATH=ROS_PATH, HOME=hosts.home,
                             ROS_PACKAGE_PATH=pkgs, ROS_LOG_DIR=os.path.join(scratch, "log"),
                             PYTHONPATH=ROOT)
-            commands = {"roslaunch": ["roslaunch", "--skip-log-check", launch],
-                        "launch": [sys.executable, "-m", "launcher", "--skip-log-check", launch]}
+            ours = [sys.executable, "-m", "launcher", "--skip-log-check", launch]
+            commands = {"roslaunch": (["roslaunch", "--skip-log-check", launch], env),
+                        "launch": (ours, env),  # Debian's roslaunch as the child
+                        "launch/launch": (ours, dict(env, LAUNCHER_REMOTE_PROGRAM="launch"))}
             results: dict[str, list[tuple[float, float]]] = {k: [] for k in commands}
             for rep in range(opts.reps):
                 order = list(commands) if rep % 2 == 0 else list(reversed(commands))
                 for label in order:
-                    start, stop = run_once(commands[label], env, names, master_uri, hosts)
+                    argv, cenv = commands[label]
+                    start, stop = run_once(argv, cenv, names, master_uri, hosts)
                     results[label].append((start, stop))
-                    print("rep %d %-9s start %.2f s  stop %.2f s" % (rep, label, start, stop), flush=True)
+                    print("rep %d %-13s start %.2f s  stop %.2f s" % (rep, label, start, stop), flush=True)
             base = results["roslaunch"]
             for label, runs in results.items():
                 s = statistics.median(r[0] for r in runs)
@@ -151,7 +160,7 @@ def main() -> int:
                 if label != "roslaunch":
                     ratio = "  (x%.2f start, x%.2f stop of roslaunch)" % (
                         s / statistics.median(r[0] for r in base), t / statistics.median(r[1] for r in base))
-                print("%-9s median start %.2f s, stop %.2f s%s" % (label, s, t, ratio))
+                print("%-13s median start %.2f s, stop %.2f s%s" % (label, s, t, ratio))
         finally:
             master.send_signal(signal.SIGINT)
             try:
