@@ -106,11 +106,12 @@ def explain_failure(machine: Machine, output: str, status: int | None, program: 
     if re.search(r"timed out|No route to host|Network is unreachable|Could not resolve|Name or service", text):
         return "unable to reach [%s]: %s" % (where, last)
     if status == 127 or "No such file or directory" in text or "not found" in text:
-        if machine.env_loader and machine.env_loader in text:
-            return "env-loader [%s] not found on [%s] (%s)" % (machine.env_loader, machine.address, last)
-        if program in text:
+        # (the program first: a shell's "ENV_LOADER: 5: exec: roslaunch: not found" names both)
+        if re.search(r"%s'?: (not found|No such file)" % re.escape(program), text):
             return "[%s] is not installed on [%s] (or not on the PATH its env-loader sets): %s" % (
                 program, machine.address, last)
+        if machine.env_loader and machine.env_loader in text:
+            return "env-loader [%s] not found on [%s] (%s)" % (machine.env_loader, machine.address, last)
     if status == SSH_FAILED:
         return "ssh to [%s] failed: %s" % (where, last or "exit status 255")
     return "the remote %s on [%s] exited (status %s)%s" % (program, machine.address, status,
