@@ -83,6 +83,7 @@ class RemoteChild:
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
         self.launched = False  # its nodes were handed to it (this session)
         self.ever_launched = False
+        self.finished = False  # it ended after all its nodes had ended for good (nothing to start again)
         self.task: asyncio.Task | None = None
 
     def where(self) -> str:
@@ -151,7 +152,7 @@ class RemoteParent:
         delay = RETRY_FIRST_S
         while not self.stopping:
             await self._session(child)
-            if self.stopping:
+            if self.stopping or child.finished:
                 return
             if not child.ever_launched:
                 await self.attached.wait()
@@ -207,7 +208,10 @@ class RemoteParent:
             heartbeat.cancel()
             child.ssh = None
             if child.launched and not self.stopping:
-                self._nodes_lost(child)
+                if self._any_alive(child):
+                    self._nodes_lost(child)
+                else:
+                    child.finished = True  # every node ended and was reported: the child's work is done
 
     async def _read_output(self, child: RemoteChild, proc: asyncio.subprocess.Process) -> None:
         assert proc.stdout is not None
@@ -283,6 +287,14 @@ class RemoteParent:
         for node in child.nodes:
             self.fleet.change(node.full_name, state.EXITED, reason="machine [%s] failed" % child.machine.name)
             self.supervisor.not_started(node.full_name, node.required)
+
+    def _any_alive(self, child: RemoteChild) -> bool:
+        """Is a node of the child running or due to respawn, as far as its reports say?"""
+        for node in child.nodes:
+            status = self.fleet.nodes.get(node.full_name)
+            if status is None or status.state not in (state.EXITED, state.FATAL, state.STOPPED):
+                return True
+        return False
 
     def _nodes_lost(self, child: RemoteChild) -> None:
         for node in child.nodes:

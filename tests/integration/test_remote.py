@@ -282,3 +282,17 @@ def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_a_machine_whose_nodes_all_ended_is_not_started_again(hosts, launched, child):
+    la, env = launched('<node machine="one" pkg="rostopic" type="rostopic" name="once" args="list"/>\n' + LOCAL,
+                       child=child)
+    h1 = hosts.hosts[0]
+    la.wait_output(r"\[once-1\]: started with pid", 60)
+    poll(lambda: not h1.pids(), 30, period=0.1, what="the child on host one ended with its only node")
+    poll(lambda: "/local_echo" in node_names(env), 30, period=0.5, what="local node registered")
+    la.signal(signal.SIGINT)
+    la.wait(60)
+    assert "dropped" not in la.stderr
+    assert len(re.findall(r"process\[once-1\]: started with pid", la.stdout)) == 1
