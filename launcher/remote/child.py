@@ -33,6 +33,12 @@ from launcher.runlog import RunLog
 
 LOG_INFO, LOG_ERROR = 2, 8  # rosgraph_msgs/Log levels
 REGISTER_TIMEOUT_S = 10.0
+# The parent is asked for its pid this often; after PARENT_MISSES unanswered calls in a row (each
+# given PARENT_CALL_TIMEOUT_S) it is gone or cut off, and the nodes are stopped: Debian's parent
+# runs us without a pty, so a cut link would otherwise leave them running (~3 s to notice).
+PARENT_CHECK_S = 0.5
+PARENT_CALL_TIMEOUT_S = 1.0
+PARENT_MISSES = 3
 
 
 def run_child(opts: Any) -> int:
@@ -91,16 +97,33 @@ class Child:
             return 1
         # from now on the parent hears every console line (roslaunch's child does the same)
         console.add_level_handler(self._forward_log)
-        waiters = [asyncio.ensure_future(self.stop.wait()), asyncio.ensure_future(self.supervisor.done.wait())]
+        parent_gone = asyncio.ensure_future(self._watch_parent())
+        waiters = [asyncio.ensure_future(self.stop.wait()), asyncio.ensure_future(self.supervisor.done.wait()),
+                   parent_gone]
         await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
         for w in waiters:
             w.cancel()
         await self._shutdown()
         console.remove_level_handler(self._forward_log)
-        await self._flush_to_parent(sender)
+        if parent_gone.done() and not parent_gone.cancelled():
+            sender.cancel()  # nobody to tell
+        else:
+            await self._flush_to_parent(sender)
         await self.server.stop()
         self.fleet.close()
         return 0
+
+    async def _watch_parent(self) -> None:
+        """Return when the parent has not answered PARENT_MISSES times in a row."""
+        misses = 0
+        while misses < PARENT_MISSES:
+            await asyncio.sleep(PARENT_CHECK_S)
+            try:
+                await call(self.parent_uri, "get_pid", timeout=PARENT_CALL_TIMEOUT_S)
+                misses = 0
+            except Exception:  # noqa: BLE001 - unreachable, refused, timed out: all mean not answering
+                misses += 1
+        console.printerrlog("the roslaunch parent [%s] does not answer: stopping" % self.parent_uri)
 
     def _watch_session(self, loop: asyncio.AbstractEventLoop) -> None:
         """Stop when the ssh session closes, if stdin is that session's channel.

@@ -296,3 +296,35 @@ def test_a_machine_whose_nodes_all_ended_is_not_started_again(hosts, launched, c
     la.wait(60)
     assert "dropped" not in la.stderr
     assert len(re.findall(r"process\[once-1\]: started with pid", la.stdout)) == 1
+
+
+def test_debian_parent_cut_off_from_our_child_leaves_no_process_on_that_host(tmp_path, hosts, launched):
+    """Debian's parent gives the child no pty: our child notices the silent parent by itself."""
+    from running import descendants
+    loaders = our_child_loaders(tmp_path, hosts)
+    env = run_env(tmp_path, hosts, HOME=hosts.home)
+    path = launch_file(tmp_path, hosts, TALKER % "" + LISTENER % "", loaders=loaders)
+    la = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                          start_new_session=True)
+    h1, h2 = hosts.hosts
+    local: set[int] = set()
+    try:
+        poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 90, what="remote nodes")
+        h1.cut()
+        try:
+            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                 period=0.1, what="host one's nodes stopped after its link was cut")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
+        finally:
+            h1.restore()
+        assert on_host(h2, "__name:=listener")
+    finally:
+        local = descendants(la.pid)
+        la.kill()
+        la.wait()
+        for pid in local:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
