@@ -33,12 +33,12 @@ from launcher.runlog import RunLog
 
 LOG_INFO, LOG_ERROR = 2, 8  # rosgraph_msgs/Log levels
 REGISTER_TIMEOUT_S = 10.0
-# The parent is asked for its pid this often; after PARENT_MISSES unanswered calls in a row (each
-# given PARENT_CALL_TIMEOUT_S) it is gone or cut off, and the nodes are stopped: Debian's parent
-# runs us without a pty, so a cut link would otherwise leave them running (~3 s to notice).
+# The parent is asked for its pid every PARENT_CHECK_S; when none of its answers came for
+# PARENT_SILENCE_S it is gone or cut off, and the nodes are stopped: Debian's parent runs us without
+# a pty, so a cut link would otherwise leave them running (stopped within 5 s of the cut).
 PARENT_CHECK_S = 0.5
-PARENT_CALL_TIMEOUT_S = 1.0
-PARENT_MISSES = 3
+PARENT_CALL_TIMEOUT_S = 0.75
+PARENT_SILENCE_S = 2.0
 
 
 def run_child(opts: Any) -> int:
@@ -114,15 +114,16 @@ class Child:
         return 0
 
     async def _watch_parent(self) -> None:
-        """Return when the parent has not answered PARENT_MISSES times in a row."""
-        misses = 0
-        while misses < PARENT_MISSES:
+        """Return when the parent has not answered for PARENT_SILENCE_S."""
+        loop = asyncio.get_running_loop()
+        last_answer = loop.time()
+        while loop.time() - last_answer < PARENT_SILENCE_S:
             await asyncio.sleep(PARENT_CHECK_S)
             try:
                 await call(self.parent_uri, "get_pid", timeout=PARENT_CALL_TIMEOUT_S)
-                misses = 0
+                last_answer = loop.time()
             except Exception:  # noqa: BLE001 - unreachable, refused, timed out: all mean not answering
-                misses += 1
+                pass
         console.printerrlog("the roslaunch parent [%s] does not answer: stopping" % self.parent_uri)
 
     def _watch_session(self, loop: asyncio.AbstractEventLoop) -> None:

@@ -59,12 +59,15 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     # the child (so that nothing is respawned), SIGINTs its nodes (each in a session of its own, so
     # by parent pid), SIGKILLs what is left after NODE_GRACE_S, then the child. When the pty hangs
     # up instead (the launcher stopped or was killed), the child gets SIGHUP and stops its nodes.
-    script = ("%s & child=$!\n"
-              "while kill -0 $child 2>/dev/null && timeout --foreground %s head -c 1 >/dev/null 2>&1; do :; done\n"
-              "kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
+    # The same when the pty hangs up (HUP) or sshd ends the session (TERM): the child gets SIGHUP too,
+    # but under load its own orderly stop (reporting each step) can take longer than 5 s.
+    script = ("stop_nodes() { kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
               "while [ $i -lt %d ] && pgrep -P $child >/dev/null; do sleep 0.1; i=$((i+1)); done\n"
-              "pkill -KILL -P $child; kill -KILL $child 2>/dev/null"
-              % (child, HEARTBEAT_TIMEOUT_S, int(NODE_GRACE_S * 10)))
+              "pkill -KILL -P $child; kill -KILL $child 2>/dev/null; exit 0; }\n"
+              "%s & child=$!\n"
+              "trap stop_nodes HUP TERM\n"
+              "while kill -0 $child 2>/dev/null && timeout --foreground %s head -c 1 >/dev/null 2>&1; do :; done\n"
+              "stop_nodes" % (int(NODE_GRACE_S * 10), child, HEARTBEAT_TIMEOUT_S))
     return "sh -c %s" % shlex.quote(script)
 
 
