@@ -99,8 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-w", "--numworkers", dest="num_workers", type=int, help="accepted for roslaunch compatibility")
     p.add_argument("-t", "--timeout", dest="timeout", type=float, help="socket time-out of the core, in seconds")
     p.add_argument("--master-logger-level", dest="master_logger_level", help="accepted for roslaunch compatibility")
-    p.add_argument("-c", "--child", dest="child_name", help="roslaunch child mode: not supported")
-    p.add_argument("-u", "--server_uri", dest="server_uri", help="roslaunch child mode: not supported")
+    p.add_argument("-c", "--child", dest="child_name", help="roslaunch child mode: the child's name")
+    p.add_argument("-u", "--server_uri", dest="server_uri", help="roslaunch child mode: the parent's XML-RPC URI")
     p.add_argument("--version", action="version", version="launch " + __version__)
     p.add_argument("positional", nargs="*", metavar="ARG", help="[package] file.launch ... name:=value ...")
     return p
@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
         if not opts.monitor_period > 0:
             raise LaunchError("--monitor-period must be greater than zero")
         if opts.child_name or opts.server_uri:
-            raise LaunchError("roslaunch's child mode (-c/-u) is not supported")
+            from launcher.remote.child import run_child  # a roslaunch child on another machine
+            return run_child(opts)
         if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:
             from launcher import introspect
             status = introspect.main(opts)

@@ -177,12 +177,20 @@ class Plan:
             if node.respawn and node.required:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
                                   node.filename or None, node.line or None)
-            if self.remote(node) and not getattr(opts, "local", False):
-                machine = self.config.machines[node.machine_name]
-                raise LaunchError(
-                    "node [%s] is assigned to machine [%s] at [%s]: launching nodes on other machines is "
-                    "not supported (use --local to skip them)" % (node.full_name, machine.name, machine.address),
-                    node.filename or None, node.line or None)
+        if not getattr(opts, "local", False):
+            from launcher.remote import ssh
+            from launcher.remote.parent import check_addresses
+            machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
+            for machine in sorted(machines, key=lambda m: m.name):
+                ssh.check_machine(machine)
+            if machines:
+                from launcher.master import advertised_host
+                check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
+
+    def remote_nodes(self) -> dict[str, list[Any]]:
+        """The nodes to launch on other machines, by machine name."""
+        from launcher.remote.parent import machine_nodes
+        return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
 class StopSignals:
@@ -239,8 +247,10 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     number = first_number
     for node in config.nodes:
         if plan.remote(node):
-            console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)" % node.full_name)
-            continue
+            if getattr(opts, "local", False):
+                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)"
+                                    % node.full_name)
+            continue  # (else its machine's child runs it: launcher.remote)
         number += 1
         name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
         log_name = name.replace("/", "-")
@@ -286,6 +296,7 @@ class Run:
         self.params: Any = None  # LocalParams or RemoteParams
         self.external = False  # a master was already running
         self.rosout: Any = None
+        self.remote: Any = None  # launcher.remote.parent.RemoteParent, when nodes run on other machines
         self.supervisor: Supervisor | None = None
         self.fleet: Fleet | None = None  # every node's state (process/state.py)
         self.rotator: LogRotator | None = None  # node output logs under --log-max-size
@@ -328,6 +339,7 @@ class Run:
             if reply is not None:
                 run_id_known = True if reply[0] == 1 else False if reply[0] == -1 else None
             self.log.open(self.run_id)
+            await self._start_remote()  # the other machines' children start while this one sets up
         if not self.opts.no_summary:
             console.printlog(summary(self.plan.config, self._summary_params()))
         if not self.external:
@@ -515,6 +527,8 @@ class Run:
         self._watch_health()
         if self.server is not None:
             self.server.set_packages(packages_of(self.plan, specs))
+        if self.remote is not None:
+            self.remote.attach(self.fleet, self.supervisor)
         stop = self.signals.event
         no_start = getattr(self.opts, "no_start", False)
         for spec in specs:
@@ -559,6 +573,21 @@ class Run:
         monitor = ResourceMonitor(sup, getattr(self.opts, "monitor_period", None) or DEFAULT_PERIOD_S)
         self._tasks.append(asyncio.ensure_future(monitor.run()))
 
+    async def _start_remote(self) -> None:
+        """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
+        if getattr(self.opts, "local", False):
+            return
+        by_machine = self.plan.remote_nodes()
+        if not by_machine:
+            return
+        from launcher.master import advertised_host
+        from launcher.remote.parent import RemoteParent
+        self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=self.run_id,
+                                   master_uri=self.master_uri, host=advertised_host(self.plan.environ),
+                                   environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
+                                   sigterm_timeout=self.opts.sigterm_timeout)
+        await self.remote.start()
+
     # ---- running ---------------------------------------------------------------------------------------
 
     async def _wait_for_the_end(self) -> None:
@@ -602,9 +631,12 @@ class Run:
             h.close()
         if self.diagnostics is not None:
             await self.diagnostics.stop()
+        stops = [self.remote.shutdown()] if self.remote is not None else []
         if self.supervisor is not None:
             self.signals.while_stopping = self._kill_now
-            await self.supervisor.shutdown()
+            stops.append(self.supervisor.shutdown())
+        await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
+        if self.supervisor is not None:
             self.signals.while_stopping = None
             self.supervisor.close()
         if self.fleet is not None:

@@ -38,6 +38,19 @@ def remove_handler(fn: Callable[[str], None]) -> None:
         _handlers.remove(fn)
 
 
+# Sinks that also want to know whether a message is an error (a roslaunch child tells its parent the level).
+_level_handlers: list[Callable[[str, bool], None]] = []
+
+
+def add_level_handler(fn: Callable[[str, bool], None]) -> None:
+    _level_handlers.append(fn)
+
+
+def remove_level_handler(fn: Callable[[str, bool], None]) -> None:
+    if fn in _level_handlers:
+        _level_handlers.remove(fn)
+
+
 _is_terminal: dict[int, tuple[TextIO, bool]] = {}  # id(stream) -> (stream, isatty): one ioctl per stream
 
 
@@ -135,6 +148,11 @@ def _emit(stream: TextIO, msg: str, style: str | None) -> None:
         try:
             h(msg)
         except Exception:  # a broken log sink must never stop the launch
+            pass
+    for lh in _level_handlers:
+        try:
+            lh(msg, stream is sys.stderr)
+        except Exception:
             pass
     # Colours only on a terminal: roslaunch always writes escapes, which
     # litter redirected output; the words are the same either way.

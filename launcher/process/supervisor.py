@@ -430,6 +430,12 @@ class Supervisor:
             console.printlog("all processes on machine have died, roslaunch will exit")
             self.done.set()
 
+    def end(self, failed: bool) -> None:
+        """End the launch for a reason found outside this machine (a required node elsewhere ended);
+        `failed`: the launch exits with status 1."""
+        self.required_failed = self.required_failed or failed
+        self.done.set()
+
     def _required_gone(self, name: str, why: str) -> None:
         console.printerrlog("=" * 80 + "REQUIRED process [%s] %s!\nInitiating shutdown!\n" % (name, why) + "=" * 80)
         self.exit_status = 1

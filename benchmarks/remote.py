@@ -1,0 +1,175 @@
+#!/usr/bin/env python3
+"""Nodes on other machines: 20 roscpp nodes over two test hosts, our `launch` beside Debian's `roslaunch`.
+
+The test hosts are those of the tests (tests/testhosts.py: network namespaces
+with their own sshd; root needed). A Debian rosmaster runs here on the test
+subnet; each launcher is started with a launch file that puts half the nodes
+on each host. Measured per run, alternating the commands (ABBA):
+
+- start: from the launcher's start until every node is registered with the master;
+- stop: from SIGINT until the launcher has exited and nothing but sshd is left on the hosts.
+
+    PATH=/usr/bin:$PATH python3 benchmarks/remote.py [--nodes 20] [--reps 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import xmlrpc.client
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+from testhosts import TestHosts  # noqa: E402
+
+ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+NODE_CPP = """#include <ros/ros.h>
+int main(int argc, char** argv) { ros::init(argc, argv, "bench_node"); ros::NodeHandle nh; ros::spin(); return 0; }
+"""
+
+
+def build_package(root: str) -> str:
+    pkg = os.path.join(root, "remote_bench")
+    os.makedirs(pkg)
+    with open(os.path.join(pkg, "package.xml"), "w") as f:
+        f.write('<?xml version="1.0"?><package format="2"><name>remote_bench</name><version>0.0.1</version>'
+                '<description>bench</description><maintainer email="b@example.com">b</maintainer>'
+                '<license>BSD</license></package>\n')
+    src = os.path.join(root, "node.cpp")
+    with open(src, "w") as f:
+        f.write(NODE_CPP)
+    flags = subprocess.check_output(["pkg-config", "--cflags", "--libs", "roscpp"], text=True).split()
+    subprocess.run(["g++", "-O1", "-o", os.path.join(pkg, "node"), src] + flags, check=True)
+    return root
+
+
+def registered(master: xmlrpc.client.ServerProxy) -> set[str]:
+    """Nodes publishing /rosout (every roscpp node does, once registered)."""
+    try:
+        _code, _msg, (pubs, _subs, _srvs) = master.getSystemState("/bench")
+    except OSError:
+        return set()
+    return next((set(nodes) for topic, nodes in pubs if topic == "/rosout"), set())
+
+
+def leftovers(hosts: TestHosts) -> list[str]:
+    return [line for h in hosts.hosts for line in h.process_lines() if "sshd" not in line]
+
+
+def run_once(argv: list[str], env: dict[str, str], names: set[str], master_uri: str, hosts: TestHosts,
+             timeout: float = 120.0) -> tuple[float, float]:
+    master = xmlrpc.client.ServerProxy(master_uri)
+    t0 = time.monotonic()
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        while not names <= registered(master):
+            if time.monotonic() - t0 > timeout or proc.poll() is not None:
+                raise RuntimeError("%s: nodes not all registered (%d/%d)"
+                                   % (argv[0], len(names & registered(master)), len(names)))
+            time.sleep(0.02)
+        started = time.monotonic() - t0
+        t1 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout)
+        while leftovers(hosts):
+            if time.monotonic() - t1 > timeout:
+                raise RuntimeError("%s: processes left on the hosts: %s" % (argv[0], leftovers(hosts)))
+            time.sleep(0.02)
+        return started, time.monotonic() - t1
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        # unregister what a killed run left, so that the next run starts from an empty graph
+        for name in registered(master):
+            if name != "/rosout":
+                try:
+                    master.unregisterPublisher(name, "/rosout", "http://gone:1/")
+                except OSError:
+                    pass
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--nodes", type=int, default=20)
+    ap.add_argument("--reps", type=int, default=3)
+    opts = ap.parse_args()
+    why = TestHosts.unavailable()
+    if why:
+        print("cannot run: %s" % why, file=sys.stderr)
+        return 2
+    scratch = tempfile.mkdtemp(prefix="launcher-remote-bench-")
+    pkgs = build_package(os.path.join(scratch, "pkgs"))
+    # `launch` on the hosts' PATH: our launcher as the child too (LAUNCHER_REMOTE_PROGRAM=launch)
+    bin_dir = os.path.join(scratch, "bin")
+    os.makedirs(bin_dir)
+    with open(os.path.join(bin_dir, "launch"), "w") as f:
+        f.write('#!/bin/sh\nPYTHONPATH=%s exec %s -m launcher "$@"\n' % (ROOT, sys.executable))
+    os.chmod(os.path.join(bin_dir, "launch"), 0o755)
+    with TestHosts(2, env={"ROS_PACKAGE_PATH": pkgs, "PATH": bin_dir + ":" + ROS_PATH}) as hosts:
+        port = 11000 + os.getpid() % 1000
+        master_uri = "http://%s:%d/" % (hosts.gateway, port)
+        menv = dict(os.environ, PATH=ROS_PATH, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
+        master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=menv, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            deadline = time.monotonic() + 30
+            while True:  # the master is up when it answers getPid
+                try:
+                    xmlrpc.client.ServerProxy(master_uri).getPid("/bench")
+                    break
+                except OSError:
+                    if master.poll() is not None or time.monotonic() > deadline:
+                        raise RuntimeError("rosmaster did not start on %s" % master_uri) from None
+                    time.sleep(0.05)
+            machines = "".join('  <machine name="h%d" address="%s" env-loader="%s"/>\n'
+                               % (h.index, h.address, h.env_loader) for h in hosts.hosts)
+            nodes = "".join('  <node machine="h%d" pkg="remote_bench" type="node" name="n%02d"/>\n'
+                            % (1 + i % 2, i) for i in range(opts.nodes))
+            launch = os.path.join(scratch, "remote.launch")
+            with open(launch, "w") as f:
+                f.write("<launch>\n%s%s</launch>\n" % (machines, nodes))
+            names = {"/n%02d" % i for i in range(opts.nodes)}
+            env = hosts.env(ROS_MASTER_URI=master_uri, PATH=ROS_PATH, HOME=hosts.home,
+                            ROS_PACKAGE_PATH=pkgs, ROS_LOG_DIR=os.path.join(scratch, "log"),
+                            PYTHONPATH=ROOT)
+            ours = [sys.executable, "-m", "launcher", "--skip-log-check", launch]
+            commands = {"roslaunch": (["roslaunch", "--skip-log-check", launch], env),
+                        "launch": (ours, env),  # Debian's roslaunch as the child
+                        "launch/launch": (ours, dict(env, LAUNCHER_REMOTE_PROGRAM="launch"))}
+            results: dict[str, list[tuple[float, float]]] = {k: [] for k in commands}
+            for rep in range(opts.reps):
+                order = list(commands) if rep % 2 == 0 else list(reversed(commands))
+                for label in order:
+                    argv, cenv = commands[label]
+                    start, stop = run_once(argv, cenv, names, master_uri, hosts)
+                    results[label].append((start, stop))
+                    print("rep %d %-13s start %.2f s  stop %.2f s" % (rep, label, start, stop), flush=True)
+            base = results["roslaunch"]
+            for label, runs in results.items():
+                s = statistics.median(r[0] for r in runs)
+                t = statistics.median(r[1] for r in runs)
+                ratio = ""
+                if label != "roslaunch":
+                    ratio = "  (x%.2f start, x%.2f stop of roslaunch)" % (
+                        s / statistics.median(r[0] for r in base), t / statistics.median(r[1] for r in base))
+                print("%-13s median start %.2f s, stop %.2f s%s" % (label, s, t, ratio))
+        finally:
+            master.send_signal(signal.SIGINT)
+            try:
+                master.wait(10)
+            except subprocess.TimeoutExpired:
+                master.kill()
+                master.wait()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

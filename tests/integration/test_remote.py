@@ -1,0 +1,330 @@
+"""Nodes on other machines: our `launch` as parent, Debian's roslaunch as child, on two test hosts (tests/testhosts.py).
+
+The hosts are network namespaces with their own sshd; they share this
+filesystem, so Debian's ROS runs "on" them. A node's host is checked by the
+namespace its process lives in.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+
+import pytest
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from testhosts import TestHosts  # noqa: E402
+
+from running import ROS_PATH, Launcher, free_port, poll  # noqa: E402
+
+NO_ORPHAN_S = 5.0  # the issue's bound: a machine's nodes are gone this long after the launcher or link is
+
+
+@pytest.fixture(scope="module")
+def hosts(ros_env, ros_part_missing):
+    why = TestHosts.unavailable()
+    if why:
+        ros_part_missing(why)
+    with TestHosts(2) as th:
+        yield th
+
+
+def our_child_loaders(tmp_path, hosts: TestHosts) -> list[str]:
+    """env-loaders that put our launcher first on the host's PATH, as `launch` and as `roslaunch`."""
+    bin_dir = os.path.join(str(tmp_path), "bin")
+    os.makedirs(bin_dir, exist_ok=True)
+    for name in ("launch", "roslaunch"):
+        path = os.path.join(bin_dir, name)
+        with open(path, "w") as f:
+            f.write('#!/bin/sh\nPYTHONPATH=%s exec %s -m launcher "$@"\n' % (os.getcwd(), sys.executable))
+        os.chmod(path, 0o755)
+    loaders = []
+    for host in hosts.hosts:
+        with open(host.env_loader) as f:
+            text = f.read().replace('exec "$@"', 'export PATH=%s:$PATH\nexec "$@"' % bin_dir)
+        path = os.path.join(str(tmp_path), "ours-%d.sh" % host.index)
+        with open(path, "w") as f:
+            f.write(text)
+        os.chmod(path, 0o755)
+        loaders.append(path)
+    return loaders
+
+
+def launch_file(tmp_path, hosts: TestHosts, nodes: str, machines: str | None = None,
+                loaders: list[str] | None = None) -> str:
+    h1, h2 = hosts.hosts
+    l1, l2 = loaders or (h1.env_loader, h2.env_loader)
+    if machines is None:
+        machines = ('  <machine name="one" address="%s" env-loader="%s"/>\n'
+                    '  <machine name="two" address="%s" env-loader="%s"/>\n'
+                    % (h1.address, l1, h2.address, l2))
+    path = os.path.join(str(tmp_path), "robot.launch")
+    with open(path, "w") as f:
+        f.write("<launch>\n%s%s</launch>\n" % (machines, nodes))
+    return path
+
+
+def run_env(tmp_path, hosts: TestHosts, **extra: str) -> dict[str, str]:
+    env = hosts.env(ROS_MASTER_URI="http://%s:%d/" % (hosts.gateway, free_port()), PATH=ROS_PATH,
+                    ROS_HOME=os.path.join(str(tmp_path), "home"), ROS_LOG_DIR=os.path.join(str(tmp_path), "log"),
+                    PYTHONPATH=os.getcwd())
+    env.pop("ROS_NAMESPACE", None)
+    env.update(extra)
+    return env
+
+
+def node_names(env: dict[str, str]) -> set[str]:
+    r = subprocess.run(["rosnode", "list"], env=env, capture_output=True, text=True, timeout=30)
+    return set(r.stdout.split())
+
+
+def on_host(host, needle: str) -> list[int]:
+    """pids of processes on the test host whose command line contains `needle`."""
+    return [int(line.split()[0]) for line in host.process_lines() if needle in line]
+
+
+TALKER = '<node machine="one" pkg="rostopic" type="rostopic" name="talker" args="pub /chatter std_msgs/String hello -r 10"%s/>\n'
+LISTENER = '<node machine="two" pkg="rostopic" type="rostopic" name="listener" args="echo /chatter"%s/>\n'
+LOCAL = '<node pkg="rostopic" type="rostopic" name="local_echo" args="echo /chatter"/>\n'
+
+
+@pytest.fixture
+def launched(tmp_path, hosts):
+    started: list[Launcher] = []
+
+    def start(nodes: str, machines: str | None = None, child: str = "debian",
+              **env: str) -> tuple[Launcher, dict[str, str]]:
+        loaders = None
+        if child == "ours":  # our launch as the child, run by its own name
+            loaders = our_child_loaders(tmp_path, hosts)
+            env.setdefault("LAUNCHER_REMOTE_PROGRAM", "launch")
+        e = run_env(tmp_path, hosts, **env)
+        la = Launcher([launch_file(tmp_path, hosts, nodes, machines, loaders)], e, str(tmp_path))
+        started.append(la)
+        return la, e
+
+    yield start
+    for la in started:
+        la.close()
+    for host in hosts.hosts:  # what a test left running on a host must not leak into the next one
+        for pid in host.pids():
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "" + LOCAL, child=child)
+    poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 60, period=0.5,
+         what="nodes of all three hosts registered")
+    h1, h2 = hosts.hosts
+    assert on_host(h1, "__name:=talker") and not on_host(h1, "__name:=listener")
+    assert on_host(h2, "__name:=listener") and not on_host(h2, "__name:=talker")
+    r = subprocess.run(["rostopic", "echo", "-n", "1", "/chatter"], env=env, capture_output=True, text=True,
+                       timeout=60)
+    assert 'data: "hello"' in r.stdout
+    # the remote listener hears the remote talker: its subscription is connected
+    r = subprocess.run(["rosnode", "info", "/listener"], env=env, capture_output=True, text=True, timeout=60)
+    assert re.search(r"topic: /chatter\s+\* to: /talker", r.stdout), r.stdout
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_remote_node_killed_is_reported_and_respawned(hosts, launched, child):
+    la, env = launched(TALKER % ' respawn="true"', child=child)
+    h1 = hosts.hosts[0]
+    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    la.wait_output(r"\[talker-1\]: started with pid", 30)
+    os.kill(first, signal.SIGKILL)
+    la.wait_output(r"\[talker-1\] process has died \[pid %d, exit code -9" % first, 30, stream="stderr")
+    again = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
+    assert again
+
+
+def test_unreachable_host_and_refused_key_are_errors_while_local_nodes_run(tmp_path, hosts, launched):
+    h1 = hosts.hosts[0]
+    machines = ('  <machine name="gone" address="%s.99" env-loader="%s" timeout="3"/>\n'
+                '  <machine name="one" address="%s" env-loader="%s"/>\n'
+                % (hosts.subnet, h1.env_loader, h1.address, h1.env_loader))
+    nodes = ('<node machine="gone" pkg="rostopic" type="rostopic" name="lost" args="echo /x"/>\n' + LOCAL)
+    la, env = launched(nodes, machines)
+    m = la.wait_output(r"robot\.launch:2: remote\[[^\]]+\]: failed to launch on machine \[gone\]:\s+unable to "
+                       r"reach \[%s\.99:22\]" % re.escape(hosts.subnet), 60, stream="stderr")
+    assert m
+    assert "/local_echo" in node_names(env)
+    assert la.proc.poll() is None
+
+    nodes = TALKER % "" + LOCAL
+    la2, env2 = launched(nodes, machines, LAUNCHER_SSH_COMMAND=hosts.ssh_command(key="other_key"))
+    la2.wait_output(r"robot\.launch:3: remote\[[^\]]+\]: failed to launch on machine \[one\]:\s+authentication "
+                    r"to remote computer \[%s:22\] failed: the key was refused" % re.escape(h1.address), 60,
+                    stream="stderr")
+    poll(lambda: "/local_echo" in node_names(env2), 30, period=0.5, what="local node registered")
+    assert la2.proc.poll() is None and not on_host(h1, "__name:=talker")
+
+
+def test_unknown_host_key_is_an_error_unless_roslaunch_ssh_unknown(tmp_path, hosts, launched):
+    empty = os.path.join(str(tmp_path), "known_hosts")
+    open(empty, "w").close()
+    la, env = launched(TALKER % "", LAUNCHER_SSH_COMMAND=hosts.ssh_command(known_hosts=empty))
+    la.wait_output(r"failed to launch on machine \[one\]:\s+%s is not in your SSH known_hosts file"
+                   % re.escape(hosts.hosts[0].address), 60, stream="stderr")
+    la.close()
+    la, env = launched(TALKER % "", LAUNCHER_SSH_COMMAND=hosts.ssh_command(known_hosts=empty),
+                       ROSLAUNCH_SSH_UNKNOWN="1")
+    poll(lambda: "/talker" in node_names(env), 60, period=0.5, what="talker registered")
+
+
+def test_password_and_loopback_master_are_clear_errors(tmp_path, hosts, launched):
+    h1 = hosts.hosts[0]
+    machines = '  <machine name="one" address="%s" env-loader="%s" password="secret"/>\n' % (h1.address,
+                                                                                             h1.env_loader)
+    la, _ = launched(TALKER % "", machines)
+    assert la.wait(30) != 0
+    assert re.search(r"robot\.launch:2: machine \[one\]: password=.* use a key", la.stderr), la.stderr
+    la, _ = launched(TALKER % "", ROS_MASTER_URI="http://localhost:%d/" % free_port())
+    assert la.wait(30) != 0
+    assert re.search(r"robot\.launch:\d+: ROS_MASTER_URI \[http://localhost:\d+/\] is a loopback address",
+                     la.stderr), la.stderr
+
+
+def test_missing_env_loader_is_reported_by_machine(tmp_path, hosts, launched):
+    h1 = hosts.hosts[0]
+    machines = '  <machine name="one" address="%s" env-loader="/nonexistent/env.sh"/>\n' % h1.address
+    la, _ = launched(TALKER % "" + LOCAL, machines)
+    la.wait_output(r"robot\.launch:2: remote\[[^\]]+\]: failed to launch on machine \[one\]:\s+env-loader "
+                   r"\[/nonexistent/env.sh\] not found on \[%s\]" % re.escape(h1.address), 60, stream="stderr")
+    assert la.proc.poll() is None
+
+
+def test_required_node_on_a_failed_machine_ends_the_launch_with_status_1(tmp_path, hosts, launched):
+    machines = '  <machine name="gone" address="%s.99" env-loader="/x" timeout="3"/>\n' % hosts.subnet
+    la, _ = launched('<node machine="gone" pkg="rostopic" type="rostopic" name="lost" args="echo /x" '
+                     'required="true"/>\n' + LOCAL, machines)
+    assert la.wait(60) == 1
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "", child=child)
+    h1, h2 = hosts.hosts
+    poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 60, what="remote nodes")
+    la.proc.kill()
+    la.proc.wait()
+    try:
+        poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the test hosts")
+    except AssertionError as e:
+        raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched, child):
+    la, env = launched(TALKER % "" + LISTENER % "", child=child)
+    h1, h2 = hosts.hosts
+    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    poll(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
+    h1.cut()
+    try:
+        # (the host's sshd keeps its half of the dead connection: only ssh's own processes may stay)
+        try:
+            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                 period=0.1, what="host one's nodes stopped after its link was cut")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
+        assert on_host(h2, "__name:=listener"), la.stdout + la.stderr  # the other machine carries on
+        la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
+    finally:
+        h1.restore()
+    again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
+    assert again[0] != first
+    poll(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
+
+
+def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
+    """Debian's roslaunch runs `roslaunch -c` on the hosts, which there is our launcher."""
+    from running import descendants
+    loaders = our_child_loaders(tmp_path, hosts)
+    env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
+    path = launch_file(tmp_path, hosts, TALKER % ' respawn="true"' + LISTENER % "" + LOCAL, loaders=loaders)
+    la = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                          start_new_session=True)
+    h1, h2 = hosts.hosts
+    local: set[int] = set()
+    try:
+        poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 90, period=0.5,
+             what="nodes of all three hosts registered")
+        assert [line for line in h1.process_lines() if "-m launcher -c" in line]  # our child runs there
+        r = subprocess.run(["rostopic", "echo", "-n", "1", "/chatter"], env=env, capture_output=True, text=True,
+                           timeout=60)
+        assert 'data: "hello"' in r.stdout
+        first = on_host(h1, "__name:=talker")[0]
+        os.kill(first, signal.SIGKILL)
+        poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
+        # SIGKILL of Debian's roslaunch: its ssh channel closes, and our child stops the nodes
+        local = descendants(la.pid)
+        la.kill()
+        la.wait()
+        try:
+            poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the hosts")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
+    finally:
+        if la.poll() is None:
+            local = descendants(la.pid)
+            la.kill()
+            la.wait()
+        for pid in local:  # Debian's master and rosout, in sessions of their own
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+def test_a_machine_whose_nodes_all_ended_is_not_started_again(hosts, launched, child):
+    la, env = launched('<node machine="one" pkg="rostopic" type="rostopic" name="once" args="list"/>\n' + LOCAL,
+                       child=child)
+    h1 = hosts.hosts[0]
+    la.wait_output(r"\[once-1\]: started with pid", 60)
+    poll(lambda: not h1.pids(), 30, period=0.1, what="the child on host one ended with its only node")
+    poll(lambda: "/local_echo" in node_names(env), 30, period=0.5, what="local node registered")
+    la.signal(signal.SIGINT)
+    la.wait(60)
+    assert "dropped" not in la.stderr
+    assert len(re.findall(r"process\[once-1\]: started with pid", la.stdout)) == 1
+
+
+def test_debian_parent_cut_off_from_our_child_leaves_no_process_on_that_host(tmp_path, hosts, launched):
+    """Debian's parent gives the child no pty: our child notices the silent parent by itself."""
+    from running import descendants
+    loaders = our_child_loaders(tmp_path, hosts)
+    env = run_env(tmp_path, hosts, HOME=hosts.home)
+    path = launch_file(tmp_path, hosts, TALKER % "" + LISTENER % "", loaders=loaders)
+    la = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                          start_new_session=True)
+    h1, h2 = hosts.hosts
+    local: set[int] = set()
+    try:
+        poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 90, what="remote nodes")
+        h1.cut()
+        try:
+            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                 period=0.1, what="host one's nodes stopped after its link was cut")
+        except AssertionError as e:
+            raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
+        finally:
+            h1.restore()
+        assert on_host(h2, "__name:=listener")
+    finally:
+        local = descendants(la.pid)
+        la.kill()
+        la.wait()
+        for pid in local:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
