@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         if not opts.monitor_period > 0:
             raise LaunchError("--monitor-period must be greater than zero")
         if opts.child_name or opts.server_uri:
-            from launcher.remote.child import run_child  # a roslaunch child on another machine
+            from launcher.child import run_child  # a roslaunch child on another machine
             return run_child(opts)
         if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:
             from launcher import introspect

@@ -35,6 +35,8 @@ from launcher.net.allow import AllowList
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
+from launcher.remote import ssh
+from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
@@ -178,18 +180,14 @@ class Plan:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
                                   node.filename or None, node.line or None)
         if not getattr(opts, "local", False):
-            from launcher.remote import ssh
-            from launcher.remote.parent import check_addresses
             machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
             for machine in sorted(machines, key=lambda m: m.name):
                 ssh.check_machine(machine)
             if machines:
-                from launcher.master import advertised_host
                 check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
 
     def remote_nodes(self) -> dict[str, list[Any]]:
         """The nodes to launch on other machines, by machine name."""
-        from launcher.remote.parent import machine_nodes
         return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
@@ -580,8 +578,6 @@ class Run:
         by_machine = self.plan.remote_nodes()
         if not by_machine:
             return
-        from launcher.master import advertised_host
-        from launcher.remote.parent import RemoteParent
         self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=self.run_id,
                                    master_uri=self.master_uri, host=advertised_host(self.plan.environ),
                                    environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,

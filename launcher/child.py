@@ -29,7 +29,10 @@ from launcher.process import console, state
 from launcher.process.state import Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
+from launcher.packages import PackageIndex
 from launcher.runlog import RunLog
+from launcher.runtime import Plan, node_specs
+from launcher.xml import load
 
 LOG_INFO, LOG_ERROR = 2, 8  # rosgraph_msgs/Log levels
 REGISTER_TIMEOUT_S = 10.0
@@ -200,9 +203,6 @@ class Child:
         return self._launch(launch_xml)
 
     async def _launch(self, launch_xml: str) -> list:
-        from launcher.packages import PackageIndex
-        from launcher.runtime import Plan, node_specs
-        from launcher.xml import load
         if self.supervisor is None or self.supervisor.shutting_down:
             return [0, "uninitialized", -1]
         warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
