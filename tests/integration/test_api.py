@@ -118,10 +118,10 @@ def test_pytest_fixture_runs_a_launch_in_a_plain_pytest_test(demo, tmp_path):
     ''' % launch_file))
     here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = dict(env, PYTHONPATH=here)
-    # the plugin as its entry point loads it in an installed launcher (`-p` here: this worktree's copy)
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p",
-                           "launcher.pytest_plugin", str(test_file)], env=env, capture_output=True, text=True,
-                          timeout=300, cwd=str(tmp_path))
+    # the plugin is loaded through its pytest11 entry point, as in any project that installs launcher
+    # (PYTHONPATH makes the entry point's module this tree's copy)
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(test_file)],
+                          env=env, capture_output=True, text=True, timeout=300, cwd=str(tmp_path))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "2 passed" in proc.stdout
 
