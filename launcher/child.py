@@ -78,7 +78,7 @@ class Child:
         for sig in (2, 15, 1):  # SIGINT, SIGTERM, SIGHUP (the ssh session's pty hung up)
             loop.add_signal_handler(sig, self.stop.set)
         self._watch_session(loop)
-        run_dir = self.log.open(self.run_id, launch_log=False)
+        run_dir = self.log.open(self.run_id)
         self.fleet = Fleet(os.path.join(run_dir, "launcher-events-%s.jsonl" % self.name) if run_dir else None,
                            warn=console.printerrlog)
         self.fleet.listeners.append(self._node_changed)
