@@ -22,6 +22,22 @@ PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>%s</name><versi
                '<license>BSD</license></package>\n')
 
 
+# A rospy talker publishing "hello" on chatter at 20 Hz (run with Debian's python first on PATH).
+RospyTalker = """#!/usr/bin/env python3
+import rospy
+from std_msgs.msg import String
+rospy.init_node("talker")
+pub = rospy.Publisher("chatter", String, queue_size=10)
+rate = rospy.Rate(20)
+while not rospy.is_shutdown():
+    pub.publish(String("hello"))
+    try:
+        rate.sleep()
+    except rospy.ROSInterruptException:
+        break
+"""
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -13,23 +13,11 @@ import psutil
 import pytest
 
 from launcher.api import Launch, LaunchFailed
-from running import ROS_PATH, make_package, poll, write_launch
+from running import ROS_PATH, RospyTalker, make_package, poll, write_launch
 
 pytestmark = pytest.mark.integration
 
-TALKER = """#!/usr/bin/env python3
-import rospy
-from std_msgs.msg import String
-rospy.init_node("talker")
-pub = rospy.Publisher("chatter", String, queue_size=10)
-rate = rospy.Rate(20)
-while not rospy.is_shutdown():
-    pub.publish(String("hello"))
-    try:
-        rate.sleep()
-    except rospy.ROSInterruptException:
-        break
-"""
+TALKER = RospyTalker
 
 LISTENER = """#!/usr/bin/env python3
 import rospy

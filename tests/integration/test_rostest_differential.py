@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from running import ROS_PATH, RosMaster, compile_roscpp, make_package
+from running import ROS_PATH, RospyTalker, RosMaster, compile_roscpp, make_package
 
 pytestmark = pytest.mark.integration
 
@@ -70,18 +70,7 @@ if __name__ == "__main__":
     rostest.rosrun("rttest", "flaky", Flaky, sysargs=sys.argv)
 '''
 
-TALKER = ROS_PY + '''import rospy
-from std_msgs.msg import String
-rospy.init_node("talker")
-pub = rospy.Publisher("chatter", String, queue_size=10)
-rate = rospy.Rate(20)
-while not rospy.is_shutdown():
-    pub.publish(String("hello"))
-    try:
-        rate.sleep()
-    except rospy.ROSInterruptException:
-        break
-'''
+TALKER = RospyTalker
 
 TESTS = {
     "pass": '<param name="answer" value="42"/>\n<test test-name="passing" pkg="rttest" type="pass_node.py"/>',
