@@ -259,6 +259,9 @@ class PackageIndex:
         self._cache = CrawlCache(ros_home(env) if use_cache else None)
         self._located: dict[str, str] = {}
         self._uncrawled = list(self.ros_paths)  # crawled in precedence order, on demand
+        self._unchecked: dict[str, Crawl] = {}  # package -> the cached crawl it came from, until first used
+        self._from_cache = False  # some path entry's packages came from the crawl cache
+        self._fresh = False  # True once a miss sent us to the disk: the cache is not read again
         self._files: dict[str, dict[str, list[str]]] = {}  # dir -> file name -> paths, os.walk order
         self._nodes: dict[tuple[str, str], str] = {}
         self._catkin: dict[tuple[str, tuple[str, ...], str | None, bool], list[str]] = {}
@@ -273,36 +276,57 @@ class PackageIndex:
     # -- packages ---------------------------------------------------------------------------
 
     def _crawl(self, path: str) -> None:
-        """Register the packages under one ROS path entry, from the crawl cache while it is valid."""
+        """Register the packages under one ROS path entry, from the crawl cache while its tree is unchanged."""
         root = os.path.abspath(path)
-        crawl = self._cache.lookup(root)
+        crawl = None if self._fresh else self._cache.lookup(root)
+        cached = crawl is not None
+        self._from_cache |= cached
         if crawl is None:
             crawl = _crawl_path(root)
             self._cache.store(root, crawl)
         found: set[str] = set()
         for name, d in crawl.packages:
-            self._register(name, d, found)
+            # first path entry wins; inside one entry the first directory in walk order wins
+            if name not in found:
+                found.add(name)
+                if name not in self._located:
+                    self._located[name] = d
+                    if cached:
+                        self._unchecked[name] = crawl
         for text in crawl.warnings:
-            self._warning(text)
-    def _register(self, name: str, d: str, found: set[str]) -> None:
-        # first path entry wins; inside one entry the first directory in walk order wins
-        if name not in found:
-            found.add(name)
-            self._located.setdefault(name, d)
+            if text not in self.warnings:  # (a fresh crawl after a miss finds the same ones again)
+                self._warning(text)
+
+    def _recrawl(self) -> bool:
+        """After a miss or a changed package: forget what the cache said and crawl the disk (once per index)."""
+        if self._fresh or not self._from_cache:
+            return False
+        self._fresh = True
+        self._located.clear()
+        self._unchecked.clear()
+        self._uncrawled = list(self.ros_paths)
+        return True
 
     def get_path(self, pkg: str) -> str:
         """The directory of package `pkg`; raises PackageNotFound."""
         while pkg not in self._located and self._uncrawled:
             self._crawl(self._uncrawled.pop(0))
-        try:
-            return self._located[pkg]
-        except KeyError:
-            raise PackageNotFound(pkg, self.ros_paths) from None
+        d = self._located.get(pkg)
+        crawl = self._unchecked.pop(pkg, None)
+        if d is None or (crawl is not None and not crawl.package_unchanged(d)):
+            if self._recrawl():
+                return self.get_path(pkg)
+            raise PackageNotFound(pkg, self.ros_paths)
+        return d
 
     def packages(self) -> dict[str, str]:
         """Every package on the path: name -> directory."""
         while self._uncrawled:
             self._crawl(self._uncrawled.pop(0))
+        if any(not crawl.package_unchanged(self._located[name]) for name, crawl in self._unchecked.items()):
+            self._recrawl()
+            return self.packages()
+        self._unchecked.clear()
         return dict(self._located)
 
     # -- catkin spaces ------------------------------------------------------------------------

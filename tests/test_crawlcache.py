@@ -58,7 +58,7 @@ def index(ws, tmp_path):
 def test_a_settled_tree_is_read_from_the_cache(ws, tmp_path, reads):
     first = index(ws, tmp_path).packages()
     assert reads[0] == 6
-    assert os.path.exists(tmp_path / "home/launcher/package_crawl_cache.json")
+    assert os.path.exists(tmp_path / "home/launcher/package_crawl_cache.marshal")
     again = index(ws, tmp_path).packages()
     assert reads[0] == 6  # nothing parsed the second time
     assert again == first
@@ -114,7 +114,52 @@ def test_a_tree_changed_right_before_the_crawl_is_not_trusted(ws, tmp_path, read
 
 
 def test_a_broken_cache_file_is_a_crawl(ws, tmp_path, reads):
-    path = tmp_path / "home/launcher/package_crawl_cache.json"
+    path = tmp_path / "home/launcher/package_crawl_cache.marshal"
     path.parent.mkdir(parents=True)
-    path.write_text("{not json")
+    path.write_bytes(b"{not marshal")
     assert index(ws, tmp_path).get_path("pkg_a0") == str(ws / "a/a0")
+
+
+def test_a_package_ignored_in_its_own_directory_is_gone(ws, tmp_path):
+    index(ws, tmp_path).packages()
+    (ws / "a/a0/CATKIN_IGNORE").write_text("")
+    with pytest.raises(PackageNotFound):
+        index(ws, tmp_path).get_path("pkg_a0")
+
+
+def test_a_package_whose_manifest_is_gone_is_gone(ws, tmp_path):
+    index(ws, tmp_path).packages()
+    (ws / "b/b2/package.xml").unlink()
+    with pytest.raises(PackageNotFound):
+        index(ws, tmp_path).get_path("pkg_b2")
+
+
+def test_a_full_listing_sees_a_rename_in_place(ws, tmp_path):
+    index(ws, tmp_path).packages()
+    (ws / "a/a1/package.xml").write_text(MANIFEST % "pkg_yy")  # same length, in place
+    listed = index(ws, tmp_path).packages()
+    assert listed.get("pkg_yy") == str(ws / "a/a1") and "pkg_a1" not in listed
+
+
+def test_a_lookup_checks_the_folders_and_its_own_package_only(ws, tmp_path, monkeypatch, reads):
+    """The point of the cache: a launch that uses one package of a big tree does not stat every package."""
+    for i in range(40):
+        make_pkg(ws / "c" / ("c%d" % i), "pkg_c%d" % i)
+    settle(ws)
+    index(ws, tmp_path).packages()
+    parsed = reads[0]
+    stats = []
+    real_stat = os.stat
+
+    def counting_stat(path, *args, **kwargs):
+        if str(path).startswith(str(ws)):
+            stats.append(str(path))
+        return real_stat(path, *args, **kwargs)
+    monkeypatch.setattr(os, "stat", counting_stat)
+    assert index(ws, tmp_path).get_path("pkg_c7") == str(ws / "c/c7")
+    assert reads[0] == parsed  # nothing parsed: the cache answered
+    package_dirs = {str(ws / f / n) for f, ns in (("a", 3), ("b", 3), ("c", 40)) for n in
+                    ("%s%d" % (f, i) for i in range(ns))}
+    checked = {p for p in stats if p in package_dirs or p.endswith("package.xml")}
+    assert checked == {str(ws / "c/c7"), str(ws / "c/c7/package.xml")}, sorted(checked)
+    assert {str(ws), str(ws / "a"), str(ws / "b"), str(ws / "c")} <= set(stats)
