@@ -192,11 +192,17 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
     is what roslaunch uses for `type="yaml"` params before any `<rosparam>` was processed.
     Raises RosYamlError.
     """
+    return parse_yaml(text, filename=filename, first_line=first_line, angles=angles)[0]
+
+
+def parse_yaml(text: str, *, filename: str | None = None, first_line: int = 1,
+               angles: bool = True) -> tuple[Any, bool]:
+    """(load_yaml's value, whether it is a plain tree: str/int/float/bool/None, lists and maps, no aliases)."""
     key = (text, angles)
     memo = _parsed.get(key)
     if memo is not None:
         value, plain_tree = memo
-        return _copy_tree(value) if plain_tree else _fresh_copy(value)
+        return (_copy_tree(value) if plain_tree else _fresh_copy(value)), plain_tree
     loaders = _loaders(angles, text)
     for i, loader in enumerate(loaders):
         try:
@@ -212,8 +218,8 @@ def load_yaml(text: str, *, filename: str | None = None, first_line: int = 1, an
         if len(text) <= _MEMO_TEXT_MAX and _memo_chars + len(text) <= _MEMO_CHARS:
             _memo_chars += len(text)
             _parsed[key] = (value, plain_tree)
-            return _copy_tree(value) if plain_tree else _fresh_copy(value)
-        return value
+            return (_copy_tree(value) if plain_tree else _fresh_copy(value)), plain_tree
+        return value, plain_tree
     raise AssertionError("unreachable")
 
 

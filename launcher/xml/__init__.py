@@ -37,7 +37,9 @@ def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, st
     try:
         for f in files:
             _load_file(loader, f)
-        return loader.config()
+        config = loader.config()
+        loader.yaml_cache.save()
+        return config
     finally:
         if gc_was_enabled:
             gc.enable()

@@ -19,6 +19,8 @@ from launcher.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_
 from launcher.errors import LaunchError
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
+from launcher.params.yamlcache import YamlCache
+from launcher.roshome import ros_home
 from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
@@ -85,6 +87,7 @@ class XmlLoader:
         self._realpaths: dict[str, str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
+        self.yaml_cache = YamlCache(ros_home(environ))  # saved by xml.load once the files are read
 
     # ------------------------------------------------------------------ output
     def config(self) -> LaunchConfig:
@@ -545,12 +548,11 @@ class XmlLoader:
     # ------------------------------------------------------------------ YAML
     def _yaml(self, text: str, scope: Scope, el: Any, *, angles: bool, what: str,
               yaml_file: str | None = None) -> Any:
-        from launcher.params.rosyaml import RosYamlError, load_yaml
         try:
             if yaml_file:
-                return load_yaml(text, filename=yaml_file, angles=angles)
-            return load_yaml(text, filename=scope.source, first_line=el.sourceline or 1, angles=angles)
-        except RosYamlError as e:
+                return self.yaml_cache.load(text, filename=yaml_file, angles=angles)
+            return self.yaml_cache.load(text, filename=scope.source, first_line=el.sourceline or 1, angles=angles)
+        except LaunchError as e:  # (rosyaml.RosYamlError: a LaunchError, imported only when PyYAML is)
             if yaml_file:
                 # the line is the YAML file's own; the chain says which tag loaded it
                 chain = ((scope.source, el.sourceline or 0),) + scope.include_chain

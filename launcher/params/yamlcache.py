@@ -1,0 +1,89 @@
+"""Parsed rosparam YAML kept under ROS_HOME between runs: a document's exact text → its value.
+
+Most launches load the parameter files the launch before them loaded. Parsing
+them needs PyYAML, whose import alone (it compiles its scanner's and resolver's
+regexes) costs more than the rest of a `--dump-params` of a small robot. So a
+document whose value is a plain tree (str, int, float, bool, None, lists and
+maps, no aliases: what `rosyaml` builds directly from libyaml's nodes) is kept
+here, marshalled, keyed by its text and the loader's flavour (rosparam's angle
+tags or plain YAML). An unchanged file is then read, compared and unmarshalled,
+never parsed, and PyYAML is not imported. The key is the text itself, not a file
+time, so an entry cannot go stale. Anything else (binary, timestamps, aliases,
+errors) is parsed every time.
+
+The file is the user's own, under ROS_HOME, as rospack's cache is; marshal is
+not meant for data from strangers, and a file that does not load is ignored.
+"""
+
+from __future__ import annotations
+
+import marshal
+import os
+from typing import Any
+
+VERSION = 1
+FILE = os.path.join("launcher", "yaml_cache.marshal")
+MAX_CHARS = 2 * 1024 * 1024  # texts kept in all: the file stays small enough to read in about a millisecond
+
+
+class YamlCache:
+    """The YAML cache of one ROS_HOME: read at the first document, written once by `save` if it learned any."""
+
+    def __init__(self, ros_home: str | None):
+        self.path = os.path.join(ros_home, FILE) if ros_home else None
+        self._entries: dict[tuple[str, bool], bytes] | None = None
+        self._used: dict[tuple[str, bool], bytes] = {}  # this run's documents, in order: kept first on save
+        self._learned = False
+
+    def load(self, text: str, *, filename: str | None = None, first_line: int = 1, angles: bool = True) -> Any:
+        """`rosyaml.load_yaml`'s value for `text` (a fresh object each call); raises RosYamlError as it does."""
+        key = (text, angles)
+        blob = self._used.get(key)
+        if blob is None:
+            blob = self._read().get(key)
+        if blob is not None:
+            self._used[key] = blob
+            return marshal.loads(blob)
+        from launcher.params.rosyaml import parse_yaml  # PyYAML: imported only for a text not seen before
+
+        value, plain = parse_yaml(text, filename=filename, first_line=first_line, angles=angles)
+        if plain and len(text) <= MAX_CHARS:
+            self._used[key] = marshal.dumps(value)
+            self._learned = True
+        return value
+
+    def save(self) -> None:
+        """Write this run's documents, then older ones while they fit (best effort, atomic)."""
+        if not self._learned or not self.path:
+            return
+        kept, chars = {}, 0
+        for key, blob in list(self._used.items()) + list(self._read().items()):
+            if key in kept or chars + len(key[0]) > MAX_CHARS:
+                continue
+            kept[key] = blob
+            chars += len(key[0])
+        tmp = "%s.%d.tmp" % (self.path, os.getpid())
+        try:
+            os.makedirs(os.path.dirname(self.path), exist_ok=True)
+            with open(tmp, "wb") as f:
+                marshal.dump((VERSION, kept), f)
+            os.replace(tmp, self.path)  # a launch reading at the same time sees the old file or the new one
+        except OSError:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+        self._learned = False
+
+    def _read(self) -> dict[tuple[str, bool], bytes]:
+        if self._entries is None:
+            self._entries = {}
+            if self.path:
+                try:
+                    with open(self.path, "rb") as f:
+                        version, entries = marshal.loads(f.read())  # (load(f) would read piece by piece)
+                    if version == VERSION and type(entries) is dict:
+                        self._entries = entries
+                except (OSError, EOFError, ValueError, TypeError):
+                    pass  # no cache yet, or one from another version: parse
+        return self._entries
