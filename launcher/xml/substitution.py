@@ -17,7 +17,6 @@ from typing import Any, Callable, Mapping
 
 from launcher.names import anonymous_name
 from launcher.params.values import auto_value
-from launcher.xml import sandbox
 
 VALID_COMMANDS = ("find", "env", "optenv", "dirname", "anon", "arg")
 _FIRST_PASS = ("env", "optenv", "dirname", "anon", "arg")
@@ -344,8 +343,8 @@ def _find_value(body: str, args: tuple[str, ...], path: str, scope: Substitution
 # $(eval ...)
 
 # roslaunch's names in $(eval), looked up before the args: its constants and every name of
-# the math module (xml/sandbox.py bounds the few math functions that could run long).
-_ROSLAUNCH_NAMES: dict[str, Any] = {**sandbox.MATH, "true": True, "false": False, "True": True, "False": False}
+# the math module (sandbox.MATH: xml/sandbox.py bounds the few math functions that could run long).
+_ROSLAUNCH_CONSTANTS: dict[str, Any] = {"true": True, "false": False, "True": True, "False": False}
 
 
 # roslaunch's functions in $(eval), each made for the scope when an expression names it
@@ -390,10 +389,14 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
     # roslaunch's own refusal, kept for its message (the sandbox needs no such rule)
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
+    # (imported here: the sandbox and `ast` cost ~2.5 ms to import, and most launches have no $(eval))
+    from launcher.xml import sandbox
 
     def lookup(name: str) -> Any:  # roslaunch's _DictWrapper: its names, then the args auto-typed
-        if name in _ROSLAUNCH_NAMES:
-            return _ROSLAUNCH_NAMES[name]
+        if name in _ROSLAUNCH_CONSTANTS:
+            return _ROSLAUNCH_CONSTANTS[name]
+        if name in sandbox.MATH:
+            return sandbox.MATH[name]
         make = _SCOPE_FUNCTIONS.get(name)
         if make is not None:
             return make(scope)
