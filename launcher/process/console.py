@@ -88,7 +88,7 @@ class _Writer:
     def put(self, stream: TextIO, text: str) -> None:
         with self._cond:
             size = len(text) if text.isascii() else len(text.encode(errors="replace"))
-            if not self._queue and not self._writing and size <= PIPE_BUF and _ready(stream):
+            if not self._queue and not self._writing and not self._dropped and size <= PIPE_BUF and _ready(stream):
                 _write(stream, text)  # the common case: at once, in order, from the caller
                 return
             self._queue.append((stream, text))
@@ -159,7 +159,9 @@ class _Writer:
                 drained = []
                 if self._drained and self._queued_output <= MAX_QUEUED_OUTPUT // 2:
                     drained, self._drained = self._drained, []
-                dropped, self._dropped = self._dropped, {}
+                dropped: dict[TextIO, int] = {}
+                if isinstance(item, str):  # (said among the launcher's lines, not inside a node's output)
+                    dropped, self._dropped = self._dropped, {}
                 self._writing = True
             for lost_stream, count in dropped.items():  # said where the lines would have gone
                 _write(lost_stream, "[launch] %d console line%s dropped while the output was blocked\n"
