@@ -37,6 +37,9 @@ from typing import TextIO
 from launcher.process import console
 
 CHUNK = 65536  # one read per readable event: a pipe's default capacity
+# At a node's exit at most this much is read at once per stream: more than any pipe or pty buffers
+# (fs.pipe-max-size is 1 MiB), and a bound when a process the node left behind keeps writing.
+DRAIN_MAX = 1 << 20
 
 
 def _is_terminal(fd: int) -> bool:
@@ -144,17 +147,17 @@ class ScreenOutput:
     def closed(self) -> bool:
         return not self.sources
 
-    def _read(self, fd: int) -> bool:
-        """One read of `fd`, relayed; False when there is nothing more now (would block) or ever (closed)."""
+    def _read(self, fd: int) -> int:
+        """One read of `fd`, relayed: how many bytes (0 when there is nothing more now, or ever: closed)."""
         try:
             data = os.read(fd, CHUNK)
         except BlockingIOError:
-            return False
+            return 0
         except OSError:  # EIO: a pty whose node ends are all closed
             data = b""
         if not data:
             self._close(fd)
-            return False
+            return 0
         if self.log_fd is not None:
             try:
                 os.write(self.log_fd, data)
@@ -165,7 +168,7 @@ class ScreenOutput:
                 self.log_fd = None
         if not console.relay(self.sources[fd], data) and not self.paused:
             self._pause()
-        return True
+        return len(data)
 
     def _readable(self, fd: int) -> None:
         if fd in self.sources and not self.paused:
@@ -191,11 +194,15 @@ class ScreenOutput:
             self.loop.add_reader(fd, self._readable, fd)
 
     def drain(self) -> None:
-        """Relay all the output the node has written so far (it exited); backpressure waits for no one here:
-        what a kernel buffer holds is bounded."""
+        """Relay the output the node has written so far (it exited): what the kernel holds, up to DRAIN_MAX per
+        stream. Backpressure waits for no one here: that much is bounded."""
         for fd in list(self.sources):
-            while fd in self.sources and self._read(fd):
-                pass
+            relayed = 0
+            while fd in self.sources and relayed < DRAIN_MAX:
+                n = self._read(fd)
+                if not n:
+                    break
+                relayed += n
 
     def _close(self, fd: int) -> None:
         self.sources.pop(fd, None)
