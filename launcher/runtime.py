@@ -267,7 +267,7 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
             output = "log"
         specs.append(ProcessSpec(
             name, command,
-            stdout_path=os.path.join(run_dir, log_name + "-stdout.log") if output == "log" else None,
+            output=output, stdout_path=os.path.join(run_dir, log_name + "-stdout.log"),
             log_dir=run_dir, respawn=node.respawn, respawn_delay=node.respawn_delay, required=required,
             node_name=ns_join(node.namespace, node.name), policy=node.policy))
     return specs, failed

@@ -1,10 +1,11 @@
-"""`launcher logs NODE [-f] [-n LINES]`: a node's output, from the files the launch writes.
+"""`launcher logs NODE [-f] [-n LINES]`: a node's output, from the file the launch writes it to.
 
-A node with output="log" has its stdout in `<name>-stdout.log`; a node with
-output="screen" writes to the launch's terminal, which no file holds, so its
-own log file (`__log:=`, where rospy and roscpp's file logger write each log
-call) is shown. `-f` follows the file as it grows, across the node's
-restarts, until Ctrl-C.
+Every node's output is in `<name>-stdout.log` in the run's log directory: an
+output="log" node writes its stdout there itself (and the launcher adds its
+stderr, which also goes to the terminal); an output="screen" node's stdout and
+stderr reach the terminal through the launcher, which keeps the same bytes
+there (process/screen.py). `-f` follows the file as it grows, across the
+node's restarts and the file's rotations, until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -76,18 +77,16 @@ def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     info = client.status(client.find_launch(opts))
     node = client.find_node(info, opts.node)
-    path = node.get("stdout_log") or node.get("node_log")
+    path = node.get("stdout_log")
     if not path:
-        raise client.ToolError("node [%s] has no output file (the launch has no log directory)" % node["name"])
+        raise client.ToolError("node [%s] has no output file on this machine (it runs elsewhere, or the launch "
+                               "has no log directory)" % node["name"])
     offset = 0
     try:
         data, offset = tail(path, opts.lines)
         _write(data)
     except FileNotFoundError:
         if not opts.follow:
-            if not node.get("stdout_log"):
-                raise client.ToolError("node [%s] writes to the launch's terminal (output=\"screen\") and has no "
-                                       "log file of its own yet (%s)" % (node["name"], path)) from None
             raise client.ToolError("node [%s] has written no output yet (%s)" % (node["name"], path)) from None
     if opts.follow:
         follow(path, offset, _write)

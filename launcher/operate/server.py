@@ -131,7 +131,7 @@ class LaunchServer:
                         "package": self._packages.get(p.name, ""), "name": p.name, "alive": p.alive,
                         "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay),
                         "required": spec.required, "pid": p.pid if p.pid is not None else 0,
-                        "run_id": self.run.run_id, "log_output": spec.stdout_path is not None}
+                        "run_id": self.run.run_id, "log_output": spec.output == "log"}
                 if p.exit_code is not None:
                     info["exit_code"] = p.exit_code
                 return [1, "process info", info]
@@ -174,8 +174,8 @@ class LaunchServer:
                 d = status.as_dict()
                 spec = outputs.get(status.name)
                 if spec is not None and spec.log_dir:
-                    # where `launcher logs` finds the node's output: its stdout file (output="log"), else
-                    # the node's own log file (__log:=), as the screen's copy is the terminal's
+                    # where `launcher logs` finds the node's output (output="screen" too: the launcher keeps
+                    # a copy, process/screen.py), and the node's own log file (__log:=)
                     d["stdout_log"] = spec.stdout_path or ""
                     d["node_log"] = os.path.join(spec.log_dir, spec.log_name + ".log")
                 nodes.append(d)

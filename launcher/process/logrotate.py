@@ -1,9 +1,11 @@
 """Node output log files kept under a size: rotation by copy and truncate, which roslaunch never had (ros/ros_comm#79).
 
 A node with `output="log"` writes its stdout straight into `<name>-stdout.log`
-(the launcher does not sit in the path of the data). Once a second the sizes
+(the launcher does not sit in the path of that data); what goes to the terminal
+(a screen node's output, a log node's stderr) is appended to the same file by
+the launcher (process/screen.py), also with O_APPEND. Once a second the sizes
 are looked at; a file past `max_size` is copied to `.1` (older copies shift to
-`.2` ... up to `backups`) and truncated in place. The node's descriptor is
+`.2` ... up to `backups`) and truncated in place. Every descriptor on it is
 opened with O_APPEND, so its next write lands at the new end and nothing needs
 to be reopened; what it writes between the copy and the truncation (a few
 milliseconds) is lost, as with logrotate's copytruncate. The copy runs in a

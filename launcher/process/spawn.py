@@ -16,6 +16,7 @@ from launcher.command import NodeCommand
 from launcher.config import NodePolicy
 from launcher.process import console
 from launcher.process.coredumps import raise_core_limit, restore_core_limit
+from launcher.process.screen import Channels
 
 
 DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
@@ -26,17 +27,21 @@ class ProcessSpec:
 
     # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
     # first spawn)
-    __slots__ = ("name", "command", "stdout_path", "log_dir", "respawn", "respawn_delay", "required", "node_name",
-                 "policy")
+    __slots__ = ("name", "command", "output", "stdout_path", "log_dir", "respawn", "respawn_delay", "required",
+                 "node_name", "policy")
 
     def __init__(self, name: str, command: NodeCommand, stdout_path: str | None = None,
                  log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
-                 required: bool = False, node_name: str | None = None, policy: NodePolicy | None = None):
+                 required: bool = False, node_name: str | None = None, policy: NodePolicy | None = None,
+                 output: str | None = None):
         self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
         self.node_name = node_name or "/" + name  # the ROS node name, e.g. "/robot/driver": how status names it
         self.policy = policy if policy is not None else DEFAULT_POLICY  # restart policy, readiness, limits
         self.command = command
-        self.stdout_path = stdout_path  # None: inherit the terminal (output="screen")
+        # output="log": the node writes its stdout to `stdout_path` itself; output="screen": to the terminal,
+        # through the launcher, which keeps a copy in `stdout_path` (process/screen.py)
+        self.output = output or ("log" if stdout_path else "screen")
+        self.stdout_path = stdout_path  # None: no file (a screen node then inherits the terminal unless relayed)
         self.log_dir = log_dir  # for the "log file:" hint after a death
         self.respawn = respawn
         self.respawn_delay = respawn_delay
@@ -69,20 +74,25 @@ def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
     return "unable to launch [%s]: %s" % (" ".join(argv), e.strerror)
 
 
-def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
+def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = None) -> subprocess.Popen:
     """Start the node's process in a new session/process group. Raises SpawnError.
+
+    `channels`: the ptys/pipes the launcher relays the node's terminal-bound streams through
+    (process/screen.py); their node ends are closed here once the node holds them.
 
     Signals the launcher handles are reset to their default disposition by exec
     itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
     restored by `restore_default_signals_for_children` (the Supervisor calls it).
     """
-    stdout = None
-    if spec.stdout_path:
+    stdout = stderr = stdout_file = None
+    if channels is not None:
+        stdout, stderr = channels.stdout, channels.stderr
+    if spec.output == "log" and spec.stdout_path:
         # roslaunch: append when respawning, so earlier runs' output survives; always O_APPEND, so
         # that a rotation's truncation (process/logrotate.py) moves the node's writes to the start
         flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (0 if append or spec.respawn else os.O_TRUNC)
         try:
-            stdout = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object to build per node)
+            stdout = stdout_file = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object per node)
         except OSError as e:
             raise SpawnError("[%s] ERROR: unable to configure logging [%s]" % (spec.name, e)) from None
     command = spec.command
@@ -90,7 +100,7 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
     try:
         try:
             return subprocess.Popen(command.argv, cwd=command.cwd or None, env=command.env, stdout=stdout,
-                                    close_fds=True, start_new_session=True)
+                                    stderr=stderr, close_fds=True, start_new_session=True)
         except FileNotFoundError as e:
             if not command.cwd or e.filename != command.cwd:
                 raise
@@ -101,12 +111,14 @@ def spawn(spec: ProcessSpec, append: bool = False) -> subprocess.Popen:
             except OSError:
                 pass
             return subprocess.Popen(command.argv, cwd=command.cwd, env=command.env, stdout=stdout,
-                                    close_fds=True, start_new_session=True)
+                                    stderr=stderr, close_fds=True, start_new_session=True)
     except OSError as e:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
     finally:
-        if stdout is not None:
-            os.close(stdout)
+        if channels is not None:
+            channels.close_child_ends()
+        if stdout_file is not None:
+            os.close(stdout_file)
         if core_limit is not None:
             restore_core_limit(core_limit)
 
@@ -132,14 +144,15 @@ def restore_default_signals_for_children() -> None:
             pass
 
 
-def start_process(spec: ProcessSpec, watchdog=None, append: bool = False) -> subprocess.Popen | None:
+def start_process(spec: ProcessSpec, watchdog=None, append: bool = False,
+                  channels: Channels | None = None) -> subprocess.Popen | None:
     """Spawn a node as roslaunch does, by name: the process, or None after saying why it could not start.
 
     The no-orphans guard learns the new process group before anything else can
     fail, so that a launcher killed right now still leaves nothing behind.
     """
     try:
-        popen = spawn(spec, append=append)
+        popen = spawn(spec, append=append, channels=channels)
     except SpawnError as e:
         console.printerrlog(str(e))
         return None

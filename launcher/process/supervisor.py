@@ -40,7 +40,7 @@ import time
 from collections import deque
 from typing import Callable
 
-from launcher.process import console, state
+from launcher.process import console, screen, state
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
@@ -66,7 +66,8 @@ class NodeProcess:
     # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
     __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
                  "group_alive", "stopping", "sigkilled", "respawn_handle", "respawn_at", "timers", "stopped",
-                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned", "held", "restart_reason")
+                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned", "held", "restart_reason",
+                 "screen")
 
     def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
                  group_alive: bool = False):
@@ -93,6 +94,7 @@ class NodeProcess:
         self.restart_warned = False
         self.held = False  # not started yet: its wait_for conditions are not met (process/readiness.py)
         self.restart_reason = ""  # set when the supervisor kills the run in order to start it again
+        self.screen: screen.ScreenOutput | None = None  # the current run's relayed output (process/screen.py)
 
     @property
     def name(self) -> str:
@@ -165,7 +167,8 @@ class Supervisor:
     def __init__(self, *, sigint_timeout: float = DEFAULT_SIGINT_TIMEOUT,
                  sigterm_timeout: float = DEFAULT_SIGTERM_TIMEOUT, exit_when_all_dead: bool = True,
                  watchdog=None, stop_concurrency: int = STOP_CONCURRENCY, stop_hold: float = STOP_HOLD_S,
-                 on_spawn: Callable[[NodeProcess], None] | None = None, fleet: state.Fleet | None = None):
+                 on_spawn: Callable[[NodeProcess], None] | None = None, fleet: state.Fleet | None = None,
+                 relay_output: bool = True):
         self.loop = asyncio.get_running_loop()
         restore_default_signals_for_children()
         self.sigint_timeout = sigint_timeout
@@ -177,6 +180,10 @@ class Supervisor:
         self.on_spawn = on_spawn
         self.fleet = fleet if fleet is not None else state.Fleet()  # every node's state: the supervisor writes it
         self.procs: list[NodeProcess] = []
+        # terminal-bound node output goes through the launcher (process/screen.py); False: nodes inherit the
+        # terminal, as under roslaunch
+        self.relay_output = relay_output
+        self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
         self.done = asyncio.Event()
         # a required node exited non-zero / by signal or could not start, or a FATAL node has on_fatal="shutdown"
         # the launch's exit status when a node ended it: a required node's own exit code (128 + the
@@ -250,12 +257,37 @@ class Supervisor:
 
     def _start(self, proc: NodeProcess, append: bool = False) -> None:
         """Start the node's process; a start that fails is a run that ended at once (`_run_ended`)."""
-        popen = start_process(proc.spec, self.watchdog, append=append)
+        channels = self._open_channels(proc.spec)
+        popen = start_process(proc.spec, self.watchdog, append=append, channels=channels)
+        if channels is not None:
+            if popen is None:
+                channels.close()
+            else:
+                self._relay(proc, channels, append)
         if popen is None:
             proc.started_at = self.loop.time()  # (paces the retries of a respawning node)
             self._run_ended(proc, started=False)
             return
         self._watch(proc, popen, self.loop.time())
+
+    def _open_channels(self, spec: ProcessSpec) -> screen.Channels | None:
+        if not self.relay_output:
+            return None
+        try:
+            return screen.open_channels(spec.output)
+        except OSError as e:  # (out of descriptors) the node still runs, writing to the terminal itself
+            console.printerrlog("[%s] cannot relay its output (%s): it writes to the terminal directly, and "
+                                "no file keeps that output" % (spec.name, e.strerror))
+            return None
+
+    def _relay(self, proc: NodeProcess, channels: screen.Channels, append: bool) -> None:
+        spec = proc.spec
+        # a screen node's copy starts afresh as a log node's file does (roslaunch: kept across respawns);
+        # a log node's stderr joins the file its stdout is written to
+        truncate = spec.output == "screen" and not (append or spec.respawn)
+        proc.screen = screen.ScreenOutput(self.loop, spec.name, channels.sources, spec.stdout_path, truncate)
+        self.screens = [s for s in self.screens if not s.closed]
+        self.screens.append(proc.screen)
 
     def _watch(self, proc: NodeProcess, popen: subprocess.Popen, started_at: float) -> None:
         if proc.group_alive and proc.pgid is not None and not proc.alive:
@@ -292,6 +324,9 @@ class Supervisor:
             self.loop.remove_reader(proc.pidfd)
             os.close(proc.pidfd)
             proc.pidfd = None
+        if proc.screen is not None:
+            proc.screen.drain()  # what the node wrote comes before the launcher's words about its exit
+            proc.screen = None
         rc = proc.popen.poll() if proc.popen is not None else None
         if rc is None and proc.popen is not None:
             rc = proc.popen.wait()
@@ -653,6 +688,9 @@ class Supervisor:
 
     def close(self) -> None:
         """Drop loop registrations (after shutdown)."""
+        for relay in self.screens:
+            relay.close()
+        self.screens.clear()
         for p in self.procs:
             if p.pidfd is not None:
                 try:

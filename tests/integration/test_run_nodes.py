@@ -189,12 +189,13 @@ def test_prefix_env_cwd_output_and_log_files(tmp_path, pkgs):
         assert shown["cwd"] == os.path.join(pkgs, "run_tests")
         # args split like a shell, remaps, __name, __log in roslaunch's file naming
         assert logged["args"] == "a b c in:=out __name:=logged __log:=%s/grp-logged-1.log" % run_dir
-        # output="log": stdout in <run_id>/<name>-<n>-stdout.log, not on the terminal; screen: the reverse
+        # output="log": stdout in <run_id>/<name>-<n>-stdout.log, not on the terminal; screen: on the terminal,
+        # and the launcher keeps a copy in the same file name (for `launcher logs`)
         assert (open(os.path.join(run_dir, "grp-logged-1-stdout.log")).read()
                 == "reporter logged stdout line\n")
         assert "reporter logged stdout line" not in lp.stdout
         assert "reporter shown stdout line" in lp.stdout
-        assert not os.path.exists(os.path.join(run_dir, "shown-2-stdout.log"))
+        assert open(os.path.join(run_dir, "shown-2-stdout.log")).read() == "reporter shown stdout line\n"
         assert os.path.realpath(os.path.join(env["ROS_LOG_DIR"], "latest")) == os.path.realpath(run_dir)
         assert "log file: %s/grp-logged-1*.log" % run_dir in lp.stdout
     finally:
