@@ -50,6 +50,7 @@ class Finding(NamedTuple):
     line: int | None = None
     branch: tuple[str, ...] = ()  # the args set to reach it, e.g. ("sim:=true",); () for the file as given
     kind: str = "load"  # "load": roslaunch refuses the file; "run": it loads, but a node cannot start
+    node: str = ""  # a "run" finding about one node or test: its resolved name
 
     def format(self) -> str:
         text = "%s: %s" % (self.severity, self.message)
@@ -205,11 +206,11 @@ def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
             packages.find_node(node.package, node.type)
         except LaunchError as e:
             yield Finding("error", _located(node, chain, "<%s> [%s]: %s" % (kind, node.full_name, e.message)),
-                          node.filename, node.line, branch, "run")
+                          node.filename, node.line, branch, "run", node.full_name)
         if node.machine_name and node.machine_name not in config.machines:
             yield Finding("error", _located(node, chain, "<%s> [%s] uses machine [%s], which no <machine> tag declares"
                                             % (kind, node.full_name, node.machine_name)),
-                          node.filename, node.line, branch, "run")
+                          node.filename, node.line, branch, "run", node.full_name)
 
 
 def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:
