@@ -61,8 +61,8 @@ class Finding(NamedTuple):
 
 class ConditionLoader(XmlLoader):
     """The loader, recording the text of every computed if/unless it evaluates, and going on after an
-    error in a `<node>`, `<test>`, `<param>` or `<rosparam>` (each such tag is one finding; the rest of
-    the file is still checked)."""
+    error in a `<node>`, `<test>`, `<param>`, `<rosparam>`, `<arg>` or `<include>` (each such tag is one
+    finding and is skipped; the rest of the file is still checked)."""
 
     def __init__(self, **kw: Any):
         super().__init__(**kw)
@@ -89,6 +89,19 @@ class ConditionLoader(XmlLoader):
             super()._rosparam_tag(*args, **kw)
         except LaunchError as e:
             self.errors.append(e)
+
+    def _arg_tag(self, *args: Any, **kw: Any) -> None:
+        try:
+            super()._arg_tag(*args, **kw)
+        except LaunchError as e:
+            self.errors.append(e)
+
+    def _include_tag(self, el: Any, scope: Any, default_machine: Any) -> Any:
+        try:
+            return super()._include_tag(el, scope, default_machine)
+        except LaunchError as e:
+            self.errors.append(e)
+            return default_machine
 
     def _if_unless(self, el: Any, scope: Any) -> bool:
         get = el.attrib.get

@@ -102,6 +102,20 @@ def test_duplicate_names_and_unknown_machine_on_a_branch(ws):
     assert any(f.line == 6 and f.branch == () and "machine [nowhere]" in f.message for f in fs), fs
 
 
+def test_errors_in_include_and_arg_do_not_end_the_load(ws):
+    tmp, env = ws
+    inner = write(tmp, "inner.launch", '<arg name="x" default="1" value="2"/>\n'             # line 3
+                  '<node name="inner_d" pkg="robot" type="inner_missing.py"/>')             # line 4
+    path = write(tmp, "robot.launch", '<include file="$(dirname)/nowhere.launch"/>\n'     # line 3
+                 '<arg name="both" default="1" value="2"/>\n'                             # line 4
+                 '<include file="%s"/>\n'                                                 # line 5
+                 '<include file="%s"><arg name="unused" value="1"/></include>\n'          # line 6
+                 '<node name="d" pkg="robot" type="missing.py"/>' % (inner, inner))        # line 7
+    errors = {(os.path.basename(f.filename), f.line) for f in findings(env, path) if f.severity == "error"}
+    assert {("robot.launch", 3), ("robot.launch", 4), ("inner.launch", 3), ("inner.launch", 4),
+            ("robot.launch", 6), ("robot.launch", 7)} <= errors, errors
+
+
 def test_include_chain_and_missing_find_path(ws):
     tmp, env = ws
     inner = write(tmp, "inner.launch", '<rosparam file="$(find robot)/config/none.yaml"/>')
