@@ -1,19 +1,28 @@
 """`launcher check [pkg] file.launch [name:=value ...]`: the static checker of launch files, over every if/unless branch.
 
 Nothing is started. The files are loaded by the real loader (`xml.XmlLoader`):
-once with the args given, then once for each combination of `true` and
-`false` of the args a user may set (declared with a default, or required)
-that decide an `if`/`unless` (`$(arg sim)`, `$(eval ...)`), and of the boolean
-ones the files read (they may decide a condition in an included file under
-another name): the values the file can produce. Each load's error (roslaunch would refuse the
-file: kind "load"), and what the loaded configuration gets wrong at run time
-(kind "run": a node or test whose package or executable does not exist, a
-`machine=` that names no `<machine>`, a `$(find pkg)/path` that does not
-exist), is a finding with file:line and the include chain, and, when found
-only with other arg values, the args that reach it (`on the branch sim:=true`).
-The loader's warnings (unknown tags and attributes, undeclared command-line
-args, ...) are warnings. roslaunch-check follows the default path only (ros_comm
-#1394, #993) and gives no line numbers.
+once with the args given, then once for each combination of the values the
+file can produce for the args a user may set (declared with a default, or
+required, in a top file) that decide an `if`/`unless`: `true` and `false` for
+an arg read as a boolean (`$(arg sim)`, a name in `$(eval ...)`, or a boolean
+arg the files pass on: it may decide a condition in an included file under
+another name), and for an arg a `$(eval ...)` condition compares with literals
+(`arg('mode') == 'sim'`, `mode != 'real'`, `mode in ['a', 'b']`), those
+literals and its default. Only a top file's args are varied: an included
+file's args are set by its `<include>` (or their default), never by the
+command line, so the top file's values are all the values they can take.
+
+Each load's error (roslaunch would refuse the file: kind "load"), and what the
+loaded configuration gets wrong at run time (kind "run": a node or test whose
+package or executable does not exist, a `machine=` that names no `<machine>`,
+a `$(find pkg)/path` that does not exist), is a finding with file:line and the
+include chain, and, when found only with other arg values, the args that reach
+it (`on the branch sim:=true`). An error in one element (`<node>`, `<test>`,
+`<param>`, `<rosparam>`, `<arg>`, `<include>`) skips that element only, so the
+findings after it are found in the same run. The loader's warnings (unknown
+tags and attributes, undeclared command-line args, ...) are warnings.
+roslaunch-check follows the default path only (ros_comm #1394, #993) and gives
+no line numbers.
 
 Exit status: 0 without errors, 1 with at least one error (warnings alone: 0).
 """
@@ -21,6 +30,8 @@ Exit status: 0 without errors, 1 with at least one error (warnings alone: 0).
 from __future__ import annotations
 
 import argparse
+import ast
+import math
 import os
 import re
 import sys
@@ -32,8 +43,8 @@ from launcher.xml import resolve_launch_arguments
 from launcher.xml.document import read_launch
 from launcher.xml.loader import XmlLoader
 
-# loads at most: every combination of up to this many boolean args (2^8), then one arg at a time
-MAX_COMBINED_ARGS = 8
+# loads at most: every combination of the varied args' values up to this many, else one arg at a time
+MAX_COMBINATIONS = 256
 # attributes whose `$(find pkg)/path` must exist for the launch to load or run; elsewhere (args, values) a
 # missing path is only a warning: it may be an output the node creates
 PATH_ATTRS = frozenset(("file", "textfile", "binfile"))
@@ -70,6 +81,16 @@ class ConditionLoader(XmlLoader):
         self.errors: list[LaunchError] = []
         # (file, line) of each <node>/<test> -> its include chain (a Node does not carry it)
         self.chains: dict[tuple[str, int], tuple[tuple[str, int], ...]] = {}
+        self.top_args: dict[str, str | None] = {}  # each top file's declared args -> default (None: required)
+
+    def load_file(self, filename: str) -> None:
+        self.root_scope = None
+        try:
+            super().load_file(filename)
+        finally:
+            if self.root_scope is not None:  # (this top file's scope: the args the command line sets)
+                for name, (_doc, default) in self.root_scope.arg_docs.items():
+                    self.top_args.setdefault(name, default)
 
     def _node_tag(self, el: Any, scope: Any, *args: Any, **kw: Any) -> None:
         self.chains[(scope.source, el.sourceline or 0)] = tuple(scope.include_chain)
@@ -119,11 +140,69 @@ def condition_args(condition: str, free: dict[str, str | None]) -> set[str]:
     return {n for n in names if n in free}
 
 
-def _branch_values(name: str, default: str | None) -> tuple[str, ...]:
-    """The values of an arg a condition can see: true and false, when the arg is a boolean (or required)."""
+def condition_literals(condition: str, free: dict[str, str | None]) -> dict[str, list[str]]:
+    """The literals a `$(eval ...)` condition compares a settable arg with (`==`, `!=`, `in`, `not in` a list
+    of literals), as the strings that give those values: the values of that arg the file names."""
+    text = condition.strip()
+    if not (text.startswith("$(eval ") and text.endswith(")")):
+        return {}
+    try:
+        tree = ast.parse(text[7:-1].strip(), mode="eval")
+    except SyntaxError:
+        return {}  # (the load says so)
+    found: dict[str, list[str]] = {}
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Compare):
+            continue
+        operands = [node.left, *node.comparators]
+        for op, left, right in zip(node.ops, operands, operands[1:]):
+            if isinstance(op, (ast.Eq, ast.NotEq)):
+                pairs = ((left, [right]), (right, [left]))
+            elif isinstance(op, (ast.In, ast.NotIn)) and isinstance(right, (ast.List, ast.Tuple, ast.Set)):
+                pairs = ((left, right.elts),)  # (`'x' in mode` is a substring test: no value to name)
+            else:
+                continue
+            for operand, literals in pairs:
+                name = _arg_operand(operand, free)
+                if name is None:
+                    continue
+                values = found.setdefault(name, [])
+                for lit in literals:
+                    if isinstance(lit, ast.Constant) and isinstance(lit.value, (str, int, float)) \
+                            and _arg_text(lit.value) not in values:
+                        values.append(_arg_text(lit.value))
+    return found
+
+
+def _arg_operand(node: ast.expr, free: dict[str, str | None]) -> str | None:
+    """The settable arg an operand reads: `mode`, `arg('mode')`, or either inside int()/float()/str()."""
+    if isinstance(node, ast.Name):
+        return node.id if node.id in free else None
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and len(node.args) == 1 and not node.keywords:
+        inner = node.args[0]
+        if node.func.id == "arg" and isinstance(inner, ast.Constant) and isinstance(inner.value, str):
+            return inner.value if inner.value in free else None
+        if node.func.id in ("int", "float", "str"):
+            return _arg_operand(inner, free)
+    return None
+
+
+def _arg_text(value: Any) -> str:
+    """The `name:=value` text that gives an arg this value in `$(eval)` (args are auto-typed there)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def _branch_values(default: str | None, literals: Iterable[str]) -> tuple[str, ...]:
+    """The values other than its default of an arg its conditions can see: true and false, when the arg is a
+    boolean (or required); the literals the conditions compare it with."""
+    values: list[str] = []
     if default is None or default.strip().lower() in _BOOLEAN:
-        return ("true", "false")
-    return ()
+        values += ["true", "false"]
+    values += [v for v in literals if v not in values]
+    # (the default is what the branch without this arg sees)
+    return tuple(v for v in values if default is None or v.lower() != default.strip().lower())
 
 
 def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str] | None = None,
@@ -136,7 +215,7 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
     findings: dict[str, Finding] = {}
     loaded_files: dict[str, None] = {}
     done: set[tuple[str, ...]] = set()
-    varied: dict[str, tuple[str, ...]] = {}  # arg -> the values tried
+    varied: dict[str, tuple[tuple[str, ...], bool]] = {}  # arg -> (the values tried, the arg is required)
     todo: list[tuple[str, ...]] = [()]
     while todo:
         branch = todo.pop(0)
@@ -163,20 +242,25 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
         if config is not None:
             for finding in _check_config(config, packages, branch, loader.chains):
                 _add(findings, finding)
-        # the args a user may set (declared with a default, or required) that decide a condition
-        free = {} if loader.root_scope is None else \
-            {n: d for n, (_doc, d) in loader.root_scope.arg_docs.items() if n not in given}
+        # the args a user may set (declared with a default, or required, in a top file) that decide a condition
+        free = {n: d for n, d in loader.top_args.items() if n not in given}
         deciding = set()
+        literals: dict[str, list[str]] = {}
         for cond in loader.conditions:
             deciding |= condition_args(cond, free)
+            for name, values in condition_literals(cond, free).items():
+                literals.setdefault(name, []).extend(values)
         # a boolean arg passed on to an included file may decide a condition there under another name
         # (<arg name="sim" value="$(arg use_sim)"/>): every boolean arg the files read is varied too
         deciding |= {n for n in loader._used_args if n in free and free[n] is not None
                      and free[n].strip().lower() in _BOOLEAN}
         new = False
         for name in sorted(deciding):
-            if name not in varied:
-                varied[name] = _branch_values(name, free[name])
+            # (a branch may reach a condition that names more values: they are added)
+            tried = varied.get(name, ((), False))[0]
+            values = tried + tuple(v for v in _branch_values(free[name], literals.get(name, ())) if v not in tried)
+            if values != tried:
+                varied[name] = (values, free[name] is None)
                 new = True
         if new:
             todo.extend(_combinations(varied))
@@ -189,15 +273,17 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
     return [f for f in ordered if f.severity == "error"] + [f for f in ordered if f.severity != "error"]
 
 
-def _combinations(varied: dict[str, tuple[str, ...]]) -> list[tuple[str, ...]]:
-    """Each combination of the varied args' values (one arg at a time when there are too many)."""
-    names = [n for n, values in varied.items() if values]
-    if len(names) > MAX_COMBINED_ARGS:
-        return [("%s:=%s" % (n, v),) for n in names for v in varied[n]]
+def _combinations(varied: dict[str, tuple[tuple[str, ...], bool]]) -> list[tuple[str, ...]]:
+    """Each combination of the varied args' values, fewest args set first (one arg at a time when there are
+    too many); an arg left at its default is not set, so each branch names only what it changes."""
+    options = [[("%s:=%s" % (n, v),) for v in values] + ([] if required else [()])
+               for n, (values, required) in varied.items() if values]
+    if math.prod(len(o) for o in options) > MAX_COMBINATIONS:
+        return [c for o in options for c in o if c]
     combos: list[tuple[str, ...]] = [()]
-    for n in names:
-        combos = [c + ("%s:=%s" % (n, v),) for c in combos for v in varied[n]]
-    return combos
+    for o in options:
+        combos = [c + v for c in combos for v in o]
+    return sorted((c for c in combos if c), key=len)  # (stable: the order of the values stays)
 
 
 def _add(findings: dict[str, Finding], finding: Finding) -> None:
@@ -281,7 +367,9 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="launcher check",
                                 usage="launcher check [options] [package] <file.launch> [name:=value ...]",
                                 description="Check launch files without starting anything, over every if/unless "
-                                            "branch.")
+                                            "branch: the args of the top files (not of included files: their "
+                                            "includer sets them) are varied over true/false and over the values "
+                                            "an $(eval) condition compares them with.")
     p.add_argument("--junit-xml", metavar="PATH", help="also write the findings as JUnit XML (roslaunch-check's)")
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
     p.add_argument("positional", nargs="*", metavar="ARG", help="[package] file.launch ... name:=value ...")

@@ -102,6 +102,36 @@ def test_duplicate_names_and_unknown_machine_on_a_branch(ws):
     assert any(f.line == 6 and f.branch == () and "machine [nowhere]" in f.message for f in fs), fs
 
 
+def test_args_compared_with_literals_in_eval_are_varied_over_those_literals(ws):
+    tmp, env = ws
+    path = write(tmp, "robot.launch", '<arg name="mode" default="real"/>\n'
+                 '<arg name="level" default="1"/>\n'
+                 '<node if="$(eval arg(\'mode\') == \'sim\')" name="fake" pkg="robot" type="no_sim.py"/>\n'  # 5
+                 '<group if="$(eval mode in [\'replay\', \'bag\'])">\n'
+                 '  <node name="player" pkg="robot" type="no_player.py"/>\n'                                   # 7
+                 '</group>\n'
+                 '<node unless="$(eval \'hw\' != mode)" name="hw" pkg="robot" type="no_hw.py"/>\n'              # 9
+                 '<node if="$(eval int(arg(\'level\')) == 3 and mode == \'real\')" name="deep" pkg="robot" '
+                 'type="no_deep.py"/>')                                                                          # 10
+    fs = findings(env, path)
+    branches = {f.line: f.branch for f in fs if f.severity == "error"}
+    assert branches.get(5) == ("mode:=sim",), fs
+    assert branches.get(7) == ("mode:=replay",), fs
+    assert branches.get(9) == ("mode:=hw",), fs
+    assert 10 in branches and "level:=3" in branches[10], fs
+    p = run_check(env, path)
+    assert p.returncode == 1 and "on the branch mode:=sim" in p.stdout, p.stdout
+
+
+def test_args_of_every_top_file_are_varied(ws):
+    tmp, env = ws
+    first = write(tmp, "first.launch", '<arg name="sim" default="false"/>\n'
+                  '<node if="$(arg sim)" name="fake" pkg="robot" type="no_such_sim.py"/>')     # line 4
+    second = write(tmp, "second.launch", '<arg name="other" default="1"/>')
+    fs = check.check([first, second], [], environ=env, packages=PackageIndex(env))
+    assert [(f.line, f.branch) for f in fs if f.severity == "error"] == [(4, ("sim:=true",))], fs
+
+
 def test_errors_in_include_and_arg_do_not_end_the_load(ws):
     tmp, env = ws
     inner = write(tmp, "inner.launch", '<arg name="x" default="1" value="2"/>\n'             # line 3
