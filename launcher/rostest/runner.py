@@ -58,8 +58,9 @@ class TestAttempt(Run):
     """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
 
     def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
-                 reuse_master: bool, clear: bool, text: bool):
+                 reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
         super().__init__(opts, plan, watchdog)
+        self.processes_before = processes_before
         self.test = test
         self.result_file = result_file
         self.reuse_master = reuse_master
@@ -87,6 +88,14 @@ class TestAttempt(Run):
         # a free port of the kernel's choosing: parallel runs never meet
         await super()._start_master(0)
         self.master_uri = self.plan.master_uri = self.master.uri
+
+    def _launch_nodes(self) -> None:
+        # rostest numbers its processes with one counter for the whole file (roslaunch's, global in its
+        # process: fixture nodes, then the test, across tests and retries) and runs no rosout process:
+        # talk-1, test-2, then talk-3, test-4 for a second <test>
+        self._process_count = self.processes_before
+        super()._launch_nodes()
+        self._process_count += sum(1 for node in self.plan.config.nodes if not self.plan.remote(node))
 
     async def _wait_for_the_end(self) -> None:
         self.signals.check()
@@ -208,6 +217,7 @@ class TestFile:
         config = plan.config
         fixture = config._replace(tests=())
         outcomes: list[TestOutcome] = []
+        self.processes = 0  # processes started so far (rostest's process numbers)
         watchdog = Watchdog.start()
         scratch = tempfile.mkdtemp(prefix="launcher-test-")
         seen: set[str] = set()
@@ -264,8 +274,9 @@ class TestFile:
             started = time.monotonic()
             run = TestAttempt(self.launch_opts, Plan(fixture, plan.master_uri, plan.environ, packages=self.packages),
                               watchdog, test, private, reuse_master=self.opts.reuse_master, clear=self.opts.clear,
-                              text=self.opts.text)
+                              text=self.opts.text, processes_before=self.processes)
             asyncio.run(run.main())
+            self.processes = max(self.processes, run._process_count)
             if run.interrupted:
                 return None
             elapsed = time.monotonic() - started

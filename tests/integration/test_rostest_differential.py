@@ -96,6 +96,9 @@ TESTS = {
     "missing": '<test test-name="ghost" pkg="rttest" type="no_such_test.py"/>',
     "badfixture": ('<node name="ghost" pkg="rttest" type="no_such_node.py"/>\n'
                    '<test test-name="passing" pkg="rttest" type="pass_node.py"/>'),
+    "numbered": ('<param name="answer" value="42"/>\n<node name="talker" pkg="rttest" type="talker.py"/>\n'
+                 '<test test-name="first" pkg="rttest" type="pass_node.py" name="one"/>\n'
+                 '<test test-name="second" pkg="rttest" type="pass_node.py" name="two" ns="sub"/>'),
     "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
                 '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
                 '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
@@ -305,3 +308,20 @@ def test_text_mode_shows_the_test_output_and_passes_on_exit_status(workspace):
     mine = ours(root, pkg, "pass", "--text")
     assert mine.rc == 0, mine
     assert "test_param" in mine.out  # the unittest's own report, on the screen
+
+
+def test_processes_are_numbered_as_rostest_numbers_them(workspace, tmp_path):
+    """One counter for the whole file, fixture nodes first, no rosout process: the log files' names."""
+    root, pkg = workspace
+    names = {}
+    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+        env = _env(root, who)
+        env["ROS_LOG_DIR"] = str(tmp_path / who)
+        proc = subprocess.run(argv + ["rttest", "numbered.test"], env=env, capture_output=True, text=True,
+                              timeout=180)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        names[who] = sorted(f for _dir, _subdirs, files in os.walk(tmp_path / who) for f in files
+                            if f.endswith("-stdout.log"))
+    assert names["rostest"] == ["one-2-stdout.log", "sub-two-4-stdout.log", "talker-1-stdout.log",
+                                "talker-3-stdout.log"], names
+    assert names["ours"] == names["rostest"]
