@@ -39,7 +39,7 @@ from typing import Any, Iterable, NamedTuple
 
 from launcher.errors import LaunchError
 from launcher.packages import PackageIndex, package_of
-from launcher.xml import resolve_launch_arguments
+from launcher.xml import resolve_launch_arguments, sandbox
 from launcher.xml.document import read_launch
 from launcher.xml.loader import XmlLoader
 
@@ -147,8 +147,8 @@ def condition_literals(condition: str, free: dict[str, str | None]) -> dict[str,
     if not (text.startswith("$(eval ") and text.endswith(")")):
         return {}
     try:
-        tree = ast.parse(text[7:-1].strip(), mode="eval")
-    except SyntaxError:
+        tree = sandbox.parse(text[7:-1])  # (the loader's parse, cached: bounded in length and depth)
+    except sandbox.EvalError:
         return {}  # (the load says so)
     found: dict[str, list[str]] = {}
     for node in ast.walk(tree):
