@@ -123,6 +123,16 @@ def test_args_compared_with_literals_in_eval_are_varied_over_those_literals(ws):
     assert p.returncode == 1 and "on the branch mode:=sim" in p.stdout, p.stdout
 
 
+def test_a_condition_too_deep_to_parse_is_an_error_not_a_traceback(ws):
+    tmp, env = ws
+    deep = "1+" * 15000 + "1"
+    path = write(tmp, "robot.launch", '<arg name="mode" default="a"/>\n'
+                 '<node if="$(eval mode == \'b\' or %s == 2)" name="x" pkg="robot" type="driver.py"/>' % deep)
+    p = run_check(env, "-q", path)
+    assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr[-2000:]
+    assert "robot.launch:4:" in p.stdout
+
+
 def test_args_of_every_top_file_are_varied(ws):
     tmp, env = ws
     first = write(tmp, "first.launch", '<arg name="sim" default="false"/>\n'
