@@ -7,7 +7,8 @@ required, in a top file) that decide an `if`/`unless`: `true` and `false` for
 an arg read as a boolean (`$(arg sim)`, a name in `$(eval ...)`, or a boolean
 arg the files pass on: it may decide a condition in an included file under
 another name), and for an arg a `$(eval ...)` condition compares with literals
-(`arg('mode') == 'sim'`, `mode != 'real'`, `mode in ['a', 'b']`), those
+(`arg('mode') == 'sim'`, `mode != 'real'`, `mode in ['a', 'b']`; also in
+an included file, on an arg its `<include>` sets to `$(arg robot_mode)`), those
 literals and its default. Only a top file's args are varied: an included
 file's args are set by its `<include>` (or their default), never by the
 command line, so the top file's values are all the values they can take.
@@ -35,7 +36,7 @@ import math
 import os
 import re
 import sys
-from typing import Any, Iterable, NamedTuple
+from typing import Any, Container, Iterable, NamedTuple
 
 from launcher.errors import LaunchError
 from launcher.packages import PackageIndex, package_of
@@ -50,6 +51,7 @@ MAX_COMBINATIONS = 256
 PATH_ATTRS = frozenset(("file", "textfile", "binfile"))
 _FIND_PATH = re.compile(r"\$\(find\s+([^\s)]+)\)([^\s$\"';:,]*)")
 _ARG_REF = re.compile(r"\$\(arg\s+([^\s)]+)\s*\)")
+_ARG_ALONE = re.compile(r"\s*\$\(arg\s+([^\s)]+)\s*\)\s*$")
 _EVAL_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _BOOLEAN = ("true", "false", "1", "0")
 
@@ -82,6 +84,9 @@ class ConditionLoader(XmlLoader):
         # (file, line) of each <node>/<test> -> its include chain (a Node does not carry it)
         self.chains: dict[tuple[str, int], tuple[tuple[str, int], ...]] = {}
         self.top_args: dict[str, str | None] = {}  # each top file's declared args -> default (None: required)
+        # an arg set from another one alone (<arg name="mode" value="$(arg robot_mode)"/>, mostly in an
+        # <include>): a condition on `mode` in the included file is one on `robot_mode` too
+        self.passed_args: dict[str, set[str]] = {}
 
     def load_file(self, filename: str) -> None:
         self.root_scope = None
@@ -111,9 +116,14 @@ class ConditionLoader(XmlLoader):
         except LaunchError as e:
             self.errors.append(e)
 
-    def _arg_tag(self, *args: Any, **kw: Any) -> None:
+    def _arg_tag(self, el: Any, scope: Any) -> None:
+        name = el.attrib.get("name")
+        for attr in ("value", "default"):
+            m = _ARG_ALONE.match(el.attrib.get(attr) or "")
+            if m and name and m.group(1) != name:
+                self.passed_args.setdefault(name, set()).add(m.group(1))
         try:
-            super()._arg_tag(*args, **kw)
+            super()._arg_tag(el, scope)
         except LaunchError as e:
             self.errors.append(e)
 
@@ -140,9 +150,9 @@ def condition_args(condition: str, free: dict[str, str | None]) -> set[str]:
     return {n for n in names if n in free}
 
 
-def condition_literals(condition: str, free: dict[str, str | None]) -> dict[str, list[str]]:
-    """The literals a `$(eval ...)` condition compares a settable arg with (`==`, `!=`, `in`, `not in` a list
-    of literals), as the strings that give those values: the values of that arg the file names."""
+def condition_literals(condition: str, names: Container[str]) -> dict[str, list[str]]:
+    """The literals a `$(eval ...)` condition compares one of these args with (`==`, `!=`, `in`, `not in` a
+    list of literals), as the strings that give those values: the values of that arg the file names."""
     text = condition.strip()
     if not (text.startswith("$(eval ") and text.endswith(")")):
         return {}
@@ -163,7 +173,7 @@ def condition_literals(condition: str, free: dict[str, str | None]) -> dict[str,
             else:
                 continue
             for operand, literals in pairs:
-                name = _arg_operand(operand, free)
+                name = _arg_operand(operand, names)
                 if name is None:
                     continue
                 values = found.setdefault(name, [])
@@ -174,16 +184,16 @@ def condition_literals(condition: str, free: dict[str, str | None]) -> dict[str,
     return found
 
 
-def _arg_operand(node: ast.expr, free: dict[str, str | None]) -> str | None:
-    """The settable arg an operand reads: `mode`, `arg('mode')`, or either inside int()/float()/str()."""
+def _arg_operand(node: ast.expr, names: Container[str]) -> str | None:
+    """The arg an operand reads: `mode`, `arg('mode')`, or either inside int()/float()/str()."""
     if isinstance(node, ast.Name):
-        return node.id if node.id in free else None
+        return node.id if node.id in names else None
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and len(node.args) == 1 and not node.keywords:
         inner = node.args[0]
         if node.func.id == "arg" and isinstance(inner, ast.Constant) and isinstance(inner.value, str):
-            return inner.value if inner.value in free else None
+            return inner.value if inner.value in names else None
         if node.func.id in ("int", "float", "str"):
-            return _arg_operand(inner, free)
+            return _arg_operand(inner, names)
     return None
 
 
@@ -246,10 +256,13 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
         free = {n: d for n, d in loader.top_args.items() if n not in given}
         deciding = set()
         literals: dict[str, list[str]] = {}
+        known = set(free) | set(loader.passed_args)
         for cond in loader.conditions:
             deciding |= condition_args(cond, free)
-            for name, values in condition_literals(cond, free).items():
-                literals.setdefault(name, []).extend(values)
+            for name, values in condition_literals(cond, known).items():
+                for source in _settable_sources(name, loader.passed_args, free):
+                    deciding.add(source)
+                    literals.setdefault(source, []).extend(values)
         # a boolean arg passed on to an included file may decide a condition there under another name
         # (<arg name="sim" value="$(arg use_sim)"/>): every boolean arg the files read is varied too
         deciding |= {n for n in loader._used_args if n in free and free[n] is not None
@@ -271,6 +284,20 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
                 _add(findings, finding)
     ordered = list(findings.values())
     return [f for f in ordered if f.severity == "error"] + [f for f in ordered if f.severity != "error"]
+
+
+def _settable_sources(name: str, passed: dict[str, set[str]], free: Container[str]) -> set[str]:
+    """The settable args an arg's value may come from: itself, or the args it is set from, transitively."""
+    found, todo, seen = set(), [name], set()
+    while todo:
+        n = todo.pop()
+        if n in seen:
+            continue
+        seen.add(n)
+        if n in free:
+            found.add(n)
+        todo.extend(passed.get(n, ()))
+    return found
 
 
 def _combinations(varied: dict[str, tuple[tuple[str, ...], bool]]) -> list[tuple[str, ...]]:

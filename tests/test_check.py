@@ -123,6 +123,16 @@ def test_args_compared_with_literals_in_eval_are_varied_over_those_literals(ws):
     assert p.returncode == 1 and "on the branch mode:=sim" in p.stdout, p.stdout
 
 
+def test_literals_of_an_included_files_condition_vary_the_top_arg_passed_to_it(ws):
+    tmp, env = ws
+    inner = write(tmp, "inner.launch", '<arg name="mode"/>\n'
+                  '<node if="$(eval mode == \'sim\')" name="fake" pkg="robot" type="no_sim.py"/>')   # line 4
+    path = write(tmp, "outer.launch", '<arg name="robot_mode" default="real"/>\n'
+                 '<include file="%s"><arg name="mode" value="$(arg robot_mode)"/></include>' % inner)
+    fs = [f for f in findings(env, path) if f.severity == "error"]
+    assert [(f.line, f.branch) for f in fs] == [(4, ("robot_mode:=sim",))], fs
+
+
 def test_a_condition_too_deep_to_parse_is_an_error_not_a_traceback(ws):
     tmp, env = ws
     deep = "1+" * 15000 + "1"
