@@ -321,8 +321,8 @@ def test_compat_corpus(ros_env, ros_part_missing, monkeypatch):
         default = ref[()]
         # the reference is the recorded CLI: on the case's own args, the same nodes fail `--args`
         assert default["load"] is None, (case["id"], default["load"])
-        assert {norm.text(n) for n, e in default["args"].items() if e} == \
-            {norm.text(n) for n, r in golden["nodes"].items() if r["source"] == "nodes" and r["--args"]["rc"]}, case["id"]
+        recorded = {norm.text(n) for n, r in golden["nodes"].items() if r["source"] == "nodes" and r["--args"]["rc"]}
+        assert {norm.text(n) for n, e in default["args"].items() if e} == recorded, case["id"]
         for f in errors:
             r = ref[f.branch]
             where = (case["id"], f.format())
