@@ -18,9 +18,9 @@ loaded configuration gets wrong at run time (kind "run": a node or test whose
 package or executable does not exist, a `machine=` that names no `<machine>`,
 a `$(find pkg)/path` that does not exist), is a finding with file:line and the
 include chain, and, when found only with other arg values, the args that reach
-it (`on the branch sim:=true`). An error in one element (`<node>`, `<test>`,
-`<param>`, `<rosparam>`, `<arg>`, `<include>`) skips that element only, so the
-findings after it are found in the same run. The loader's warnings (unknown
+it (`on the branch sim:=true`). An error in one element (an `<include>`, a
+`<group>`, an `<arg>`, a `<node>` ...) skips that element only, so the findings
+after it are found in the same run. The loader's warnings (unknown
 tags and attributes, undeclared command-line args, ...) are warnings.
 roslaunch-check follows the default path only (ros_comm #1394, #993) and gives
 no line numbers.
@@ -72,10 +72,23 @@ class Finding(NamedTuple):
         return text
 
 
+def _going_on(handler: Any) -> Any:
+    """A tag's handler whose error is recorded, and the element skipped, instead of ending the load."""
+    def handle(loader: ConditionLoader, el: Any, scope: Any, default_machine: Any) -> Any:
+        try:
+            return handler(loader, el, scope, default_machine)
+        except LaunchError as e:
+            loader.errors.append(e)
+            return default_machine
+    return handle
+
+
 class ConditionLoader(XmlLoader):
     """The loader, recording the text of every computed if/unless it evaluates, and going on after an
-    error in a `<node>`, `<test>`, `<param>`, `<rosparam>`, `<arg>` or `<include>` (each such tag is one
-    finding and is skipped; the rest of the file is still checked)."""
+    error in an element (each is one finding, and that element is skipped: the rest of the file is still
+    checked). A `<param>` or `<rosparam>` inside a `<node>` is skipped alone, the node is not."""
+
+    tag_handlers = {tag: _going_on(handler) for tag, handler in XmlLoader.tag_handlers.items()}
 
     def __init__(self, **kw: Any):
         super().__init__(**kw)
@@ -99,10 +112,7 @@ class ConditionLoader(XmlLoader):
 
     def _node_tag(self, el: Any, scope: Any, *args: Any, **kw: Any) -> None:
         self.chains[(scope.source, el.sourceline or 0)] = tuple(scope.include_chain)
-        try:
-            super()._node_tag(el, scope, *args, **kw)
-        except LaunchError as e:
-            self.errors.append(e)
+        super()._node_tag(el, scope, *args, **kw)
 
     def _param_tag(self, *args: Any, **kw: Any) -> None:
         try:
@@ -126,13 +136,6 @@ class ConditionLoader(XmlLoader):
             super()._arg_tag(el, scope)
         except LaunchError as e:
             self.errors.append(e)
-
-    def _include_tag(self, el: Any, scope: Any, default_machine: Any) -> Any:
-        try:
-            return super()._include_tag(el, scope, default_machine)
-        except LaunchError as e:
-            self.errors.append(e)
-            return default_machine
 
     def _if_unless(self, el: Any, scope: Any) -> bool:
         get = el.attrib.get

@@ -10,12 +10,12 @@ import tempfile
 
 import pytest
 
-from conftest import ROS_PYTHON
 from launcher import check
 from launcher.errors import LaunchError
 from launcher.packages import PackageIndex
 from launcher.xml import resolve_launch_arguments
 
+ROS_PYTHON = os.environ.get("ROS_PYTHON", "/usr/bin/python3")  # Debian's, with roslaunch (as conftest's)
 COMPAT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "compat")
 PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>%s</name><version>0.0.1</version>'
                '<description>d</description><maintainer email="m@example.com">m</maintainer>'
@@ -150,6 +150,21 @@ def test_args_of_every_top_file_are_varied(ws):
     second = write(tmp, "second.launch", '<arg name="other" default="1"/>')
     fs = check.check([first, second], [], environ=env, packages=PackageIndex(env))
     assert [(f.line, f.branch) for f in fs if f.severity == "error"] == [(4, ("sim:=true",))], fs
+
+
+def test_errors_in_group_machine_remap_and_env_do_not_end_the_load(ws):
+    tmp, env = ws
+    path = write(tmp, "robot.launch", '<group ns="$(arg nope1)"><node name="a" pkg="robot" type="driver.py"/>'
+                 '</group>\n'                                                                       # line 3
+                 '<machine name="m" address="$(arg nope2)"/>\n'                                   # line 4
+                 '<remap from="$(arg nope3)" to="b"/>\n'                                          # line 5
+                 '<env name="X" value="$(arg nope4)"/>\n'                                         # line 6
+                 '<group><group ns="$(arg nope5)"/><node name="b" pkg="robot" type="b_missing.py"/></group>\n'  # 7
+                 '<node name="d" pkg="robot" type="missing.py"/>')                                 # line 8
+    errors = [f for f in findings(env, path) if f.severity == "error"]
+    assert {3, 4, 5, 6, 7, 8} <= {f.line for f in errors}, errors
+    # (the inner group alone is skipped: the node after it in the outer group is checked)
+    assert any("b_missing.py" in f.message for f in errors), errors
 
 
 def test_errors_in_include_and_arg_do_not_end_the_load(ws):

@@ -274,7 +274,7 @@ class XmlLoader:
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
         """Process the children of `parent_el` in order; returns the default machine after them."""
-        handlers = _TAG_HANDLERS
+        handlers = self.tag_handlers
         for el in parent_el:
             tag = el.tag
             if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
@@ -326,9 +326,6 @@ class XmlLoader:
         child.params = list(child.params)
         self._scope_policy(el, scope, child)
         return self._recurse(el, child, default_machine)
-
-    def _include_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
-        return self._include_tag(el, scope, default_machine)  # (through self: `launcher check` goes on past one)
 
     def _machine_element(self, el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
         m, is_default = self._machine_tag(el, scope)
@@ -902,8 +899,10 @@ class XmlLoader:
 _TAG_HANDLERS: dict[str, Callable[[XmlLoader, Any, Scope, Machine | None], Machine | None]] = {
     "node": XmlLoader._node_element, "test": XmlLoader._test_element, "param": XmlLoader._param_element,
     "rosparam": XmlLoader._rosparam_element, "env": XmlLoader._env_element, "remap": XmlLoader._remap_element,
-    "group": XmlLoader._group_element, "include": XmlLoader._include_element, "machine": XmlLoader._machine_element,
+    "group": XmlLoader._group_element, "include": XmlLoader._include_tag, "machine": XmlLoader._machine_element,
 }
+# (an attribute, so that a subclass can wrap them: `launcher check` goes on past an element's error)
+XmlLoader.tag_handlers = _TAG_HANDLERS
 
 
 def _read_text(path: str) -> str:
