@@ -250,7 +250,7 @@ class TestFile:
                 pkg_dir = self.packages.get_path(words[0])
                 return os.path.join(pkg_dir, words[1]), words[0], pkg_dir
             except LaunchError:
-                pass
+                return None  # (neither a package nor, with a second word, a file: roslaunch's rule)
         try:
             return (words[0],) + package_of(words[0])
         except LaunchError:

@@ -358,3 +358,12 @@ def test_a_test_file_that_cannot_run_is_a_failed_result(workspace, name, words):
         case, = suite.iter("testcase")
         assert (case.get("name"), case.get("classname")) == ("test_ran", "Results")
         assert case.find("failure").get("message").startswith(words % path), etree.tostring(suite)
+
+
+def test_no_failure_result_for_a_command_line_that_names_no_package(workspace):
+    root, pkg = workspace
+    env = _env(root, "nopkg")
+    proc = subprocess.run([sys.executable, "-m", "launcher.tool", "test", "no_such_pkg", "x.test"], env=env,
+                          cwd=pkg, capture_output=True, text=True, timeout=180)  # (cwd: inside a package)
+    assert proc.returncode == 1 and "is neither a launch file in package [no_such_pkg]" in proc.stderr, proc.stderr
+    assert not os.path.exists(os.path.join(root, "nopkg", "home", "test_results")), proc.stderr
