@@ -1,19 +1,29 @@
 """`launcher check [pkg] file.launch [name:=value ...]`: the static checker of launch files, over every if/unless branch.
 
 Nothing is started. The files are loaded by the real loader (`xml.XmlLoader`):
-once with the args given, then once for each combination of `true` and
-`false` of the args a user may set (declared with a default, or required)
-that decide an `if`/`unless` (`$(arg sim)`, `$(eval ...)`), and of the boolean
-ones the files read (they may decide a condition in an included file under
-another name): the values the file can produce. Each load's error (roslaunch would refuse the
-file: kind "load"), and what the loaded configuration gets wrong at run time
-(kind "run": a node or test whose package or executable does not exist, a
-`machine=` that names no `<machine>`, a `$(find pkg)/path` that does not
-exist), is a finding with file:line and the include chain, and, when found
-only with other arg values, the args that reach it (`on the branch sim:=true`).
-The loader's warnings (unknown tags and attributes, undeclared command-line
-args, ...) are warnings. roslaunch-check follows the default path only (ros_comm
-#1394, #993) and gives no line numbers.
+once with the args given, then once for each combination of the values the
+file can produce for the args a user may set (declared with a default, or
+required, in a top file) that decide an `if`/`unless`: `true` and `false` for
+an arg read as a boolean (`$(arg sim)`, a name in `$(eval ...)`, or a boolean
+arg the files pass on: it may decide a condition in an included file under
+another name), and for an arg a `$(eval ...)` condition compares with literals
+(`arg('mode') == 'sim'`, `mode != 'real'`, `mode in ['a', 'b']`; also in
+an included file, on an arg its `<include>` sets to `$(arg robot_mode)`), those
+literals and its default. Only a top file's args are varied: an included
+file's args are set by its `<include>` (or their default), never by the
+command line, so the top file's values are all the values they can take.
+
+Each load's error (roslaunch would refuse the file: kind "load"), and what the
+loaded configuration gets wrong at run time (kind "run": a node or test whose
+package or executable does not exist, a `machine=` that names no `<machine>`,
+a `$(find pkg)/path` that does not exist), is a finding with file:line and the
+include chain, and, when found only with other arg values, the args that reach
+it (`on the branch sim:=true`). An error in one element (an `<include>`, a
+`<group>`, an `<arg>`, a `<node>` ...) skips that element only, so the findings
+after it are found in the same run. The loader's warnings (unknown
+tags and attributes, undeclared command-line args, ...) are warnings.
+roslaunch-check follows the default path only (ros_comm #1394, #993) and gives
+no line numbers.
 
 Exit status: 0 without errors, 1 with at least one error (warnings alone: 0).
 """
@@ -21,24 +31,27 @@ Exit status: 0 without errors, 1 with at least one error (warnings alone: 0).
 from __future__ import annotations
 
 import argparse
+import ast
+import math
 import os
 import re
 import sys
-from typing import Any, Iterable, NamedTuple
+from typing import Any, Container, Iterable, NamedTuple
 
 from launcher.errors import LaunchError
 from launcher.packages import PackageIndex, package_of
-from launcher.xml import resolve_launch_arguments
+from launcher.xml import resolve_launch_arguments, sandbox
 from launcher.xml.document import read_launch
 from launcher.xml.loader import XmlLoader
 
-# loads at most: every combination of up to this many boolean args (2^8), then one arg at a time
-MAX_COMBINED_ARGS = 8
+# loads at most: every combination of the varied args' values up to this many, else one arg at a time
+MAX_COMBINATIONS = 256
 # attributes whose `$(find pkg)/path` must exist for the launch to load or run; elsewhere (args, values) a
 # missing path is only a warning: it may be an output the node creates
 PATH_ATTRS = frozenset(("file", "textfile", "binfile"))
 _FIND_PATH = re.compile(r"\$\(find\s+([^\s)]+)\)([^\s$\"';:,]*)")
 _ARG_REF = re.compile(r"\$\(arg\s+([^\s)]+)\s*\)")
+_ARG_ALONE = re.compile(r"\s*\$\(arg\s+([^\s)]+)\s*\)\s*$")
 _EVAL_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _BOOLEAN = ("true", "false", "1", "0")
 
@@ -50,6 +63,7 @@ class Finding(NamedTuple):
     line: int | None = None
     branch: tuple[str, ...] = ()  # the args set to reach it, e.g. ("sim:=true",); () for the file as given
     kind: str = "load"  # "load": roslaunch refuses the file; "run": it loads, but a node cannot start
+    node: str = ""  # a "run" finding about one node or test: its resolved name
 
     def format(self) -> str:
         text = "%s: %s" % (self.severity, self.message)
@@ -58,10 +72,23 @@ class Finding(NamedTuple):
         return text
 
 
+def _going_on(handler: Any) -> Any:
+    """A tag's handler whose error is recorded, and the element skipped, instead of ending the load."""
+    def handle(loader: ConditionLoader, el: Any, scope: Any, default_machine: Any) -> Any:
+        try:
+            return handler(loader, el, scope, default_machine)
+        except LaunchError as e:
+            loader.errors.append(e)
+            return default_machine
+    return handle
+
+
 class ConditionLoader(XmlLoader):
     """The loader, recording the text of every computed if/unless it evaluates, and going on after an
-    error in a `<node>`, `<test>`, `<param>` or `<rosparam>` (each such tag is one finding; the rest of
-    the file is still checked)."""
+    error in an element (each is one finding, and that element is skipped: the rest of the file is still
+    checked). A `<param>` or `<rosparam>` inside a `<node>` is skipped alone, the node is not."""
+
+    tag_handlers = {tag: _going_on(handler) for tag, handler in XmlLoader.tag_handlers.items()}
 
     def __init__(self, **kw: Any):
         super().__init__(**kw)
@@ -69,13 +96,23 @@ class ConditionLoader(XmlLoader):
         self.errors: list[LaunchError] = []
         # (file, line) of each <node>/<test> -> its include chain (a Node does not carry it)
         self.chains: dict[tuple[str, int], tuple[tuple[str, int], ...]] = {}
+        self.top_args: dict[str, str | None] = {}  # each top file's declared args -> default (None: required)
+        # an arg set from another one alone (<arg name="mode" value="$(arg robot_mode)"/>, mostly in an
+        # <include>): a condition on `mode` in the included file is one on `robot_mode` too
+        self.passed_args: dict[str, set[str]] = {}
+
+    def load_file(self, filename: str) -> None:
+        self.root_scope = None
+        try:
+            super().load_file(filename)
+        finally:
+            if self.root_scope is not None:  # (this top file's scope: the args the command line sets)
+                for name, (_doc, default) in self.root_scope.arg_docs.items():
+                    self.top_args.setdefault(name, default)
 
     def _node_tag(self, el: Any, scope: Any, *args: Any, **kw: Any) -> None:
         self.chains[(scope.source, el.sourceline or 0)] = tuple(scope.include_chain)
-        try:
-            super()._node_tag(el, scope, *args, **kw)
-        except LaunchError as e:
-            self.errors.append(e)
+        super()._node_tag(el, scope, *args, **kw)
 
     def _param_tag(self, *args: Any, **kw: Any) -> None:
         try:
@@ -86,6 +123,17 @@ class ConditionLoader(XmlLoader):
     def _rosparam_tag(self, *args: Any, **kw: Any) -> None:
         try:
             super()._rosparam_tag(*args, **kw)
+        except LaunchError as e:
+            self.errors.append(e)
+
+    def _arg_tag(self, el: Any, scope: Any) -> None:
+        name = el.attrib.get("name")
+        for attr in ("value", "default"):
+            m = _ARG_ALONE.match(el.attrib.get(attr) or "")
+            if m and name and m.group(1) != name:
+                self.passed_args.setdefault(name, set()).add(m.group(1))
+        try:
+            super()._arg_tag(el, scope)
         except LaunchError as e:
             self.errors.append(e)
 
@@ -105,11 +153,69 @@ def condition_args(condition: str, free: dict[str, str | None]) -> set[str]:
     return {n for n in names if n in free}
 
 
-def _branch_values(name: str, default: str | None) -> tuple[str, ...]:
-    """The values of an arg a condition can see: true and false, when the arg is a boolean (or required)."""
+def condition_literals(condition: str, names: Container[str]) -> dict[str, list[str]]:
+    """The literals a `$(eval ...)` condition compares one of these args with (`==`, `!=`, `in`, `not in` a
+    list of literals), as the strings that give those values: the values of that arg the file names."""
+    text = condition.strip()
+    if not (text.startswith("$(eval ") and text.endswith(")")):
+        return {}
+    try:
+        tree = sandbox.parse(text[7:-1])  # (the loader's parse, cached: bounded in length and depth)
+    except sandbox.EvalError:
+        return {}  # (the load says so)
+    found: dict[str, list[str]] = {}
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Compare):
+            continue
+        operands = [node.left, *node.comparators]
+        for op, left, right in zip(node.ops, operands, operands[1:]):
+            if isinstance(op, (ast.Eq, ast.NotEq)):
+                pairs = ((left, [right]), (right, [left]))
+            elif isinstance(op, (ast.In, ast.NotIn)) and isinstance(right, (ast.List, ast.Tuple, ast.Set)):
+                pairs = ((left, right.elts),)  # (`'x' in mode` is a substring test: no value to name)
+            else:
+                continue
+            for operand, literals in pairs:
+                name = _arg_operand(operand, names)
+                if name is None:
+                    continue
+                values = found.setdefault(name, [])
+                for lit in literals:
+                    if isinstance(lit, ast.Constant) and isinstance(lit.value, (str, int, float)) \
+                            and _arg_text(lit.value) not in values:
+                        values.append(_arg_text(lit.value))
+    return found
+
+
+def _arg_operand(node: ast.expr, names: Container[str]) -> str | None:
+    """The arg an operand reads: `mode`, `arg('mode')`, or either inside int()/float()/str()."""
+    if isinstance(node, ast.Name):
+        return node.id if node.id in names else None
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and len(node.args) == 1 and not node.keywords:
+        inner = node.args[0]
+        if node.func.id == "arg" and isinstance(inner, ast.Constant) and isinstance(inner.value, str):
+            return inner.value if inner.value in names else None
+        if node.func.id in ("int", "float", "str"):
+            return _arg_operand(inner, names)
+    return None
+
+
+def _arg_text(value: Any) -> str:
+    """The `name:=value` text that gives an arg this value in `$(eval)` (args are auto-typed there)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def _branch_values(default: str | None, literals: Iterable[str]) -> tuple[str, ...]:
+    """The values other than its default of an arg its conditions can see: true and false, when the arg is a
+    boolean (or required); the literals the conditions compare it with."""
+    values: list[str] = []
     if default is None or default.strip().lower() in _BOOLEAN:
-        return ("true", "false")
-    return ()
+        values += ["true", "false"]
+    values += [v for v in literals if v not in values]
+    # (the default is what the branch without this arg sees)
+    return tuple(v for v in values if default is None or v.lower() != default.strip().lower())
 
 
 def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str] | None = None,
@@ -122,7 +228,7 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
     findings: dict[str, Finding] = {}
     loaded_files: dict[str, None] = {}
     done: set[tuple[str, ...]] = set()
-    varied: dict[str, tuple[str, ...]] = {}  # arg -> the values tried
+    varied: dict[str, tuple[tuple[str, ...], bool]] = {}  # arg -> (the values tried, the arg is required)
     todo: list[tuple[str, ...]] = [()]
     while todo:
         branch = todo.pop(0)
@@ -149,20 +255,28 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
         if config is not None:
             for finding in _check_config(config, packages, branch, loader.chains):
                 _add(findings, finding)
-        # the args a user may set (declared with a default, or required) that decide a condition
-        free = {} if loader.root_scope is None else \
-            {n: d for n, (_doc, d) in loader.root_scope.arg_docs.items() if n not in given}
+        # the args a user may set (declared with a default, or required, in a top file) that decide a condition
+        free = {n: d for n, d in loader.top_args.items() if n not in given}
         deciding = set()
+        literals: dict[str, list[str]] = {}
+        known = set(free) | set(loader.passed_args)
         for cond in loader.conditions:
             deciding |= condition_args(cond, free)
+            for name, values in condition_literals(cond, known).items():
+                for source in _settable_sources(name, loader.passed_args, free):
+                    deciding.add(source)
+                    literals.setdefault(source, []).extend(values)
         # a boolean arg passed on to an included file may decide a condition there under another name
         # (<arg name="sim" value="$(arg use_sim)"/>): every boolean arg the files read is varied too
         deciding |= {n for n in loader._used_args if n in free and free[n] is not None
                      and free[n].strip().lower() in _BOOLEAN}
         new = False
         for name in sorted(deciding):
-            if name not in varied:
-                varied[name] = _branch_values(name, free[name])
+            # (a branch may reach a condition that names more values: they are added)
+            tried = varied.get(name, ((), False))[0]
+            values = tried + tuple(v for v in _branch_values(free[name], literals.get(name, ())) if v not in tried)
+            if values != tried:
+                varied[name] = (values, free[name] is None)
                 new = True
         if new:
             todo.extend(_combinations(varied))
@@ -175,15 +289,31 @@ def check(files: list[str], argv: Iterable[str] = (), *, environ: dict[str, str]
     return [f for f in ordered if f.severity == "error"] + [f for f in ordered if f.severity != "error"]
 
 
-def _combinations(varied: dict[str, tuple[str, ...]]) -> list[tuple[str, ...]]:
-    """Each combination of the varied args' values (one arg at a time when there are too many)."""
-    names = [n for n, values in varied.items() if values]
-    if len(names) > MAX_COMBINED_ARGS:
-        return [("%s:=%s" % (n, v),) for n in names for v in varied[n]]
+def _settable_sources(name: str, passed: dict[str, set[str]], free: Container[str]) -> set[str]:
+    """The settable args an arg's value may come from: itself, or the args it is set from, transitively."""
+    found, todo, seen = set(), [name], set()
+    while todo:
+        n = todo.pop()
+        if n in seen:
+            continue
+        seen.add(n)
+        if n in free:
+            found.add(n)
+        todo.extend(passed.get(n, ()))
+    return found
+
+
+def _combinations(varied: dict[str, tuple[tuple[str, ...], bool]]) -> list[tuple[str, ...]]:
+    """Each combination of the varied args' values, fewest args set first (one arg at a time when there are
+    too many); an arg left at its default is not set, so each branch names only what it changes."""
+    options = [[("%s:=%s" % (n, v),) for v in values] + ([] if required else [()])
+               for n, (values, required) in varied.items() if values]
+    if math.prod(len(o) for o in options) > MAX_COMBINATIONS:
+        return [c for o in options for c in o if c]
     combos: list[tuple[str, ...]] = [()]
-    for n in names:
-        combos = [c + ("%s:=%s" % (n, v),) for c in combos for v in varied[n]]
-    return combos
+    for o in options:
+        combos = [c + v for c in combos for v in o]
+    return sorted((c for c in combos if c), key=len)  # (stable: the order of the values stays)
 
 
 def _add(findings: dict[str, Finding], finding: Finding) -> None:
@@ -205,11 +335,11 @@ def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
             packages.find_node(node.package, node.type)
         except LaunchError as e:
             yield Finding("error", _located(node, chain, "<%s> [%s]: %s" % (kind, node.full_name, e.message)),
-                          node.filename, node.line, branch, "run")
+                          node.filename, node.line, branch, "run", node.full_name)
         if node.machine_name and node.machine_name not in config.machines:
             yield Finding("error", _located(node, chain, "<%s> [%s] uses machine [%s], which no <machine> tag declares"
                                             % (kind, node.full_name, node.machine_name)),
-                          node.filename, node.line, branch, "run")
+                          node.filename, node.line, branch, "run", node.full_name)
 
 
 def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:
@@ -267,7 +397,9 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="launcher check",
                                 usage="launcher check [options] [package] <file.launch> [name:=value ...]",
                                 description="Check launch files without starting anything, over every if/unless "
-                                            "branch.")
+                                            "branch: the args of the top files (not of included files: their "
+                                            "includer sets them) are varied over true/false and over the values "
+                                            "an $(eval) condition compares them with.")
     p.add_argument("--junit-xml", metavar="PATH", help="also write the findings as JUnit XML (roslaunch-check's)")
     p.add_argument("-q", "--quiet", action="store_true", help="print errors only")
     p.add_argument("positional", nargs="*", metavar="ARG", help="[package] file.launch ... name:=value ...")

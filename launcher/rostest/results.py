@@ -178,6 +178,18 @@ def write_junit(path: str, suite_name: str, runs: list[TestOutcome]) -> None:
     os.replace(tmp, path)
 
 
+def write_test_file_failure(path: str, outname: str, message: str) -> None:
+    """rostest's result for a test file it cannot run (its write_bad_filename_failure, #1140): one failed
+    `Results.test_ran` case whose message says why."""
+    suite = etree.Element("testsuite", tests="1", failures="1", time="1", errors="0", name=outname)
+    case = etree.SubElement(suite, "testcase", name="test_ran", status="run", time="1", classname="Results")
+    etree.SubElement(case, "failure", message=message, type="")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    tmp = path + ".tmp%d" % os.getpid()
+    etree.ElementTree(suite).write(tmp, encoding="UTF-8", xml_declaration=True, pretty_print=True)
+    os.replace(tmp, path)
+
+
 def summary(runs: list[TestOutcome]) -> str:
     """rostest's summary (each case, then RESULT and counts), with the reason of every test that did not run cleanly."""
     out = ["[ROSTEST]" + "-" * 71, ""]

@@ -11,7 +11,10 @@ a stop signal, running the test node.
 Where rostest is wrong, this runner is not: a test that exits non-zero, dies by
 a signal, times out or writes no results fails with that reason (rostest passes
 a test that wrote its results and then segfaulted, ros_comm#2265), and test
-cases are counted from the file's `<testcase>`s, not its `failures=` attribute.
+cases are counted from the file's `<testcase>`s, not its `failures=` attribute;
+a test file that does not exist or does not load is a failed `test_ran` result
+(rostest's write_bad_filename_failure, #1140, which its own argument check
+keeps from ever running: it writes no result at all).
 """
 
 from __future__ import annotations
@@ -39,7 +42,8 @@ from launcher.packages import PackageIndex, package_of
 from launcher.process import console
 from launcher.process.spawn import ProcessSpec, start_process
 from launcher.process.watchdog import Watchdog
-from launcher.rostest.results import TestOutcome, judge, results_dir, safe_test_name, summary, write_junit
+from launcher.rostest.results import (TestOutcome, judge, results_dir, safe_test_name, summary, write_junit,
+                                      write_test_file_failure)
 from launcher.runtime import Plan, Run, Stopped
 from launcher.xml import resolve_launch_arguments
 
@@ -58,8 +62,9 @@ class TestAttempt(Run):
     """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
 
     def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
-                 reuse_master: bool, clear: bool, text: bool):
+                 reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
         super().__init__(opts, plan, watchdog)
+        self.processes_before = processes_before
         self.test = test
         self.result_file = result_file
         self.reuse_master = reuse_master
@@ -87,6 +92,14 @@ class TestAttempt(Run):
         # a free port of the kernel's choosing: parallel runs never meet
         await super()._start_master(0)
         self.master_uri = self.plan.master_uri = self.master.uri
+
+    def _launch_nodes(self) -> None:
+        # rostest numbers its processes with one counter for the whole file (roslaunch's, global in its
+        # process: fixture nodes, then the test, across tests and retries) and runs no rosout process:
+        # talk-1, test-2, then talk-3, test-4 for a second <test>
+        self._process_count = self.processes_before
+        super()._launch_nodes()
+        self._process_count += sum(1 for node in self.plan.config.nodes if not self.plan.remote(node))
 
     async def _wait_for_the_end(self) -> None:
         self.signals.check()
@@ -176,6 +189,12 @@ def rostest_name_from_path(pkg_dir: str, test_file: str) -> str:
     return name[:name.rfind(".")] if "." in name else name
 
 
+class TestFileFailure(LaunchError):
+    """The test file does not exist or does not load; `results_file` holds a failed test that says so."""
+
+    results_file: str | None = None
+
+
 class TestFile:
     """Every `<test>` of one file, each in its own attempts; the outcomes, in file order."""
 
@@ -183,31 +202,82 @@ class TestFile:
         self.opts = opts
         self.environ = dict(os.environ)
         self.packages = PackageIndex(self.environ, warn=lambda m: console.printerrlog("WARNING: %s" % m))
-        files, self.argv = resolve_launch_arguments(list(opts.positional), self.packages)
+        self.junit_path: str | None = None
+        try:
+            files, self.argv = resolve_launch_arguments(list(opts.positional), self.packages)
+        except LaunchError as e:
+            named = self._named_test_file()
+            if named is None:
+                raise
+            self._name_results(*named)
+            raise self._test_file_failure("rostest file [%s] does not exist" % named[0], e) from None
         if not files:
             raise LaunchError("you must supply a test file argument")
         if len(files) != 1:
             raise LaunchError("only a single test file is accepted")
         self.test_file = files[0]
         if opts.pkg_dir and opts.package:
-            self.pkg, self.pkg_dir = opts.package, opts.pkg_dir
+            self._name_results(self.test_file, opts.package, opts.pkg_dir)
         else:
-            self.pkg, self.pkg_dir = package_of(self.test_file)
+            self._name_results(self.test_file, *package_of(self.test_file))
+        self.launch_opts = SimpleNamespace(**dict(LAUNCH_DEFAULTS, positional=[self.test_file] + self.argv,
+                                                  screen=bool(opts.text)))
+
+    def _name_results(self, test_file: str, pkg: str, pkg_dir: str) -> None:
+        """Where the results go: rostest's `<results dir>/<pkg>/rostest-<name>.xml` (or --junit-xml)."""
+        opts = self.opts
+        self.pkg, self.pkg_dir = pkg, pkg_dir
         if opts.results_filename:
             outname = opts.results_filename
             outname = outname[:outname.rfind(".")] if "." in outname else outname
         else:
-            outname = rostest_name_from_path(self.pkg_dir, self.test_file)
-        self.results_dir = os.path.join(results_dir(self.environ, opts.results_base_dir), self.pkg)
+            outname = rostest_name_from_path(pkg_dir, test_file)
+        self.outname = outname
+        self.results_dir = os.path.join(results_dir(self.environ, opts.results_base_dir), pkg)
         self.junit_path = opts.junit_xml or os.path.join(self.results_dir, "rostest-%s.xml" % safe_test_name(outname))
-        self.launch_opts = SimpleNamespace(**dict(LAUNCH_DEFAULTS, positional=[self.test_file] + self.argv,
-                                                  screen=bool(opts.text)))
+
+    def _named_test_file(self) -> tuple[str, str, str] | None:
+        """(test file, package, package dir) of a command line whose test file does not exist, for its
+        failure result; None when it names no package."""
+        opts = self.opts
+        words = [a for a in opts.positional if ":=" not in a]
+        if not words:
+            return None
+        if opts.pkg_dir and opts.package:
+            return words[-1], opts.package, opts.pkg_dir
+        if len(words) >= 2:
+            try:
+                pkg_dir = self.packages.get_path(words[0])
+                return os.path.join(pkg_dir, words[1]), words[0], pkg_dir
+            except LaunchError:
+                return None  # (neither a package nor, with a second word, a file: roslaunch's rule)
+        try:
+            return (words[0],) + package_of(words[0])
+        except LaunchError:
+            return None
+
+    def _test_file_failure(self, message: str, error: LaunchError) -> TestFileFailure:
+        """A test file that cannot be run is a failed test in its results, as rostest means it to be (#1140,
+        its write_bad_filename_failure: Debian's rostest exits before it gets there, and writes nothing a CI
+        job would see)."""
+        failure = TestFileFailure(error.message, error.filename, error.line, error.include_chain)
+        if self.junit_path is not None:
+            try:
+                write_test_file_failure(self.junit_path, self.outname, message)
+                failure.results_file = self.junit_path
+            except OSError as e:
+                console.printerrlog("cannot write [%s]: %s" % (self.junit_path, e.strerror))
+        return failure
 
     def run(self) -> int:
-        plan = Plan.load(self.launch_opts)
+        try:
+            plan = Plan.load(self.launch_opts)
+        except LaunchError as e:
+            raise self._test_file_failure("rostest file [%s] does not load: %s" % (self.test_file, e), e) from None
         config = plan.config
         fixture = config._replace(tests=())
         outcomes: list[TestOutcome] = []
+        self.processes = 0  # processes started so far (rostest's process numbers)
         watchdog = Watchdog.start()
         scratch = tempfile.mkdtemp(prefix="launcher-test-")
         seen: set[str] = set()
@@ -264,8 +334,9 @@ class TestFile:
             started = time.monotonic()
             run = TestAttempt(self.launch_opts, Plan(fixture, plan.master_uri, plan.environ, packages=self.packages),
                               watchdog, test, private, reuse_master=self.opts.reuse_master, clear=self.opts.clear,
-                              text=self.opts.text)
+                              text=self.opts.text, processes_before=self.processes)
             asyncio.run(run.main())
+            self.processes = max(self.processes, run._process_count)
             if run.interrupted:
                 return None
             elapsed = time.monotonic() - started
@@ -320,6 +391,8 @@ def main(argv: list[str]) -> int:
     except LaunchError as e:
         console.flush()
         print(str(e), file=sys.stderr)
+        if getattr(e, "results_file", None):
+            print("test file is invalid. Generated failure case result file in %s" % e.results_file, file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         status = 130

@@ -277,7 +277,7 @@ class XmlLoader:
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
         """Process the children of `parent_el` in order; returns the default machine after them."""
-        handlers = _TAG_HANDLERS
+        handlers = self.tag_handlers
         for el in parent_el:
             tag = el.tag
             if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
@@ -903,6 +903,8 @@ _TAG_HANDLERS: dict[str, Callable[[XmlLoader, Any, Scope, Machine | None], Machi
     "rosparam": XmlLoader._rosparam_element, "env": XmlLoader._env_element, "remap": XmlLoader._remap_element,
     "group": XmlLoader._group_element, "include": XmlLoader._include_tag, "machine": XmlLoader._machine_element,
 }
+# (an attribute, so that a subclass can wrap them: `launcher check` goes on past an element's error)
+XmlLoader.tag_handlers = _TAG_HANDLERS
 
 
 def _read_text(path: str) -> str:

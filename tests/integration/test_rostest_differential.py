@@ -96,6 +96,10 @@ TESTS = {
     "missing": '<test test-name="ghost" pkg="rttest" type="no_such_test.py"/>',
     "badfixture": ('<node name="ghost" pkg="rttest" type="no_such_node.py"/>\n'
                    '<test test-name="passing" pkg="rttest" type="pass_node.py"/>'),
+    "numbered": ('<param name="answer" value="42"/>\n<node name="talker" pkg="rttest" type="talker.py"/>\n'
+                 '<test test-name="first" pkg="rttest" type="pass_node.py" name="one"/>\n'
+                 '<test test-name="second" pkg="rttest" type="pass_node.py" name="two" ns="sub"/>'),
+    "unparsable": '<test test-name="broken" pkg="rttest"\n',
     "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
                 '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
                 '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
@@ -305,3 +309,61 @@ def test_text_mode_shows_the_test_output_and_passes_on_exit_status(workspace):
     mine = ours(root, pkg, "pass", "--text")
     assert mine.rc == 0, mine
     assert "test_param" in mine.out  # the unittest's own report, on the screen
+
+
+def test_processes_are_numbered_as_rostest_numbers_them(workspace, tmp_path):
+    """One counter for the whole file, fixture nodes first, no rosout process: the log files' names."""
+    root, pkg = workspace
+    names = {}
+    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+        env = _env(root, who)
+        env["ROS_LOG_DIR"] = str(tmp_path / who)
+        proc = subprocess.run(argv + ["rttest", "numbered.test"], env=env, capture_output=True, text=True,
+                              timeout=180)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        names[who] = sorted(f for _dir, _subdirs, files in os.walk(tmp_path / who) for f in files
+                            if f.endswith("-stdout.log"))
+    assert names["rostest"] == ["one-2-stdout.log", "sub-two-4-stdout.log", "talker-1-stdout.log",
+                                "talker-3-stdout.log"], names
+    assert names["ours"] == names["rostest"]
+
+
+@pytest.mark.parametrize("name, words", [("nothere", "rostest file [%s] does not exist"),
+                                         ("unparsable", "rostest file [%s] does not load: ")])
+def test_a_test_file_that_cannot_run_is_a_failed_result(workspace, name, words):
+    """rostest is wrong here: it means to write a failed `test_ran` result for a test file that does not exist
+    (rostest_main.write_bad_filename_failure, #1140), but exits before it gets there (resolving the arguments
+    fails first; a file that does not parse ends in a traceback), so a CI job that reads the results sees
+    nothing, or an earlier run's success. Both exit 1; we write the result it meant, in its layout."""
+    from lxml import etree
+    root, pkg = workspace
+    path = os.path.join(pkg, name + ".test")
+    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+        env = _env(root, who)
+        results = os.path.join(root, who, "home", "test_results", "rttest", "rostest-%s.xml" % name)
+        os.makedirs(os.path.dirname(results), exist_ok=True)
+        with open(results, "w") as f:  # an earlier run's, when the file was fine
+            f.write('<?xml version="1.0"?><testsuite tests="1" failures="0" errors="0" name="%s">'
+                    '<testcase name="testok" classname="rostest.runner.RosTest"/></testsuite>' % name)
+        proc = subprocess.run(argv + ["rttest", name + ".test"], env=env, capture_output=True, text=True,
+                              timeout=180)
+        assert proc.returncode == 1, (who, proc.stdout + proc.stderr)
+        suite = etree.parse(results).getroot()
+        if who == "rostest":
+            assert suite.get("failures") == "0", "rostest now writes its failure result: match it"
+            continue
+        assert "Generated failure case result file in %s" % results in proc.stderr, proc.stderr
+        assert (suite.get("name"), suite.get("tests"), suite.get("failures"), suite.get("errors")) == \
+            (name, "1", "1", "0")
+        case, = suite.iter("testcase")
+        assert (case.get("name"), case.get("classname")) == ("test_ran", "Results")
+        assert case.find("failure").get("message").startswith(words % path), etree.tostring(suite)
+
+
+def test_no_failure_result_for_a_command_line_that_names_no_package(workspace):
+    root, pkg = workspace
+    env = _env(root, "nopkg")
+    proc = subprocess.run([sys.executable, "-m", "launcher.tool", "test", "no_such_pkg", "x.test"], env=env,
+                          cwd=pkg, capture_output=True, text=True, timeout=180)  # (cwd: inside a package)
+    assert proc.returncode == 1 and "is neither a launch file in package [no_such_pkg]" in proc.stderr, proc.stderr
+    assert not os.path.exists(os.path.join(root, "nopkg", "home", "test_results")), proc.stderr
