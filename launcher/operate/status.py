@@ -59,6 +59,9 @@ def last_exit(node: dict[str, Any]) -> str:
 
 
 def table(info: dict[str, Any]) -> str:
+    title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
+    if not info["nodes"]:
+        return title + "\nno nodes"  # (`launch --core`, or a launch of no node)
     rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
     for n in info["nodes"]:
         rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
@@ -67,8 +70,7 @@ def table(info: dict[str, Any]) -> str:
                      n.get("host", "")))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return "launch %s (pid %s, run_id %s)\n%s" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"),
-                                                  "\n".join(lines))
+    return title + "\n" + "\n".join(lines)
 
 
 def _main(argv: list[str]) -> int:

@@ -279,15 +279,49 @@ def test_diagnostics_read_by_rostopic_echo(tmp_path, pkgs):
         lp.close()
 
 
-def _api_answers(uri: str) -> dict:
+def _api_answers(uri: str, node: str | None = "a-2") -> dict:
     api = xmlrpc.client.ServerProxy(uri)
-    info = api.process_info("a-2")
-    info[2].pop("env", None)
-    info[2].pop("pid", None)
-    info[2].pop("run_id", None)
-    info[2]["args"] = [a for a in info[2]["args"] if not a.startswith("__log:=")]
-    return {"list_processes": api.list_processes(), "get_node_names": api.get_node_names(),
-            "process_info": info, "unknown": api.process_info("nosuch"), "pid": api.get_pid()[0]}
+    answers = {"list_processes": api.list_processes(), "get_node_names": api.get_node_names(),
+               "unknown": api.process_info("nosuch"), "pid": api.get_pid()[0]}
+    if node:
+        info = api.process_info(node)
+        info[2].pop("env", None)
+        info[2].pop("pid", None)
+        info[2].pop("run_id", None)
+        info[2]["args"] = [a for a in info[2]["args"] if not a.startswith("__log:=")]
+        answers["process_info"] = info
+    for core in ("master", "rosout-1"):
+        try:
+            answers[core] = api.process_info(core)
+        except xmlrpc.client.Fault as e:
+            answers[core] = "fault %d %s" % (e.faultCode, e.faultString)
+    return answers
+
+
+def _core_answers_agree(ours: dict, theirs: dict, argv: list[str], started_master: bool) -> None:
+    """process_info of the master and rosout-1 (taken out of both answers): as Debian's roslaunch, but for the
+    in-process pid and command line (the launcher's own), respawn (never apart from the launch) and Debian's
+    fault for the master (it marshals os.environ, an object: see LaunchServer._core_info)."""
+    pid = ours.pop("launcher_pid", None)
+    theirs.pop("launcher_pid", None)
+    ours = {core: ours.pop(core) for core in ("master", "rosout-1")}
+    theirs = {core: theirs.pop(core) for core in ("master", "rosout-1")}
+    if not started_master:
+        assert ours["master"] == theirs["master"] == ours["rosout-1"] == theirs["rosout-1"] == \
+            [-1, "no process by that name", {}]
+        return
+    assert theirs["master"] == "fault 1 <class 'TypeError'>:dictionary key must be string"
+    code, msg, rosout = theirs["rosout-1"]
+    assert (code, msg, rosout["respawn"], rosout["pid"] != pid) == (1, "process info", True, True)
+    for name, expected in (("rosout-1", dict(rosout, respawn=False)),
+                           ("master", dict(rosout, name="master", package="rosmaster", required=True, respawn=False,
+                                           log_output=False))):
+        code, msg, info = ours[name]
+        assert (code, msg, info["pid"], bool(info["run_id"])) == (1, "process info", pid, True)
+        assert info["args"] == argv
+        for key in ("pid", "args", "env", "run_id"):
+            info.pop(key), expected.pop(key)
+        assert info == expected
 
 
 def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
@@ -323,13 +357,82 @@ def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
             poll(lambda: api.process_info("g/b-3")[2].get("spawn_count") == 2 and api.list_processes()[2][1], 30,
                  0.2, what="%s saw the deaths" % which)
             answers[which] = _api_answers(uri)
+            answers[which]["launcher_pid"] = api.get_pid()[2]
         finally:
             if which == "roslaunch":
                 os.killpg(proc.pid, signal.SIGINT)
                 proc.wait(30)
             else:
                 lp.close()
-    assert answers["ours"] == answers["roslaunch"]
+    ours, theirs = answers["ours"], answers["roslaunch"]
+    _core_answers_agree(ours, theirs, lp.proc.args, started_master=True)
+    assert ours == theirs
+
+
+def _registered_api(port: int) -> str:
+    """The URI of the one launch registered on the master, its key checked as roslaunch's."""
+    uris = poll(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(
+        port, "/roslaunch")), 60, 0.2, what="a launch registered on the master")["uris"]
+    (key, uri), = uris.items()
+    assert key == "host_127_0_0_1__%s" % uri.rsplit(":", 1)[1].strip("/")
+    return uri
+
+
+def test_core_serves_roslaunch_api_as_debian_roscore(tmp_path, pkgs):
+    """`launch --core` registers and serves roslaunch's API as roscore does; a launch on a running master lists
+    neither the master nor rosout, as roslaunch's; `launcher status` finds a bare core and says it has no nodes."""
+    launch = write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="a"/>')
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    answers = {}
+    for which in ("roscore", "ours"):
+        port = free_port()
+        env = ros_env(str(tmp_path / which), port, pkgs)
+        env["READY_DIR"] = str(tmp_path / "ready")
+        if which == "roscore":
+            core = subprocess.Popen(["roscore", "-p", str(port)], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL, start_new_session=True)
+        else:
+            core = Launcher(["--core", "-p", str(port)], env, str(tmp_path))
+        try:
+            uri = _registered_api(port)
+            api = xmlrpc.client.ServerProxy(uri)
+            poll(lambda: api.get_node_names()[2] == ["master", "rosout-1"], 30, 0.2, what="%s's core processes" % which)
+            answers[which] = _api_answers(uri, node=None)
+            answers[which]["launcher_pid"] = api.get_pid()[2]
+            if which == "ours":
+                st = tool(env, "status")
+                assert st.returncode == 0 and st.stdout.splitlines()[1:] == ["no nodes"], st.stdout + st.stderr
+                assert json.loads(tool(env, "status", "--json").stdout)["nodes"] == []
+            # a launch on the running master: its own API lists neither the master nor rosout
+            xmlrpc.client.ServerProxy("http://127.0.0.1:%d/" % port).deleteParam("/test", "/roslaunch")
+            if which == "roscore":
+                proc = subprocess.Popen(["roslaunch", launch], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.DEVNULL, start_new_session=True)
+            else:
+                lp = Launcher([launch], env, str(tmp_path))
+            try:
+                uri = _registered_api(port)
+                poll(lambda: xmlrpc.client.ServerProxy(uri).get_node_names()[2] == ["a-1"], 60, 0.2,
+                     what="%s's launch running" % which)
+                answers[which + " launch"] = _api_answers(uri, node="a-1")
+            finally:
+                if which == "roscore":
+                    os.killpg(proc.pid, signal.SIGINT)
+                    proc.wait(30)
+                else:
+                    lp.close()
+        finally:
+            if which == "roscore":
+                os.killpg(core.pid, signal.SIGINT)
+                core.wait(30)
+            else:
+                core.close()
+    ours, theirs = answers["ours"], answers["roscore"]
+    _core_answers_agree(ours, theirs, core.proc.args, started_master=True)
+    assert ours == theirs
+    ours, theirs = answers["ours launch"], answers["roscore launch"]
+    _core_answers_agree(ours, theirs, [], started_master=False)
+    assert ours == theirs
 
 
 CLIENT = """
