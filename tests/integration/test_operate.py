@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -39,12 +40,24 @@ while not rospy.is_shutdown():
     rospy.sleep(0.2)
 """ % ROS_PYTHON
 IgnoreIntTerm = "#!/bin/sh\ntrap '' INT TERM\nexec sleep 1000\n"
+# holds 64 MiB until the file release exists in $READY_DIR, then frees it
+Holder = """#!/usr/bin/env python3
+import os, time
+block = bytearray(64 << 20)
+for i in range(0, len(block), 4096):
+    block[i] = 1
+while not os.path.exists(os.path.join(os.environ["READY_DIR"], "release")):
+    time.sleep(0.05)
+del block
+time.sleep(1000)
+"""
 
 
 @pytest.fixture
 def pkgs(tmp_path, ros_env):
     pkg = make_package(str(tmp_path / "pkgs"), "op_tests",
-                       {"spinner": Spinner, "ticker": Ticker, "ignore_int_term": IgnoreIntTerm})
+                       {"spinner": Spinner, "ticker": Ticker, "ignore_int_term": IgnoreIntTerm,
+                        "holder": Holder})
     compile_roscpp("param_node.cpp", os.path.join(pkg, "param_cpp"))
     return str(tmp_path / "pkgs")
 
@@ -275,6 +288,52 @@ def test_diagnostics_read_by_rostopic_echo(tmp_path, pkgs):
         topics = subprocess.run(["rostopic", "list"], env=dict(env, PATH=ROS_PATH), capture_output=True, text=True,
                                 timeout=60).stdout.split()
         assert "/rosout" in topics and "/diagnostics" not in topics
+    finally:
+        lp.close()
+
+
+def _diagnostics(env: dict) -> str:
+    echo = subprocess.run(["rostopic", "echo", "-n", "1", "/diagnostics"], env=dict(env, PATH=ROS_PATH),
+                          capture_output=True, text=True, timeout=60)
+    assert echo.returncode == 0, echo.stderr
+    return echo.stdout
+
+
+def test_over_a_limit_shows_in_status_events_and_diagnostics(tmp_path, pkgs):
+    """memory_limit (on_limit="warn"): while over it, /diagnostics (read by Debian's rostopic) says WARN naming the
+    limit and the value, `launcher status` shows it (text and JSON), and the events file has a line for the
+    crossing and one for the return under it, each with the node's host."""
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="holder" name="holder" memory_limit="32MiB"/>
+      <node pkg="op_tests" type="spinner" name="a"/>
+    """, "--monitor-period", "0.2")
+    try:
+        st = poll(lambda: (lambda s: s if s.get("/holder", {}).get("over_limit") else None)(status(env, True)), 60,
+                  0.2, what="holder over its memory_limit")
+        assert st["/holder"]["over_limit"] == {"memory_limit": 32 << 20} and st["/a"]["over_limit"] == {}
+        assert st["/holder"]["state"] == "running" and st["/holder"]["restarts"] == 0
+        table = tool(env, "status").stdout.splitlines()
+        assert table[1].split()[-2:] == ["OVER", "LIMIT"]
+        row = [line for line in table if line.startswith("/holder ")][0]
+        assert re.search(r"memory_limit 32\.0 MB \(uses \d+\.\d MB\)$", row), table
+        assert [line for line in table if line.startswith("/a ")][0].endswith(" -")
+        out = _diagnostics(env)
+        assert re.search(r'level: 1\s+name: "/holder"\s+message: "running, over memory_limit 32\.0 MB '
+                         r'\(uses \d+\.\d MB\)"', out), out
+        assert re.search(r'key: "memory_limit"\s+value: "33554432"', out), out
+        (tmp_path / "ready" / "release").touch()
+        poll(lambda: status(env)["/holder"]["over_limit"] == {}, 60, 0.2, what="holder back under its limit")
+        assert "OVER LIMIT" not in tool(env, "status").stdout
+        out = _diagnostics(env)
+        assert re.search(r'level: 0\s+name: "/holder"\s+message: "running"', out), out
+        events = [json.loads(line) for line in tool(env, "events", "--json").stdout.splitlines()]
+        limit = [(e["node"], e["host"], e["state"], e["over_limit"], e["reason"].split(":")[0])
+                 for e in events if "memory_limit" in e["reason"]]
+        assert limit == [("/holder", "localhost", "running", {"memory_limit": 32 << 20}, "over memory_limit"),
+                         ("/holder", "localhost", "running", {}, "back under memory_limit")]
+        text = tool(env, "events").stdout
+        assert re.search(r"/holder running pid \d+ restarts 0 over memory_limit \(over memory_limit: uses ", text), text
+        assert " on localhost" not in text  # a local node's host goes without saying
     finally:
         lp.close()
 
