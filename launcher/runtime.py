@@ -596,7 +596,7 @@ class Run:
                                    master_uri=self.master_uri, host=advertised_host(self.plan.environ),
                                    environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
                                    sigterm_timeout=self.opts.sigterm_timeout)
-        await self.remote.start()
+        await self.remote.start(self.server.uri if self.server is not None else "")
 
     # ---- running ---------------------------------------------------------------------------------------
 

@@ -22,7 +22,8 @@ import sys
 import time
 from typing import Any
 
-from launcher.net.slave import bind_address, default_host
+from launcher.master import advertised_host
+from launcher.net.slave import bind_address
 from launcher.net.xmlrpc import Fault, encode_value
 from launcher.operate import patterns, token as run_token
 
@@ -41,7 +42,7 @@ class LaunchServer:
 
     def __init__(self, run: Any, environ: dict[str, str]):
         self.run = run
-        self.host = default_host(environ)
+        self.host = advertised_host(environ)  # (rosgraph's choice for roslaunch's server, as for the master)
         self.uri = ""
         self.param_key = ""
         self.token = ""
@@ -80,6 +81,9 @@ class LaunchServer:
 
     def _dispatch(self, method: str, params: list) -> Any:
         handler = self._API.get(method)
+        remote = self.run.remote
+        if handler is None and remote is not None and method in remote.PARENT_CALLS:
+            return remote.parent_call(method, params)  # a child on another machine calling its parent
         if handler is None:
             # the words of roslaunch's server (Python's SimpleXMLRPCServer)
             raise Fault(1, "<class 'Exception'>:method \"%s\" is not supported" % method)
