@@ -2,8 +2,9 @@
 
 Columns: node, state, pid, uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
-(memory_limit, cpu_limit) and what it uses now. `--json` prints the run and its nodes as one JSON
-object (fields as in launcher-events.jsonl); `--watch` redraws every second.
+(memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
+its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
+redraws every second.
 """
 
 from __future__ import annotations
