@@ -9,6 +9,10 @@ business: it has set them on the master already). While it runs, the child
 reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`,
 and runs respawns itself. At the end the parent calls `shutdown()`, then
 closes the ssh session (whose pty hangup stops a child that did not answer).
+PARENT_URI is the launch's own roslaunch server (`launcher.operate.server`,
+which hands these calls here), as roslaunch has one: a Debian child registers
+PARENT_URI on the master as the launch's, and a second server would be listed
+as a second launch.
 
 A machine whose session ends while the launch runs (the link was cut, the host
 rebooted) is tried again with a growing delay; when it answers, its nodes are
