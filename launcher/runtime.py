@@ -330,6 +330,8 @@ class Run:
             await self._start_master(self.plan.core_port)  # first: a busy port is all a core has to say
             self.run_id = self._decide_run_id(None)
             self.log.open(self.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
+            self._open_master_log()  # (clients may call the master already)
+            await self.signals.guard(self._start_server())
             console.printlog("ros_comm version %s" % masterlink.ros_version_params(env)[0].strip())
         else:
             self.external, reply = await self.signals.guard(self._find_master())
@@ -337,6 +339,7 @@ class Run:
             if reply is not None:
                 run_id_known = True if reply[0] == 1 else False if reply[0] == -1 else None
             self.log.open(self.run_id)
+            await self.signals.guard(self._start_server())
             await self._start_remote()  # the other machines' children start while this one sets up
         if not self.opts.no_summary:
             console.printlog(summary(self.plan.config, self._summary_params()))
@@ -344,13 +347,12 @@ class Run:
             console.printlog("auto-starting new master")
             if self.master is None:
                 await self._start_master(urllib.parse.urlsplit(self.master_uri).port or masterlink.DEFAULT_MASTER_PORT)
-        if self.master is not None and self.log.run_dir:
-            self.master.open_log(os.path.join(self.log.run_dir, "master.log"))
+        if not self.core:
+            self._open_master_log()
         self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.master_uri)
         console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
         await self.signals.guard(self._set_run_id(run_id_known))
-        if not self.core:
-            await self.signals.guard(self._start_server())
+        await self.signals.guard(self._register_server())
         if self.master is not None:
             await self.signals.guard(self._start_rosout())
         self.log.timing(self._started, "master %s at %s" % ("found" if self.external else "started", self.master_uri))
@@ -420,6 +422,10 @@ class Run:
         if allow is not None:
             console.printlog("master answers only clients from loopback, this machine and: %s" % allow)
 
+    def _open_master_log(self) -> None:
+        if self.master is not None and self.log.run_dir:
+            self.master.open_log(os.path.join(self.log.run_dir, "master.log"))
+
     def _summary_params(self) -> dict[str, Any]:
         params = {k: p.value for k, p in self.plan.config.params.items()}
         rosversion, rosdistro = masterlink.ros_version_params(self.plan.environ)
@@ -450,19 +456,27 @@ class Run:
         await self.params.set("/run_id", self.run_id)
 
     async def _start_server(self) -> None:
-        """roslaunch's XML-RPC API, registered on the master as roslaunch registers it."""
+        """roslaunch's XML-RPC API (roscore's too), started first as roslaunch's, registered later."""
         from launcher.operate.server import LaunchServer
         server = LaunchServer(self, self.plan.environ)
         try:
             await server.start()
-            await self.params.set(server.param_key, server.uri)
-        except (OSError, LaunchError) as e:  # the launch runs on, without its operator's side
+        except OSError as e:  # the launch runs on, without its operator's side
             console.printerrlog("could not start the roslaunch server: %s" % e)
             await server.stop()
             return
         server.set_packages({})
         self.server = server
         console.printlog_bold("started roslaunch server %s" % server.uri)
+
+    async def _register_server(self) -> None:
+        """`/roslaunch/uris/host_<host>__<port>` on the master, as roslaunch sets it once /run_id is."""
+        if self.server is None:
+            return
+        try:
+            await self.params.set(self.server.param_key, self.server.uri)
+        except LaunchError as e:  # not findable through the master; --uri still reaches it
+            console.printerrlog("could not register the roslaunch server on the master: %s" % e)
 
     async def _start_diagnostics(self) -> None:
         try:
@@ -582,7 +596,7 @@ class Run:
                                    master_uri=self.master_uri, host=advertised_host(self.plan.environ),
                                    environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
                                    sigterm_timeout=self.opts.sigterm_timeout)
-        await self.remote.start()
+        await self.remote.start(self.server.uri if self.server is not None else "")
 
     # ---- running ---------------------------------------------------------------------------------------
 

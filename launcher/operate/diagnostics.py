@@ -1,8 +1,8 @@
 """`/diagnostics`: every node's state as a diagnostic_msgs/DiagnosticArray, once a second (`--no-diagnostics`: off).
 
 One DiagnosticStatus per node, named after the node: OK while it runs,
-WARN while it respawns or is stopped, ERROR when it is fatal, hung, or
-exited with a failure. rqt_robot_monitor and `rostopic echo /diagnostics`
+WARN while it is over a limit (memory_limit, cpu_limit), respawns or is
+stopped, ERROR when it is fatal, hung, or exited with a failure. rqt_robot_monitor and `rostopic echo /diagnostics`
 show the fleet. The message definition and md5sum are rosbags' (kept as
 constants, checked against rosbags by the tests); the message is serialized
 here, which for 500 nodes is a fraction of what building rosbags' message
@@ -32,6 +32,8 @@ def level_of(status: Any) -> tuple[int, str]:
     """(level, message) of one node's state."""
     s = status.state
     if s == state.RUNNING:
+        if status.over_limit:
+            return WARN, "running, over " + state.over_limit_text(status.over_limit, status.cpu, status.rss)
         return OK, "running"
     if s == state.RESPAWNING:
         return WARN, "respawning"
@@ -66,6 +68,8 @@ def _values(status: Any, now: float) -> list[tuple[str, str]]:
         values.append(("cpu", "%.3f" % status.cpu))
     if status.rss is not None:
         values.append(("rss", str(status.rss)))
+    for limit, maximum in sorted(status.over_limit.items()):
+        values.append((limit, str(maximum)))  # (bytes or cores, as the launch file gave them)
     if status.reason:
         values.append(("reason", status.reason))
     return values

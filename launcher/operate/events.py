@@ -1,7 +1,8 @@
 """`launcher events [-f] [--json]`: the run's node state changes, from its launcher-events.jsonl.
 
-One line per change: time, node, state, pid, exit, restarts, reason; `--json`
-prints the file's own JSON lines. `-f` follows new events until Ctrl-C.
+One line per change: time, node (and its host, when not this machine), state,
+pid, exit, restarts, limits it is over, reason; `--json` prints the file's own
+JSON lines. `-f` follows new events until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import time
 
 from launcher.operate import client
 from launcher.operate.logs import follow, tail
+from launcher.process.state import LOCAL_HOST
 
 
 def parser() -> argparse.ArgumentParser:
@@ -26,7 +28,10 @@ def parser() -> argparse.ArgumentParser:
 
 def describe(event: dict) -> str:
     when = time.strftime("%H:%M:%S", time.localtime(event.get("time", 0))) + ".%03d" % (event.get("time", 0) % 1 * 1000)
-    parts = [when, event.get("node", "?"), event.get("state", "?")]
+    parts = [when, event.get("node", "?")]
+    if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
+        parts.append("on %s" % event["host"])
+    parts.append(event.get("state", "?"))
     if event.get("pid"):
         parts.append("pid %s" % event["pid"])
     if event.get("exit_signal") is not None:
@@ -34,6 +39,8 @@ def describe(event: dict) -> str:
     elif event.get("exit_code") is not None:
         parts.append("exit code %s" % event["exit_code"])
     parts.append("restarts %s" % event.get("restarts", 0))
+    if event.get("over_limit"):
+        parts.append("over %s" % ", ".join(sorted(event["over_limit"])))
     if event.get("reason"):
         parts.append("(%s)" % event["reason"])
     return " ".join(parts)

@@ -3,7 +3,9 @@
 Read calls answer as Debian's roslaunch does (checked side by side):
 `list_processes`, `process_info`, `get_pid`, `get_node_names`. The URI is
 registered on the master as `/roslaunch/uris/host_<host>__<port>`, which is
-how `roslaunch.netapi` and `launcher` find running launches.
+how `roslaunch.netapi` and `launcher` find running launches. `launch --core`
+serves it too, as roscore (a roslaunch run) does: its processes are the
+master and rosout-1.
 
 Added calls: `launcher_status` (the run and every node's state as one JSON
 text: a 500-node status must cost the launcher little), and
@@ -16,10 +18,12 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import sys
 import time
 from typing import Any
 
-from launcher.net.slave import bind_address, default_host
+from launcher.master import advertised_host
+from launcher.net.slave import bind_address
 from launcher.net.xmlrpc import Fault, encode_value
 from launcher.operate import patterns, token as run_token
 
@@ -38,7 +42,7 @@ class LaunchServer:
 
     def __init__(self, run: Any, environ: dict[str, str]):
         self.run = run
-        self.host = default_host(environ)
+        self.host = advertised_host(environ)  # (rosgraph's choice for roslaunch's server, as for the master)
         self.uri = ""
         self.param_key = ""
         self.token = ""
@@ -77,6 +81,9 @@ class LaunchServer:
 
     def _dispatch(self, method: str, params: list) -> Any:
         handler = self._API.get(method)
+        remote = self.run.remote
+        if handler is None and remote is not None and method in remote.PARENT_CALLS:
+            return remote.parent_call(method, params)  # a child on another machine calling its parent
         if handler is None:
             # the words of roslaunch's server (Python's SimpleXMLRPCServer)
             raise Fault(1, "<class 'Exception'>:method \"%s\" is not supported" % method)
@@ -101,13 +108,30 @@ class LaunchServer:
         return out
 
     def _core(self) -> list[list]:
-        """roslaunch lists the master it started and its rosout as processes."""
+        """roslaunch (and roscore) lists the master it started and its rosout as processes; a launch that
+        found a master running lists neither (it started neither)."""
         core = []
-        if self.run.master is not None and not self.run.core:
+        if self.run.master is not None:
             core.append(["master", 1])
         if self.run.rosout is not None:
             core.append(["rosout-1", 1])
         return core
+
+    def _core_info(self, process_name: str) -> dict[str, Any]:
+        """process_info of the master or rosout, with the fields Debian's roslaunch gives its rosout-1.
+
+        Both run inside the launcher, so the honest pid and command line are the launcher's own: that
+        process answers at the master URI and publishes /rosout_agg, and a tool watching the pid sees
+        them alive exactly as long as they are. Neither is ever restarted apart from the launch
+        (respawn False, where roscore's rosout has respawn="true"); the package, `required` and
+        `log_output` are what roslaunch reports. (Debian's roslaunch answers process_info("master")
+        with a fault: it hands os.environ, not a dict, to the XML-RPC marshaller.)
+        """
+        master = process_name == "master"
+        return {"spawn_count": 1, "args": list(getattr(sys, "orig_argv", sys.argv)), "env": dict(os.environ),
+                "package": "rosmaster" if master else "rosout", "name": process_name, "alive": True,
+                "respawn": False, "respawn_delay": 0.0, "required": master, "pid": os.getpid(),
+                "run_id": self.run.run_id, "log_output": not master}
 
     @staticmethod
     def _active(p: Any) -> bool:
@@ -123,6 +147,8 @@ class LaunchServer:
         return [1, "processes on parent machine", [actives, deads]]
 
     def process_info(self, process_name: str) -> list:
+        if any(name == process_name for name, _ in self._core()):
+            return [1, "process info", self._core_info(process_name)]
         for p in self._records():
             if p.name == process_name and self._active(p):
                 spec = p.spec

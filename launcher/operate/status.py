@@ -1,8 +1,10 @@
 """`launcher status [--json] [--watch]`: every node of a running launch, one line each.
 
 Columns: node, state, pid, uptime, restarts, last exit (code or signal),
-CPU (cores), RSS, host. `--json` prints the run and its nodes as one JSON
-object (fields as in launcher-events.jsonl); `--watch` redraws every second.
+CPU (cores), RSS, host, and while a node is over one of its limits, which
+(memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
+its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
+redraws every second.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import time
 from typing import Any
 
 from launcher.operate import client
+from launcher.process.state import over_limit_text
 
 
 def parser() -> argparse.ArgumentParser:
@@ -59,16 +62,22 @@ def last_exit(node: dict[str, Any]) -> str:
 
 
 def table(info: dict[str, Any]) -> str:
+    title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
+    if not info["nodes"]:
+        return title + "\nno nodes"  # (`launch --core`, or a launch of no node)
     rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
     for n in info["nodes"]:
         rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
                      duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
                      "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]), size(n.get("rss")),
                      n.get("host", "")))
+    if any(n.get("over_limit") for n in info["nodes"]):  # (a column only while some node is over a limit)
+        rows = [rows[0] + ("OVER LIMIT",)] + [
+            row + (over_limit_text(n["over_limit"], n.get("cpu"), n.get("rss")) if n.get("over_limit") else "-",)
+            for row, n in zip(rows[1:], info["nodes"])]
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return "launch %s (pid %s, run_id %s)\n%s" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"),
-                                                  "\n".join(lines))
+    return title + "\n" + "\n".join(lines)
 
 
 def _main(argv: list[str]) -> int:

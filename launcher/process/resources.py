@@ -12,9 +12,11 @@ Read directly rather than through psutil: psutil builds a Process object and
 opens stat and statm per process; one pread of a held file per process is
 several times cheaper (benchmarks/monitor.py --readers: 500 idle nodes).
 
-Limits (`memory_limit` bytes, `cpu_limit` cores, per node): `on_limit="warn"`
-reports once per crossing (again only after the node went back under);
-`"restart"` has the supervisor kill the run and start it again.
+Limits (`memory_limit` bytes, `cpu_limit` cores, per node): with
+`on_limit="warn"` each crossing and each return under the limit is handed to
+the supervisor, which records it in the node's state (`NodeStatus.over_limit`:
+an event, a WARN on /diagnostics, a column of `launcher status`) and says it on
+the console; `"restart"` has the supervisor kill the run and start it again.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import errno
 import os
 from typing import Any
 
-from launcher.process import console
+from launcher.process.state import size_text as _size
 
 DEFAULT_PERIOD_S = 1.0
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -158,7 +160,6 @@ class ResourceMonitor:
         self.period = period
         self.loop = asyncio.get_running_loop()
         self._last: dict[int, tuple[float, int]] = {}  # pgid -> (loop time, CPU ticks) of its previous sample
-        self._over: set[tuple[int, str]] = set()  # (pgid, "memory"|"cpu") limits crossed and reported
         self.reader = GroupReader()
 
     async def run(self) -> None:
@@ -188,31 +189,23 @@ class ResourceMonitor:
             self.supervisor.fleet.sample(proc.spec.node_name, cpu, rss)
             self._check_limits(proc, cpu, rss)
         self._last = last
-        self._over = {k for k in self._over if k[0] in last}
 
     def _check_limits(self, proc: Any, cpu: float, rss: int) -> None:
         policy = proc.spec.policy
         if policy.memory_limit is not None:
-            self._limit(proc, "memory", rss > policy.memory_limit,
-                        "uses %s of memory, over its limit of %s" % (_size(rss), _size(policy.memory_limit)))
+            over = rss > policy.memory_limit
+            self._limit(proc, "memory_limit", policy.memory_limit, over, "uses %s of memory, %s its limit of %s"
+                        % (_size(rss), "over" if over else "under", _size(policy.memory_limit)))
         if policy.cpu_limit is not None:
-            self._limit(proc, "cpu", cpu > policy.cpu_limit,
-                        "uses %.2f CPU cores, over its limit of %g" % (cpu, policy.cpu_limit))
+            over = cpu > policy.cpu_limit
+            self._limit(proc, "cpu_limit", policy.cpu_limit, over, "uses %.2f CPU cores, %s its limit of %g"
+                        % (cpu, "over" if over else "under", policy.cpu_limit))
 
-    def _limit(self, proc: Any, kind: str, over: bool, what: str) -> None:
-        key = (proc.pgid, kind)
-        if not over:
-            self._over.discard(key)
-            return
-        if proc.spec.policy.on_limit == "restart":
+    def _limit(self, proc: Any, limit: str, maximum: float, over: bool, what: str) -> None:
+        if over and proc.spec.policy.on_limit == "restart":
             self.supervisor.restart(proc, what)
-        elif key not in self._over:
-            self._over.add(key)
-            console.printerrlog("[%s] WARNING: %s" % (proc.name, what))
-
-
-def _size(n: int) -> str:
-    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
-        if n >= scale:
-            return "%.1f %s" % (n / scale, unit)
-    return "%d B" % n
+            return
+        # whether the run is already known to be over it: the node's state says (a new run starts under)
+        status = self.supervisor.fleet.nodes.get(proc.spec.node_name)
+        if status is not None and over != (limit in status.over_limit):
+            self.supervisor.limit_crossed(proc, limit, maximum if over else None, what)

@@ -504,6 +504,23 @@ class Supervisor:
         # machine down with it
         _signal_group(proc.pgid, signal.SIGKILL)
 
+    def limit_crossed(self, proc: NodeProcess, limit: str, maximum: float | None, what: str) -> None:
+        """The node's run went over `limit` ("memory_limit", "cpu_limit"; `maximum` its value) or, with
+        `maximum` None, back under it (on_limit="warn"): said on the console and recorded in its state."""
+        status = self.fleet.nodes.get(proc.spec.node_name)
+        if status is None or status.state != state.RUNNING or not proc.alive:
+            return  # (hung, or being stopped: that state says more)
+        over = dict(status.over_limit)
+        if maximum is not None:
+            over[limit] = maximum
+            console.printerrlog("[%s] WARNING: %s" % (proc.name, what))
+            reason = "over %s: %s" % (limit, what)
+        else:
+            over.pop(limit, None)
+            console.printlog("[%s] back under its %s: %s" % (proc.name, limit, what))
+            reason = "back under %s: %s" % (limit, what)
+        self.fleet.change(proc.spec.node_name, state.RUNNING, pid=proc.pid, over_limit=over, reason=reason)
+
     def _restarted(self, proc: NodeProcess) -> None:
         code, sig = _exit_code_and_signal(proc.exit_code)
         self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=code, exit_signal=sig,

@@ -9,6 +9,10 @@ business: it has set them on the master already). While it runs, the child
 reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`,
 and runs respawns itself. At the end the parent calls `shutdown()`, then
 closes the ssh session (whose pty hangup stops a child that did not answer).
+PARENT_URI is the launch's own roslaunch server (`launcher.operate.server`,
+which hands these calls here), as roslaunch has one: a Debian child registers
+PARENT_URI on the master as the launch's, and a second server would be listed
+as a second launch.
 
 A machine whose session ends while the launch runs (the link was cut, the host
 rebooted) is tried again with a growing delay; when it answers, its nodes are
@@ -125,17 +129,23 @@ class RemoteParent:
             machine = machines[mname]
             child = RemoteChild("%s-%d" % (machine.address, counter), machine, nodes)
             self.children[child.name] = child
-        self.server = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
+        self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
         self.uri = ""
         self.stopping = False
 
     # ---- running ------------------------------------------------------------------------------------
 
-    async def start(self) -> None:
-        """Start the server and every child's session (the sessions go on on their own tasks)."""
-        await self.server.start()
-        self.uri = "http://%s:%d/" % (self.host, self.server.port)
-        console.printlog_bold("started roslaunch server %s" % self.uri)
+    async def start(self, uri: str = "") -> None:
+        """Start every child's session (the sessions go on on their own tasks), and the server, unless `uri`
+        is the launch's own server, which hands PARENT_CALLS to `parent_call`: roslaunch has one server, and
+        a Debian child registers the URI it is given on the master as the launch's."""
+        if uri:
+            self.server = None
+            self.uri = uri
+        else:
+            await self.server.start()
+            self.uri = "http://%s:%d/" % (self.host, self.server.port)
+            console.printlog_bold("started roslaunch server %s" % self.uri)
         for child in self.children.values():
             child.task = asyncio.ensure_future(self._keep(child))
 
@@ -326,6 +336,11 @@ class RemoteParent:
 
     # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
 
+    PARENT_CALLS = ("register", "list_children", "process_died", "log")  # what only the children call
+
+    def parent_call(self, method: str, params: list) -> Any:
+        return self._dispatch(method, params)
+
     def _dispatch(self, method: str, params: list) -> Any:
         fn = self._API.get(method)
         if fn is None:
@@ -416,4 +431,5 @@ class RemoteParent:
                     await child.task
                 except BaseException:  # noqa: BLE001 - cancelled on purpose
                     pass
-        await self.server.stop()
+        if self.server is not None:
+            await self.server.stop()

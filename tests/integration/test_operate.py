@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -39,12 +40,24 @@ while not rospy.is_shutdown():
     rospy.sleep(0.2)
 """ % ROS_PYTHON
 IgnoreIntTerm = "#!/bin/sh\ntrap '' INT TERM\nexec sleep 1000\n"
+# holds 64 MiB until the file release exists in $READY_DIR, then frees it
+Holder = """#!/usr/bin/env python3
+import os, time
+block = bytearray(64 << 20)
+for i in range(0, len(block), 4096):
+    block[i] = 1
+while not os.path.exists(os.path.join(os.environ["READY_DIR"], "release")):
+    time.sleep(0.05)
+del block
+time.sleep(1000)
+"""
 
 
 @pytest.fixture
 def pkgs(tmp_path, ros_env):
     pkg = make_package(str(tmp_path / "pkgs"), "op_tests",
-                       {"spinner": Spinner, "ticker": Ticker, "ignore_int_term": IgnoreIntTerm})
+                       {"spinner": Spinner, "ticker": Ticker, "ignore_int_term": IgnoreIntTerm,
+                        "holder": Holder})
     compile_roscpp("param_node.cpp", os.path.join(pkg, "param_cpp"))
     return str(tmp_path / "pkgs")
 
@@ -279,15 +292,95 @@ def test_diagnostics_read_by_rostopic_echo(tmp_path, pkgs):
         lp.close()
 
 
-def _api_answers(uri: str) -> dict:
+def _diagnostics(env: dict) -> str:
+    echo = subprocess.run(["rostopic", "echo", "-n", "1", "/diagnostics"], env=dict(env, PATH=ROS_PATH),
+                          capture_output=True, text=True, timeout=60)
+    assert echo.returncode == 0, echo.stderr
+    return echo.stdout
+
+
+def test_over_a_limit_shows_in_status_events_and_diagnostics(tmp_path, pkgs):
+    """memory_limit (on_limit="warn"): while over it, /diagnostics (read by Debian's rostopic) says WARN naming the
+    limit and the value, `launcher status` shows it (text and JSON), and the events file has a line for the
+    crossing and one for the return under it, each with the node's host."""
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="op_tests" type="holder" name="holder" memory_limit="32MiB"/>
+      <node pkg="op_tests" type="spinner" name="a"/>
+    """, "--monitor-period", "0.2")
+    try:
+        st = poll(lambda: (lambda s: s if s.get("/holder", {}).get("over_limit") else None)(status(env, True)), 60,
+                  0.2, what="holder over its memory_limit")
+        assert st["/holder"]["over_limit"] == {"memory_limit": 32 << 20} and st["/a"]["over_limit"] == {}
+        assert st["/holder"]["state"] == "running" and st["/holder"]["restarts"] == 0
+        table = tool(env, "status").stdout.splitlines()
+        assert table[1].split()[-2:] == ["OVER", "LIMIT"]
+        row = [line for line in table if line.startswith("/holder ")][0]
+        assert re.search(r"memory_limit 32\.0 MB \(uses \d+\.\d MB\)$", row), table
+        assert [line for line in table if line.startswith("/a ")][0].endswith(" -")
+        out = _diagnostics(env)
+        assert re.search(r'level: 1\s+name: "/holder"\s+message: "running, over memory_limit 32\.0 MB '
+                         r'\(uses \d+\.\d MB\)"', out), out
+        assert re.search(r'key: "memory_limit"\s+value: "33554432"', out), out
+        (tmp_path / "ready" / "release").touch()
+        poll(lambda: status(env)["/holder"]["over_limit"] == {}, 60, 0.2, what="holder back under its limit")
+        assert "OVER LIMIT" not in tool(env, "status").stdout
+        out = _diagnostics(env)
+        assert re.search(r'level: 0\s+name: "/holder"\s+message: "running"', out), out
+        events = [json.loads(line) for line in tool(env, "events", "--json").stdout.splitlines()]
+        limit = [(e["node"], e["host"], e["state"], e["over_limit"], e["reason"].split(":")[0])
+                 for e in events if "memory_limit" in e["reason"]]
+        assert limit == [("/holder", "localhost", "running", {"memory_limit": 32 << 20}, "over memory_limit"),
+                         ("/holder", "localhost", "running", {}, "back under memory_limit")]
+        text = tool(env, "events").stdout
+        assert re.search(r"/holder running pid \d+ restarts 0 over memory_limit \(over memory_limit: uses ", text), text
+        assert " on localhost" not in text  # a local node's host goes without saying
+    finally:
+        lp.close()
+
+
+def _api_answers(uri: str, node: str | None = "a-2") -> dict:
     api = xmlrpc.client.ServerProxy(uri)
-    info = api.process_info("a-2")
-    info[2].pop("env", None)
-    info[2].pop("pid", None)
-    info[2].pop("run_id", None)
-    info[2]["args"] = [a for a in info[2]["args"] if not a.startswith("__log:=")]
-    return {"list_processes": api.list_processes(), "get_node_names": api.get_node_names(),
-            "process_info": info, "unknown": api.process_info("nosuch"), "pid": api.get_pid()[0]}
+    answers = {"list_processes": api.list_processes(), "get_node_names": api.get_node_names(),
+               "unknown": api.process_info("nosuch"), "pid": api.get_pid()[0]}
+    if node:
+        info = api.process_info(node)
+        info[2].pop("env", None)
+        info[2].pop("pid", None)
+        info[2].pop("run_id", None)
+        info[2]["args"] = [a for a in info[2]["args"] if not a.startswith("__log:=")]
+        answers["process_info"] = info
+    for core in ("master", "rosout-1"):
+        try:
+            answers[core] = api.process_info(core)
+        except xmlrpc.client.Fault as e:
+            answers[core] = "fault %d %s" % (e.faultCode, e.faultString)
+    return answers
+
+
+def _core_answers_agree(ours: dict, theirs: dict, argv: list[str], started_master: bool) -> None:
+    """process_info of the master and rosout-1 (taken out of both answers): as Debian's roslaunch, but for the
+    in-process pid and command line (the launcher's own), respawn (never apart from the launch) and Debian's
+    fault for the master (it marshals os.environ, an object: see LaunchServer._core_info)."""
+    pid = ours.pop("launcher_pid", None)
+    theirs.pop("launcher_pid", None)
+    ours = {core: ours.pop(core) for core in ("master", "rosout-1")}
+    theirs = {core: theirs.pop(core) for core in ("master", "rosout-1")}
+    if not started_master:
+        assert ours["master"] == theirs["master"] == ours["rosout-1"] == theirs["rosout-1"] == \
+            [-1, "no process by that name", {}]
+        return
+    assert theirs["master"] == "fault 1 <class 'TypeError'>:dictionary key must be string"
+    code, msg, rosout = theirs["rosout-1"]
+    assert (code, msg, rosout["respawn"], rosout["pid"] != pid) == (1, "process info", True, True)
+    for name, expected in (("rosout-1", dict(rosout, respawn=False)),
+                           ("master", dict(rosout, name="master", package="rosmaster", required=True, respawn=False,
+                                           log_output=False))):
+        code, msg, info = ours[name]
+        assert (code, msg, info["pid"], bool(info["run_id"])) == (1, "process info", pid, True)
+        assert info["args"] == argv
+        for key in ("pid", "args", "env", "run_id"):
+            info.pop(key), expected.pop(key)
+        assert info == expected
 
 
 def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
@@ -323,13 +416,82 @@ def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
             poll(lambda: api.process_info("g/b-3")[2].get("spawn_count") == 2 and api.list_processes()[2][1], 30,
                  0.2, what="%s saw the deaths" % which)
             answers[which] = _api_answers(uri)
+            answers[which]["launcher_pid"] = api.get_pid()[2]
         finally:
             if which == "roslaunch":
                 os.killpg(proc.pid, signal.SIGINT)
                 proc.wait(30)
             else:
                 lp.close()
-    assert answers["ours"] == answers["roslaunch"]
+    ours, theirs = answers["ours"], answers["roslaunch"]
+    _core_answers_agree(ours, theirs, lp.proc.args, started_master=True)
+    assert ours == theirs
+
+
+def _registered_api(port: int) -> str:
+    """The URI of the one launch registered on the master, its key checked as roslaunch's."""
+    uris = poll(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(
+        port, "/roslaunch")), 60, 0.2, what="a launch registered on the master")["uris"]
+    (key, uri), = uris.items()
+    assert key == "host_127_0_0_1__%s" % uri.rsplit(":", 1)[1].strip("/")
+    return uri
+
+
+def test_core_serves_roslaunch_api_as_debian_roscore(tmp_path, pkgs):
+    """`launch --core` registers and serves roslaunch's API as roscore does; a launch on a running master lists
+    neither the master nor rosout, as roslaunch's; `launcher status` finds a bare core and says it has no nodes."""
+    launch = write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="a"/>')
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    answers = {}
+    for which in ("roscore", "ours"):
+        port = free_port()
+        env = ros_env(str(tmp_path / which), port, pkgs)
+        env["READY_DIR"] = str(tmp_path / "ready")
+        if which == "roscore":
+            core = subprocess.Popen(["roscore", "-p", str(port)], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL, start_new_session=True)
+        else:
+            core = Launcher(["--core", "-p", str(port)], env, str(tmp_path))
+        try:
+            uri = _registered_api(port)
+            api = xmlrpc.client.ServerProxy(uri)
+            poll(lambda: api.get_node_names()[2] == ["master", "rosout-1"], 30, 0.2, what="%s's core processes" % which)
+            answers[which] = _api_answers(uri, node=None)
+            answers[which]["launcher_pid"] = api.get_pid()[2]
+            if which == "ours":
+                st = tool(env, "status")
+                assert st.returncode == 0 and st.stdout.splitlines()[1:] == ["no nodes"], st.stdout + st.stderr
+                assert json.loads(tool(env, "status", "--json").stdout)["nodes"] == []
+            # a launch on the running master: its own API lists neither the master nor rosout
+            xmlrpc.client.ServerProxy("http://127.0.0.1:%d/" % port).deleteParam("/test", "/roslaunch")
+            if which == "roscore":
+                proc = subprocess.Popen(["roslaunch", launch], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.DEVNULL, start_new_session=True)
+            else:
+                lp = Launcher([launch], env, str(tmp_path))
+            try:
+                uri = _registered_api(port)
+                poll(lambda: xmlrpc.client.ServerProxy(uri).get_node_names()[2] == ["a-1"], 60, 0.2,
+                     what="%s's launch running" % which)
+                answers[which + " launch"] = _api_answers(uri, node="a-1")
+            finally:
+                if which == "roscore":
+                    os.killpg(proc.pid, signal.SIGINT)
+                    proc.wait(30)
+                else:
+                    lp.close()
+        finally:
+            if which == "roscore":
+                os.killpg(core.pid, signal.SIGINT)
+                core.wait(30)
+            else:
+                core.close()
+    ours, theirs = answers["ours"], answers["roscore"]
+    _core_answers_agree(ours, theirs, core.proc.args, started_master=True)
+    assert ours == theirs
+    ours, theirs = answers["ours launch"], answers["roscore launch"]
+    _core_answers_agree(ours, theirs, [], started_master=False)
+    assert ours == theirs
 
 
 CLIENT = """

@@ -7,11 +7,13 @@ namespace its process lives in.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
 import subprocess
 import sys
+import xmlrpc.client
 
 import pytest
 
@@ -131,6 +133,20 @@ def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
     # the remote listener hears the remote talker: its subscription is connected
     r = subprocess.run(["rosnode", "info", "/listener"], env=env, capture_output=True, text=True, timeout=60)
     assert re.search(r"topic: /chatter\s+\* to: /talker", r.stdout), r.stdout
+    # one roslaunch server, as roslaunch's: a Debian child registers the URI of its parent as the launch's
+    uris = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).getParam("/test", "/roslaunch/uris")[2]
+    assert len(uris) == 1, uris
+    # the events carry each node's host; `launcher events` names the host of a node on another machine
+    def events(*args: str) -> str:
+        r = subprocess.run([sys.executable, "-m", "launcher.tool", "events"] + list(args), env=env,
+                           capture_output=True, text=True, timeout=30)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+    text = poll(lambda: (lambda out: out if "/talker on %s running" % h1.address in out else None)(events()), 30,
+                0.5, what="the remote talker's events")
+    assert re.search(r" /local_echo running pid \d+", text), text
+    hosts_of = {e["node"]: e["host"] for e in map(json.loads, events("--json").splitlines())}
+    assert hosts_of == {"/talker": h1.address, "/listener": h2.address, "/local_echo": "localhost"}
 
 
 @pytest.mark.parametrize("child", ["debian", "ours"])

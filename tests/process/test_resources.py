@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 
 from launcher.config import NodePolicy
-from launcher.process import state
+from launcher.process import console, state
 from launcher.process.resources import ResourceMonitor, read_groups
 from launcher.process.supervisor import Supervisor
 
@@ -116,3 +117,56 @@ def test_memory_limit_warns_again_after_going_back_under(tmp_path, capsys):
         return "".join(seen).count("[cycler-1] WARNING: uses ") >= 2 and status.rss < 40 * MB
     run(tmp_path, [python_node(tmp_path, "cycler", CYCLER, policy=policy)], two_crossings, timeout=30)
     assert "".join(seen).count("[cycler-1] WARNING: uses ") == 2
+
+
+# holds 80 MB in a child of its group until the file named by its argument exists, then frees it
+HOLDER = ("import os, sys, time\n"
+          "if os.fork() == 0:\n"
+          "    block = bytearray(80 << 20)\n"
+          "    for i in range(0, len(block), 4096): block[i] = 1\n"
+          "    while not os.path.exists(sys.argv[1]): time.sleep(0.05)\n"
+          "    os._exit(0)\n"
+          "time.sleep(100)")
+
+
+def test_over_a_limit_is_in_the_state_model_set_and_cleared(tmp_path, capsys):
+    """memory_limit with on_limit="warn": the running node's state says it is over (an event naming the limit),
+    back under once it frees the memory (another event), and a new run starts under."""
+    release = tmp_path / "release"
+    spec = python_node(tmp_path, "holder", HOLDER, policy=NodePolicy(memory_limit=40 * MB), respawn=True)
+    spec.command.argv.append(str(release))
+    events_path = tmp_path / "events.jsonl"
+
+    async def main():
+        sup = Supervisor(sigint_timeout=2.0, sigterm_timeout=1.0, fleet=state.Fleet(str(events_path)))
+        task = asyncio.ensure_future(ResourceMonitor(sup, 0.1).run())
+        try:
+            proc = sup.start(spec)
+            status = sup.fleet.nodes["/holder"]
+            await until(lambda: status.over_limit, 30, what="over memory_limit")
+            assert status.state == state.RUNNING and status.over_limit == {"memory_limit": 40 * MB}
+            assert status.restarts == 0 and status.pid == proc.pid  # the same run, not a restart
+            os.killpg(proc.pgid, 9)  # a new run starts under its limits
+            await until(lambda: status.restarts == 1 and status.state == state.RUNNING, 30, what="respawned")
+            await until(lambda: status.over_limit, 30, what="the new run over memory_limit")
+            release.touch()
+            await until(lambda: not status.over_limit, 30, what="back under memory_limit")
+            return status.over_limit, status.restarts
+        finally:
+            task.cancel()
+            await sup.shutdown()
+
+    assert asyncio.run(main()) == ({}, 1)
+    lines = [json.loads(line) for line in events_path.read_text().splitlines()]
+    assert all(e["host"] == "localhost" for e in lines)
+    # run 1 over, its death and run 2's start under, run 2 over, then back under
+    seen = [(e["state"], e["restarts"], e["over_limit"], e["reason"].split(":")[0]) for e in lines]
+    over = {"memory_limit": 40 * MB}
+    assert seen[:6] == [("running", 0, {}, ""), ("running", 0, over, "over memory_limit"),
+                        ("respawning", 0, {}, ""), ("running", 1, {}, ""), ("running", 1, over, "over memory_limit"),
+                        ("running", 1, {}, "back under memory_limit")], seen
+    assert " of memory, over its limit of 40.0 MB" in lines[1]["reason"]
+    console.flush()
+    said = capsys.readouterr()
+    assert said.err.count("[holder-1] WARNING: uses ") == 2
+    assert "[holder-1] back under its memory_limit: uses " in said.out
