@@ -245,10 +245,7 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     number = first_number
     for node in config.nodes:
         if plan.remote(node):
-            if getattr(opts, "local", False):
-                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)"
-                                    % node.full_name)
-            continue  # (else its machine's child runs it: launcher.remote)
+            continue  # its machine's child runs it (launcher.remote), or --local leaves it out
         number += 1
         name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
         log_name = name.replace("/", "-")
@@ -339,7 +336,8 @@ class Run:
             self.log.open(self.run_id)
             await self._start_remote()  # the other machines' children start while this one sets up
         if not self.opts.no_summary:
-            console.printlog(summary(self.plan.config, self._summary_params()))
+            console.printlog(summary(self.plan.config, self._summary_params(), remote=self.plan.remote,
+                                     machines=self.remote is not None))
         if not self.external:
             console.printlog("auto-starting new master")
             if self.master is None:
@@ -574,6 +572,8 @@ class Run:
     async def _start_remote(self) -> None:
         """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
         if getattr(self.opts, "local", False):
+            # roslaunch's words (ROSLaunchParent._init_remote), whether or not a node is remote
+            console.printlog_bold("LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n")
             return
         by_machine = self.plan.remote_nodes()
         if not by_machine:
