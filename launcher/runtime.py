@@ -36,7 +36,7 @@ from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
 from launcher.remote import ssh
-from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes
+from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes, policy_warnings
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
@@ -185,6 +185,10 @@ class Plan:
                 ssh.check_machine(machine)
             if machines:
                 check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
+            for node in self.config.nodes:
+                if self.remote(node):
+                    for warning in policy_warnings(node, self.config.machines[node.machine_name]):
+                        console.printerrlog("WARNING: %s" % warning)
 
     def remote_nodes(self) -> dict[str, list[Any]]:
         """The nodes to launch on other machines, by machine name."""
