@@ -416,11 +416,21 @@ class RemoteParent:
                     self._run_ended(rn, None, None, started=False)
             self._check_child_ending(child)
 
-    async def _end_ssh(self, child: RemoteChild) -> None:
-        """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child."""
+    async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
+        """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
+
+        `orderly`: the child was shut down and ends by itself; the session is let end with it
+        (ssh.ORDERLY_END), which is sooner than a hangup's stop of the remote side."""
         proc = child.ssh
         if proc is None or proc.returncode is not None:
             return
+        if orderly and proc.stdin is not None:
+            try:
+                proc.stdin.write(ssh.ORDERLY_END)
+                await asyncio.wait_for(proc.wait(), SSH_EXIT_GRACE_S)
+                return
+            except (OSError, RuntimeError, asyncio.TimeoutError):
+                pass  # then as any other end
         for sig, wait in ((signal.SIGTERM, SSH_EXIT_GRACE_S), (signal.SIGKILL, None)):
             try:
                 os.killpg(proc.pid, sig)
@@ -619,13 +629,16 @@ class RemoteParent:
             console.printlog("[%s] killing on exit" % child.name)
 
         async def stop(child: RemoteChild) -> None:
+            orderly = False
             if child.uri is not None:
                 try:
-                    await call(child.uri, "shutdown", timeout=self.sigint_timeout + self.sigterm_timeout + 5)
+                    code, _msg, _val = await call(child.uri, "shutdown",
+                                                  timeout=self.sigint_timeout + self.sigterm_timeout + 5)
+                    orderly = code == 1
                 except Exception:  # noqa: BLE001 - the hangup below stops it anyway
                     console.printerrlog("remote[%s]: unable to contact [%s] to shutdown remote processes!"
                                         % (child.name, child.machine.address))
-            await self._end_ssh(child)
+            await self._end_ssh(child, orderly)
 
         await asyncio.gather(*(stop(c) for c in live))
         for child in self.children.values():
