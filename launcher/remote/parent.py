@@ -414,7 +414,6 @@ class RemoteParent:
                 if rn is not None:
                     rn.on_child = False
                     self._run_ended(rn, None, None, started=False)
-            self._check_child_ending(child)
 
     async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
         """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
@@ -474,8 +473,10 @@ class RemoteParent:
         return bool(lost)
 
     def _check_child_ending(self, child: RemoteChild) -> None:
-        """A child whose nodes have all ended exits (roslaunch's and ours): what is to start next
-        waits for a new session rather than racing the child's exit with a `launch` call."""
+        """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
+        a new session rather than racing the child's exit with a `launch` call. (Not after starts
+        that failed: Debian's child ends only when a node died; ours, which also ends then, refuses
+        the next `launch`, which then waits for the next session.)"""
         if child.launched_ok and not any(rn.on_child for rn in child.nodes):
             child.accepting = False
 
