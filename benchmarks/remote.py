@@ -17,8 +17,8 @@ remote login shell's init: here root's ~/.bashrc runs `pyenv init`, 0.23-0.46 s 
 roslaunch pays too; our child registers ~0.07 s after it starts, Debian's ~0.23 s) + ~0.1 s to launch
 and register the nodes (Debian's child launches them one by one: ~0.11 s for 10). Stop = the
 children's `shutdown` call (~0.4 s: a roscpp node takes 0.2-0.33 s to exit after SIGINT; Debian's
-child answers after ~0.5 s) + the end of the sessions (ours ends ~20 ms after answering, Debian's
-child is ended after 0.15 s: it takes ~0.3 s to exit with nothing left to stop).
+child answers after ~0.5 s) + the end of the sessions (ours ends ~20 ms after answering; Debian's
+child, which would take ~0.3 s more to exit with nothing left to stop, is ended at once).
 """
 
 from __future__ import annotations
