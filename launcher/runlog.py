@@ -15,7 +15,7 @@ import os
 import signal
 import socket
 import time
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from launcher.process import console
 from launcher.process.logdir import make_run_log_dir
@@ -104,16 +104,26 @@ class RunLog:
         self._file = None
 
 
-def summary(config: Any, params: Mapping[str, Any]) -> str:
-    """roslaunch's SUMMARY block (ROSLaunchConfig.summary(local=True))."""
+def summary(config: Any, params: Mapping[str, Any], remote: Callable[[Any], bool] | None = None,
+            machines: bool = False) -> str:
+    """roslaunch's SUMMARY block (ROSLaunchConfig.summary).
+
+    As roslaunch: a run that starts nodes on other machines (`machines`) lists the declared
+    machines and every node; any other run (no remote nodes, or --local) lists only the nodes of
+    this machine (those `remote` does not say are assigned to another one).
+    """
     text = "\nSUMMARY\n========"
     if config.clear_params:
         text += "\n\nCLEAR PARAMETERS\n" + "\n".join(sorted(" * %s" % p for p in config.clear_params))
     if params:
         text += "\n\nPARAMETERS\n" + "\n".join(sorted(" * %s: %s" % (k, summary_value(v)) for k, v in params.items()))
+    if machines:
+        text += "\n\nMACHINES\n" + "\n".join(sorted(" * %s" % m for m in config.machines if m))
     text += "\n\nNODES\n"
     namespaces: dict[str, list[Any]] = {}
     for n in config.nodes:
+        if remote is not None and not machines and remote(n):
+            continue
         namespaces.setdefault(n.namespace, []).append(n)
     for ns in sorted(namespaces):
         text += "  %s\n" % ns + "\n".join(sorted("    %s (%s/%s)" % (n.name, n.package, n.type)

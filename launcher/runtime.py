@@ -36,7 +36,7 @@ from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
 from launcher.process import console
 from launcher.remote import ssh
-from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes
+from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes, policy_warnings
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
@@ -185,6 +185,10 @@ class Plan:
                 ssh.check_machine(machine)
             if machines:
                 check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
+            for node in self.config.nodes:
+                if self.remote(node):
+                    for warning in policy_warnings(node, self.config.machines[node.machine_name]):
+                        console.printerrlog("WARNING: %s" % warning)
 
     def remote_nodes(self) -> dict[str, list[Any]]:
         """The nodes to launch on other machines, by machine name."""
@@ -245,10 +249,7 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
     number = first_number
     for node in config.nodes:
         if plan.remote(node):
-            if getattr(opts, "local", False):
-                console.printerrlog("skipping node [%s]: it is assigned to another machine (--local)"
-                                    % node.full_name)
-            continue  # (else its machine's child runs it: launcher.remote)
+            continue  # its machine's child runs it (launcher.remote), or --local leaves it out
         number += 1
         name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
         log_name = name.replace("/", "-")
@@ -342,7 +343,8 @@ class Run:
             await self.signals.guard(self._start_server())
             await self._start_remote()  # the other machines' children start while this one sets up
         if not self.opts.no_summary:
-            console.printlog(summary(self.plan.config, self._summary_params()))
+            console.printlog(summary(self.plan.config, self._summary_params(), remote=self.plan.remote,
+                                     machines=self.remote is not None))
         if not self.external:
             console.printlog("auto-starting new master")
             if self.master is None:
@@ -588,6 +590,8 @@ class Run:
     async def _start_remote(self) -> None:
         """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
         if getattr(self.opts, "local", False):
+            # roslaunch's words (ROSLaunchParent._init_remote), whether or not a node is remote
+            console.printlog_bold("LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n")
             return
         by_machine = self.plan.remote_nodes()
         if not by_machine:

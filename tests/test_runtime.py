@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from launcher.config import LaunchConfig, Node, Param
+from launcher.config import LaunchConfig, Machine, Node, Param
 from launcher.masterlink import is_local_host as _is_local_host
 from launcher.runlog import summary, summary_value as _summary_value
 
@@ -22,6 +22,19 @@ def test_summary_matches_roslaunch_layout():
 
 def test_summary_without_params():
     assert summary(LaunchConfig(), {}) == "\nSUMMARY\n========\n\nNODES\n"
+
+
+def test_summary_of_a_run_with_other_machines_lists_them_and_every_node_else_only_this_machines():
+    far = Node("refpkg", "sleeper.sh", "far", machine_name="robot2")
+    config = LaunchConfig(nodes=(Node("refpkg", "quick.sh", "here"), far),
+                          machines={"robot2": Machine("robot2", "192.0.2.10"), "base": Machine("base", "192.0.2.11")})
+    remote = lambda n: n.machine_name == "robot2"  # noqa: E731
+    # as roslaunch's ROSLaunchConfig.summary(local=False) when it runs remote children
+    assert summary(config, {}, remote=remote, machines=True) == (
+        "\nSUMMARY\n========\n\nMACHINES\n * base\n * robot2\n\nNODES\n  /\n    far (refpkg/sleeper.sh)\n"
+        "    here (refpkg/quick.sh)\n")
+    # --local (summary(local=True)): the other machine's node is not listed
+    assert summary(config, {}, remote=remote) == "\nSUMMARY\n========\n\nNODES\n  /\n    here (refpkg/quick.sh)\n"
 
 
 def test_summary_value_shortening_as_roslaunch():

@@ -22,9 +22,10 @@ is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, 
 does (checked side by side); sending SIGINT again would not help.
 
 A node's `NodePolicy` (`spec.policy`; the default one is roslaunch's behaviour) adds to this:
-a delayed first start (`spawn_delay`), per-node stop timeouts, and the restart policy, all
-decided in `_run_ended`: `respawn_on="failure"` with `success_exit_codes`; a delay that grows
-by `respawn_backoff` with each failed start in a row (a run shorter than `respawn_min_uptime`)
+a delayed first start (`spawn_delay`), per-node stop timeouts, and the restart policy
+(`launcher.process.restart`, the same decision for the nodes of other machines), applied in
+`_run_ended`: `respawn_on="failure"` with `success_exit_codes`; a delay that grows by
+`respawn_backoff` with each failed start in a row (a run shorter than `respawn_min_uptime`)
 up to `respawn_delay_max`; and after `respawn_max_retries` restarts that failed in a row, the
 node is FATAL (kept in the fleet's status, not restarted), which ends the launch with status 1
 when `on_fatal="shutdown"`.
@@ -40,7 +41,7 @@ import time
 from collections import deque
 from typing import Callable
 
-from launcher.process import console, screen, state
+from launcher.process import console, restart, screen, state
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
@@ -53,9 +54,7 @@ STOP_CONCURRENCY = 20
 STOP_HOLD_S = 0.5
 # After SIGKILL a process is gone at once unless stuck in the kernel; don't wait forever.
 KILL_WAIT_S = 2.0
-# A node that keeps crashing at start is restarted at most this often (roslaunch's 0.1 s monitor
-# loop gives it the same pace); one that ran longer is restarted at once.
-MIN_RESPAWN_INTERVAL_S = 0.1
+MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy paces crash loops)
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
 
@@ -362,34 +361,23 @@ class Supervisor:
             else:
                 console.printlog_bold("[%s] %s" % (proc.name, desc))
         exit_code, exit_signal = _exit_code_and_signal(proc.exit_code) if started else (None, None)
-        reason = "" if started else "could not be started"
-        policy = proc.spec.policy
-        if not proc.spec.respawn:
-            self._stays_down(proc, state.EXITED, exit_code, exit_signal, reason)
+        spec = proc.spec
+        decision = restart.after_run(spec.respawn, spec.respawn_delay, spec.policy, exit_code, started,
+                                     self.loop.time() - proc.started_at, proc.failures)
+        proc.failures = decision.failures
+        if decision.action == restart.FATAL:
+            self._fatal(proc, exit_code, exit_signal, decision)
             return
-        if policy.respawn_on == "failure" and exit_code in policy.success_exit_codes:
-            why = "exit code %d counts as success (respawn_on=\"failure\")" % exit_code
-            console.printlog("[%s] not restarted: %s" % (proc.name, why))
-            self._stays_down(proc, state.EXITED, exit_code, exit_signal, why)
+        if decision.note:
+            console.printlog("[%s] %s" % (proc.name, decision.note))
+        if decision.action == restart.STAY_DOWN:
+            self._stays_down(proc, state.EXITED, exit_code, exit_signal, decision.reason)
             return
-        # a failed start too: an executable briefly missing (a package being reinstalled) comes back
-        if started and self.loop.time() - proc.started_at >= policy.respawn_min_uptime:
-            proc.failures = 0
-        else:
-            proc.failures += 1
-        retries = policy.respawn_max_retries
-        if retries is not None and proc.failures > retries:
-            self._fatal(proc, exit_code, exit_signal)
-            return
-        delay = self._respawn_delay(proc)
-        if policy.respawn_backoff != 1.0 or retries is not None:
-            console.printlog("[%s] respawning in %.3g s (%d failed start%s in a row)"
-                             % (proc.name, delay, proc.failures, "" if proc.failures == 1 else "s"))
         # recorded before the start is scheduled: a start without delay happens right away, and its
         # `running` must come after this
-        self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
-                          next_start=time.time() + delay, reason=reason, failures=proc.failures)
-        self._schedule_respawn(proc, delay)
+        self.fleet.change(spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
+                          next_start=time.time() + decision.delay, reason=decision.reason, failures=proc.failures)
+        self._schedule_respawn(proc, decision.delay)
 
     def _stays_down(self, proc: NodeProcess, new_state: str, exit_code: int | None, exit_signal: int | None,
                     reason: str) -> None:
@@ -397,34 +385,23 @@ class Supervisor:
                           reason=reason, failures=proc.failures)
         self._check_all_dead()
 
-    def _fatal(self, proc: NodeProcess, exit_code: int | None, exit_signal: int | None) -> None:
+    def _fatal(self, proc: NodeProcess, exit_code: int | None, exit_signal: int | None,
+               decision: restart.Decision) -> None:
         """The node failed more starts in a row than respawn_max_retries allows: it stays down, reported."""
-        policy = proc.spec.policy
-        why = ("failed %d starts in a row (respawn_max_retries=%d), not restarted"
-               % (proc.failures, policy.respawn_max_retries))
-        console.printerrlog("[%s] FATAL: %s" % (proc.name, why))
-        if policy.on_fatal == "shutdown":
+        console.printerrlog("[%s] %s" % (proc.name, decision.note))
+        if proc.spec.policy.on_fatal == "shutdown":
             self.fleet.change(proc.spec.node_name, state.FATAL, exit_code=exit_code, exit_signal=exit_signal,
-                              reason=why, failures=proc.failures)
-            console.printerrlog("=" * 80 + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\n"
-                                "Initiating shutdown!\n" % proc.name + "=" * 80)
-            self.exit_status = 1
-            self.done.set()
+                              reason=decision.reason, failures=proc.failures)
+            self.fatal_shutdown(proc.name)
             return
-        self._stays_down(proc, state.FATAL, exit_code, exit_signal, why)
+        self._stays_down(proc, state.FATAL, exit_code, exit_signal, decision.reason)
 
-    def _respawn_delay(self, proc: NodeProcess) -> float:
-        """How long from now until the next start: respawn_delay, multiplied by respawn_backoff for each
-        failed start in a row after the first, capped by respawn_delay_max (growing from 0 would stay 0:
-        the backoff then starts from MIN_RESPAWN_INTERVAL_S). respawn_delay counts from the death, as
-        roslaunch; a crash loop is paced, not spun."""
-        policy = proc.spec.policy
-        delay = proc.spec.respawn_delay
-        if policy.respawn_backoff != 1.0 and proc.failures > 1:
-            delay = (delay or MIN_RESPAWN_INTERVAL_S) * policy.respawn_backoff ** (proc.failures - 1)
-        if policy.respawn_delay_max is not None:
-            delay = min(delay, policy.respawn_delay_max)
-        return max(0.0, delay, proc.started_at + MIN_RESPAWN_INTERVAL_S - self.loop.time())
+    def fatal_shutdown(self, name: str) -> None:
+        """A FATAL node with on_fatal="shutdown" (here or on another machine) ends the launch with status 1."""
+        console.printerrlog("=" * 80 + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\n"
+                            "Initiating shutdown!\n" % name + "=" * 80)
+        self.exit_status = 1
+        self.done.set()
 
     def _check_group(self, proc: NodeProcess) -> bool:
         """Is anything left in the node's process group? Forget it in the guard when not."""
@@ -468,7 +445,8 @@ class Supervisor:
     def end(self, failed: bool) -> None:
         """End the launch for a reason found outside this machine (a required node elsewhere ended);
         `failed`: the launch exits with status 1."""
-        self.required_failed = self.required_failed or failed
+        if failed and not self.exit_status:
+            self.exit_status = 1
         self.done.set()
 
     def _required_gone(self, name: str, why: str) -> None:

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from typing import Iterable
-from xml.sax.saxutils import escape
 
 from launcher.config import Node
 
 
 def _attr(value: object) -> str:
-    return escape(str(value), {'"': "&quot;"})
+    """An attribute value in double quotes. (Not xml.sax.saxutils.escape: it imports urllib.request,
+    ~25 ms of every start of the parent and of our child, for four replacements.)"""
+    return (str(value).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+            .replace('"', "&quot;"))
 
 
 def node_xml(node: Node) -> str:

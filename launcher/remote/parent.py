@@ -6,13 +6,25 @@ The child (Debian's roslaunch, or our `launch -c`) starts an XML-RPC server and
 calls the parent's `register(NAME, CHILD_URI)`; the parent then calls the
 child's `launch(XML)` with that machine's nodes (parameters are the parent's
 business: it has set them on the master already). While it runs, the child
-reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`,
-and runs respawns itself. At the end the parent calls `shutdown()`, then
-closes the ssh session (whose pty hangup stops a child that did not answer).
+reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`.
+At the end the parent calls `shutdown()`, then closes the ssh session (whose
+pty hangup stops a child that did not answer).
 PARENT_URI is the launch's own roslaunch server (`launcher.operate.server`,
 which hands these calls here), as roslaunch has one: a Debian child registers
 PARENT_URI on the master as the launch's, and a second server would be listed
 as a second launch.
+
+Restarts: a node without supervision extensions is respawned by the child
+itself, as roslaunch does. A node with a `NodePolicy` is the parent's: the
+child gets it with respawn="false", and when it dies the parent applies the
+same restart policy as to a local node (`launcher.process.restart`: backoff,
+respawn_max_retries and FATAL, respawn_on="failure" ...), then starts it again
+by a second `launch` call holding just that node (both Debian's child and ours
+take more than one, and number the new process anew: talker-3). spawn_delay
+and wait_for (master-side conditions) hold the node's first `launch` call. A
+child whose last node ended exits (roslaunch's children do), so a node started
+again then gets a new session. What a child cannot be told (limits, core dumps,
+hang probes, per-node stop timeouts, log rotation) is warned about at load.
 
 A machine whose session ends while the launch runs (the link was cut, the host
 rebooted) is tried again with a growing delay; when it answers, its nodes are
@@ -26,14 +38,15 @@ import collections
 import os
 import re
 import signal
-from typing import Any, Callable, Mapping
+import time
+from typing import Any, Callable, Mapping, NamedTuple
 
-from launcher.config import Machine, Node
+from launcher.config import Machine, Node, NodePolicy
 from launcher.errors import LaunchError
-from launcher.names import ns_join
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.process import console, state
+from launcher.process import console, restart, state
+from launcher.process.readiness import Readiness
 from launcher.remote import ssh
 from launcher.remote.launch_xml import remote_launch_xml
 
@@ -48,6 +61,13 @@ LAUNCH_CALL_TIMEOUT_S = 120.0
 SSH_EXIT_GRACE_S = 2.0
 OUTPUT_LINES_KEPT = 40
 _STARTED = re.compile(r"process\[(?P<proc>[^\]]+)\]: started with pid \[(?P<pid>\d+)\]")
+# The NodePolicy fields a roslaunch child cannot be told (its launch XML is roslaunch's), with what they need.
+NOT_ON_OTHER_MACHINES = (("memory_limit", "resource limits"), ("cpu_limit", "resource limits"),
+                         ("on_limit", "resource limits"), ("enable_coredumps", "core dumps"),
+                         ("hang_timeout", "hang detection"), ("sigint_timeout", "per-node stop timeouts"),
+                         ("sigterm_timeout", "per-node stop timeouts"), ("log_max_size", "output log rotation"),
+                         ("log_backups", "output log rotation"))
+_DEFAULT_POLICY = NodePolicy()
 
 
 def machine_nodes(nodes: list[Node], machines: Mapping[str, Machine],
@@ -74,32 +94,90 @@ def check_addresses(master_uri: str, advertised_host: str, machines: list[Machin
                               m.filename or None, m.line or None)
 
 
+def policy_warnings(node: Node, machine: Machine) -> list[str]:
+    """Warnings (file:line) for the node's supervision extensions that cannot work on another machine."""
+    policy = node.policy
+    if policy is None:
+        return []
+    unsupported: dict[str, list[str]] = {}
+    for field, what in NOT_ON_OTHER_MACHINES:
+        if getattr(policy, field) != getattr(_DEFAULT_POLICY, field):
+            unsupported.setdefault(what, []).append(field)
+    where = "%s:%d: " % (node.filename, node.line) if node.filename and node.line else ""
+    return ["%snode [%s] runs on machine [%s] (%s): %s cannot be applied there (its roslaunch child runs it) "
+            "and %s ignored" % (where, node.full_name, machine.name, machine.address, what + " (" + ", ".join(fields)
+                                + ")", "is" if len(fields) == 1 else "are")
+            for what, fields in unsupported.items()]
+
+
+class RemoteSpec(NamedTuple):
+    """What `process.readiness` reads of a held node (as of a NodeProcess's spec)."""
+
+    name: str
+    node_name: str
+    policy: NodePolicy
+
+
+class RemoteNode:
+    """One node of a machine, as the parent follows it."""
+
+    def __init__(self, node: Node, child: RemoteChild):
+        self.node = node
+        self.child = child
+        # the parent applies its restart policy; the child runs it with respawn="false"
+        self.owned = node.policy is not None
+        self.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
+        self.on_child = False  # handed to the child and not reported dead for good
+        self.failures = 0  # failed starts in a row (restart policy)
+        self.restarts = 0
+        self.restart_warned = False
+        self.started_at = 0.0  # loop time of the latest start
+        self.timer: asyncio.TimerHandle | None = None  # a start to come: spawn_delay or a respawn's delay
+        self.held = False  # its wait_for conditions are awaited (process/readiness.py)
+
+    @property
+    def name(self) -> str:
+        return self.spec.node_name
+
+    def sent(self) -> Node:
+        """The node as the child gets it."""
+        return self.node._replace(respawn=False, respawn_delay=0.0) if self.owned else self.node
+
+    def cancel(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        self.held = False  # (readiness lets go of it)
+
+
 class RemoteChild:
     """One machine's child roslaunch: its ssh session, its registration, its nodes."""
 
     def __init__(self, name: str, machine: Machine, nodes: list[Node]):
         self.name = name  # roslaunch's child name: "ADDRESS-COUNTER"
         self.machine = machine
-        self.nodes = nodes
+        self.nodes = [RemoteNode(n, self) for n in nodes]
         self.uri: str | None = None
         self.registered: asyncio.Event = asyncio.Event()
         self.ssh: asyncio.subprocess.Process | None = None
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
-        self.launched = False  # its nodes were handed to it (this session)
-        self.ever_launched = False
-        self.finished = False  # it ended after all its nodes had ended for good (nothing to start again)
+        self.pending: list[RemoteNode] = []  # to be handed to the child at the next opportunity
+        self.wanted = asyncio.Event()  # a node is pending: a session is needed
+        self.accepting = False  # this session's child takes `launch` calls
+        self.launched_ok = False  # a `launch` call of this session succeeded
+        self.launching: asyncio.Task | None = None
         self.task: asyncio.Task | None = None
 
     def where(self) -> str:
         m = self.machine
         return "%s:%d" % (m.filename, m.line) if m.filename and m.line else m.filename or ""
 
-    def node_for_process(self, process_name: str) -> Node | None:
+    def node_for_process(self, process_name: str) -> RemoteNode | None:
         """The node a child's process name (`ns/name-N`) stands for."""
         base = re.sub(r"-\d+$", "", process_name)
-        for node in self.nodes:
-            if ns_join(node.namespace, node.name).lstrip("/") == base:
-                return node
+        for rn in self.nodes:
+            if rn.spec.name == base:
+                return rn
         return None
 
 
@@ -132,6 +210,7 @@ class RemoteParent:
         self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
         self.uri = ""
         self.stopping = False
+        self.readiness: Readiness | None = None  # holds the first start of nodes with wait_for (set by attach)
 
     # ---- running ------------------------------------------------------------------------------------
 
@@ -152,31 +231,91 @@ class RemoteParent:
     def attach(self, fleet: state.Fleet, supervisor: Any) -> None:
         """The parameters are set: the nodes' states go to `fleet`, required ends to `supervisor`."""
         self.fleet, self.supervisor = fleet, supervisor
+        self.readiness = Readiness(self.master_uri, self)
+        loop = asyncio.get_running_loop()
         for child in self.children.values():
-            for node in child.nodes:
-                fleet.add(node.full_name, process=node.full_name.lstrip("/"), host=child.machine.address)
+            for rn in child.nodes:
+                fleet.add(rn.name, process=rn.spec.name, host=child.machine.address)
+            for rn in child.nodes:
+                delay = rn.spec.policy.spawn_delay if rn.owned else 0.0
+                if delay > 0:
+                    console.printlog("[%s] waiting %g s before starting on machine [%s] (spawn_delay)"
+                                     % (rn.spec.name, delay, child.machine.name))
+                    fleet.change(rn.name, state.WAITING, reason="spawn_delay %g s" % delay)
+                    rn.timer = loop.call_later(delay, self._spawn_delay_over, rn)
+                else:
+                    self._ready_or_hold(rn)
         self.attached.set()
 
+    def _spawn_delay_over(self, rn: RemoteNode) -> None:
+        rn.timer = None
+        if not self.stopping:
+            self._ready_or_hold(rn)
+
+    def _ready_or_hold(self, rn: RemoteNode) -> None:
+        """A first start: held by its wait_for conditions (the master is asked here), or pending now."""
+        if rn.owned and rn.spec.policy.wait_for:
+            rn.held = True
+            self.readiness.hold(rn)
+        else:
+            self._want(rn)
+
+    # (process/readiness calls these two, as it calls the supervisor's for local nodes)
+    def release(self, rn: RemoteNode) -> None:
+        rn.held = False
+        if not self.stopping:
+            self._want(rn)
+
+    def give_up_waiting(self, rn: RemoteNode, why: str) -> None:
+        rn.held = False
+        self.fleet.change(rn.name, state.EXITED, reason=why)
+        if not rn.node.required:
+            console.printerrlog("[%s] failed to start on machine [%s]: %s" % (rn.spec.name, rn.child.machine.name,
+                                                                             why))
+        self.supervisor.not_started(rn.spec.name, rn.node.required)
+
+    def _want(self, rn: RemoteNode) -> None:
+        """Start the node on its machine: now if its child takes nodes, else with the next session."""
+        child = rn.child
+        child.pending.append(rn)
+        child.wanted.set()
+        if child.accepting and (child.launching is None or child.launching.done()):
+            child.launching = asyncio.ensure_future(self._launch_pending(child))
+
     async def _keep(self, child: RemoteChild) -> None:
-        """Run the child; after a drop, try again with a growing delay while the launch runs."""
+        """Run the child while the launch runs: again after a drop (with a growing delay), and again
+        when a node is to start after the child ended with its last node."""
         delay = RETRY_FIRST_S
+        reached = False  # a session registered once
         while not self.stopping:
-            await self._session(child)
-            if self.stopping or child.finished:
+            registered, lost = await self._session(child)
+            if self.stopping:
                 return
-            if not child.ever_launched:
+            reached = reached or registered
+            if not reached:
                 await self.attached.wait()
                 self._machine_failed(child)
                 return
-            console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
-                                % (child.name, child.machine.name, delay))
-            await asyncio.sleep(delay)
-            delay = min(RETRY_MAX_S, delay * 2)
+            if lost or not registered or (child.pending and not child.launched_ok):
+                if lost or not registered:
+                    console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
+                                        % (child.name, child.machine.name, delay))
+                await asyncio.sleep(delay)
+                delay = min(RETRY_MAX_S, delay * 2)
+                continue
+            delay = RETRY_FIRST_S
+            # the child ended with its last node (as roslaunch's children do): a new session when a
+            # node is to start there again (a respawn the parent owns), else never
+            if not child.pending:
+                child.wanted.clear()
+                await child.wanted.wait()
 
-    async def _session(self, child: RemoteChild) -> None:
-        """One ssh session: start it, wait for `register`, hand over the nodes, run until it ends."""
+    async def _session(self, child: RemoteChild) -> tuple[bool, bool]:
+        """One ssh session: start it, wait for `register`, hand over the nodes, run until it ends.
+
+        (did the child register, were nodes lost with it)."""
         m = child.machine
-        child.uri, child.launched = None, False
+        child.uri, child.launched_ok = None, False
         child.registered.clear()
         child.output.clear()
         command = ssh.remote_command(m, self.program, child.name, self.uri, self.run_id, self.master_uri,
@@ -192,7 +331,7 @@ class RemoteParent:
                                                         stderr=asyncio.subprocess.STDOUT, start_new_session=True)
         except OSError as e:
             child.output.append("cannot run %s: %s" % (argv[0], e.strerror))
-            return
+            return False, False
         child.ssh = proc
         if self.watchdog is not None:
             self.watchdog.watch(proc.pid)  # a killed launcher takes ssh down, and the pty hangup the child
@@ -206,22 +345,25 @@ class RemoteParent:
                 if not reader.done():
                     child.output.append("the remote roslaunch did not register within %s s (<machine timeout=...>)"
                                         % m.timeout)
-                return
+                return False, False
             await self.attached.wait()
-            await self._launch_on(child)
+            console.printlog("remote[%s]: ssh connection created" % child.name)
+            child.accepting = True
+            if child.pending:
+                child.launching = asyncio.ensure_future(self._launch_pending(child))
             await reader  # the session runs until ssh ends
         finally:
+            child.accepting = False
+            if child.launching is not None:
+                child.launching.cancel()
+                child.launching = None
             await self._end_ssh(child)
             if self.watchdog is not None:
                 self.watchdog.forget(proc.pid)
             reader.cancel()
             heartbeat.cancel()
             child.ssh = None
-            if child.launched and not self.stopping:
-                if self._any_alive(child):
-                    self._nodes_lost(child)
-                else:
-                    child.finished = True  # every node ended and was reported: the child's work is done
+        return True, (not self.stopping and self._nodes_lost(child))
 
     async def _read_output(self, child: RemoteChild, proc: asyncio.subprocess.Process) -> None:
         assert proc.stdout is not None
@@ -244,35 +386,60 @@ class RemoteParent:
         except (OSError, RuntimeError):
             pass  # ssh is gone
 
-    async def _launch_on(self, child: RemoteChild) -> None:
-        console.printlog("remote[%s]: ssh connection created" % child.name)
-        xml = remote_launch_xml(child.nodes)
-        try:
-            code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
-        except Exception as e:  # noqa: BLE001 - any failure of the call: the nodes most likely did not start
-            code, msg, val = 0, str(e) or type(e).__name__, None
-        child.launched = child.ever_launched = True
-        if code != 1:
-            console.printerrlog("error launching on [%s, uri %s]: %s" % (child.name, child.uri, msg))
-            console.printerrlog("Launch of the following nodes most likely failed: %s"
-                                % ", ".join("%s/%s" % (n.package, n.type) for n in child.nodes))
-            return
-        _succeeded, failed = val
-        for name in failed:
-            node = child.node_for_process(name) or next((n for n in child.nodes if "%s/%s" % (n.package, n.type)
-                                                         == name), None)
-            console.printerrlog("remote[%s]: node [%s] could not be started on [%s]"
-                                % (child.name, node.full_name if node else name, child.machine.name))
-            if node is not None:
-                self.fleet.change(node.full_name, state.EXITED, reason="could not be started")
-                if node.required:
-                    self.supervisor.not_started(node.full_name, True)
+    async def _launch_pending(self, child: RemoteChild) -> None:
+        """Hand the pending nodes to this session's child, one `launch` call at a time."""
+        loop = asyncio.get_running_loop()
+        while child.pending and child.accepting:
+            batch, child.pending = child.pending, []
+            for rn in batch:
+                rn.on_child, rn.started_at = True, loop.time()
+            xml = remote_launch_xml(rn.sent() for rn in batch)
+            try:
+                code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
+            except asyncio.CancelledError:
+                for rn in batch:  # the session ended during the call: the next one takes them
+                    rn.on_child = False
+                child.pending[:0] = batch
+                raise
+            except Exception as e:  # noqa: BLE001 - any failure of the call: the nodes most likely did not start
+                code, msg, val = 0, str(e) or type(e).__name__, None
+            if code != 1:
+                # a child that refuses a launch (it is ending, or broken) gets no more in this session:
+                # the nodes wait for the next one
+                console.printerrlog("error launching on [%s, uri %s]: %s" % (child.name, child.uri, msg))
+                console.printerrlog("Launch of the following nodes most likely failed: %s"
+                                    % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
+                child.accepting = False
+                for rn in batch:
+                    rn.on_child = False
+                child.pending[:0] = batch
+                return
+            child.launched_ok = True
+            _succeeded, failed = val
+            for name in failed:
+                rn = child.node_for_process(name) or next((r for r in batch if "%s/%s" % (r.node.package, r.node.type)
+                                                           == name), None)
+                console.printerrlog("remote[%s]: node [%s] could not be started on [%s]"
+                                    % (child.name, rn.name if rn else name, child.machine.name))
+                if rn is not None:
+                    rn.on_child = False
+                    self._run_ended(rn, None, None, started=False)
 
-    async def _end_ssh(self, child: RemoteChild) -> None:
-        """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child."""
+    async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
+        """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
+
+        `orderly`: the child was shut down and ends by itself; the session is let end with it
+        (ssh.ORDERLY_END), which is sooner than a hangup's stop of the remote side."""
         proc = child.ssh
         if proc is None or proc.returncode is not None:
             return
+        if orderly and proc.stdin is not None:
+            try:
+                proc.stdin.write(ssh.ORDERLY_END)
+                await asyncio.wait_for(proc.wait(), SSH_EXIT_GRACE_S)
+                return
+            except (OSError, RuntimeError, asyncio.TimeoutError):
+                pass  # then as any other end
         for sig, wait in ((signal.SIGTERM, SSH_EXIT_GRACE_S), (signal.SIGKILL, None)):
             try:
                 os.killpg(proc.pid, sig)
@@ -294,45 +461,99 @@ class RemoteParent:
         where = child.where()
         console.printerrlog("%sremote[%s]: failed to launch on machine [%s]:\n\n%s\n"
                             % (where + ": " if where else "", child.name, child.machine.name, reason))
-        for node in child.nodes:
-            self.fleet.change(node.full_name, state.EXITED, reason="machine [%s] failed" % child.machine.name)
-            self.supervisor.not_started(node.full_name, node.required)
+        child.pending.clear()
+        for rn in child.nodes:
+            rn.cancel()
+            self.fleet.change(rn.name, state.EXITED, reason="machine [%s] failed" % child.machine.name)
+            self.supervisor.not_started(rn.name, rn.node.required)
 
-    def _any_alive(self, child: RemoteChild) -> bool:
-        """Is a node of the child running or due to respawn, as far as its reports say?"""
-        for node in child.nodes:
-            status = self.fleet.nodes.get(node.full_name)
-            if status is None or status.state not in (state.EXITED, state.FATAL, state.STOPPED):
-                return True
-        return False
-
-    def _nodes_lost(self, child: RemoteChild) -> None:
-        for node in child.nodes:
-            status = self.fleet.nodes.get(node.full_name)
+    def _nodes_lost(self, child: RemoteChild) -> bool:
+        """The session ended: the nodes it still ran are lost with it (and pending for the next one)."""
+        lost = [rn for rn in child.nodes if rn.on_child]
+        for rn in lost:
+            rn.on_child = False
+            status = self.fleet.nodes.get(rn.name)
             if status is not None and status.state in (state.RUNNING, state.RESPAWNING):
-                self.fleet.change(node.full_name, state.EXITED, reason="machine [%s] dropped" % child.machine.name)
-            if node.required:
+                self.fleet.change(rn.name, state.EXITED, reason="machine [%s] dropped" % child.machine.name)
+            if rn.node.required:
                 console.printerrlog("=" * 80 + "REQUIRED process [%s] was lost with machine [%s]!\n"
-                                    "Initiating shutdown!\n" % (node.full_name, child.machine.name) + "=" * 80)
+                                    "Initiating shutdown!\n" % (rn.name, child.machine.name) + "=" * 80)
                 self.supervisor.end(failed=True)
+        child.pending[:0] = lost  # started again when the machine answers
+        return bool(lost)
+
+    def _check_child_ending(self, child: RemoteChild) -> None:
+        """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
+        a new session rather than racing the child's exit with a `launch` call. (Not after starts
+        that failed: Debian's child ends only when a node died; ours, which also ends then, refuses
+        the next `launch`, which then waits for the next session.)"""
+        if child.launched_ok and not any(rn.on_child for rn in child.nodes):
+            child.accepting = False
 
     def _process_died(self, process_name: str, exit_code: Any) -> None:
         if self.fleet is None:
             return
         for child in self.children.values():
-            node = child.node_for_process(process_name)
-            if node is None:
+            rn = child.node_for_process(process_name)
+            if rn is None:
                 continue
             code = exit_code if isinstance(exit_code, int) else None
             code_, sig = (None, -code) if code is not None and code < 0 else (code, None)
-            if node.required:
+            if rn.node.required:
                 console.printerrlog("=" * 80 + "REQUIRED process [%s] on machine [%s] has died!\nexit code %s\n"
                                     "Initiating shutdown!\n" % (process_name, child.machine.name, exit_code)
                                     + "=" * 80)
                 self.supervisor.end(failed=code != 0)
-            self.fleet.change(node.full_name, state.RESPAWNING if node.respawn else state.EXITED,
-                              exit_code=code_, exit_signal=sig)
+            if rn.owned:
+                rn.on_child = False
+                self._run_ended(rn, code_, sig, started=True)
+            else:  # the child respawns it itself, as roslaunch's
+                rn.on_child = rn.node.respawn
+                self.fleet.change(rn.name, state.RESPAWNING if rn.node.respawn else state.EXITED,
+                                  exit_code=code_, exit_signal=sig)
+            self._check_child_ending(child)
             return
+
+    def _run_ended(self, rn: RemoteNode, exit_code: int | None, exit_signal: int | None, started: bool) -> None:
+        """A run of a node the parent owns has ended: the restart policy decides, as for a local node."""
+        loop = asyncio.get_running_loop()
+        node, machine = rn.node, rn.child.machine
+        if node.required and not started:
+            self.fleet.change(rn.name, state.EXITED, reason="could not be started")
+            self.supervisor.not_started(rn.name, True)
+            return
+        decision = restart.after_run(node.respawn, node.respawn_delay, rn.spec.policy, exit_code, started,
+                                     loop.time() - rn.started_at, rn.failures)
+        rn.failures = decision.failures
+        if decision.action == restart.FATAL:
+            console.printerrlog("[%s] on machine [%s] %s" % (rn.spec.name, machine.name, decision.note))
+            self.fleet.change(rn.name, state.FATAL, exit_code=exit_code, exit_signal=exit_signal,
+                              reason=decision.reason, failures=rn.failures)
+            if rn.spec.policy.on_fatal == "shutdown":
+                self.supervisor.fatal_shutdown(rn.spec.name)
+            return
+        if decision.note:
+            console.printlog("[%s] on machine [%s] %s" % (rn.spec.name, machine.name, decision.note))
+        if decision.action == restart.STAY_DOWN:
+            self.fleet.change(rn.name, state.EXITED, exit_code=exit_code, exit_signal=exit_signal,
+                              reason=decision.reason, failures=rn.failures)
+            return
+        self.fleet.change(rn.name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
+                          next_start=time.time() + decision.delay, reason=decision.reason, failures=rn.failures)
+        rn.timer = loop.call_later(decision.delay, self._respawn, rn)
+
+    def _respawn(self, rn: RemoteNode) -> None:
+        rn.timer = None
+        if self.stopping:
+            return
+        console.printlog("[%s] restarting process on machine [%s]" % (rn.spec.name, rn.child.machine.name))
+        rn.restarts += 1
+        threshold = rn.spec.policy.restart_warn_threshold
+        if threshold is not None and rn.restarts > threshold and not rn.restart_warned:
+            rn.restart_warned = True
+            console.printerrlog("[%s] WARNING: restarted %d times, more than its restart_warn_threshold (%d)"
+                                % (rn.spec.name, rn.restarts, threshold))
+        self._want(rn)
 
     # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
 
@@ -371,9 +592,10 @@ class RemoteParent:
             console.printlog_bold(text)
             m = _STARTED.search(message)
             child = self.children.get(client)
-            node = child.node_for_process(m.group("proc")) if m and child else None
-            if node is not None and self.fleet is not None:
-                self.fleet.change(node.full_name, state.RUNNING, pid=int(m.group("pid")))
+            rn = child.node_for_process(m.group("proc")) if m and child else None
+            if rn is not None and self.fleet is not None:
+                rn.started_at = asyncio.get_running_loop().time()  # (its uptime counts for the restart policy)
+                self.fleet.change(rn.name, state.RUNNING, pid=int(m.group("pid")))
         else:
             console.printlog(text)
         return [1, "", 1]
@@ -410,18 +632,29 @@ class RemoteParent:
     async def shutdown(self) -> None:
         """Ask every child to stop its nodes, then close the sessions."""
         self.stopping = True
+        if self.readiness is not None:
+            self.readiness.close()
+        for child in self.children.values():
+            for rn in child.nodes:
+                if rn.timer is not None or rn.held:
+                    rn.cancel()
+                    if self.fleet is not None:
+                        self.fleet.change(rn.name, state.STOPPED, reason="stopped before its next start")
         live = [c for c in self.children.values() if c.ssh is not None]
         for child in live:
             console.printlog("[%s] killing on exit" % child.name)
 
         async def stop(child: RemoteChild) -> None:
+            orderly = False
             if child.uri is not None:
                 try:
-                    await call(child.uri, "shutdown", timeout=self.sigint_timeout + self.sigterm_timeout + 5)
+                    code, _msg, _val = await call(child.uri, "shutdown",
+                                                  timeout=self.sigint_timeout + self.sigterm_timeout + 5)
+                    orderly = code == 1
                 except Exception:  # noqa: BLE001 - the hangup below stops it anyway
                     console.printerrlog("remote[%s]: unable to contact [%s] to shutdown remote processes!"
                                         % (child.name, child.machine.address))
-            await self._end_ssh(child)
+            await self._end_ssh(child, orderly)
 
         await asyncio.gather(*(stop(c) for c in live))
         for child in self.children.values():

@@ -344,3 +344,93 @@ def test_debian_parent_cut_off_from_our_child_leaves_no_process_on_that_host(tmp
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+
+
+def events(tmp_path, node: str) -> list[dict]:
+    """The node's events in the run's events file (ROS_LOG_DIR/latest/launcher-events.jsonl)."""
+    import json
+    try:
+        with open(os.path.join(str(tmp_path), "log", "latest", "launcher-events.jsonl")) as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return []
+    return [e for e in (json.loads(line) for line in lines if line.endswith("}")) if e["node"] == node]
+
+
+POLICY_TALKER = ('<node machine="one" pkg="rostopic" type="rostopic" name="talker" respawn="true" '
+                 'respawn_delay="0.3" respawn_backoff="2" respawn_min_uptime="60" respawn_max_retries="2" '
+                 'args="pub /chatter std_msgs/String hello -r 10"/>\n')
+KEEPER = '<node machine="one" pkg="rostopic" type="rostopic" name="keeper" args="echo /chatter"/>\n'
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+@pytest.mark.parametrize("alone", [False, True], ids=["beside-another-node", "alone"])
+def test_restart_policy_of_a_remote_node_backoff_then_fatal(tmp_path, hosts, launched, child, alone):
+    """The parent owns the restarts of a node with a policy: backoff after each kill, FATAL after the retries.
+
+    Beside another node its child takes a second `launch` call; alone, the child ends with it (as
+    roslaunch's children do) and the next start comes with a new session."""
+    la, env = launched(POLICY_TALKER + ("" if alone else KEEPER), child=child)
+    h1 = hosts.hosts[0]
+    keeper = [] if alone else poll(lambda: on_host(h1, "__name:=keeper"), 60, what="keeper on host one")
+    started = r"process\[talker-\d+\]: started with pid"
+    killed: list[int] = []
+    for run in range(3):
+        pid = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p not in killed], 60,
+                   what="talker run %d on host one" % (run + 1))[0]
+        poll(lambda: len(re.findall(started, la.stdout)) == run + 1, 60, what="talker run %d reported" % (run + 1))
+        os.kill(pid, signal.SIGKILL)
+        killed.append(pid)
+    la.wait_output(r"\[talker\] on machine \[one\] FATAL: failed 3 starts in a row \(respawn_max_retries=2\)", 60,
+                   stream="stderr")
+    assert "[talker] on machine [one] respawning in 0.6 s (2 failed starts in a row)" in la.stdout
+    evs = events(tmp_path, "/talker")
+    assert [e["state"] for e in evs] == ["waiting", "running", "respawning", "running", "respawning", "running",
+                                         "fatal"][-len(evs):], evs
+    assert [e["failures"] for e in evs if e["state"] in ("respawning", "fatal")] == [1, 2, 3]
+    assert evs[-1]["exit_signal"] == 9 and "respawn_max_retries=2" in evs[-1]["reason"]
+    if not alone:  # the other node of that machine ran on, in the same child, all along
+        assert on_host(h1, "__name:=keeper") == keeper
+    # the delays grow by the backoff (a new session adds its ssh and child start)
+    runs = [e for e in evs if e["state"] in ("respawning", "running")]
+    delays = [b["time"] - a["time"] for a, b in zip(runs, runs[1:]) if a["state"] == "respawning"]
+    assert len(delays) == 2 and 0.28 <= delays[0] < 0.3 + 5 and 0.58 <= delays[1] < 0.6 + 5, delays
+    la.signal(signal.SIGINT)
+    assert la.wait(60) == 0, la.stderr
+    # the child never respawned it on its own: three runs, none after the FATAL
+    assert len(re.findall(started, la.stdout)) == 3, la.stdout
+
+
+def test_on_fatal_shutdown_of_a_remote_node_ends_the_launch_with_status_1(tmp_path, hosts, launched):
+    nodes = ('<node machine="one" pkg="rostopic" type="rostopic" name="bad" respawn="true" respawn_delay="0.1" '
+             'respawn_max_retries="1" on_fatal="shutdown" args="pub /x no_such_pkg/NoType 1"/>\n' + LOCAL)
+    la, env = launched(nodes, child="ours")
+    assert la.wait(90) == 1, la.stdout + la.stderr
+    assert re.search(r"FATAL process \[bad\] has failed \(on_fatal=\"shutdown\"\)", la.stderr), la.stderr
+
+
+def test_spawn_delay_and_wait_for_hold_a_remote_nodes_start(tmp_path, hosts, launched):
+    nodes = ('<node machine="one" pkg="rostopic" type="rostopic" name="talker" spawn_delay="1.5" '
+             'args="pub /chatter std_msgs/String hello -r 10"/>\n'
+             '<node machine="two" pkg="rostopic" type="rostopic" name="listener" wait_for="topic:/chatter" '
+             'args="echo /chatter"/>\n')
+    la, env = launched(nodes)
+    la.wait_output(r"process\[listener-\d+\]: started with pid", 90)
+    talker, listener = events(tmp_path, "/talker"), events(tmp_path, "/listener")
+    t_run = next(e["time"] for e in talker if e["state"] == "running")
+    l_run = next(e["time"] for e in listener if e["state"] == "running")
+    assert any("spawn_delay 1.5" in e["reason"] for e in talker if e["state"] == "waiting"), talker
+    assert any("waiting for topic:/chatter" in e["reason"] for e in listener if e["state"] == "waiting"), listener
+    assert l_run > t_run  # the listener's start waited for the talker's topic
+    start = min(e["time"] for e in talker)
+    assert t_run - start >= 1.5
+
+
+def test_policies_a_remote_child_cannot_apply_are_warned_about_at_load(tmp_path, hosts, launched):
+    nodes = ('<node machine="one" pkg="rostopic" type="rostopic" name="talker" memory_limit="1GB" '
+             'enable_coredumps="true" args="pub /chatter std_msgs/String hello -r 10"/>\n')
+    la, env = launched(nodes)
+    m = la.wait_output(r"WARNING: .*robot\.launch:4: node \[/talker\] runs on machine \[one\] \(%s\): resource "
+                       r"limits \(memory_limit\) cannot be applied there" % re.escape(hosts.hosts[0].address), 30,
+                       stream="stderr")
+    assert m and "core dumps (enable_coredumps)" in la.stderr

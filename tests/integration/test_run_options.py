@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
+import subprocess
 import time
 
 import pytest
 
-from running import (ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
-                     ros_env, write_launch)
+from running import (ROS_PATH, ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
+                     poll, ros_env, write_launch)
 
 Spinner = """#!%s
 import rospy
@@ -127,6 +129,47 @@ def test_node_on_remote_machine_with_a_loopback_master_is_a_clear_error(tmp_path
         assert "Traceback" not in lp.stderr and "started with pid" not in lp.stdout
     finally:
         lp.close()
+
+
+def _summary_nodes(text: str) -> str:
+    """The NODES block of a summary (terminal escapes left out)."""
+    text = re.sub(r"\x1b\[[0-9;]*m|\x1b\]2;[^\x07]*\x07", "", text)
+    return text.split("\nNODES\n", 1)[1].split("\n\n", 1)[0]
+
+
+def test_local_prints_roslaunchs_banner_and_leaves_remote_nodes_out_as_it_does(tmp_path, pkgs):
+    launch = write_launch(str(tmp_path), """
+      <machine name="far" address="192.0.2.10" env-loader="/opt/env.sh"/>
+      <node pkg="opt_tests" type="spinner" name="remote" machine="far"/>
+      <node pkg="opt_tests" type="spinner" name="here"/>""")
+    outputs = {}
+    for label in ("roslaunch", "ours"):
+        env = dict(ros_env(str(tmp_path), free_port(), pkgs), PATH=ROS_PATH)
+        if label == "roslaunch":
+            out = tmp_path / "roslaunch.out"
+            with open(out, "wb") as f:
+                proc = subprocess.Popen(["roslaunch", "--local", launch], env=env, stdout=f,
+                                        stderr=subprocess.STDOUT, start_new_session=True)
+            try:
+                poll(lambda: b"process[here-2]: started" in out.read_bytes(), 60, what="roslaunch's node")
+            finally:
+                os.killpg(proc.pid, signal.SIGINT)
+                proc.wait(30)
+            outputs[label] = out.read_text(errors="replace")
+        else:
+            lp = Launcher(["--local", launch], env, str(tmp_path))
+            try:
+                lp.wait_output(r"process\[here-2\]: started with pid", 60)
+                lp.signal(signal.SIGINT)
+                assert lp.wait(30) == 0
+                outputs[label] = lp.stdout + lp.stderr
+            finally:
+                lp.close()
+    banner = "LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n"
+    assert banner in outputs["roslaunch"]  # (the reference says what we must print)
+    assert banner in outputs["ours"], outputs["ours"]
+    assert "skipping" not in outputs["ours"] and "remote-" not in outputs["ours"]
+    assert _summary_nodes(outputs["ours"]) == _summary_nodes(outputs["roslaunch"]) == "  /\n    here (opt_tests/spinner)"
 
 
 def test_bad_log_check_threshold(tmp_path, pkgs):
