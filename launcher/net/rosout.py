@@ -263,6 +263,7 @@ class Rosout:
         self.undecodable = 0
         self.node: Any = None
         self._typestore: Any = None
+        self._typestore_error: BaseException | None = None  # why no type store can be built (rosbags missing)
         self._agg: Any = None
         self._flush_pending = False
         self._watch: asyncio.Task | None = None
@@ -296,8 +297,21 @@ class Rosout:
         fork/exec releases and retakes it, so `launch` calls this once its nodes are spawned, not
         while it spawns them.
         """
-        if self._typestore is None:
-            asyncio.get_running_loop().run_in_executor(None, self._build_typestore)
+        if self._typestore is None and self._typestore_error is None:
+            future = asyncio.get_running_loop().run_in_executor(None, self._build_typestore)
+            future.add_done_callback(self._warmed_up)
+
+    def _warmed_up(self, future: asyncio.Future) -> None:
+        # (retrieved here: an interpreter without rosbags gets one error line, not "Future exception
+        # was never retrieved" and a traceback)
+        if not future.cancelled() and future.exception() is not None:
+            self._unusable(future.exception())
+
+    def _unusable(self, exc: BaseException) -> None:
+        if self._typestore_error is None:
+            self._typestore_error = exc
+            log.error("rosout cannot decode rosgraph_msgs/Log (rosbags: %s): rosout.log gets no lines; "
+                      "/rosout_agg still carries every message", exc)
 
     def _build_typestore(self) -> Any:
         # On the worker thread (warm_up) or, if a message comes first, on the loop. Two threads may
@@ -308,8 +322,16 @@ class Rosout:
         return typestore
 
     def _types(self) -> Any:
-        """The type store (built here if warm_up has not finished)."""
-        return self._typestore if self._typestore is not None else self._build_typestore()
+        """The type store (built here if warm_up has not finished); raises what building it raised."""
+        if self._typestore is not None:
+            return self._typestore
+        if self._typestore_error is not None:
+            raise self._typestore_error
+        try:
+            return self._build_typestore()
+        except Exception as exc:
+            self._unusable(exc)
+            raise
 
     async def _start_node(self, mtype: TopicType) -> None:
         self.node = SlaveNode(self.name, self.master_uri,
@@ -380,9 +402,8 @@ class Rosout:
             return
         try:
             ts = self._types()
-        except Exception as exc:  # rosbags unusable: nothing can be decoded
+        except Exception:  # rosbags unusable: nothing can be decoded (said once, by _unusable)
             self.undecodable += 1
-            log.error("cannot decode rosgraph_msgs/Log: %s", exc)
             return
         try:
             msg = ts.deserialize_ros1(payload, _LOG_TYPE_RB)
