@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """`launcher test` against Debian's `rostest` on the same test file: wall time, paired (ABBA), with the exit statuses.
 
-    PATH=/usr/bin:$PATH python3 benchmarks/rostest_wall.py [--reps 5] [--file pass|param|gtest ...]
+    python3 benchmarks/rostest_wall.py [--reps 5] [--file pass|param|gtest ...]
+
+Run it with the Python launcher is installed for (`launcher test` needs lxml); the
+tools' own PATH (Debian's rostest and python first) is set here.
 
 Builds a scratch package with a passing rospy unittest node (two cases, one reads a
 parameter), a paramtest file and a hztest file; each repetition runs both tools in

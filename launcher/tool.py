@@ -37,6 +37,10 @@ def usage() -> str:
                               if not name.startswith("_"))
 
 
+# The third-party packages launcher depends on (pyproject.toml), by their import names.
+REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if not args or args[0] in ("-h", "--help", "help"):
@@ -50,7 +54,17 @@ def main(argv: list[str] | None = None) -> int:
         print("launcher: unknown command '%s'\n\n%s" % (args[0], usage()), file=sys.stderr)
         return 2
     module_name, _, function = entry[0].partition(":")
-    return getattr(importlib.import_module(module_name), function or "main")(args[1:])
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        if e.name not in REQUIRED_PACKAGES:
+            raise
+        # (an interpreter other than the one launcher was installed for: e.g. Debian's python3 with PYTHONPATH)
+        print("launcher %s: this Python (%s) lacks %s, which launcher needs: run launcher with the Python it was "
+              "installed for, or install its dependencies here (pip install ros1-launcher)"
+              % (args[0], sys.executable, e.name), file=sys.stderr)
+        return 1
+    return getattr(module, function or "main")(args[1:])
 
 
 if __name__ == "__main__":

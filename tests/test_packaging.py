@@ -7,6 +7,8 @@ import re
 
 import pytest
 
+from launcher import tool
+
 tomllib = pytest.importorskip("tomllib")
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -26,6 +28,7 @@ def test_every_runtime_dependency_is_imported_by_launcher():
         module = MODULE_OF.get(name, name.replace("-", "_"))
         assert re.search(r"^\s*(?:import|from) %s\b" % re.escape(module), code, re.M), \
             "%s is a runtime dependency but no launcher module imports %s" % (name, module)
+        assert module in tool.REQUIRED_PACKAGES, "launcher.tool's clear error does not know %s" % module
 
 
 def test_pytest_plugin_is_registered_by_entry_point():
@@ -34,3 +37,15 @@ def test_pytest_plugin_is_registered_by_entry_point():
     module = project["entry-points"]["pytest11"]["launcher"]
     assert os.path.isfile(os.path.join(ROOT, *module.split(".")) + ".py")
     assert "def ros_launch" in open(os.path.join(ROOT, *module.split(".")) + ".py").read()
+
+
+def test_a_python_without_a_dependency_gets_a_clear_error_not_a_traceback():
+    """`launcher test` run by an interpreter launcher was not installed for (Debian's python3 lacks lxml)."""
+    import subprocess
+    import sys
+    code = "import sys; sys.modules['lxml'] = None\nfrom launcher.tool import main\nsys.exit(main(['test', '--help']))"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert p.returncode == 1
+    assert "Traceback" not in p.stderr
+    assert "lacks lxml" in p.stderr and sys.executable in p.stderr
