@@ -27,10 +27,11 @@ RACY_NS before it is not reused: it is made again until the tree has settled.
 
 from __future__ import annotations
 
-import marshal
 import os
 import time
 from typing import Any
+
+from launcher.roshome import read_cache, write_cache
 
 VERSION = 3
 RACY_NS = 2_000_000_000
@@ -121,15 +122,7 @@ class CrawlCache:
 
     def _load(self) -> dict[str, Any]:
         if self._entries is None:
-            self._entries = {}
-            if self.path:
-                try:
-                    with open(self.path, "rb") as f:
-                        version, entries = marshal.loads(f.read())  # (load(f) would read piece by piece)
-                    if version == VERSION and type(entries) is dict:
-                        self._entries = entries
-                except (OSError, EOFError, ValueError, TypeError):
-                    pass  # no cache yet, or one we cannot read: crawl
+            self._entries = read_cache(self.path, VERSION)  # (none, or unreadable: crawl)
         return self._entries
 
     def lookup(self, root: str) -> Crawl | None:
@@ -147,19 +140,7 @@ class CrawlCache:
         """Remember a fresh crawl (best effort: a read-only ROS_HOME only costs the next launch a crawl)."""
         entries = self._load()
         entries[root] = crawl.to_record()
-        if not self.path:
-            return
-        tmp = "%s.%d.tmp" % (self.path, os.getpid())
-        try:
-            os.makedirs(os.path.dirname(self.path), exist_ok=True)
-            with open(tmp, "wb") as f:
-                marshal.dump((VERSION, entries), f)
-            os.replace(tmp, self.path)  # atomic: a launch reading at the same time sees old or new
-        except OSError:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+        write_cache(self.path, VERSION, entries)
 
 
 def _mtime(path: str) -> int:

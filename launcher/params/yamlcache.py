@@ -11,8 +11,7 @@ never parsed, and PyYAML is not imported. The key is the text itself, not a file
 time, so an entry cannot go stale. Anything else (binary, timestamps, aliases,
 errors) is parsed every time.
 
-The file is the user's own, under ROS_HOME, as rospack's cache is; marshal is
-not meant for data from strangers, and a file that does not load is ignored.
+The file is written and read as the crawl cache's is (`roshome.write_cache`).
 """
 
 from __future__ import annotations
@@ -20,6 +19,8 @@ from __future__ import annotations
 import marshal
 import os
 from typing import Any
+
+from launcher.roshome import read_cache, write_cache
 
 VERSION = 1
 FILE = os.path.join("launcher", "yaml_cache.marshal")
@@ -62,28 +63,10 @@ class YamlCache:
                 continue
             kept[key] = blob
             chars += len(key[0])
-        tmp = "%s.%d.tmp" % (self.path, os.getpid())
-        try:
-            os.makedirs(os.path.dirname(self.path), exist_ok=True)
-            with open(tmp, "wb") as f:
-                marshal.dump((VERSION, kept), f)
-            os.replace(tmp, self.path)  # a launch reading at the same time sees the old file or the new one
-        except OSError:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+        write_cache(self.path, VERSION, kept)
         self._learned = False
 
     def _read(self) -> dict[tuple[str, bool], bytes]:
         if self._entries is None:
-            self._entries = {}
-            if self.path:
-                try:
-                    with open(self.path, "rb") as f:
-                        version, entries = marshal.loads(f.read())  # (load(f) would read piece by piece)
-                    if version == VERSION and type(entries) is dict:
-                        self._entries = entries
-                except (OSError, EOFError, ValueError, TypeError):
-                    pass  # no cache yet, or one from another version: parse
+            self._entries = read_cache(self.path, VERSION)  # (none yet, or another version's: parse)
         return self._entries
