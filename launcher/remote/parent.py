@@ -404,8 +404,9 @@ class RemoteParent:
             except Exception as e:  # noqa: BLE001 - any failure of the call: the nodes most likely did not start
                 code, msg, val = 0, str(e) or type(e).__name__, None
             if code != 1:
-                # a child that refuses a launch (it is ending, or broken) gets no more in this session:
-                # the nodes wait for the next one
+                # a child that refuses a launch (it is ending, or broken) gets no more: the nodes wait for
+                # the next session, and this one is ended so that there is a next one (a child whose starts
+                # all failed would otherwise live on with nothing, and the nodes wait for ever)
                 console.printerrlog("error launching on [%s, uri %s]: %s" % (child.name, child.uri, msg))
                 console.printerrlog("Launch of the following nodes most likely failed: %s"
                                     % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
@@ -413,6 +414,8 @@ class RemoteParent:
                 for rn in batch:
                     rn.on_child = False
                 child.pending[:0] = batch
+                if child.ssh is not None and child.ssh.returncode is None:
+                    child.ssh.terminate()
                 return
             child.launched_ok = True
             _succeeded, failed = val

@@ -255,7 +255,10 @@ def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(
         la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
     finally:
         h1.restore()
-    again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
+    try:
+        again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
+    except AssertionError as e:
+        raise AssertionError("%s\n%s%s" % (e, la.stdout, la.stderr)) from None
     assert again[0] != first
     poll(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
 
