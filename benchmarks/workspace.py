@@ -3,6 +3,11 @@
 
     PATH=/usr/bin:$PATH python3 benchmarks/workspace.py [--reps 7] [--ours "python3 -m launcher"]
 
+To compare with the interpreter roslaunch runs on (Debian's), without an `env` wrapper's
+extra exec on our side only:
+
+    PYTHONPATH=$PWD PATH=/usr/bin:$PATH python3 benchmarks/workspace.py --ours "/usr/bin/python3 -m launcher"
+
 The workspace is generated (750 packages in 25 folders, each with package.xml,
 src/, config/, launch/ and scripts/) and dated an hour back, as a workspace that
 was not just written is; the launch file includes one launch file of each of 20
