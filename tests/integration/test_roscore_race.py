@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 
 import pytest
 
-from running import ROS_PATH, Launcher, free_port, get_param, make_package, master_up, poll, write_launch
+from running import ROS_PATH, Launcher, free_port, get_param, make_package, master_up, poll, stop_group, write_launch
 from running import ros_env as run_env
 
 RUNS = 20
@@ -21,15 +20,6 @@ def _roscore(tmp: str, port: int, env: dict[str, str]) -> subprocess.Popen:
     return subprocess.Popen(["roscore", "-p", str(port)], env=env, stdout=out, stderr=subprocess.STDOUT,
                             stdin=subprocess.DEVNULL, start_new_session=True)
 
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 @pytest.mark.parametrize("batch", range(RUNS // AT_ONCE))
@@ -63,4 +53,4 @@ def test_launch_waiting_for_roscore_leaves_it_the_run_id(tmp_path, ros_env, batc
         for tmp, port, env, launcher in runs:
             launcher.close()
         for core in locals().get("cores", []):
-            _stop(core)
+            stop_group(core, 20)

@@ -16,8 +16,8 @@ import time
 
 import pytest
 
-from running import ROS_PYTHON, Launcher, compile_roscpp, free_port, make_package, master_up, poll, ros_env, \
-    write_launch
+from running import (ROS_PYTHON, Launcher, compile_roscpp, free_port, make_package, master_up, poll, ros_env,
+                     stop_group, write_launch)
 
 pytestmark = pytest.mark.integration
 
@@ -154,7 +154,7 @@ def test_a_screen_node_sees_a_tty_under_a_terminal(tmp_path, pkgs):
         poll(lambda: "line 3\n" in _file(tmp_path, "looker-2-stdout.log"), 30, 0.1, what="lines in the copy")
         assert "\r" not in _file(tmp_path, "looker-2-stdout.log") and log.startswith("LOOK ")
     finally:
-        _stop(proc)
+        stop_group(proc, 30)
 
 
 def test_a_screen_node_sees_a_pipe_when_the_output_is_not_a_terminal(tmp_path, pkgs):
@@ -175,15 +175,6 @@ def _file(tmp_path, name: str) -> str:
     except FileNotFoundError:
         return ""
 
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 F_SETPIPE_SZ = 1031
