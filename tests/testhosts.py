@@ -7,6 +7,14 @@ runs Debian's `/usr/sbin/sshd` with a config of its own (no PAM, root login by
 a key made for the test, its own host key). The namespaces share the
 filesystem, so Debian's ROS and this worktree are "installed" on every host.
 
+Each host's root has a home of its own, as on separate computers: a fresh
+account's (Debian's /etc/skel). `ip netns exec` bind-mounts the files of
+/etc/netns/NAME/ over /etc, so the host's sshd reads a passwd whose root home
+is that directory. (Logging in with this machine's /root would share its shell
+start-up files between the hosts: here root's ~/.bashrc runs `pyenv init`,
+whose `pyenv rehash` takes a lock in /root/.pyenv that made logins to two
+"computers" at once wait for each other; nodes' ~/.ros would be shared too.)
+
 For the client side the helper writes an `ssh_config` (identity, known_hosts
 holding the hosts' keys, BatchMode) that the launcher is pointed at through
 `LAUNCHER_SSH_COMMAND`, and a `home` directory with the same key and
@@ -46,6 +54,7 @@ class TestHost:
         self.address = address
         self.link = link  # the veth end in the root namespace: `down` cuts the host off
         self.env_loader = env_loader
+        self.home = ""  # the login user's home on this host
         self.sshd: subprocess.Popen | None = None
 
     def pids(self) -> list[int]:
@@ -143,6 +152,7 @@ class TestHosts:
                         "unset ROS_HOSTNAME\n%sexec \"$@\"\n"
                         % (address, "".join("export %s=%s\n" % (k, shlex.quote(v)) for k, v in self._env.items())))
             os.chmod(host.env_loader, 0o755)
+            self._own_home(host)
             self._start_sshd(host)
         self._client_files()
 
@@ -151,6 +161,20 @@ class TestHosts:
             subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", "launcher-test",
                             "-f", os.path.join(self.dir, name)], check=True, capture_output=True, timeout=60)
         shutil.copy(os.path.join(self.dir, "client_key.pub"), os.path.join(self.dir, "authorized_keys"))
+
+    def _own_home(self, host: TestHost) -> None:
+        """A root home for the host alone: /etc/netns/NAME/passwd names it (see the module docstring)."""
+        host.home = os.path.join(self.dir, "root-%d" % host.index)
+        shutil.copytree("/etc/skel", host.home)
+        with open("/etc/passwd") as f:
+            entries = [line.split(":") for line in f.read().splitlines()]
+        etc = os.path.join("/etc/netns", host.netns)
+        os.makedirs(etc, exist_ok=True)
+        with open(os.path.join(etc, "passwd"), "w") as f:
+            for e in entries:
+                if len(e) == 7 and e[2] == "0":
+                    e[5] = host.home
+                f.write(":".join(e) + "\n")
 
     def _start_sshd(self, host: TestHost) -> None:
         config = os.path.join(self.dir, "sshd-%d.conf" % host.index)
@@ -224,6 +248,7 @@ class TestHosts:
                 host.sshd.kill()
                 host.sshd.wait()
             _ip("netns", "del", host.netns, check=False)
+            shutil.rmtree(os.path.join("/etc/netns", host.netns), ignore_errors=True)
             _ip("link", "del", host.link, check=False)
         if self.bridge:
             _ip("link", "del", self.bridge, check=False)
