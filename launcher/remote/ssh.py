@@ -67,16 +67,19 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     # the nodes. A child with a process left (ours: its no-orphans guard) gets ORDERLY_WAIT_S to end
     # by itself (ours does in ~20 ms; stop_nodes would freeze it while ending and wait NODE_GRACE_S
     # for the guard); one with none (Debian's, which would take ~0.3 s more to exit) is ended at once.
+    # A child that has ended so is not followed by stop_nodes: it has no children left for `pkill -P`
+    # to find, and each pgrep/pkill is a scan of /proc on CPUs that the exiting nodes need.
     script = ("stop_nodes() { kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
               "while [ $i -lt %d ] && pgrep -P $child >/dev/null; do sleep 0.1; i=$((i+1)); done\n"
               "pkill -KILL -P $child; kill -KILL $child 2>/dev/null; exit 0; }\n"
               "%s & child=$!\n"
               "trap stop_nodes HUP TERM\n"
               "while kill -0 $child 2>/dev/null && beat=$(timeout --foreground %s head -c 1 2>/dev/null); do\n"
-              "if [ \"$beat\" = %s ]; then i=0; pgrep -P $child >/dev/null || break\n"
-              "while [ $i -lt %d ] && kill -0 $child 2>/dev/null; do sleep 0.02; i=$((i+1)); done; break; fi; done\n"
+              "if [ \"$beat\" = %s ]; then pgrep -P $child >/dev/null || { kill -KILL $child; exit 0; }; i=0\n"
+              "while [ $i -lt %d ] && kill -0 $child 2>/dev/null; do sleep 0.01; i=$((i+1)); done\n"
+              "kill -0 $child 2>/dev/null || exit 0; break; fi; done\n"
               "stop_nodes" % (int(NODE_GRACE_S * 10), child, HEARTBEAT_TIMEOUT_S, ORDERLY_END.decode()[0],
-                              int(ORDERLY_WAIT_S / 0.02)))
+                              int(ORDERLY_WAIT_S / 0.01)))
     return "sh -c %s" % shlex.quote(script)
 
 
