@@ -63,7 +63,8 @@ class LaunchServer:
                 from launcher.process import console
                 console.printerrlog("WARNING: cannot write the run's token in [%s]: %s; start/stop/restart "
                                     "are refused" % (run_dir, e.strerror))
-        self._server = XmlRpcServer(self._dispatch, bind_address(self.host), 0, max_connections=64)
+        # (system.multicall as roslaunch's server has it: our remote children send their reports in batches)
+        self._server = XmlRpcServer(self._dispatch, bind_address(self.host), 0, multicall=True, max_connections=64)
         await self._server.start()
         host = "[%s]" % self.host if ":" in self.host else self.host
         self.uri = "http://%s:%d/" % (host, self._server.port)

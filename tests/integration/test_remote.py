@@ -269,14 +269,29 @@ def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
     loaders = our_child_loaders(tmp_path, hosts)
     env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
     path = launch_file(tmp_path, hosts, TALKER % ' respawn="true"' + LISTENER % "" + LOCAL, loaders=loaders)
-    la = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                          start_new_session=True)
+    out_path = os.path.join(str(tmp_path), "roslaunch.out")
+    with open(out_path, "w") as out:
+        la = subprocess.Popen(["roslaunch", path], env=env, stdout=out, stderr=subprocess.STDOUT,
+                              start_new_session=True)
     h1, h2 = hosts.hosts
     local: set[int] = set()
+
+    def parent_output() -> str:
+        with open(out_path) as f:
+            return f.read()
+
     try:
         poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 90, period=0.5,
              what="nodes of all three hosts registered")
         assert [line for line in h1.process_lines() if "-m launcher -c" in line]  # our child runs there
+        # the child's console lines reach Debian's parent (which prints them as "[child]: ..."), once each
+        # and in order, also when several went in one system.multicall
+        poll(lambda: "... done launching nodes" in parent_output(), 30, what="the children's lines printed")
+        text = re.sub(r"\x1b\[[0-9;]*m", "", parent_output())  # (it prints "started" lines in bold)
+        for host in (h1, h2):
+            lines = re.findall(r"^\[%s-\d+\]: (.*)$" % re.escape(host.address), text, re.M)
+            assert lines[:3] == ["launching nodes...", lines[1], "... done launching nodes"], (host.address, text)
+            assert re.fullmatch(r"process\[(talker|listener)-1\]: started with pid \[\d+\]", lines[1]), lines
         r = subprocess.run(["rostopic", "echo", "-n", "1", "/chatter"], env=env, capture_output=True, text=True,
                            timeout=60)
         assert 'data: "hello"' in r.stdout
