@@ -2,28 +2,35 @@
 """Nodes on other machines: 20 roscpp nodes over two test hosts, our `launch` beside Debian's `roslaunch`.
 
 The test hosts are those of the tests (tests/testhosts.py: network namespaces
-with their own sshd; root needed). A Debian rosmaster runs here on the test
-subnet; each launcher is started with a launch file that puts half the nodes
-on each host. Measured per run, alternating the commands (ABBA):
+with their own sshd, each root with a home of its own; root needed). Each
+launcher is started with a launch file that puts half the nodes on each host.
+Measured per run, alternating the commands (ABBA):
 
 - start: from the launcher's start until every node is registered with the master;
 - stop: from SIGINT until the launcher has exited and nothing but sshd is left on the hosts.
 
-    PATH=/usr/bin:$PATH python3 benchmarks/remote.py [--nodes 20] [--reps 3]
+    PATH=/usr/bin:$PATH python3 benchmarks/remote.py [--nodes 20] [--reps 3] [--master running|own]
 
-Where the time goes (2-core machine, ours/ours, 20 nodes): start = ~0.08 s until ssh runs (the
-interpreter is half of it) + 0.45-0.6 s until the children register (ssh's handshake ~0.2 s, the
-remote login shell's init: here root's ~/.bashrc runs `pyenv init`, 0.23-0.46 s per session, which
-roslaunch pays too; our child registers ~0.07 s after it starts, Debian's ~0.23 s) + ~0.1 s to launch
-and register the nodes (Debian's child launches them one by one: ~0.11 s for 10). Stop = the
-children's `shutdown` call (~0.4 s: a roscpp node takes 0.2-0.33 s to exit after SIGINT; Debian's
-child answers after ~0.5 s) + the end of the sessions (ours ends ~20 ms after answering; Debian's
-child, which would take ~0.3 s more to exit with nothing left to stop, is ended at once).
+`--master running` (the default): a Debian rosmaster runs here on the test subnet before each
+launch, as when `roscore` runs in another terminal. `--master own`: none runs, and each launcher
+starts its own, as `roslaunch robot.launch` does on a robot (roslaunch runs rosmaster and rosout as
+processes; ours are in the launcher).
+
+Where the time goes (2-core machine, ours/ours, 20 nodes, running master). Start, ~0.45 s: ~0.07 s
+until ssh runs (the interpreter, imports, the load); ~0.2 s for two ssh logins at once (the key
+exchange is sntrup761x25519, ~45 ms of CPU a side); ~0.06 s until our child registers (Python and
+asyncio's imports); ~0.05 s to spawn 10 nodes and see them register. roslaunch connects to the hosts
+one after the other (paramiko), and its child is slower to start. Stop, ~0.42 s: almost all of it
+is the nodes' own exit. A roscpp node takes 0.2-0.3 s to exit after SIGINT, and while it unregisters
+from the master its main thread spins on the disabled callback queue (~0.1 s of CPU each), so 20 at
+once on 2 cores take 0.32-0.41 s with no launcher at all. Then ~20 ms to end the sessions.
+roslaunch's child stops its nodes ten at a time, in two waves.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import statistics
@@ -105,10 +112,41 @@ def run_once(argv: list[str], env: dict[str, str], names: set[str], master_uri: 
                     pass
 
 
+@contextlib.contextmanager
+def running_master(wanted: bool, master_uri: str, port: int, hosts: TestHosts, scratch: str):
+    """A Debian rosmaster on the test subnet for the whole benchmark (or, not `wanted`, none)."""
+    if not wanted:
+        yield
+        return
+    menv = dict(os.environ, PATH=ROS_PATH, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
+    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=menv, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while True:  # the master is up when it answers getPid
+            try:
+                xmlrpc.client.ServerProxy(master_uri).getPid("/bench")
+                break
+            except OSError:
+                if master.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError("rosmaster did not start on %s" % master_uri) from None
+                time.sleep(0.05)
+        yield
+    finally:
+        master.send_signal(signal.SIGINT)
+        try:
+            master.wait(10)
+        except subprocess.TimeoutExpired:
+            master.kill()
+            master.wait()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--nodes", type=int, default=20)
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--master", choices=("running", "own"), default="running",
+                    help="a Debian rosmaster runs before each launch, or each launcher starts its own")
     opts = ap.parse_args()
     why = TestHosts.unavailable()
     if why:
@@ -125,19 +163,7 @@ def main() -> int:
     with TestHosts(2, env={"ROS_PACKAGE_PATH": pkgs, "PATH": bin_dir + ":" + ROS_PATH}) as hosts:
         port = 11000 + os.getpid() % 1000
         master_uri = "http://%s:%d/" % (hosts.gateway, port)
-        menv = dict(os.environ, PATH=ROS_PATH, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
-        master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=menv, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL, start_new_session=True)
-        try:
-            deadline = time.monotonic() + 30
-            while True:  # the master is up when it answers getPid
-                try:
-                    xmlrpc.client.ServerProxy(master_uri).getPid("/bench")
-                    break
-                except OSError:
-                    if master.poll() is not None or time.monotonic() > deadline:
-                        raise RuntimeError("rosmaster did not start on %s" % master_uri) from None
-                    time.sleep(0.05)
+        with running_master(opts.master == "running", master_uri, port, hosts, scratch):
             machines = "".join('  <machine name="h%d" address="%s" env-loader="%s"/>\n'
                                % (h.index, h.address, h.env_loader) for h in hosts.hosts)
             nodes = "".join('  <node machine="h%d" pkg="remote_bench" type="node" name="n%02d"/>\n'
@@ -162,6 +188,7 @@ def main() -> int:
                     results[label].append((start, stop))
                     print("rep %d %-13s start %.2f s  stop %.2f s" % (rep, label, start, stop), flush=True)
             base = results["roslaunch"]
+            print("%s master, %d nodes, %d reps:" % (opts.master, opts.nodes, opts.reps))
             for label, runs in results.items():
                 s = statistics.median(r[0] for r in runs)
                 t = statistics.median(r[1] for r in runs)
@@ -170,13 +197,6 @@ def main() -> int:
                     ratio = "  (x%.2f start, x%.2f stop of roslaunch)" % (
                         s / statistics.median(r[0] for r in base), t / statistics.median(r[1] for r in base))
                 print("%-13s median start %.2f s, stop %.2f s%s" % (label, s, t, ratio))
-        finally:
-            master.send_signal(signal.SIGINT)
-            try:
-                master.wait(10)
-            except subprocess.TimeoutExpired:
-                master.kill()
-                master.wait()
     return 0
 
 
