@@ -12,7 +12,10 @@ node) write straight to its own terminal, so nothing keeps that output and
   terminal's window size, and output processing off (OPOST): the real terminal
   turns "\\n" into "\\r\\n" once, when the launcher writes there. It is not made
   the node's controlling terminal (the node runs in its own session and only
-  inherits the descriptor; it never opens the pty).
+  inherits the descriptor; it never opens the pty). When the terminal is
+  resized (SIGWINCH to the launcher), every such pty gets the new size: a node
+  that asks for its terminal's size sees it, as one writing to the terminal
+  itself does under roslaunch (neither gets a SIGWINCH of its own).
 - The loop reads each descriptor when it is readable (one read and one write
   per chunk, no per-byte work), appends the chunk to the node's
   `<proc>-stdout.log` (the file roslaunch writes for output="log"; kept under
@@ -30,8 +33,10 @@ from __future__ import annotations
 import asyncio
 import fcntl
 import os
+import signal
 import sys
 import termios
+import weakref
 from typing import TextIO
 
 from launcher.process import console
@@ -70,6 +75,34 @@ def _open_pty(terminal_fd: int) -> tuple[int, int] | None:
     except OSError:
         pass  # a terminal without a size: the node sees 0x0, as under `script`
     return parent, child
+
+
+# The relayed ptys (launcher's end -> the terminal descriptor whose size they copy), and the loops that
+# pass a resize on to them.
+_sized_ptys: dict[int, int] = {}
+_resize_loops: weakref.WeakSet[asyncio.AbstractEventLoop] = weakref.WeakSet()
+
+
+def _copy_size(pty_fd: int, terminal_fd: int) -> None:
+    try:
+        fcntl.ioctl(pty_fd, termios.TIOCSWINSZ, fcntl.ioctl(terminal_fd, termios.TIOCGWINSZ, b"\0" * 8))
+    except OSError:
+        pass  # the terminal is gone or has no size: the pty keeps the one it has
+
+
+def _terminal_resized() -> None:
+    for pty_fd, terminal_fd in _sized_ptys.items():
+        _copy_size(pty_fd, terminal_fd)
+
+
+def _follow_resizes(loop: asyncio.AbstractEventLoop, pty_fd: int, terminal_fd: int) -> None:
+    _sized_ptys[pty_fd] = terminal_fd
+    if loop not in _resize_loops:
+        try:
+            loop.add_signal_handler(signal.SIGWINCH, _terminal_resized)
+        except (RuntimeError, ValueError):  # not the main thread's loop: the ptys keep their first size
+            return
+        _resize_loops.add(loop)
 
 
 def _open_pipe() -> tuple[int, int]:
@@ -140,8 +173,13 @@ class ScreenOutput:
                 self.log_fd = os.open(log_path, flags, 0o666)
             except OSError as e:  # the output still reaches the terminal; say why the file will miss it
                 console.printerrlog("[%s] cannot write its output to %s: %s" % (name, log_path, e.strerror))
-        for fd in self.sources:
+        for fd, stream in self.sources.items():
             loop.add_reader(fd, self._readable, fd)
+            if _is_terminal(fd):  # a pty (Channels._add makes one only for a terminal stream)
+                try:
+                    _follow_resizes(loop, fd, stream.fileno())
+                except (OSError, ValueError):  # a stream without a descriptor: nothing to follow
+                    pass
 
     @property
     def closed(self) -> bool:
@@ -206,6 +244,7 @@ class ScreenOutput:
 
     def _close(self, fd: int) -> None:
         self.sources.pop(fd, None)
+        _sized_ptys.pop(fd, None)
         if not self.paused:
             self.loop.remove_reader(fd)
         os.close(fd)

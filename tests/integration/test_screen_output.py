@@ -7,11 +7,15 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import pty
 import re
 import shlex
 import signal
+import struct
 import subprocess
 import sys
+import termios
+import threading
 import time
 
 import pytest
@@ -64,13 +68,21 @@ for i in range(int(sys.argv[1])):
     out.write("flood line %%d\\n" %% i)
 """ % sys.executable
 
+# the size of its terminal as it asks for it, each tick
+Sizer = """#!%s
+import os, time
+while True:
+    print("SIZE %%dx%%d" %% tuple(os.get_terminal_size(1)), flush=True)
+    time.sleep(0.1)
+""" % sys.executable
+
 LOOKER_LAUNCH = '<node pkg="screen_tests" type="looker" name="looker" output="screen"/>'
 
 
 @pytest.fixture
 def pkgs(tmp_path, ros_env):
     pkg = make_package(str(tmp_path / "pkgs"), "screen_tests",
-                       {"printer": RospyPrinter, "looker": Looker, "flood": Flood})
+                       {"printer": RospyPrinter, "looker": Looker, "flood": Flood, "sizer": Sizer})
     compile_roscpp("info_node.cpp", os.path.join(pkg, "info_cpp"))
     return str(tmp_path / "pkgs")
 
@@ -155,6 +167,44 @@ def test_a_screen_node_sees_a_tty_under_a_terminal(tmp_path, pkgs):
         assert "\r" not in _file(tmp_path, "looker-2-stdout.log") and log.startswith("LOOK ")
     finally:
         stop_group(proc, 30)
+
+
+def test_a_screen_node_sees_the_terminal_resized(tmp_path, pkgs):
+    """The launcher's controlling terminal is a pty of the test's; resizing it (SIGWINCH to the launcher) resizes
+    the node's pty, so the node sees the new size when it asks, as a node on the terminal itself does."""
+    port = free_port()
+    env = ros_env(str(tmp_path), port, pkgs)
+    launch = write_launch(str(tmp_path), '<node pkg="screen_tests" type="sizer" name="sizer" output="screen"/>')
+    terminal, own = pty.openpty()
+    fcntl.ioctl(own, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+
+    def controlling_terminal() -> None:  # (in the launcher's process, before exec)
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+    proc = subprocess.Popen([sys.executable, "-m", "launcher", "-p", str(port), launch], env=env, stdin=own,
+                            stdout=own, stderr=own, preexec_fn=controlling_terminal)
+    os.close(own)
+    screen = bytearray()
+
+    def read_terminal() -> None:  # (the terminal must be read, or the launcher blocks writing to it)
+        while True:
+            try:
+                data = os.read(terminal, 65536)
+            except OSError:  # EIO: the launcher and its nodes have closed the terminal
+                return
+            if not data:
+                return
+            screen.extend(data)
+    reader = threading.Thread(target=read_terminal, daemon=True)
+    reader.start()
+    try:
+        poll(lambda: b"SIZE 80x24" in screen, 60, 0.1, what="the node's first size")
+        fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+        poll(lambda: b"SIZE 120x40" in screen, 30, 0.1, what="the new size seen by the node")
+    finally:
+        stop_group(proc, 30)
+        os.close(terminal)
+        reader.join(10)
 
 
 def test_a_screen_node_sees_a_pipe_when_the_output_is_not_a_terminal(tmp_path, pkgs):
