@@ -283,6 +283,10 @@ def packages_of(plan: Plan, specs: list[ProcessSpec]) -> dict[str, str]:
 class Run:
     """One run on the running loop; the steps are methods so that the order reads like roslaunch's."""
 
+    # roslaunch starts the master as a process of the launch, and says so ("auto-starting new master",
+    # "[master] killing on exit"); rostest's runs inside it, started and stopped without a word
+    MASTER_IS_A_PROCESS = True
+
     def __init__(self, opts: Any, plan: Plan, watchdog: Any = None):
         self.opts = opts
         self.plan = plan
@@ -346,7 +350,8 @@ class Run:
             console.printlog(summary(self.plan.config, self._summary_params(), remote=self.plan.remote,
                                      machines=self.remote is not None))
         if not self.external:
-            console.printlog("auto-starting new master")
+            if self.MASTER_IS_A_PROCESS:
+                console.printlog("auto-starting new master")
             if self.master is None:
                 await self._start_master(urllib.parse.urlsplit(self.master_uri).port or masterlink.DEFAULT_MASTER_PORT)
         if not self.core:
@@ -665,7 +670,7 @@ class Run:
             except Exception as e:  # noqa: BLE001 - the master must still stop
                 console.printerrlog("error stopping rosout: %s" % e)
         if self.master is not None:
-            if not self.core:
+            if not self.core and self.MASTER_IS_A_PROCESS:
                 console.printlog("[master] killing on exit")
             await self.master.stop()
         if self.core:

@@ -61,6 +61,8 @@ def printlog(msg: str) -> None:
 class TestAttempt(Run):
     """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
 
+    MASTER_IS_A_PROCESS = False  # (rostest's master is a rosmaster.Master in its own process)
+
     def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
                  reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
         super().__init__(opts, plan, watchdog)
@@ -92,6 +94,14 @@ class TestAttempt(Run):
         # a free port of the kernel's choosing: parallel runs never meet
         await super()._start_master(0)
         self.master_uri = self.plan.master_uri = self.master.uri
+
+    async def _start_rosout(self) -> None:
+        """None: rostest's master is up before its runner launches, and roslaunch starts its core nodes
+        (rosout) only with a master it started itself. A test sees only the file's nodes."""
+
+    async def _start_diagnostics(self) -> None:
+        """None either: /diagnostics of the nodes' health is the launcher's, not rostest's (the test's graph
+        would have a node more)."""
 
     def _launch_nodes(self) -> None:
         # rostest numbers its processes with one counter for the whole file (roslaunch's, global in its

@@ -70,6 +70,19 @@ if __name__ == "__main__":
     rostest.rosrun("rttest", "flaky", Flaky, sysargs=sys.argv)
 '''
 
+# the nodes the master knows while the test runs, written to $ROS_HOME/graph.txt (the runners' homes differ)
+GRAPH_NODE = ROS_PY + '''import os, unittest
+import rosgraph, rospy, rostest
+class Graph(unittest.TestCase):
+    def test_graph(self):
+        pubs, subs, srvs = rosgraph.Master("/graph_node").getSystemState()
+        with open(os.path.join(os.environ["ROS_HOME"], "graph.txt"), "w") as f:
+            f.write(" ".join(sorted({n for _topic, nodes in pubs + subs + srvs for n in nodes})))
+if __name__ == "__main__":
+    rospy.init_node("graph_node")
+    rostest.rosrun("rttest", "graph", Graph)
+'''
+
 TALKER = RospyTalker
 
 TESTS = {
@@ -100,6 +113,7 @@ TESTS = {
                  '<test test-name="first" pkg="rttest" type="pass_node.py" name="one"/>\n'
                  '<test test-name="second" pkg="rttest" type="pass_node.py" name="two" ns="sub"/>'),
     "unparsable": '<test test-name="broken" pkg="rttest"\n',
+    "graph": '<test test-name="graph" pkg="rttest" type="graph_node.py"/>',
     "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
                 '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
                 '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
@@ -113,7 +127,7 @@ def workspace(tmp_path_factory, ros_env):
     pkg = make_package(src, "rttest", {"pass_node.py": PASS_NODE, "fail_node.py": FAIL_NODE,
                                        "segv_node.py": SEGV_NODE, "sleep_node.py": SLEEP_NODE,
                                        "flaky_node.py": FLAKY_NODE, "talker.py": TALKER,
-                                       "clean_node.py": NO_STALE_NODE})
+                                       "clean_node.py": NO_STALE_NODE, "graph_node.py": GRAPH_NODE})
     try:
         compile_roscpp("gtest_node.cpp", os.path.join(pkg, "gtest_node"), libs=("-lgtest", "-lpthread"))
     except subprocess.CalledProcessError:
@@ -326,6 +340,22 @@ def test_processes_are_numbered_as_rostest_numbers_them(workspace, tmp_path):
     assert names["rostest"] == ["one-2-stdout.log", "sub-two-4-stdout.log", "talker-1-stdout.log",
                                 "talker-3-stdout.log"], names
     assert names["ours"] == names["rostest"]
+
+
+def test_the_same_graph_as_rostest_no_rosout(workspace):
+    """rostest's master runs inside it and is up before its runner launches, so roslaunch's core nodes
+    (rosout) are never started: the test sees only its own nodes (no rosout, and no /diagnostics publisher of
+    ours), and no rosout or master lines are printed."""
+    root, pkg = workspace
+    graphs = {}
+    for who, run in (("rostest", rostest), ("ours", ours)):
+        result = run(root, pkg, "graph")
+        assert result.rc == 0, result
+        with open(os.path.join(root, who, "home", "graph.txt")) as f:
+            graphs[who] = f.read()
+        assert "[rosout-1]" not in result.out and "[master] killing" not in result.out, result
+    assert graphs["rostest"] == "/graph"  # (the test's name: `name` defaults to test-name)
+    assert graphs["ours"] == graphs["rostest"]
 
 
 @pytest.mark.parametrize("name, words", [("nothere", "rostest file [%s] does not exist"),
