@@ -67,8 +67,8 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     # the nodes. A child with a process left (ours: its no-orphans guard) gets ORDERLY_WAIT_S to end
     # by itself (ours does in ~20 ms; stop_nodes would freeze it while ending and wait NODE_GRACE_S
     # for the guard); one with none (Debian's, which would take ~0.3 s more to exit) is ended at once.
-    # A child that has ended so is not followed by stop_nodes: it has no children left for `pkill -P`
-    # to find, and each pgrep/pkill is a scan of /proc on CPUs that the exiting nodes need.
+    # When the child has ended either way, the loop exits without stop_nodes: an ended child has no
+    # children left for `pkill -P` to find, and each pgrep/pkill scans /proc on CPUs the nodes need.
     script = ("stop_nodes() { kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
               "while [ $i -lt %d ] && pgrep -P $child >/dev/null; do sleep 0.1; i=$((i+1)); done\n"
               "pkill -KILL -P $child; kill -KILL $child 2>/dev/null; exit 0; }\n"
