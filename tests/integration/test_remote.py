@@ -559,3 +559,23 @@ def test_operator_stop_of_a_node_under_debians_child_is_refused_and_it_runs_on(t
     la.wait_output(r"process\[once-\d+\]: started with pid(.|\n)*process\[once-\d+\]: started with pid", 60)
     poll(lambda: [e["state"] for e in events(tmp_path, "/once")].count("running") == 2, 30, period=0.2,
          what="once running a second time")
+
+
+def test_a_remote_node_stopped_by_the_operator_stays_stopped_when_its_machine_comes_back(tmp_path, hosts, launched):
+    la, env = launched(RESPAWNING_TALKER + KEEPER, child="ours")
+    h1 = hosts.hosts[0]
+    poll(lambda: on_host(h1, "__name:=talker") and on_host(h1, "__name:=keeper"), 60, what="nodes on host one")
+    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    r = tool(env, "stop", "/talker")
+    assert r.returncode == 0, r.stderr
+    keeper = on_host(h1, "__name:=keeper")
+    h1.cut()
+    try:
+        la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
+    finally:
+        h1.restore()
+    poll(lambda: [p for p in on_host(h1, "__name:=keeper") if p not in keeper], 60, period=0.2,
+         what="keeper started again on host one")
+    poll(lambda: node_status(env)["/keeper"]["state"] == "running", 30, period=0.2, what="keeper running again")
+    stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker came back")
+    assert node_status(env)["/talker"]["state"] == "stopped"
