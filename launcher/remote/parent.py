@@ -516,7 +516,9 @@ class RemoteParent:
             if rn is None:
                 continue
             if rn.operator_stopped:
-                rn.on_child = False  # (it died as it was being stopped: the operator's stop decides its state)
+                # it died as it was being stopped: the operator's stop decides its state (a child that
+                # cannot stop it respawns it itself, if it is one the child respawns)
+                rn.on_child = rn.node.respawn and not rn.owned
                 return
             code = exit_code if isinstance(exit_code, int) else None
             code_, sig = (None, -code) if code is not None and code < 0 else (code, None)
@@ -616,20 +618,22 @@ class RemoteParent:
             return ""
         rn.operator_stopped = True
         console.printlog("[%s] stopping process on machine [%s] (operator)" % (rn.process, machine.name))
+        exit_code = None
         try:
             code, msg, exit_code = await call(child.uri or "", "stop_process", rn.process,
                                               timeout=self.sigint_timeout + self.sigterm_timeout + 5)
-        except Exception as e:  # noqa: BLE001 - any failure: the node was not stopped
+            refusal = "" if code == 1 else msg
+        except Fault as e:
+            refusal = e.faultString
+            if "not supported" in e.faultString:
+                refusal = ("its roslaunch child cannot stop one process (only a child that is this launcher, "
+                           "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
+        except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
+            refusal = str(e) or type(e).__name__
+        if refusal and rn.on_child:
             rn.operator_stopped = False
-            if isinstance(e, Fault) and "not supported" in e.faultString:
-                return ("cannot stop [%s] on machine [%s] (%s): its roslaunch child cannot stop one process "
-                        "(only a child that is this launcher, `launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); "
-                        "the node runs on" % (rn.name, machine.name, machine.address))
-            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine.name, machine.address,
-                                                                   str(e) or type(e).__name__)
-        if code != 1:
-            rn.operator_stopped = False
-            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine.name, machine.address, msg)
+            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine.name, machine.address, refusal)
+        # stopped; or gone meanwhile (it died, or its machine dropped): it stays stopped all the same
         rn.on_child = False
         code_ = exit_code if isinstance(exit_code, int) else None
         self.fleet.change(rn.name, state.STOPPED, exit_code=None if code_ is None or code_ < 0 else code_,
