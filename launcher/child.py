@@ -3,7 +3,8 @@
 A parent (Debian's roslaunch or our `launch`) runs this over ssh on a machine.
 It starts the child's XML-RPC API (`launch`, `shutdown`, and the common
 `list_processes`, `process_info`, `get_pid`, `get_node_names`, as
-roslaunch.server.ROSLaunchChildHandler), registers with the parent, and runs
+roslaunch.server.ROSLaunchChildHandler; and launcher's `stop_process`, which
+`launcher stop` of a node on this machine needs), registers with the parent, and runs
 the nodes of the launch XML it is given under our supervisor (respawn, stop
 escalation, the no-orphans guard). It tells the parent every console line
 (`log`) and every node death (`process_died`). It sets no parameters and
@@ -250,6 +251,24 @@ class Child:
             return [1, "success", 1]
         return stop()
 
+    def stop_process(self, process_name: str) -> Any:
+        """launcher's extension (roslaunch's child has no such call): stop one process as a local
+        `launcher stop` does (SIGINT, escalation) and keep it stopped, its respawn="true" too; the
+        answer comes once it has exited: [1, "stopped", exit code (-signal, as process_died)]. The
+        parent starts it again, if asked to, with a `launch` call."""
+        procs = self.supervisor.procs if self.supervisor is not None else []
+        # the latest record of that name: a node given again by a later `launch` has a record per call
+        proc = next((p for p in reversed(procs) if p.spec.name == process_name), None)
+        if proc is None or self.supervisor.shutting_down:
+            return [-1, "no process by that name", 0]
+        stopping = self.supervisor.stop_process(proc)
+
+        async def stopped() -> list:
+            if stopping is not None:
+                await stopping
+            return [1, "stopped", proc.exit_code if proc.exit_code is not None else 0]
+        return stopped()
+
     def list_processes(self) -> list:
         active, dead = [], []
         for s in self.fleet or ():
@@ -273,4 +292,4 @@ class Child:
         return [1, "node names", [s.name for s in self.fleet if s.state == state.RUNNING]]
 
     _API = {"launch": launch, "shutdown": shutdown, "list_processes": list_processes, "process_info": process_info,
-            "get_pid": get_pid, "get_node_names": get_node_names}
+            "get_pid": get_pid, "get_node_names": get_node_names, "stop_process": stop_process}

@@ -2,7 +2,8 @@
 
 Needs the run's token (launcher.operate.token), read from the file the
 launch wrote in its log directory: only the user who started the launch can.
-Prints each node it changed; no node matching is an error naming the pattern.
+Prints each node it changed; no node matching is an error naming the pattern,
+and so is each node that could not be changed (exit status 1).
 """
 
 from __future__ import annotations
@@ -46,11 +47,14 @@ def _control(verb: str, argv: list[str]) -> int:
     except Fault as e:
         status = client.EXIT_REFUSED if e.faultCode == run_token.REFUSED else client.EXIT_FAILED
         raise client.ToolError(e.faultString, status) from None
-    if code != 1:
+    if code not in (0, 1):
         raise client.ToolError(msg)
     past = {"start": "started", "stop": "stopped", "restart": "restarted"}[verb]
     for name in names:
         sys.stdout.write("%s %s\n" % (past, name))
+    if code == 0:  # some nodes could not be (a node on another machine whose roslaunch child cannot stop it)
+        sys.stdout.flush()
+        raise client.ToolError(msg)
     return client.EXIT_OK
 
 

@@ -11,6 +11,9 @@ Added calls: `launcher_status` (the run and every node's state as one JSON
 text: a 500-node status must cost the launcher little), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
 refused with a fault unless `token` is the run's (`launcher.operate.token`).
+The pattern selects among local and remote nodes alike (a remote node is
+steered by `launcher.remote.parent`); the answer is [1, text, names], or
+[0, the refusals, the names that were steered] when some node could not be.
 """
 
 from __future__ import annotations
@@ -218,26 +221,42 @@ class LaunchServer:
         if not run_token.matches(self.token, given_token):
             raise Fault(run_token.REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
                                                  "directory", verb))
-        supervisor = self.run.supervisor
         if not isinstance(pattern, str):
             raise Fault(1, "%s: the pattern must be a string" % verb)
-        names = patterns.match(pattern, [p.spec.node_name for p in self._records()]) if supervisor else []
+        supervisor, remote = self.run.supervisor, self.run.remote
+        local = [p.spec.node_name for p in self._records()] if supervisor else []
+        # the nodes of other machines too (launcher.remote.parent steers them): one pattern, one answer
+        remote_names = remote.node_names() if remote is not None and supervisor else []
+        names = patterns.match(pattern, local + remote_names)
         if not names:
             return [-1, "no node matches [%s]" % pattern, []]
-        if verb == "start":
-            for name in names:
-                supervisor.start_node(name)
-            return [1, "started %d node(s)" % len(names), names]
-        if verb == "stop":
-            pending = [f for f in (supervisor.stop_node(n) for n in names) if f is not None]
-        else:
-            pending = [asyncio.ensure_future(supervisor.restart_node(n)) for n in names]
-        return self._when_done(verb, names, pending)
+        return self._apply(verb, names, set(remote_names))
 
-    async def _when_done(self, verb: str, names: list[str], pending: list) -> list:
-        if pending:
-            await asyncio.gather(*pending)
-        return [1, "%s %d node(s)" % ("stopped" if verb == "stop" else "restarted", len(names)), names]
+    async def _apply(self, verb: str, names: list[str], remote_names: set[str]) -> list:
+        """Each node steered at once; [1, what, names], or [0, the refusals, the names that were steered]."""
+        supervisor, remote = self.run.supervisor, self.run.remote
+
+        async def one(name: str) -> str:  # '' or why not
+            if name in remote_names:
+                if verb == "start":
+                    return remote.start_node(name)
+                return await (remote.stop_node(name) if verb == "stop" else remote.restart_node(name))
+            if verb == "start":
+                supervisor.start_node(name)
+            elif verb == "stop":
+                stopping = supervisor.stop_node(name)
+                if stopping is not None:
+                    await stopping
+            else:
+                await supervisor.restart_node(name)
+            return ""
+
+        refusals = await asyncio.gather(*(one(n) for n in names))
+        done = [n for n, why in zip(names, refusals) if not why]
+        if any(refusals):
+            return [0, "\n".join(why for why in refusals if why), done]
+        past = {"start": "started", "stop": "stopped", "restart": "restarted"}[verb]
+        return [1, "%s %d node(s)" % (past, len(names)), names]
 
     def start_nodes(self, token: Any, pattern: Any) -> Any:
         return self._control("start", token, pattern)

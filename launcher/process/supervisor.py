@@ -657,12 +657,15 @@ class Supervisor:
         """Stop a node with the shutdown escalation (SIGINT, SIGTERM, SIGKILL) and keep it stopped: a
         respawning node is not restarted. A future done once it is down; None if it was not running."""
         proc = self.node(node_name)
-        if proc is None:
-            return None
+        return None if proc is None else self.stop_process(proc)
+
+    def stop_process(self, proc: NodeProcess) -> asyncio.Future | None:
+        """`stop_node` of one record (a remote child, given nodes again by later `launch` calls, holds
+        several records of one node and stops the one its parent names)."""
         if proc.respawn_handle is not None:  # between two runs: just don't start it again
             proc.respawn_handle.cancel()
             proc.respawn_handle = None
-            self.fleet.change(node_name, state.STOPPED, reason="stopped by operator")
+            self.fleet.change(proc.spec.node_name, state.STOPPED, reason="stopped by operator")
             return None
         if proc.stopped is not None and not proc.stopped.done():
             return proc.stopped  # already being stopped

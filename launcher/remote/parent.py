@@ -26,6 +26,13 @@ child whose last node ended exits (roslaunch's children do), so a node started
 again then gets a new session. What a child cannot be told (limits, core dumps,
 hang probes, per-node stop timeouts, log rotation) is warned about at load.
 
+Operators (`launcher start|stop|restart`, launcher.operate.server) steer a
+remote node through `stop_node`/`start_node`: a stop marks it stopped by the
+operator (no restart on its death or its machine's return) and asks the child
+to stop that process (`stop_process`, an extension of our child: roslaunch's
+child has none, and the stop is refused); a start is a `launch` call holding
+it, as a restart under a NodePolicy.
+
 A machine whose session ends while the launch runs (the link was cut, the host
 rebooted) is tried again with a growing delay; when it answers, its nodes are
 launched again (roslaunch gives up on it: PR #1345 was never merged).
@@ -43,7 +50,7 @@ from typing import Any, Callable, Mapping, NamedTuple
 
 from launcher.config import Machine, Node, NodePolicy
 from launcher.errors import LaunchError
-from launcher.net.xmlrpc import call
+from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.process import console, restart, state
 from launcher.process.readiness import Readiness
@@ -134,6 +141,9 @@ class RemoteNode:
         self.started_at = 0.0  # loop time of the latest start
         self.timer: asyncio.TimerHandle | None = None  # a start to come: spawn_delay or a respawn's delay
         self.held = False  # its wait_for conditions are awaited (process/readiness.py)
+        self.process = ""  # the child's name of its current process (talker-3), once the child said it
+        # an operator stopped it (`launcher stop`): its death is no reason to start it, nor is its machine's return
+        self.operator_stopped = False
 
     @property
     def name(self) -> str:
@@ -392,7 +402,7 @@ class RemoteParent:
         while child.pending and child.accepting:
             batch, child.pending = child.pending, []
             for rn in batch:
-                rn.on_child, rn.started_at = True, loop.time()
+                rn.on_child, rn.started_at, rn.process = True, loop.time(), ""
             xml = remote_launch_xml(rn.sent() for rn in batch)
             try:
                 code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
@@ -418,7 +428,11 @@ class RemoteParent:
                     child.ssh.terminate()
                 return
             child.launched_ok = True
-            _succeeded, failed = val
+            succeeded, failed = val
+            for name in succeeded:
+                rn = child.node_for_process(name)
+                if rn is not None:
+                    rn.process = name
             for name in failed:
                 rn = child.node_for_process(name) or next((r for r in batch if "%s/%s" % (r.node.package, r.node.type)
                                                            == name), None)
@@ -472,9 +486,10 @@ class RemoteParent:
 
     def _nodes_lost(self, child: RemoteChild) -> bool:
         """The session ended: the nodes it still ran are lost with it (and pending for the next one)."""
-        lost = [rn for rn in child.nodes if rn.on_child]
-        for rn in lost:
+        lost = [rn for rn in child.nodes if rn.on_child and not rn.operator_stopped]
+        for rn in child.nodes:
             rn.on_child = False
+        for rn in lost:
             status = self.fleet.nodes.get(rn.name)
             if status is not None and status.state in (state.RUNNING, state.RESPAWNING):
                 self.fleet.change(rn.name, state.EXITED, reason="machine [%s] dropped" % child.machine.name)
@@ -500,6 +515,11 @@ class RemoteParent:
             rn = child.node_for_process(process_name)
             if rn is None:
                 continue
+            if rn.operator_stopped:
+                # it died as it was being stopped: the operator's stop decides its state (a child that
+                # cannot stop it respawns it itself, if it is one the child respawns)
+                rn.on_child = rn.node.respawn and not rn.owned
+                return
             code = exit_code if isinstance(exit_code, int) else None
             code_, sig = (None, -code) if code is not None and code < 0 else (code, None)
             if rn.node.required:
@@ -558,6 +578,90 @@ class RemoteParent:
                                 % (rn.spec.name, rn.restarts, threshold))
         self._want(rn)
 
+    # ---- operator control: `launcher start|stop|restart` of a node on another machine -----------------
+
+    def node_names(self) -> list[str]:
+        return [rn.name for child in self.children.values() for rn in child.nodes]
+
+    def _node(self, name: str) -> RemoteNode | None:
+        for child in self.children.values():
+            for rn in child.nodes:
+                if rn.name == name:
+                    return rn
+        return None
+
+    async def stop_node(self, name: str) -> str:
+        """Stop the node and keep it stopped, as a local `launcher stop`: '' once done, else why not.
+
+        The one place that sets `operator_stopped`: from then on neither the death its child reports,
+        nor its machine dropping and answering again, starts it; only `start_node` does. The child is
+        asked to stop that one process (`stop_process`, our child's extension); roslaunch's child has
+        no such call, and the node is then left as it was."""
+        rn = self._node(name)
+        if rn is None or self.stopping or self.fleet is None:
+            return ""
+        child, machine = rn.child, rn.child.machine
+        # handed to the child by a `launch` call still under way: its process name comes with the answer
+        while rn.on_child and not rn.process and child.launching is not None and not child.launching.done():
+            await asyncio.wait([child.launching])
+        if rn.operator_stopped:
+            return ""  # stopped, or being stopped
+        if not rn.on_child:
+            # a start to come (respawn delay, spawn_delay, wait_for, its machine's return) is called off;
+            # a node that ended for good stays as it is, as a local one does
+            if rn.timer is not None or rn.held or rn in child.pending:
+                rn.cancel()
+                if rn in child.pending:
+                    child.pending.remove(rn)
+                rn.operator_stopped = True
+                self.fleet.change(rn.name, state.STOPPED, reason="stopped by operator")
+            return ""
+        rn.operator_stopped = True
+        console.printlog("[%s] stopping process on machine [%s] (operator)" % (rn.process, machine.name))
+        exit_code = None
+        try:
+            code, msg, exit_code = await call(child.uri or "", "stop_process", rn.process,
+                                              timeout=self.sigint_timeout + self.sigterm_timeout + 5)
+            refusal = "" if code == 1 else msg
+        except Fault as e:
+            refusal = e.faultString
+            if "not supported" in e.faultString:
+                refusal = ("its roslaunch child cannot stop one process (only a child that is this launcher, "
+                           "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
+        except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
+            refusal = str(e) or type(e).__name__
+        if refusal and rn.on_child:
+            rn.operator_stopped = False
+            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine.name, machine.address, refusal)
+        # stopped; or gone meanwhile (it died, or its machine dropped): it stays stopped all the same
+        rn.on_child = False
+        code_ = exit_code if isinstance(exit_code, int) else None
+        self.fleet.change(rn.name, state.STOPPED, exit_code=None if code_ is None or code_ < 0 else code_,
+                          exit_signal=-code_ if code_ is not None and code_ < 0 else None,
+                          reason="stopped by operator")
+        return ""
+
+    def start_node(self, name: str) -> str:
+        """Start a node that is not running, as a local `launcher start` (a pending start happens now),
+        by a `launch` call holding it: '' when asked for, else why not."""
+        rn = self._node(name)
+        if rn is None or self.stopping or self.fleet is None:
+            return ""
+        child, machine = rn.child, rn.child.machine
+        if child.task is None or child.task.done():
+            return "cannot start [%s]: machine [%s] (%s) could not be reached at launch" % (rn.name, machine.name,
+                                                                                        machine.address)
+        if rn.on_child or rn in child.pending:
+            return ""  # it runs (or is being stopped), or starts as soon as its machine answers
+        rn.cancel()
+        rn.operator_stopped = False
+        console.printlog("[%s] starting process on machine [%s] (operator)" % (rn.spec.name, machine.name))
+        self._want(rn)
+        return ""
+
+    async def restart_node(self, name: str) -> str:
+        return await self.stop_node(name) or self.start_node(name)
+
     # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
 
     PARENT_CALLS = ("register", "list_children", "process_died", "log")  # what only the children call
@@ -568,7 +672,6 @@ class RemoteParent:
     def _dispatch(self, method: str, params: list) -> Any:
         fn = self._API.get(method)
         if fn is None:
-            from launcher.net.xmlrpc import Fault
             raise Fault(-1, "method [%s] is not supported" % method)
         return fn(self, *params)
 
@@ -596,7 +699,8 @@ class RemoteParent:
             m = _STARTED.search(message)
             child = self.children.get(client)
             rn = child.node_for_process(m.group("proc")) if m and child else None
-            if rn is not None and self.fleet is not None:
+            if rn is not None and self.fleet is not None and not rn.operator_stopped:
+                rn.process = m.group("proc")
                 rn.started_at = asyncio.get_running_loop().time()  # (its uptime counts for the restart policy)
                 self.fleet.change(rn.name, state.RUNNING, pid=int(m.group("pid")))
         else:

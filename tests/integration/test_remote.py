@@ -452,3 +452,130 @@ def test_policies_a_remote_child_cannot_apply_are_warned_about_at_load(tmp_path,
                        r"limits \(memory_limit\) cannot be applied there" % re.escape(hosts.hosts[0].address), 30,
                        stream="stderr")
     assert m and "core dumps (enable_coredumps)" in la.stderr
+
+
+def tool(env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
+    """`launcher ARGS` against the launch of `env` (its master)."""
+    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+                          text=True, timeout=120)
+
+
+def node_status(env: dict[str, str]) -> dict[str, dict]:
+    r = tool(env, "status", "--json")
+    assert r.returncode == 0, r.stderr
+    return {n["name"]: n for n in json.loads(r.stdout)["nodes"]}
+
+
+def pid_of_registered(env: dict[str, str], name: str) -> int | None:
+    """The pid the node registered at the master answers with (getPid on its own API), or None."""
+    try:
+        code, _, uri = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).lookupNode("/test", name)
+        return xmlrpc.client.ServerProxy(uri).getPid("/test")[2] if code == 1 else None
+    except (OSError, xmlrpc.client.Error):
+        return None
+
+
+def stays(cond, seconds: float, what: str) -> None:
+    """`cond()` holds at every look for `seconds` (a respawn that should not come: it has had its time)."""
+    import time
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        assert cond(), what
+        time.sleep(0.1)
+
+
+RESPAWN_DELAY_S = 1.0
+RESPAWNING_TALKER = TALKER % (' respawn="true" respawn_delay="%g"' % RESPAWN_DELAY_S)
+
+
+def test_operator_stop_start_restart_of_a_remote_node_with_our_child(tmp_path, hosts, launched):
+    la, env = launched(RESPAWNING_TALKER + LOCAL, child="ours")
+    h1 = hosts.hosts[0]
+    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    poll(lambda: pid_of_registered(env, "/talker") == first, 60, period=0.2, what="talker registered")
+    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+
+    r = tool(env, "stop", "/talker")
+    assert r.returncode == 0 and r.stdout == "stopped /talker\n", r.stdout + r.stderr
+    # the answer comes once the process has exited; its child does not respawn it (respawn="true"), nor
+    # does the parent
+    poll(lambda: not on_host(h1, "__name:=talker"), 10, what="talker gone from host one")
+    stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker was respawned")
+    st = node_status(env)
+    assert st["/talker"]["state"] == "stopped" and st["/talker"]["reason"] == "stopped by operator", st["/talker"]
+    assert st["/talker"]["host"] == h1.address and st["/local_echo"]["state"] == "running"
+    assert [e["state"] for e in events(tmp_path, "/talker")][-1] == "stopped"
+
+    r = tool(env, "start", "talker")
+    assert r.returncode == 0 and r.stdout == "started /talker\n", r.stdout + r.stderr
+    second = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker started again on host one")[0]
+    assert second != first
+    poll(lambda: pid_of_registered(env, "/talker") == second, 60, period=0.2, what="the new talker registered")
+    poll(lambda: (lambda s: s["state"] == "running" and s["pid"] == second)(node_status(env)["/talker"]), 30,
+         period=0.2, what="talker running again in the status")
+
+    # local and remote nodes in one call, one answer
+    local_first = node_status(env)["/local_echo"]["pid"]
+    r = tool(env, "restart", "/(talker|local_echo)")
+    assert r.returncode == 0 and sorted(r.stdout.splitlines()) == ["restarted /local_echo", "restarted /talker"], \
+        r.stdout + r.stderr
+    third = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != second], 60, what="talker restarted")[0]
+    poll(lambda: pid_of_registered(env, "/talker") == third, 60, period=0.2, what="the restarted talker registered")
+    st = poll(lambda: (lambda s: s if s["/talker"]["pid"] == third and s["/talker"]["state"] == "running"
+                       and s["/local_echo"]["state"] == "running" else None)(node_status(env)), 30, period=0.2,
+              what="both running again")
+    assert st["/local_echo"]["pid"] != local_first
+    states = [e["state"] for e in events(tmp_path, "/talker")]
+    assert states[-4:] == ["stopped", "running", "stopped", "running"] and states.count("stopped") == 2, states
+    la.signal(signal.SIGINT)
+    assert la.wait(60) == 0, la.stderr
+
+
+def test_operator_stop_of_a_node_under_debians_child_is_refused_and_it_runs_on(tmp_path, hosts, launched):
+    once = '<node machine="two" pkg="rostopic" type="rostopic" name="once" args="list"/>\n'
+    la, env = launched(RESPAWNING_TALKER + LOCAL + once)
+    h1, h2 = hosts.hosts
+    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+
+    for verb in ("stop", "restart"):
+        r = tool(env, verb, "/talker")
+        assert r.returncode == 1 and r.stdout == "", r.stdout + r.stderr
+        assert ("cannot stop [/talker] on machine [one] (%s): its roslaunch child cannot stop one process"
+                % h1.address) in r.stderr, r.stderr
+    # with a local node in the same call: that one is stopped, the remote one refused
+    r = tool(env, "stop", "/(talker|local_echo)")
+    assert r.returncode == 1 and r.stdout == "stopped /local_echo\n", r.stdout + r.stderr
+    assert "cannot stop [/talker] on machine [one]" in r.stderr, r.stderr
+    st = node_status(env)
+    assert st["/talker"]["state"] == "running" and st["/talker"]["pid"] == first
+    assert st["/local_echo"]["state"] == "stopped"
+    assert on_host(h1, "__name:=talker") == [first]
+
+    # a remote node that ended is started again by a `launch` call, also by Debian's child
+    poll(lambda: node_status(env)["/once"]["state"] == "exited", 60, period=0.2, what="once ended on host two")
+    r = tool(env, "start", "/once")
+    assert r.returncode == 0 and r.stdout == "started /once\n", r.stdout + r.stderr
+    la.wait_output(r"process\[once-\d+\]: started with pid(.|\n)*process\[once-\d+\]: started with pid", 60)
+    poll(lambda: [e["state"] for e in events(tmp_path, "/once")].count("running") == 2, 30, period=0.2,
+         what="once running a second time")
+
+
+def test_a_remote_node_stopped_by_the_operator_stays_stopped_when_its_machine_comes_back(tmp_path, hosts, launched):
+    la, env = launched(RESPAWNING_TALKER + KEEPER, child="ours")
+    h1 = hosts.hosts[0]
+    poll(lambda: on_host(h1, "__name:=talker") and on_host(h1, "__name:=keeper"), 60, what="nodes on host one")
+    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    r = tool(env, "stop", "/talker")
+    assert r.returncode == 0, r.stderr
+    keeper = on_host(h1, "__name:=keeper")
+    h1.cut()
+    try:
+        la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
+    finally:
+        h1.restore()
+    poll(lambda: [p for p in on_host(h1, "__name:=keeper") if p not in keeper], 60, period=0.2,
+         what="keeper started again on host one")
+    poll(lambda: node_status(env)["/keeper"]["state"] == "running", 30, period=0.2, what="keeper running again")
+    stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker came back")
+    assert node_status(env)["/talker"]["state"] == "stopped"
