@@ -20,11 +20,17 @@ Where the time goes (2-core machine, ours/ours, 20 nodes, running master). Start
 until ssh runs (the interpreter, imports, the load); ~0.2 s for two ssh logins at once (the key
 exchange is sntrup761x25519, ~45 ms of CPU a side); ~0.06 s until our child registers (Python and
 asyncio's imports); ~0.05 s to spawn 10 nodes and see them register. roslaunch connects to the hosts
-one after the other (paramiko), and its child is slower to start. Stop, ~0.42 s: almost all of it
-is the nodes' own exit. A roscpp node takes 0.2-0.3 s to exit after SIGINT, and while it unregisters
-from the master its main thread spins on the disabled callback queue (~0.1 s of CPU each), so 20 at
-once on 2 cores take 0.32-0.41 s with no launcher at all. Then ~20 ms to end the sessions.
-roslaunch's child stops its nodes ten at a time, in two waves.
+one after the other (paramiko), and its child is slower to start.
+
+Stop, ~0.45 s: almost all of it is the nodes' own exit, which the benchmark measures too ("nodes
+alone", with a running master: the same nodes started over ssh in sessions of their own, SIGINTed
+from here with no launcher). A roscpp node takes 0.2-0.3 s to exit after SIGINT, and while it
+unregisters from the master its main thread spins on the disabled callback queue (~0.1 s of CPU
+each). Each node has a session of its own (roslaunch's os.setsid, our start_new_session), so the
+kernel's sched_autogroup gives each spinning node a CPU share equal to the whole master's: 20 of
+them on 2 cores take ~0.42 s (~0.34 s when they share one session). That is ~0.5x of roslaunch's
+stop before any launcher does anything; ours adds ~0.04 s (the shutdown calls, ~20 ms to end the
+sessions), roslaunch's child ~0.4 s (it stops its nodes ten at a time, in two waves).
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import select
+import shlex
 import signal
 import statistics
 import subprocess
@@ -78,6 +86,18 @@ def leftovers(hosts: TestHosts) -> list[str]:
     return [line for h in hosts.hosts for line in h.process_lines() if "sshd" not in line]
 
 
+def wait_exit(proc: subprocess.Popen, timeout: float) -> None:
+    """Wait for the exit, seen when it happens: Popen.wait(timeout) polls with sleeps that grow to 50 ms,
+    which would add ~25 ms to every stop measured."""
+    fd = os.pidfd_open(proc.pid)
+    try:
+        if not select.select([fd], [], [], timeout)[0]:
+            raise subprocess.TimeoutExpired(proc.args, timeout)
+    finally:
+        os.close(fd)
+    proc.wait()
+
+
 def run_once(argv: list[str], env: dict[str, str], names: set[str], master_uri: str, hosts: TestHosts,
              timeout: float = 120.0) -> tuple[float, float]:
     master = xmlrpc.client.ServerProxy(master_uri)
@@ -93,7 +113,7 @@ def run_once(argv: list[str], env: dict[str, str], names: set[str], master_uri: 
         started = time.monotonic() - t0
         t1 = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        proc.wait(timeout)
+        wait_exit(proc, timeout)
         while leftovers(hosts):
             if time.monotonic() - t1 > timeout:
                 raise RuntimeError("%s: processes left on the hosts: %s" % (argv[0], leftovers(hosts)))
@@ -110,6 +130,50 @@ def run_once(argv: list[str], env: dict[str, str], names: set[str], master_uri: 
                     master.unregisterPublisher(name, "/rosout", "http://gone:1/")
                 except OSError:
                     pass
+
+
+def nodes_alone_stop(hosts: TestHosts, node: str, count: int, master_uri: str, timeout: float = 60.0) -> float:
+    """The floor of any launcher's stop: the same nodes, started over ssh in sessions of their own (as
+    roslaunch and our child start them), SIGINTed from here with no launcher: seconds until all exited."""
+    master = xmlrpc.client.ServerProxy(master_uri)
+    sessions, pidfds = [], []
+    try:
+        for h in hosts.hosts:
+            script = "".join("setsid %s __name:=n%02d </dev/null >/dev/null 2>&1 & " % (node, i)
+                             for i in range(count) if 1 + i % 2 == h.index) + "exec sleep 3600"
+            sessions.append(subprocess.Popen(
+                hosts.ssh_command().split() + ["-T", h.address, "%s env ROS_MASTER_URI=%s sh -c %s" % (
+                    h.env_loader, master_uri, shlex.quote(script))],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        deadline = time.monotonic() + timeout
+        while not {"/n%02d" % i for i in range(count)} <= registered(master):
+            if time.monotonic() > deadline:
+                raise RuntimeError("nodes alone: not all registered")
+            time.sleep(0.02)
+        pids = [int(line.split()[0]) for h in hosts.hosts for line in h.process_lines() if line.split()[1] == node]
+        pidfds = [os.pidfd_open(pid) for pid in pids]
+        t0 = time.monotonic()
+        for pid in pids:
+            os.kill(pid, signal.SIGINT)
+        waiting = set(pidfds)
+        while waiting:
+            ready = select.select(list(waiting), [], [], max(0.0, deadline - time.monotonic()))[0]
+            if not ready:
+                raise RuntimeError("nodes alone: not all exited")
+            waiting -= set(ready)
+        return time.monotonic() - t0
+    finally:
+        for fd in pidfds:
+            os.close(fd)
+        for h in hosts.hosts:  # what did not exit, and the sessions' sleeps
+            for line in h.process_lines():
+                if "sshd" not in line:
+                    try:
+                        os.kill(int(line.split()[0]), signal.SIGKILL)
+                    except OSError:
+                        pass
+        for p in sessions:
+            p.wait()
 
 
 @contextlib.contextmanager
@@ -180,6 +244,7 @@ def main() -> int:
                         "launch": (ours, env),  # Debian's roslaunch as the child
                         "launch/launch": (ours, dict(env, LAUNCHER_REMOTE_PROGRAM="launch"))}
             results: dict[str, list[tuple[float, float]]] = {k: [] for k in commands}
+            alone: list[float] = []
             for rep in range(opts.reps):
                 order = list(commands) if rep % 2 == 0 else list(reversed(commands))
                 for label in order:
@@ -187,6 +252,10 @@ def main() -> int:
                     start, stop = run_once(argv, cenv, names, master_uri, hosts)
                     results[label].append((start, stop))
                     print("rep %d %-13s start %.2f s  stop %.2f s" % (rep, label, start, stop), flush=True)
+                if opts.master == "running":
+                    alone.append(nodes_alone_stop(hosts, os.path.join(pkgs, "remote_bench", "node"), opts.nodes,
+                                                  master_uri))
+                    print("rep %d nodes alone   stop %.2f s" % (rep, alone[-1]), flush=True)
             base = results["roslaunch"]
             print("%s master, %d nodes, %d reps:" % (opts.master, opts.nodes, opts.reps))
             for label, runs in results.items():
@@ -197,6 +266,10 @@ def main() -> int:
                     ratio = "  (x%.2f start, x%.2f stop of roslaunch)" % (
                         s / statistics.median(r[0] for r in base), t / statistics.median(r[1] for r in base))
                 print("%-13s median start %.2f s, stop %.2f s%s" % (label, s, t, ratio))
+            if alone:
+                a = statistics.median(alone)
+                print("nodes alone   median stop %.2f s (x%.2f of roslaunch's stop: no launcher goes below it)"
+                      % (a, a / statistics.median(r[1] for r in base)))
     return 0
 
 
