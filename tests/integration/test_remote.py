@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 import xmlrpc.client
 
 import pytest
@@ -477,7 +478,6 @@ def pid_of_registered(env: dict[str, str], name: str) -> int | None:
 
 def stays(cond, seconds: float, what: str) -> None:
     """`cond()` holds at every look for `seconds` (a respawn that should not come: it has had its time)."""
-    import time
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         assert cond(), what
