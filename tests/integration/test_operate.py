@@ -418,14 +418,19 @@ def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
             answers[which] = _api_answers(uri)
             answers[which]["launcher_pid"] = api.get_pid()[2]
         finally:
-            if which == "roslaunch":
-                os.killpg(proc.pid, signal.SIGINT)
-                proc.wait(30)
-            else:
-                lp.close()
+            _stop(proc if which == "roslaunch" else lp)
     ours, theirs = answers["ours"], answers["roslaunch"]
     _core_answers_agree(ours, theirs, lp.proc.args, started_master=True)
     assert ours == theirs
+
+
+def _stop(p) -> None:
+    """Ctrl-C for Debian's tool (a Popen in a session of its own) or ours (a Launcher), and wait for it."""
+    if isinstance(p, Launcher):
+        p.close()
+    else:
+        os.killpg(p.pid, signal.SIGINT)
+        p.wait(30)
 
 
 def _registered_api(port: int) -> str:
@@ -475,17 +480,9 @@ def test_core_serves_roslaunch_api_as_debian_roscore(tmp_path, pkgs):
                      what="%s's launch running" % which)
                 answers[which + " launch"] = _api_answers(uri, node="a-1")
             finally:
-                if which == "roscore":
-                    os.killpg(proc.pid, signal.SIGINT)
-                    proc.wait(30)
-                else:
-                    lp.close()
+                _stop(proc if which == "roscore" else lp)
         finally:
-            if which == "roscore":
-                os.killpg(core.pid, signal.SIGINT)
-                core.wait(30)
-            else:
-                core.close()
+            _stop(core)
     ours, theirs = answers["ours"], answers["roscore"]
     _core_answers_agree(ours, theirs, core.proc.args, started_master=True)
     assert ours == theirs
