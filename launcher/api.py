@@ -28,6 +28,7 @@ import uuid
 import xmlrpc.client
 from typing import Any, Mapping
 
+from launcher.process.state import EVENTS_FILE
 from launcher.roshome import log_root
 
 CALLER_ID = "/launcher_api"
@@ -196,7 +197,7 @@ class Launch:
 
     def status(self) -> dict[str, str]:
         """Each node's state as the supervisor last recorded it (`running`, `stopped`, `respawning`, ...: process.state)."""
-        path = os.path.join(log_root(self.env), self.run_id, "launcher-events.jsonl")
+        path = os.path.join(log_root(self.env), self.run_id, EVENTS_FILE)
         states: dict[str, str] = {}
         try:
             with open(path) as f:

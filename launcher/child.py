@@ -26,8 +26,9 @@ from launcher.errors import LaunchError
 from launcher.net.slave import default_host
 from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.process import console, state
-from launcher.process.state import Fleet
+from launcher.operate import processes
+from launcher.process import console, machine, state
+from launcher.process.state import Change, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.packages import PackageIndex
@@ -80,8 +81,8 @@ class Child:
             loop.add_signal_handler(sig, self.stop.set)
         self._watch_session(loop)
         run_dir = self.log.open(self.run_id)
-        self.fleet = Fleet(os.path.join(run_dir, "launcher-events-%s.jsonl" % self.name) if run_dir else None,
-                           warn=console.printerrlog)
+        events = state.EVENTS_FILE.replace(".jsonl", "-%s.jsonl" % self.name)
+        self.fleet = Fleet(os.path.join(run_dir, events) if run_dir else None, warn=console.printerrlog)
         self.fleet.listeners.append(self._node_changed)
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout, exit_when_all_dead=True,
@@ -169,11 +170,13 @@ class Child:
     def _forward_log(self, msg: str, error: bool) -> None:
         self._to_parent.put_nowait(("log", self.name, LOG_ERROR if error else LOG_INFO, msg))
 
-    def _node_changed(self, status: state.NodeStatus) -> None:
-        if status.state in (state.EXITED, state.RESPAWNING) and (status.exit_code is not None
-                                                               or status.exit_signal is not None):
-            code = status.exit_code if status.exit_code is not None else -(status.exit_signal or 0)
-            self._to_parent.put_nowait(("process_died", status.process, code))
+    def _node_changed(self, change: Change) -> None:
+        """A run that ended by itself is told to the parent (roslaunch's `process_died`; a stop the parent
+        asked for is answered by `stop_process` instead)."""
+        new = change.new
+        if change.event.kind == machine.EXITED_ and change.old.state in (machine.RUNNING, machine.HUNG):
+            code = new.exit_code if new.exit_code is not None else -(new.exit_signal or 0)
+            self._to_parent.put_nowait(("process_died", new.process, code))
 
     async def _send_to_parent(self) -> None:
         """One call at a time, in order (a log line before the death it explains).
@@ -270,17 +273,10 @@ class Child:
         return stopped()
 
     def list_processes(self) -> list:
-        active, dead = [], []
-        for s in self.fleet or ():
-            (active if s.state in (state.RUNNING, state.RESPAWNING) else dead).append([s.process, s.restarts + 1])
-        return [1, "processes on parent machine", [active, dead]]
+        return processes.list_processes(self.fleet or ())
 
     def process_info(self, process_name: str) -> list:
-        for s in self.fleet or ():
-            if s.process == process_name:
-                return [1, "process info", {"name": s.process, "pid": s.pid or 0, "alive": s.state == state.RUNNING,
-                                            "respawn_count": s.restarts}]
-        return [-1, "no process by that name", {}]
+        return processes.process_info(self.fleet or (), process_name)
 
     def get_pid(self) -> list:
         pid = os.getpid()
@@ -289,7 +285,7 @@ class Child:
     def get_node_names(self) -> list:
         if self.fleet is None:
             return [0, "uninitialized", []]
-        return [1, "node names", [s.name for s in self.fleet if s.state == state.RUNNING]]
+        return processes.node_names(self.fleet)
 
     _API = {"launch": launch, "shutdown": shutdown, "list_processes": list_processes, "process_info": process_info,
             "get_pid": get_pid, "get_node_names": get_node_names, "stop_process": stop_process}

@@ -19,6 +19,7 @@ from typing import Any, Callable, Mapping
 
 from launcher.process import console
 from launcher.process.logdir import make_run_log_dir
+from launcher.process.state import visible
 
 
 class RunLog:
@@ -51,8 +52,12 @@ class RunLog:
         """`what` happened, this long after the run started (time.monotonic() then)."""
         self.note("+%.3f s: %s" % (time.monotonic() - started, what))
 
-    def state_change(self, status: Any) -> None:
-        """A Fleet listener: each node's state change, with what a reader of the log needs."""
+    def state_change(self, change: Any) -> None:
+        """A Fleet listener: each node's state change a reader outside sees, with what a reader of the
+        log needs."""
+        if not visible(change):
+            return
+        status = change.status
         text = "node [%s] (process %s) is %s" % (status.name, status.process, status.state)
         if status.pid is not None:
             text += ", pid %s" % status.pid

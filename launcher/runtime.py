@@ -45,7 +45,7 @@ from launcher.process.readiness import Readiness
 from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
-from launcher.process.state import Fleet
+from launcher.process.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
@@ -53,7 +53,6 @@ from launcher.xml import load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 # Every node's state changes, one JSON object a line, in the run's log directory.
-EVENTS_FILE = "launcher-events.jsonl"
 # `--wait`: how often a master that is not up yet is asked again.
 WAIT_POLL_S = 0.1
 # How long a launch leaves a roscore that has just started its master to set /run_id itself.
@@ -547,7 +546,7 @@ class Run:
         if self.server is not None:
             self.server.set_packages(packages_of(self.plan, specs))
         if self.remote is not None:
-            self.remote.attach(self.fleet, self.supervisor)
+            self.remote.attach(self.fleet)
         stop = self.signals.event
         no_start = getattr(self.opts, "no_start", False)
         for spec in specs:

@@ -8,7 +8,8 @@ serves it too, as roscore (a roslaunch run) does: its processes are the
 master and rosout-1.
 
 Added calls: `launcher_status` (the run and every node's state as one JSON
-text: a 500-node status must cost the launcher little), and
+text: a 500-node status must cost the launcher little), `launcher_changes`
+(the fleet's changes after a sequence number, waiting for one: a long poll), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
 refused with a fault unless `token` is the run's (`launcher.operate.token`).
 The pattern selects among local and remote nodes alike (a remote node is
@@ -28,8 +29,10 @@ from typing import Any
 from launcher.master import advertised_host
 from launcher.net.slave import bind_address
 from launcher.net.xmlrpc import Fault, encode_value
-from launcher.operate import patterns, token as run_token
+from launcher.operate import patterns, processes, token as run_token
+from launcher.process.state import EVENTS_FILE, LOCAL_HOST
 
+CHANGES_WAIT_MAX_S = 60.0  # a long poll's longest wait (the client's call timeout must be longer)
 STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
 REFUSED_TEXT = ("refused: %s needs this run's token (the file %s, readable only by the user who started "
                 "the launch); `launcher %s` reads it for you")
@@ -98,18 +101,15 @@ class LaunchServer:
 
     # ---- what runs ---------------------------------------------------------------------------------
 
-    def _records(self) -> list[Any]:
-        """Each node's current process record, in start order (leftover groups of earlier runs skipped)."""
+    def _local(self) -> list[Any]:
+        """This machine's nodes, as the fleet shows them (in start order)."""
+        fleet = self.run.fleet
+        return [s for s in fleet if s.host == LOCAL_HOST] if fleet is not None else []
+
+    def _spec(self, node_name: str) -> Any:
         supervisor = self.run.supervisor
-        if supervisor is None:
-            return []
-        seen: set[str] = set()
-        out = []
-        for p in supervisor.procs:
-            if p.spec.node_name not in seen:
-                seen.add(p.spec.node_name)
-                out.append(p)
-        return out
+        proc = supervisor.node(node_name) if supervisor is not None else None
+        return proc.spec if proc is not None else None
 
     def _core(self) -> list[list]:
         """roslaunch (and roscore) lists the master it started and its rosout as processes; a launch that
@@ -137,44 +137,31 @@ class LaunchServer:
                 "respawn": False, "respawn_delay": 0.0, "required": master, "pid": os.getpid(),
                 "run_id": self.run.run_id, "log_output": not master}
 
-    @staticmethod
-    def _active(p: Any) -> bool:
-        # roslaunch keeps a process in its list while it runs or will respawn
-        return p.alive or p.respawn_handle is not None
-
-    # ---- roslaunch's API ---------------------------------------------------------------------------
-
     def list_processes(self) -> list:
-        actives, deads = self._core(), []
-        for p in self._records():
-            (actives if self._active(p) else deads).append([p.name, p.spawn_count])
-        return [1, "processes on parent machine", [actives, deads]]
+        return processes.list_processes(self._local(), self._core())
 
     def process_info(self, process_name: str) -> list:
         if any(name == process_name for name, _ in self._core()):
             return [1, "process info", self._core_info(process_name)]
-        for p in self._records():
-            if p.name == process_name and self._active(p):
-                spec = p.spec
-                env = spec.command.env if spec.command.env is not None else os.environ
-                info = {"spawn_count": p.spawn_count, "args": list(spec.argv), "env": dict(env),
-                        "package": self._packages.get(p.name, ""), "name": p.name, "alive": p.alive,
-                        "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay),
-                        "required": spec.required, "pid": p.pid if p.pid is not None else 0,
-                        "run_id": self.run.run_id, "log_output": spec.output == "log"}
-                if p.exit_code is not None:
-                    info["exit_code"] = p.exit_code
-                return [1, "process info", info]
-        return [-1, "no process by that name", {}]
+        return processes.process_info(self._local(), process_name, self._details)
+
+    def _details(self, status: Any) -> dict[str, Any]:
+        """What roslaunch's process_info tells beyond the state: the process's command line and settings."""
+        spec = self._spec(status.name)
+        if spec is None:
+            return {}
+        env = spec.command.env if spec.command.env is not None else os.environ
+        info = {"args": list(spec.argv), "env": dict(env), "package": self._packages.get(spec.name, ""),
+                "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay), "required": spec.required,
+                "run_id": self.run.run_id, "log_output": spec.output == "log"}
+        return info
 
     def get_pid(self) -> list:
         pid = os.getpid()
         return [1, str(pid), pid]
 
     def get_node_names(self) -> list:
-        names = [name for name, _ in self._core()]
-        names += [p.name for p in self._records() if self._active(p)]
-        return [1, "node names", names]
+        return processes.node_names(self._local(), [name for name, _ in self._core()])
 
     # ---- launcher's additions ----------------------------------------------------------------------
 
@@ -199,10 +186,9 @@ class LaunchServer:
         fleet = run.fleet
         nodes = []
         if fleet is not None:
-            outputs = {p.spec.node_name: p.spec for p in self._records()}
             for status in fleet:
                 d = status.as_dict()
-                spec = outputs.get(status.name)
+                spec = self._spec(status.name)
                 if spec is not None and spec.log_dir:
                     # where `launcher logs` finds the node's output (output="screen" too: the launcher keeps
                     # a copy, process/screen.py), and the node's own log file (__log:=)
@@ -212,10 +198,28 @@ class LaunchServer:
         log_dir = run.log.run_dir or ""
         info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
                 "log_dir": log_dir, "token_file": self.token_path,
-                "events_file": os.path.join(log_dir, "launcher-events.jsonl") if log_dir else "",
+                "events_file": os.path.join(log_dir, EVENTS_FILE) if log_dir else "",
                 "launch_files": list(run.plan.config.files), "nodes": nodes}
         # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
         return json.dumps(info, separators=(",", ":"), default=str)
+
+    def launcher_changes(self, since: Any, timeout: Any = 0.0) -> Any:
+        """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
+        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
+        instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
+        older changes were dropped (read the status again), "changes": [as in the events file]}]."""
+        if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
+            raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
+        fleet = self.run.fleet
+
+        async def changes() -> list:
+            if fleet is None:
+                return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
+            await fleet.wait_change(since, min(float(timeout), CHANGES_WAIT_MAX_S))
+            lines, complete = fleet.changes_since(since)
+            return [1, "changes", json.dumps({"seq": fleet.seq, "complete": complete, "changes": lines},
+                                             separators=(",", ":"), default=str)]
+        return changes()
 
     def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
         if not run_token.matches(self.token, given_token):
@@ -224,7 +228,7 @@ class LaunchServer:
         if not isinstance(pattern, str):
             raise Fault(1, "%s: the pattern must be a string" % verb)
         supervisor, remote = self.run.supervisor, self.run.remote
-        local = [p.spec.node_name for p in self._records()] if supervisor else []
+        local = [s.name for s in self._local()] if supervisor else []
         # the nodes of other machines too (launcher.remote.parent steers them): one pattern, one answer
         remote_names = remote.node_names() if remote is not None and supervisor else []
         names = patterns.match(pattern, local + remote_names)
@@ -271,5 +275,5 @@ class LaunchServer:
 
 
 LaunchServer._API = {name: getattr(LaunchServer, name) for name in (
-    "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status",
+    "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status", "launcher_changes",
     "start_nodes", "stop_nodes", "restart_nodes")}

@@ -16,11 +16,9 @@ from __future__ import annotations
 
 import asyncio
 import os
-import signal
 from typing import Any
 
 from launcher.net import xmlrpc
-from launcher.process import console, state
 
 CALLER_ID = "/roslaunch"
 # Until the node has registered, the master is asked at most this often per node.
@@ -106,13 +104,7 @@ class HangDetector:
     def _hung(self, proc: Any, timeout: float) -> None:
         self.tasks.pop(proc, None)
         self.registered.pop(proc, None)
-        reason = "no answer to getPid for %g s" % timeout
-        console.printerrlog("[%s] is hung (%s): killing process group %s" % (proc.name, reason, proc.pgid))
-        self.supervisor.fleet.change(proc.spec.node_name, state.HUNG, pid=proc.pid, reason=reason)
-        try:
-            os.killpg(proc.pgid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError, TypeError):
-            pass
+        self.supervisor.hung(proc, "no answer to getPid for %g s" % timeout)  # (reported, and killed)
 
 
 def _in_group(pid: int, pgid: int | None) -> bool:

@@ -14,9 +14,11 @@ The conditions are checked at the first start only: a respawn does not wait
 again (what it needed was there once; holding a crashed node back until its
 peers are all up again is the restart policy's business, not readiness').
 
-While held, the node's state is `waiting`; when its `wait_timeout` passes
-with a condition still missing, the supervisor reports it as failed to start,
-naming what was missing (`Supervisor.give_up_waiting`).
+While held, the node's state is `held` (`waiting` to the outside); when its
+`wait_timeout` passes with a condition still missing, its runner reports it
+as failed to start, naming what was missing (`give_up_waiting`). The runner
+(the supervisor, or the remote parent) is told `release(key)` or
+`give_up_waiting(key, why)`; `drop(key)` lets go of a node (stopped, shutdown).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import asyncio
 from typing import Any
 
 from launcher.net import xmlrpc
-from launcher.process import state
+from launcher.process.machine import describe
 
 # At most this often the master is asked (per launch, whatever the number of waiting nodes).
 POLL_S = 0.2
@@ -34,29 +36,26 @@ CALL_TIMEOUT_S = 2.0
 CALLER_ID = "/roslaunch"
 
 
-def describe(conditions) -> str:
-    """`topic:/scan, node:/amcl`: the words of the launch file."""
-    return ", ".join("%s:%s" % c for c in conditions)
-
-
 class Readiness:
-    """The nodes of one supervisor whose start is held, and the poll that releases them."""
+    """The nodes of one runner whose start is held, and the poll that releases them."""
 
-    def __init__(self, master_uri: str, supervisor: Any, period: float = POLL_S):
+    def __init__(self, master_uri: str, runner: Any, period: float = POLL_S):
         self.master_uri = master_uri
-        self.supervisor = supervisor
+        self.runner = runner
         self.period = period
         self.loop = asyncio.get_running_loop()
         self.waiting: dict[Any, float] = {}  # NodeProcess -> loop time of its wait_timeout
         self._task: asyncio.Task | None = None
 
     def hold(self, proc: Any) -> None:
-        """Hold `proc` (a NodeProcess) until its conditions are met; the poll starts with the first one."""
-        policy = proc.spec.policy
-        self.waiting[proc] = self.loop.time() + policy.wait_timeout
-        self.supervisor.fleet.change(proc.spec.node_name, state.WAITING, reason="waiting for " + describe(policy.wait_for))
+        """Hold `proc` (anything with a `spec.policy`) until its conditions are met; the poll starts with
+        the first one."""
+        self.waiting[proc] = self.loop.time() + proc.spec.policy.wait_timeout
         if self._task is None or self._task.done():
             self._task = self.loop.create_task(self._poll())
+
+    def drop(self, proc: Any) -> None:
+        self.waiting.pop(proc, None)
 
     def close(self) -> None:
         if self._task is not None:
@@ -71,16 +70,15 @@ class Readiness:
             present = await self.present(wanted)
             now = self.loop.time()
             for proc, deadline in list(self.waiting.items()):
-                if not proc.held:  # the supervisor let go of it (shutdown)
-                    del self.waiting[proc]
+                if proc not in self.waiting:  # let go of (dropped) while the master was asked
                     continue
                 missing = [c for c in proc.spec.policy.wait_for if c not in present]
                 if not missing:
                     del self.waiting[proc]
-                    self.supervisor.release(proc)
+                    self.runner.release(proc)
                 elif now >= deadline:
                     del self.waiting[proc]
-                    self.supervisor.give_up_waiting(
+                    self.runner.give_up_waiting(
                         proc, "still waiting after %g s for %s" % (proc.spec.policy.wait_timeout, describe(missing)))
             if self.waiting:
                 await asyncio.sleep(max(0.0, started + self.period - self.loop.time()))

@@ -182,7 +182,7 @@ class ResourceMonitor:
         last = {}
         for pgid, (ticks, pages) in totals.items():
             proc = running[pgid]
-            since, before = self._last.get(pgid, (proc.started_at, 0))
+            since, before = self._last.get(pgid, (self.supervisor.fleet.records[proc.spec.node_name].started, 0))
             cpu = max(0, ticks - before) / CLOCK_TICKS / max(now - since, 1e-3)
             rss = pages * PAGE_SIZE
             last[pgid] = (now, ticks)

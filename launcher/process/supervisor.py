@@ -11,7 +11,7 @@ SIGINT, then SIGTERM after `sigint_timeout`, then SIGKILL after
 stopped at once, except that SIGINTs are paced: at most `stop_concurrency`
 nodes may be in their first `stop_hold` seconds of stopping. Signalling 100
 roscpp nodes at the same instant on a small machine makes them all thrash
-(bench/BASELINE.md); pacing keeps the CPU busy without thrashing, while a node
+(measured with ../shared/bench); pacing keeps the CPU busy without thrashing, while a node
 that ignores SIGINT only holds its pacing slot for `stop_hold`, so the total
 stays bounded by the slowest node rather than by the number of nodes.
 
@@ -21,14 +21,12 @@ own handler, which unregisters through the same non-reentrant proxy lock; its SI
 is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, as roslaunch
 does (checked side by side); sending SIGINT again would not help.
 
-A node's `NodePolicy` (`spec.policy`; the default one is roslaunch's behaviour) adds to this:
-a delayed first start (`spawn_delay`), per-node stop timeouts, and the restart policy
-(`launcher.process.restart`, the same decision for the nodes of other machines), applied in
-`_run_ended`: `respawn_on="failure"` with `success_exit_codes`; a delay that grows by
-`respawn_backoff` with each failed start in a row (a run shorter than `respawn_min_uptime`)
-up to `respawn_delay_max`; and after `respawn_max_retries` restarts that failed in a row, the
-node is FATAL (kept in the fleet's status, not restarted), which ends the launch with status 1
-when `on_fatal="shutdown"`.
+What happens to a node (its first start, what follows a run, operator stops and
+starts, the launch's end) is decided by its state machine (`launcher.process.machine`,
+stepped by the fleet, `launcher.process.state`); the supervisor tells the fleet what
+happened to each process and carries out the actions it gets back: spawn, a timer,
+a readiness hold, the stop escalation, SIGKILL. It decides nothing of its own but
+the mechanics: pidfds, process groups, pacing, escalation.
 """
 
 from __future__ import annotations
@@ -37,17 +35,18 @@ import asyncio
 import os
 import signal
 import subprocess
-import time
+
 from collections import deque
 from typing import Callable
 
-from launcher.process import console, restart, screen, state
+from launcher.process import console, machine, narrate, restart, screen, state
+from launcher.process.machine import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
 DEFAULT_SIGINT_TIMEOUT = 15.0
 DEFAULT_SIGTERM_TIMEOUT = 2.0
-# Pacing of SIGINTs at shutdown (see module docstring). bench.py shutdown --n 100 (roscpp nodes, 2 cores),
+# Pacing of SIGINTs at shutdown (see module docstring). ../shared/bench's shutdown --n 100 (roscpp nodes, 2 cores),
 # paired ratio to roslaunch: 10 slots 0.77, 15: 0.62, 20: 0.51-0.53, 25: 0.52, 40: 0.75; hold 0.3 s 0.55,
 # 0.5 s 0.51-0.53, 1.0 s 0.53.
 STOP_CONCURRENCY = 20
@@ -60,44 +59,47 @@ GROUP_POLL_S = 0.02
 
 
 class NodeProcess:
-    """One supervised node: its spec and the state of its current OS process."""
+    """One node's process as the supervisor handles it: the OS side only (its state is the fleet's record).
+
+    A run that ended leaving processes in its group gets a record of its own, a `leftover`, so that
+    shutdown stops those too; a leftover has no state in the fleet."""
 
     # (a plain class: `dataclasses` would be imported while the nodes just spawned need the CPU)
-    __slots__ = ("spec", "popen", "pid", "pgid", "pidfd", "exit_code", "spawn_count", "started_at", "alive",
-                 "group_alive", "stopping", "sigkilled", "respawn_handle", "respawn_at", "timers", "stopped",
-                 "group_poll", "pacing_slot", "failures", "restarts", "restart_warned", "held", "restart_reason",
-                 "screen")
+    __slots__ = ("spec", "status", "popen", "pid", "pgid", "pidfd", "exit_code", "alive", "group_alive",
+                 "sigkilled", "respawn_handle", "timers", "stopped", "group_poll", "pacing_slot", "screen",
+                 "leftover")
 
-    def __init__(self, spec: ProcessSpec, pid: int | None = None, pgid: int | None = None,
-                 group_alive: bool = False):
+    def __init__(self, spec: ProcessSpec, status: state.NodeStatus | None = None, pid: int | None = None,
+                 pgid: int | None = None, group_alive: bool = False):
         self.spec = spec
+        self.status = status  # the node's view in the fleet (None: a leftover)
+        self.leftover = status is None
         self.popen: subprocess.Popen | None = None
         self.pid = pid
         self.pgid = pgid
         self.pidfd: int | None = None
-        self.exit_code: int | None = None
-        self.spawn_count = 0
-        self.started_at = 0.0  # loop time of the latest start
+        self.exit_code: int | None = None  # Popen's returncode of the last run (negative: killed by that signal)
         self.alive = False  # the group leader runs
         self.group_alive = group_alive  # the leader or anything left in its process group
-        self.stopping = False
         self.sigkilled = False
-        self.respawn_handle: asyncio.TimerHandle | None = None
-        self.respawn_at = 0.0  # loop time of the next start, when respawning
-        self.timers: list[asyncio.TimerHandle] = []
-        self.stopped: asyncio.Future | None = None  # set when the group is empty during shutdown
+        self.respawn_handle: asyncio.Handle | None = None  # the timer of a DUE (spawn_delay, respawn delay)
+        self.timers: list[asyncio.TimerHandle] = []  # the stop escalation's
+        self.stopped: asyncio.Future | None = None  # set when a stop is complete (its group is empty)
         self.group_poll: asyncio.TimerHandle | None = None
         self.pacing_slot = False  # holds one of the shutdown pacing slots
-        self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime)
-        self.restarts = 0  # starts after the first (restart_warn_threshold counts them)
-        self.restart_warned = False
-        self.held = False  # not started yet: its wait_for conditions are not met (process/readiness.py)
-        self.restart_reason = ""  # set when the supervisor kills the run in order to start it again
         self.screen: screen.ScreenOutput | None = None  # the current run's relayed output (process/screen.py)
 
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def spawn_count(self) -> int:
+        return self.status.spawn_count if self.status is not None else 0
+
+    @property
+    def stopping(self) -> bool:
+        return self.stopped is not None and not self.stopped.done()
 
     def exit_description(self) -> str:
         """roslaunch's words for how the process ended (LocalProcess.get_exit_description)."""
@@ -113,11 +115,10 @@ class NodeProcess:
         return text
 
 
-def _exit_status(returncode: int | None) -> int:
-    """A shell's exit status for a process's Popen returncode: the code, or 128 + the killing signal."""
-    if returncode is None:
-        return 1
-    return 128 - returncode if returncode < 0 else returncode
+def rules_of(spec: ProcessSpec) -> machine.Rules:
+    """What the state machine reads of a node of this machine."""
+    return machine.Rules(required=spec.required, respawn=spec.respawn, respawn_delay=spec.respawn_delay,
+                         policy=spec.policy)
 
 
 def _exit_code_and_signal(returncode: int | None) -> tuple[int | None, int | None]:
@@ -158,9 +159,9 @@ def _signal_group(pgid: int | None, sig: int) -> None:
 class Supervisor:
     """Runs and watches a set of nodes on the running asyncio loop.
 
-    `done` is set when the launch should end on its own: a required node died
-    or could not start, or (with `exit_when_all_dead`, i.e. an external master,
-    as roslaunch) every node has exited and none will respawn.
+    `done` (the fleet's) is set when the launch should end on its own: a required node died
+    or could not start, a FATAL node has on_fatal="shutdown", or (with `exit_when_all_dead`,
+    i.e. an external master, as roslaunch) every node has exited and none will respawn.
     """
 
     def __init__(self, *, sigint_timeout: float = DEFAULT_SIGINT_TIMEOUT,
@@ -172,26 +173,22 @@ class Supervisor:
         restore_default_signals_for_children()
         self.sigint_timeout = sigint_timeout
         self.sigterm_timeout = sigterm_timeout
-        self.exit_when_all_dead = exit_when_all_dead
         self.watchdog = watchdog
         self.stop_concurrency = max(1, stop_concurrency)
         self.stop_hold = stop_hold
         self.on_spawn = on_spawn
-        self.fleet = fleet if fleet is not None else state.Fleet()  # every node's state: the supervisor writes it
+        # every node's state (the supervisor tells it what happened; it tells the console)
+        self.fleet = narrate.attach(fleet if fleet is not None else state.Fleet(warn=console.printerrlog))
+        self.fleet.clock = self.loop.time
+        self.fleet.exit_when_all_dead = exit_when_all_dead
         self.procs: list[NodeProcess] = []
+        self._by_name: dict[str, NodeProcess] = {}
         # terminal-bound node output goes through the launcher (process/screen.py); False: nodes inherit the
         # terminal, as under roslaunch
         self.relay_output = relay_output
         self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
-        self.done = asyncio.Event()
-        # a required node exited non-zero / by signal or could not start, or a FATAL node has on_fatal="shutdown"
-        # the launch's exit status when a node ended it: a required node's own exit code (128 + the
-        # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
-        self.exit_status = 0
         self.shutdown_errors: list[str] = []
         self.shutting_down = False
-        self._registrations_complete = False
-        self._any_died = False
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
         # health hooks (see "health" below): what holds a node's start, and what watches each run
@@ -199,63 +196,104 @@ class Supervisor:
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
 
     @property
+    def done(self) -> asyncio.Event:
+        return self.fleet.done
+
+    @property
+    def exit_status(self) -> int:
+        return self.fleet.exit_status
+
+    @property
     def required_failed(self) -> bool:
         """A node ended the launch with a failure (a required node's non-zero exit, or a failed start)."""
-        return self.exit_status != 0
+        return self.fleet.exit_status != 0
+
+    # ---- telling the fleet, and doing what it says ----------------------------------------------------
+
+    def _tell(self, proc: NodeProcess, event: Event) -> list[machine.Action]:
+        actions = self.fleet.apply(proc.spec.node_name, event)
+        for action in actions:
+            kind = action.kind
+            if kind == machine.SPAWN:
+                self._spawn(proc)
+            elif kind == machine.SCHEDULE:
+                self._schedule(proc, action.delay)
+            elif kind == machine.CANCEL:
+                self._cancel(proc)
+            elif kind == machine.HOLD:
+                if self.readiness is None:
+                    self._tell(proc, Event(machine.READY))
+                else:
+                    self.readiness.hold(proc)
+            elif kind == machine.BEGIN_STOP:
+                self._begin_stop(proc)
+            elif kind == machine.KILL:
+                _signal_group(proc.pgid, signal.SIGKILL)
+        return actions
+
+    def _state(self, proc: NodeProcess) -> str:
+        return self.fleet.records[proc.spec.node_name].state
+
+    def _schedule(self, proc: NodeProcess, delay: float) -> None:
+        if delay == 0.0:
+            # on the next turn of the loop, not now: the change that asked for it is still being told
+            proc.respawn_handle = self.loop.call_soon(self._due, proc)
+        else:
+            proc.respawn_handle = self.loop.call_later(delay, self._due, proc)
+
+    def _due(self, proc: NodeProcess) -> None:
+        proc.respawn_handle = None
+        if not (self.shutting_down or self.done.is_set()):
+            self._tell(proc, Event(machine.DUE))
+
+    def _cancel(self, proc: NodeProcess) -> None:
+        if proc.respawn_handle is not None:
+            proc.respawn_handle.cancel()
+            proc.respawn_handle = None
+        if self.readiness is not None:
+            self.readiness.drop(proc)
 
     # ---- starting ---------------------------------------------------------------------------------
 
-    def start(self, spec: ProcessSpec) -> NodeProcess | None:
-        """Spawn a node now. A failure is reported by name and the rest carry on (unless required).
-
-        None if it could not start and will not be tried again (a respawning node will be).
-        """
-        proc = NodeProcess(spec)
+    def _record(self, spec: ProcessSpec) -> NodeProcess:
+        self.fleet.add(spec.node_name, process=spec.name, rules=rules_of(spec))
+        proc = NodeProcess(spec, self.fleet.nodes[spec.node_name])
+        earlier = self._by_name.get(spec.node_name)
+        if earlier is not None:
+            # a node given again (a remote child's parent starts it anew, as talker-3): the new record
+            # speaks for the node; the earlier one only has its process group to stop at shutdown
+            earlier.leftover, earlier.status = True, None
         self.procs.append(proc)
-        self.fleet.add(spec.node_name, process=spec.name)
-        delay = spec.policy.spawn_delay
-        if delay > 0:
-            # held like a pending respawn: shutdown cancels it, and the launch is not "all dead" meanwhile
-            console.printlog("[%s] waiting %g s before starting (spawn_delay)" % (spec.name, delay))
-            proc.respawn_at = self.loop.time() + delay
-            proc.respawn_handle = self.loop.call_later(delay, self._delayed_start, proc)
-            self.fleet.change(spec.node_name, state.WAITING, reason="spawn_delay %g s" % delay)
-            return proc
-        if self._hold_until_ready(proc):
-            return proc
-        self._start(proc)
-        return proc if proc.alive or proc.respawn_handle is not None else None
+        self._by_name[spec.node_name] = proc
+        return proc
 
-    def _delayed_start(self, proc: NodeProcess) -> None:
-        proc.respawn_handle = None
-        if self.shutting_down or self.done.is_set():
-            return
-        if not self._hold_until_ready(proc):
-            self._start(proc)
+    def start(self, spec: ProcessSpec) -> NodeProcess | None:
+        """Start a node (now, or after its spawn_delay or wait_for). A failure is reported by name and
+        the rest carry on (unless required). None if it could not start and will not be tried again."""
+        proc = self._record(spec)
+        self._tell(proc, Event(machine.START))
+        return None if self._state(proc) in (machine.EXITED, machine.FATAL) else proc
 
-    def _hold_until_ready(self, proc: NodeProcess) -> bool:
-        """Hand a first start with wait_for conditions to the readiness watch (True), which starts it later."""
-        if self.readiness is None or not proc.spec.policy.wait_for:
-            return False
-        proc.held = True
-        self.readiness.hold(proc)
-        return True
+    def add(self, spec: ProcessSpec) -> NodeProcess:
+        """A node that is not started now (`--no-start`): stopped until an operator starts it."""
+        proc = self._record(spec)
+        self._tell(proc, Event(machine.KEEP_STOPPED))
+        return proc
 
     def not_started(self, name: str, required: bool = False) -> None:
-        """A node that was never started (already reported by name): what that means for the launch."""
+        """A node whose command could not be made (already reported by name): what that means for the launch."""
         if required:
-            self._required_gone(name, "could not be started")
-        else:
-            self._any_died = True  # counts as ended, like a failed exec (external master: all ended -> exit)
-            self._check_all_dead()
+            console.printerrlog(narrate.BAR + "REQUIRED process [%s] could not be started!\nInitiating shutdown!\n"
+                                % name + narrate.BAR)
+        self.fleet.not_started(required)
 
     def registrations_complete(self) -> None:
         """Every node of the launch has been started (or failed to)."""
-        self._registrations_complete = True
-        self._check_all_dead()
+        self.fleet.registrations_complete()
 
-    def _start(self, proc: NodeProcess, append: bool = False) -> None:
-        """Start the node's process; a start that fails is a run that ended at once (`_run_ended`)."""
+    def _spawn(self, proc: NodeProcess) -> None:
+        """Start the node's process; a start that fails is a run that ended at once."""
+        append = proc.spawn_count > 0
         channels = self._open_channels(proc.spec)
         popen = start_process(proc.spec, self.watchdog, append=append, channels=channels)
         if channels is not None:
@@ -264,10 +302,14 @@ class Supervisor:
             else:
                 self._relay(proc, channels, append)
         if popen is None:
-            proc.started_at = self.loop.time()  # (paces the retries of a respawning node)
-            self._run_ended(proc, started=False)
+            self._tell(proc, Event(machine.SPAWN_FAILED))
             return
-        self._watch(proc, popen, self.loop.time())
+        self._watch(proc, popen)
+        self._tell(proc, Event(machine.SPAWNED, pid=popen.pid, process=proc.spec.name))
+        if self.on_spawn is not None:
+            self.on_spawn(proc)
+        for watcher in self.watchers:
+            watcher.started(proc)
 
     def _open_channels(self, spec: ProcessSpec) -> screen.Channels | None:
         if not self.relay_output:
@@ -288,17 +330,15 @@ class Supervisor:
         self.screens = [s for s in self.screens if not s.closed]
         self.screens.append(proc.screen)
 
-    def _watch(self, proc: NodeProcess, popen: subprocess.Popen, started_at: float) -> None:
+    def _watch(self, proc: NodeProcess, popen: subprocess.Popen) -> None:
         if proc.group_alive and proc.pgid is not None and not proc.alive:
             # the previous run left processes in its group: keep them on the list to stop at shutdown
             self.procs.append(NodeProcess(proc.spec, pid=proc.pid, pgid=proc.pgid, group_alive=True))
-        proc.spawn_count += 1
         proc.popen = popen
         proc.pid = proc.pgid = popen.pid
         proc.exit_code = None
-        proc.started_at = started_at
         proc.alive = proc.group_alive = True
-        self.fleet.change(proc.spec.node_name, state.RUNNING, pid=popen.pid)
+        proc.sigkilled = False
         try:
             proc.pidfd = os.pidfd_open(popen.pid)
             self.loop.add_reader(proc.pidfd, self._on_exit, proc)
@@ -307,10 +347,6 @@ class Supervisor:
             proc.pidfd = None
             self.loop.run_in_executor(None, popen.wait).add_done_callback(
                 lambda _f, p=proc, po=popen: self.loop.call_soon(self._on_exit, p, po))
-        if self.on_spawn is not None:
-            self.on_spawn(proc)
-        for watcher in self.watchers:
-            watcher.started(proc)
 
     # ---- watching ---------------------------------------------------------------------------------
 
@@ -332,76 +368,10 @@ class Supervisor:
         proc.exit_code = rc
         proc.alive = False
         self._check_group(proc)
-        if proc.stopping or self.shutting_down:
+        code, sig = _exit_code_and_signal(rc)
+        self._tell(proc, Event(machine.EXITED_, exit_code=code, exit_signal=sig, detail=proc.exit_description()))
+        if proc.stopping:
             self._stopping_progress(proc)
-            return
-        if proc.restart_reason:
-            self._restarted(proc)
-            return
-        self._run_ended(proc)
-
-    def _run_ended(self, proc: NodeProcess, started: bool = True) -> None:
-        """The one place where a node's run ends (it exited, or `started` is False: it failed to start)
-        and what comes next is decided: the launch ends (required), the node starts again (respawn),
-        or it stays down."""
-        self._any_died = True
-        if proc.spec.required:
-            if not started:
-                self._required_gone(proc.name, "could not be started")
-                return
-            console.printerrlog("=" * 80 + "REQUIRED process [%s] has died!\n%s\nInitiating shutdown!\n"
-                                % (proc.name, proc.exit_description()) + "=" * 80)
-            self.exit_status = _exit_status(proc.exit_code)
-            self.done.set()
-            return
-        if started:
-            desc = proc.exit_description()
-            if proc.exit_code:
-                console.printerrlog("[%s] %s" % (proc.name, desc))
-            else:
-                console.printlog_bold("[%s] %s" % (proc.name, desc))
-        exit_code, exit_signal = _exit_code_and_signal(proc.exit_code) if started else (None, None)
-        spec = proc.spec
-        decision = restart.after_run(spec.respawn, spec.respawn_delay, spec.policy, exit_code, started,
-                                     self.loop.time() - proc.started_at, proc.failures)
-        proc.failures = decision.failures
-        if decision.action == restart.FATAL:
-            self._fatal(proc, exit_code, exit_signal, decision)
-            return
-        if decision.note:
-            console.printlog("[%s] %s" % (proc.name, decision.note))
-        if decision.action == restart.STAY_DOWN:
-            self._stays_down(proc, state.EXITED, exit_code, exit_signal, decision.reason)
-            return
-        # recorded before the start is scheduled: a start without delay happens right away, and its
-        # `running` must come after this
-        self.fleet.change(spec.node_name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
-                          next_start=time.time() + decision.delay, reason=decision.reason, failures=proc.failures)
-        self._schedule_respawn(proc, decision.delay)
-
-    def _stays_down(self, proc: NodeProcess, new_state: str, exit_code: int | None, exit_signal: int | None,
-                    reason: str) -> None:
-        self.fleet.change(proc.spec.node_name, new_state, exit_code=exit_code, exit_signal=exit_signal,
-                          reason=reason, failures=proc.failures)
-        self._check_all_dead()
-
-    def _fatal(self, proc: NodeProcess, exit_code: int | None, exit_signal: int | None,
-               decision: restart.Decision) -> None:
-        """The node failed more starts in a row than respawn_max_retries allows: it stays down, reported."""
-        console.printerrlog("[%s] %s" % (proc.name, decision.note))
-        if proc.spec.policy.on_fatal == "shutdown":
-            self.fleet.change(proc.spec.node_name, state.FATAL, exit_code=exit_code, exit_signal=exit_signal,
-                              reason=decision.reason, failures=proc.failures)
-            self.fatal_shutdown(proc.name)
-            return
-        self._stays_down(proc, state.FATAL, exit_code, exit_signal, decision.reason)
-
-    def fatal_shutdown(self, name: str) -> None:
-        """A FATAL node with on_fatal="shutdown" (here or on another machine) ends the launch with status 1."""
-        console.printerrlog("=" * 80 + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\n"
-                            "Initiating shutdown!\n" % name + "=" * 80)
-        self.exit_status = 1
-        self.done.set()
 
     def _check_group(self, proc: NodeProcess) -> bool:
         """Is anything left in the node's process group? Forget it in the guard when not."""
@@ -411,125 +381,73 @@ class Supervisor:
                 self.watchdog.forget(proc.pgid)
         return proc.group_alive
 
-    def _schedule_respawn(self, proc: NodeProcess, delay: float) -> None:
-        proc.respawn_at = self.loop.time() + delay
-        if delay == 0.0:
-            # on the next turn of the loop, not now: the caller records the node as respawning first,
-            # which would otherwise overwrite the new run's "running"
-            proc.respawn_handle = self.loop.call_soon(self._respawn, proc)  # type: ignore[assignment]
-        else:
-            proc.respawn_handle = self.loop.call_later(delay, self._respawn, proc)
-
-    def _respawn(self, proc: NodeProcess) -> None:
-        proc.respawn_handle = None
-        if self.shutting_down or self.done.is_set():
-            return
-        console.printlog("[%s] restarting process" % proc.name)
-        proc.restarts += 1
-        threshold = proc.spec.policy.restart_warn_threshold
-        if threshold is not None and proc.restarts > threshold and not proc.restart_warned:
-            proc.restart_warned = True  # once: the status keeps counting
-            console.printerrlog("[%s] WARNING: restarted %d times, more than its restart_warn_threshold (%d)"
-                                % (proc.name, proc.restarts, threshold))
-        self._start(proc, append=True)
-
-    def _check_all_dead(self) -> None:
-        if not (self.exit_when_all_dead and self._registrations_complete and self._any_died):
-            return
-        if any(p.alive or p.respawn_handle is not None or p.held for p in self.procs):
-            return
-        if not self.done.is_set():
-            console.printlog("all processes on machine have died, roslaunch will exit")
-            self.done.set()
-
-    def end(self, failed: bool) -> None:
-        """End the launch for a reason found outside this machine (a required node elsewhere ended);
-        `failed`: the launch exits with status 1."""
-        if failed and not self.exit_status:
-            self.exit_status = 1
-        self.done.set()
-
-    def _required_gone(self, name: str, why: str) -> None:
-        console.printerrlog("=" * 80 + "REQUIRED process [%s] %s!\nInitiating shutdown!\n" % (name, why) + "=" * 80)
-        self.exit_status = 1
-        self.done.set()
-
-    # ---- health: held starts, restarts asked for by a watcher ---------------------------------------
+    # ---- health: held starts, restarts and flags asked for by a watcher -------------------------------
 
     def release(self, proc: NodeProcess) -> None:
         """A held node's wait_for conditions are met: start it now."""
-        proc.held = False
         if not (self.shutting_down or self.done.is_set()):
-            self._start(proc)
+            self._tell(proc, Event(machine.READY))
 
     def give_up_waiting(self, proc: NodeProcess, why: str) -> None:
         """A held node's conditions were not met in time: it failed to start (a required one ends the launch)."""
-        proc.held = False
-        self.fleet.change(proc.spec.node_name, state.EXITED, reason=why)
-        if proc.spec.required:
-            self._required_gone(proc.name, "failed to start: " + why)
-        else:
-            console.printerrlog("[%s] failed to start: %s" % (proc.name, why))
-            self.not_started(proc.name)
+        self._tell(proc, Event(machine.NOT_READY, reason=why))
+
+    def hung(self, proc: NodeProcess, reason: str) -> None:
+        """The hang probe's verdict on the current run: reported, and the run killed."""
+        if proc.alive and not self.shutting_down:
+            self._tell(proc, Event(machine.HANG, reason=reason))
 
     def restart(self, proc: NodeProcess, reason: str) -> None:
-        """Kill the node's current run and start it again, respawn or not (`on_limit="restart"`)."""
-        if not proc.alive or proc.stopping or proc.restart_reason or self.shutting_down:
-            return
-        console.printerrlog("[%s] restarting: %s" % (proc.name, reason))
-        proc.restart_reason = reason
-        # at once rather than by the stop escalation: a node past its memory limit may be taking the
-        # machine down with it
-        _signal_group(proc.pgid, signal.SIGKILL)
+        """Kill the node's current run and start it again, respawn or not (`on_limit="restart"`): at once
+        rather than by the stop escalation, as a node past its memory limit may be taking the machine down."""
+        if proc.alive and not self.shutting_down:
+            self._tell(proc, Event(machine.RESTART, reason=reason))
 
     def limit_crossed(self, proc: NodeProcess, limit: str, maximum: float | None, what: str) -> None:
         """The node's run went over `limit` ("memory_limit", "cpu_limit"; `maximum` its value) or, with
         `maximum` None, back under it (on_limit="warn"): said on the console and recorded in its state."""
-        status = self.fleet.nodes.get(proc.spec.node_name)
-        if status is None or status.state != state.RUNNING or not proc.alive:
-            return  # (hung, or being stopped: that state says more)
-        over = dict(status.over_limit)
+        if not proc.alive:
+            return
+        over = dict(self.fleet.records[proc.spec.node_name].over_limit)
         if maximum is not None:
             over[limit] = maximum
-            console.printerrlog("[%s] WARNING: %s" % (proc.name, what))
-            reason = "over %s: %s" % (limit, what)
+            reason, detail = "over %s: %s" % (limit, what), "WARNING: " + what
         else:
             over.pop(limit, None)
-            console.printlog("[%s] back under its %s: %s" % (proc.name, limit, what))
-            reason = "back under %s: %s" % (limit, what)
-        self.fleet.change(proc.spec.node_name, state.RUNNING, pid=proc.pid, over_limit=over, reason=reason)
-
-    def _restarted(self, proc: NodeProcess) -> None:
-        code, sig = _exit_code_and_signal(proc.exit_code)
-        self.fleet.change(proc.spec.node_name, state.RESPAWNING, exit_code=code, exit_signal=sig,
-                          next_start=time.time(), reason=proc.restart_reason)
-        proc.restart_reason = ""
-        if not self.done.is_set():
-            self._start(proc, append=True)
+            reason, detail = "back under %s: %s" % (limit, what), "back under its %s: %s" % (limit, what)
+        self._tell(proc, Event(machine.LIMIT, over_limit=tuple(over.items()), reason=reason, detail=detail))
 
     # ---- stopping ---------------------------------------------------------------------------------
+
+    def _begin_stop(self, proc: NodeProcess) -> None:
+        """The stop escalation of one node, on its own clock: at shutdown through the pacing queue."""
+        if proc.stopped is None or proc.stopped.done():
+            proc.stopped = self.loop.create_future()
+        if self.shutting_down:
+            self._pacing_queue.append(proc)
+        else:
+            self._signal_stop(proc)
+
+    def _signal_stop(self, proc: NodeProcess) -> None:
+        _signal_group(proc.pgid, signal.SIGINT)
+        # the node's own sigint_timeout (its NodePolicy), else the command line's
+        sigint_timeout = proc.spec.policy.sigint_timeout or self.sigint_timeout
+        proc.timers.append(self.loop.call_later(sigint_timeout, self._escalate_term, proc))
+        if not proc.alive:
+            self._stopping_progress(proc)  # only leftovers of the group: watch them
 
     async def shutdown(self) -> list[str]:
         """Stop every node (reverse start order, paced SIGINTs, per-node escalation); return the errors."""
         self.shutting_down = True
-        for p in self.procs:
-            if p.respawn_handle is not None:
-                p.respawn_handle.cancel()
-                p.respawn_handle = None
-                if not p.alive:
-                    self.fleet.change(p.spec.node_name, state.STOPPED, reason="stopped before its next start")
-            if p.held:
-                p.held = False
-                self.fleet.change(p.spec.node_name, state.STOPPED, reason="stopped while waiting to start")
-        to_stop = []
         for p in reversed(self.procs):
-            if p.alive or (p.group_alive and self._check_group(p)):
-                if p.stopped is None or p.stopped.done():  # (an operator's stop in progress goes on)
-                    p.stopped = self.loop.create_future()
-                to_stop.append(p)
-        for p in to_stop:
-            console.printlog("[%s] killing on exit" % p.name)
-            self._pacing_queue.append(p)
+            if not p.leftover:
+                self._tell(p, Event(machine.SHUTDOWN))
+            if not p.stopping and (p.alive or (p.group_alive and self._check_group(p))):
+                # a leftover group (or what an ended run left in its group): stopped as a node is
+                console.printlog("[%s] killing on exit" % p.name)
+                p.stopped = self.loop.create_future()
+                self._pacing_queue.append(p)
+        to_stop = [p for p in self.procs if p.stopping]
         self._pace()
         if to_stop:
             await asyncio.gather(*(p.stopped for p in to_stop))
@@ -540,18 +458,12 @@ class Supervisor:
     def _pace(self) -> None:
         while self._pacing_queue and self._pacing_active < self.stop_concurrency:
             p = self._pacing_queue.popleft()
-            if p.stopped is None or p.stopped.done():
+            if not p.stopping or p.timers:  # (done already, or its escalation runs: an operator's stop)
                 continue
             self._pacing_active += 1
-            hold = self.loop.call_later(self.stop_hold, self._release_slot, p)
-            p.timers.append(hold)
-            p.stopping = True
             p.pacing_slot = True
-            _signal_group(p.pgid, signal.SIGINT)
-            sigint_timeout = p.spec.policy.sigint_timeout or self.sigint_timeout  # (the node's, or the CLI's)
-            p.timers.append(self.loop.call_later(sigint_timeout, self._escalate_term, p))
-            if not p.alive:
-                self._stopping_progress(p)  # only leftovers of the group: watch them
+            p.timers.append(self.loop.call_later(self.stop_hold, self._release_slot, p))
+            self._signal_stop(p)
 
     def _release_slot(self, p: NodeProcess) -> None:
         if p.pacing_slot:
@@ -560,7 +472,7 @@ class Supervisor:
             self._pace()
 
     def _escalate_term(self, p: NodeProcess) -> None:
-        if p.stopped is None or p.stopped.done():
+        if not p.stopping:
             return
         console.printerrlog("[%s] escalating to SIGTERM" % p.name)
         _signal_group(p.pgid, signal.SIGTERM)
@@ -568,23 +480,18 @@ class Supervisor:
         p.timers.append(self.loop.call_later(sigterm_timeout, self._escalate_kill, p))
 
     def _escalate_kill(self, p: NodeProcess, quiet: bool = False) -> None:
-        if p.stopped is None or p.stopped.done() or p.sigkilled:
+        if not p.stopping or p.sigkilled:
             return
         if not quiet:
             console.printerrlog("[%s] escalating to SIGKILL" % p.name)
         self.shutdown_errors.append("process[%s, pid %s]: required SIGKILL. May still be running." % (p.name, p.pid))
         p.sigkilled = True
         _signal_group(p.pgid, signal.SIGKILL)
-        p.timers.append(self.loop.call_later(KILL_WAIT_S, self._give_up, p))
-
-    def _give_up(self, p: NodeProcess) -> None:
-        self._finish_stop(p)
+        p.timers.append(self.loop.call_later(KILL_WAIT_S, self._finish_stop, p))
 
     def _stopping_progress(self, p: NodeProcess) -> None:
         """The leader exited while stopping: done once its group is empty too."""
-        if p.stopped is None or p.stopped.done():
-            return
-        if p.alive:
+        if not p.stopping or p.alive:
             return
         if self._check_group(p):
             if p.group_poll is None:
@@ -604,54 +511,34 @@ class Supervisor:
             p.group_poll.cancel()
             p.group_poll = None
         self._release_slot(p)
-        if p.stopped is not None and not p.stopped.done():
+        if p.stopping:
             p.stopped.set_result(None)
-            code, sig = _exit_code_and_signal(p.exit_code)
-            self.fleet.change(p.spec.node_name, state.STOPPED, exit_code=code, exit_signal=sig,
-                              reason="killed with SIGKILL" if p.sigkilled
-                              else "" if self.shutting_down else "stopped by operator")
+            if not p.leftover and self._state(p) == machine.STOPPING:
+                code, sig = _exit_code_and_signal(p.exit_code)
+                self._tell(p, Event(machine.DOWN, exit_code=code, exit_signal=sig, killed=p.sigkilled))
 
     def kill_now(self) -> list[str]:
         """A second Ctrl-C: SIGKILL to every node still stopping; their process names."""
         killed = []
         for p in self.procs:
-            if p.stopped is not None and not p.stopped.done():
+            if p.stopping:
                 killed.append(p.name)
                 self._escalate_kill(p, quiet=True)
         return killed
 
     # ---- operator control: start, stop, restart one node by name (launcher start|stop|restart) --------
 
-    def add(self, spec: ProcessSpec) -> NodeProcess:
-        """A node that is not started now (`--no-start`): stopped until an operator starts it."""
-        proc = NodeProcess(spec)
-        self.procs.append(proc)
-        self.fleet.add(spec.node_name, process=spec.name)
-        self.fleet.change(spec.node_name, state.STOPPED, reason="not started (--no-start)")
-        return proc
-
     def node(self, node_name: str) -> NodeProcess | None:
-        """The node's record: the first one made for it (leftover groups of earlier runs come later)."""
-        for p in self.procs:
-            if p.spec.node_name == node_name:
-                return p
-        return None
+        """The node's process record (not one of the leftover groups of earlier runs)."""
+        return self._by_name.get(node_name)
 
     def start_node(self, node_name: str) -> bool:
-        """Start a node that is not running (a pending respawn happens now); False if it already runs."""
+        """Start a node that is not running (a pending start happens now, a FATAL one gets a clean slate);
+        False if it runs or is being stopped."""
         proc = self.node(node_name)
         if proc is None or self.shutting_down:
             return False
-        if proc.alive or (proc.stopped is not None and not proc.stopped.done()):
-            return False
-        if proc.respawn_handle is not None:
-            proc.respawn_handle.cancel()
-            proc.respawn_handle = None
-        proc.stopping = proc.sigkilled = False
-        proc.stopped = None
-        console.printlog("[%s] starting process (operator)" % proc.name)
-        self._start(proc, append=proc.spawn_count > 0)
-        return True
+        return bool(self._tell(proc, Event(machine.OPERATOR_START)))
 
     def stop_node(self, node_name: str) -> asyncio.Future | None:
         """Stop a node with the shutdown escalation (SIGINT, SIGTERM, SIGKILL) and keep it stopped: a
@@ -662,21 +549,10 @@ class Supervisor:
     def stop_process(self, proc: NodeProcess) -> asyncio.Future | None:
         """`stop_node` of one record (a remote child, given nodes again by later `launch` calls, holds
         several records of one node and stops the one its parent names)."""
-        if proc.respawn_handle is not None:  # between two runs: just don't start it again
-            proc.respawn_handle.cancel()
-            proc.respawn_handle = None
-            self.fleet.change(proc.spec.node_name, state.STOPPED, reason="stopped by operator")
-            return None
-        if proc.stopped is not None and not proc.stopped.done():
+        if proc.stopping:
             return proc.stopped  # already being stopped
-        if not proc.alive:
-            return None
-        console.printlog("[%s] stopping process (operator)" % proc.name)
-        proc.stopped = self.loop.create_future()
-        proc.stopping = True
-        _signal_group(proc.pgid, signal.SIGINT)
-        proc.timers.append(self.loop.call_later(self.sigint_timeout, self._escalate_term, proc))
-        return proc.stopped
+        self._tell(proc, Event(machine.STOP))
+        return proc.stopped if proc.stopping else None
 
     async def restart_node(self, node_name: str) -> bool:
         stopping = self.stop_node(node_name)

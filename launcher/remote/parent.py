@@ -26,12 +26,19 @@ child whose last node ended exits (roslaunch's children do), so a node started
 again then gets a new session. What a child cannot be told (limits, core dumps,
 hang probes, per-node stop timeouts, log rotation) is warned about at load.
 
+What happens to each node is decided by its state machine
+(`launcher.process.machine`, kept by the fleet), as for a local node, with the
+remote states: pending (queued for its machine's child), launching (in a
+`launch` call), lost (its machine dropped). The nodes queued for a machine are
+those in pending or lost, so a node cannot be queued twice. The parent tells
+the fleet what its children report and carries out the actions.
+
 Operators (`launcher start|stop|restart`, launcher.operate.server) steer a
-remote node through `stop_node`/`start_node`: a stop marks it stopped by the
-operator (no restart on its death or its machine's return) and asks the child
-to stop that process (`stop_process`, an extension of our child: roslaunch's
-child has none, and the stop is refused); a start is a `launch` call holding
-it, as a restart under a NodePolicy.
+remote node through `stop_node`/`start_node`: a stop is kept by the state
+machine (no restart on its death or its machine's return) and done by the
+child (`stop_process`, an extension of our child: roslaunch's child has none,
+and the stop is refused); a start is a `launch` call holding it, as a restart
+under a NodePolicy.
 
 A machine whose session ends while the launch runs (the link was cut, the host
 rebooted) is tried again with a growing delay; when it answers, its nodes are
@@ -45,14 +52,15 @@ import collections
 import os
 import re
 import signal
-import time
 from typing import Any, Callable, Mapping, NamedTuple
 
 from launcher.config import Machine, Node, NodePolicy
 from launcher.errors import LaunchError
 from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.process import console, restart, state
+from launcher.operate import processes
+from launcher.process import console, machine, state
+from launcher.process.machine import Event
 from launcher.process.readiness import Readiness
 from launcher.remote import ssh
 from launcher.remote.launch_xml import remote_launch_xml
@@ -126,7 +134,7 @@ class RemoteSpec(NamedTuple):
 
 
 class RemoteNode:
-    """One node of a machine, as the parent follows it."""
+    """One node of a machine, as the parent hands it over (its state is the fleet's record)."""
 
     def __init__(self, node: Node, child: RemoteChild):
         self.node = node
@@ -134,30 +142,20 @@ class RemoteNode:
         # the parent applies its restart policy; the child runs it with respawn="false"
         self.owned = node.policy is not None
         self.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
-        self.on_child = False  # handed to the child and not reported dead for good
-        self.failures = 0  # failed starts in a row (restart policy)
-        self.restarts = 0
-        self.restart_warned = False
-        self.started_at = 0.0  # loop time of the latest start
-        self.timer: asyncio.TimerHandle | None = None  # a start to come: spawn_delay or a respawn's delay
-        self.held = False  # its wait_for conditions are awaited (process/readiness.py)
-        self.process = ""  # the child's name of its current process (talker-3), once the child said it
-        # an operator stopped it (`launcher stop`): its death is no reason to start it, nor is its machine's return
-        self.operator_stopped = False
+        self.timer: asyncio.TimerHandle | None = None  # a DUE to come: spawn_delay or a respawn's delay
 
     @property
     def name(self) -> str:
         return self.spec.node_name
 
+    def rules(self) -> machine.Rules:
+        n = self.node
+        return machine.Rules(required=n.required, respawn=n.respawn, respawn_delay=n.respawn_delay,
+                             policy=self.spec.policy, remote=True, owned=self.owned, machine=self.child.machine.name)
+
     def sent(self) -> Node:
         """The node as the child gets it."""
         return self.node._replace(respawn=False, respawn_delay=0.0) if self.owned else self.node
-
-    def cancel(self) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
-        self.held = False  # (readiness lets go of it)
 
 
 class RemoteChild:
@@ -171,8 +169,7 @@ class RemoteChild:
         self.registered: asyncio.Event = asyncio.Event()
         self.ssh: asyncio.subprocess.Process | None = None
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
-        self.pending: list[RemoteNode] = []  # to be handed to the child at the next opportunity
-        self.wanted = asyncio.Event()  # a node is pending: a session is needed
+        self.wanted = asyncio.Event()  # a node is queued (pending or lost): a session is needed
         self.accepting = False  # this session's child takes `launch` calls
         self.launched_ok = False  # a `launch` call of this session succeeded
         self.launching: asyncio.Task | None = None
@@ -201,11 +198,10 @@ class RemoteParent:
         self.master_uri = master_uri
         self.host = host
         self.environ = environ
-        # set by attach(): the children are started before them (ssh and a remote roslaunch take
+        # set by attach(): the children are started before it (ssh and a remote roslaunch take
         # a second; that second overlaps the master's start and the parameters), but get their
         # nodes only once the parameters are set
         self.fleet: state.Fleet = None  # type: ignore[assignment]
-        self.supervisor: Any = None
         self.attached = asyncio.Event()
         self.watchdog = watchdog
         self.sigint_timeout = sigint_timeout
@@ -238,56 +234,60 @@ class RemoteParent:
         for child in self.children.values():
             child.task = asyncio.ensure_future(self._keep(child))
 
-    def attach(self, fleet: state.Fleet, supervisor: Any) -> None:
-        """The parameters are set: the nodes' states go to `fleet`, required ends to `supervisor`."""
-        self.fleet, self.supervisor = fleet, supervisor
+    def attach(self, fleet: state.Fleet) -> None:
+        """The parameters are set: the nodes' records go to `fleet` (which keeps the launch's outcome too),
+        and they start."""
+        self.fleet = fleet
         self.readiness = Readiness(self.master_uri, self)
-        loop = asyncio.get_running_loop()
         for child in self.children.values():
             for rn in child.nodes:
-                fleet.add(rn.name, process=rn.spec.name, host=child.machine.address)
+                fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
             for rn in child.nodes:
-                delay = rn.spec.policy.spawn_delay if rn.owned else 0.0
-                if delay > 0:
-                    console.printlog("[%s] waiting %g s before starting on machine [%s] (spawn_delay)"
-                                     % (rn.spec.name, delay, child.machine.name))
-                    fleet.change(rn.name, state.WAITING, reason="spawn_delay %g s" % delay)
-                    rn.timer = loop.call_later(delay, self._spawn_delay_over, rn)
-                else:
-                    self._ready_or_hold(rn)
+                self._tell(rn, Event(machine.START))
         self.attached.set()
 
-    def _spawn_delay_over(self, rn: RemoteNode) -> None:
+    # ---- telling the fleet, and doing what it says ----------------------------------------------------
+
+    def _tell(self, rn: RemoteNode, event: Event) -> list[machine.Action]:
+        actions = self.fleet.apply(rn.name, event)
+        for action in actions:
+            if action.kind == machine.LAUNCH:
+                self._wanted(rn.child)
+            elif action.kind == machine.SCHEDULE:
+                rn.timer = asyncio.get_running_loop().call_later(action.delay, self._due, rn)
+            elif action.kind == machine.CANCEL:
+                if rn.timer is not None:
+                    rn.timer.cancel()
+                    rn.timer = None
+                if self.readiness is not None:
+                    self.readiness.drop(rn)
+            elif action.kind == machine.HOLD:
+                self.readiness.hold(rn)
+            # (BEGIN_STOP: the caller, an operator's stop or the shutdown, asks the child)
+        return actions
+
+    def _state(self, rn: RemoteNode) -> str:
+        return self.fleet.records[rn.name].state
+
+    def _due(self, rn: RemoteNode) -> None:
         rn.timer = None
         if not self.stopping:
-            self._ready_or_hold(rn)
-
-    def _ready_or_hold(self, rn: RemoteNode) -> None:
-        """A first start: held by its wait_for conditions (the master is asked here), or pending now."""
-        if rn.owned and rn.spec.policy.wait_for:
-            rn.held = True
-            self.readiness.hold(rn)
-        else:
-            self._want(rn)
+            self._tell(rn, Event(machine.DUE))
 
     # (process/readiness calls these two, as it calls the supervisor's for local nodes)
     def release(self, rn: RemoteNode) -> None:
-        rn.held = False
         if not self.stopping:
-            self._want(rn)
+            self._tell(rn, Event(machine.READY))
 
     def give_up_waiting(self, rn: RemoteNode, why: str) -> None:
-        rn.held = False
-        self.fleet.change(rn.name, state.EXITED, reason=why)
-        if not rn.node.required:
-            console.printerrlog("[%s] failed to start on machine [%s]: %s" % (rn.spec.name, rn.child.machine.name,
-                                                                             why))
-        self.supervisor.not_started(rn.spec.name, rn.node.required)
+        self._tell(rn, Event(machine.NOT_READY, reason=why))
 
-    def _want(self, rn: RemoteNode) -> None:
-        """Start the node on its machine: now if its child takes nodes, else with the next session."""
-        child = rn.child
-        child.pending.append(rn)
+    def _queued(self, child: RemoteChild) -> list[RemoteNode]:
+        """The nodes to hand to the child at the next opportunity: the machine's record says which."""
+        return [rn for rn in child.nodes if self._state(rn) in (machine.PENDING, machine.LOST)]
+
+    def _wanted(self, child: RemoteChild) -> None:
+        """A node is queued for the machine: now if its child takes nodes, else with the next session."""
         child.wanted.set()
         if child.accepting and (child.launching is None or child.launching.done()):
             child.launching = asyncio.ensure_future(self._launch_pending(child))
@@ -306,7 +306,7 @@ class RemoteParent:
                 await self.attached.wait()
                 self._machine_failed(child)
                 return
-            if lost or not registered or (child.pending and not child.launched_ok):
+            if lost or not registered or (self._queued(child) and not child.launched_ok):
                 if lost or not registered:
                     console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
                                         % (child.name, child.machine.name, delay))
@@ -316,7 +316,7 @@ class RemoteParent:
             delay = RETRY_FIRST_S
             # the child ended with its last node (as roslaunch's children do): a new session when a
             # node is to start there again (a respawn the parent owns), else never
-            if not child.pending:
+            if not self._queued(child):
                 child.wanted.clear()
                 await child.wanted.wait()
 
@@ -359,12 +359,14 @@ class RemoteParent:
             await self.attached.wait()
             console.printlog("remote[%s]: ssh connection created" % child.name)
             child.accepting = True
-            if child.pending:
+            if self._queued(child):
                 child.launching = asyncio.ensure_future(self._launch_pending(child))
             await reader  # the session runs until ssh ends
         finally:
             child.accepting = False
             if child.launching is not None:
+                # (the nodes of a call under way are lost with the session, below: the record says
+                # so, and they are queued once, whatever the cancelled call does next)
                 child.launching.cancel()
                 child.launching = None
             await self._end_ssh(child)
@@ -397,20 +399,18 @@ class RemoteParent:
             pass  # ssh is gone
 
     async def _launch_pending(self, child: RemoteChild) -> None:
-        """Hand the pending nodes to this session's child, one `launch` call at a time."""
-        loop = asyncio.get_running_loop()
-        while child.pending and child.accepting:
-            batch, child.pending = child.pending, []
+        """Hand the queued nodes to this session's child, one `launch` call at a time."""
+        while child.accepting:
+            batch = self._queued(child)
+            if not batch:
+                return
             for rn in batch:
-                rn.on_child, rn.started_at, rn.process = True, loop.time(), ""
+                self._tell(rn, Event(machine.LAUNCH_SENT))
             xml = remote_launch_xml(rn.sent() for rn in batch)
             try:
                 code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
             except asyncio.CancelledError:
-                for rn in batch:  # the session ended during the call: the next one takes them
-                    rn.on_child = False
-                child.pending[:0] = batch
-                raise
+                raise  # the session ended during the call: its end has said the nodes are lost
             except Exception as e:  # noqa: BLE001 - any failure of the call: the nodes most likely did not start
                 code, msg, val = 0, str(e) or type(e).__name__, None
             if code != 1:
@@ -422,8 +422,7 @@ class RemoteParent:
                                     % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
                 child.accepting = False
                 for rn in batch:
-                    rn.on_child = False
-                child.pending[:0] = batch
+                    self._tell(rn, Event(machine.LAUNCH_REFUSED, reason="its machine's child refused it: %s" % msg))
                 if child.ssh is not None and child.ssh.returncode is None:
                     child.ssh.terminate()
                 return
@@ -432,15 +431,14 @@ class RemoteParent:
             for name in succeeded:
                 rn = child.node_for_process(name)
                 if rn is not None:
-                    rn.process = name
+                    self._tell(rn, Event(machine.LAUNCHED, process=name))
             for name in failed:
                 rn = child.node_for_process(name) or next((r for r in batch if "%s/%s" % (r.node.package, r.node.type)
                                                            == name), None)
                 console.printerrlog("remote[%s]: node [%s] could not be started on [%s]"
                                     % (child.name, rn.name if rn else name, child.machine.name))
                 if rn is not None:
-                    rn.on_child = False
-                    self._run_ended(rn, None, None, started=False)
+                    self._tell(rn, Event(machine.SPAWN_FAILED))
 
     async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
         """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
@@ -478,34 +476,30 @@ class RemoteParent:
         where = child.where()
         console.printerrlog("%sremote[%s]: failed to launch on machine [%s]:\n\n%s\n"
                             % (where + ": " if where else "", child.name, child.machine.name, reason))
-        child.pending.clear()
         for rn in child.nodes:
-            rn.cancel()
-            self.fleet.change(rn.name, state.EXITED, reason="machine [%s] failed" % child.machine.name)
-            self.supervisor.not_started(rn.name, rn.node.required)
+            self._tell(rn, Event(machine.MACHINE_FAILED, reason="machine [%s] failed" % child.machine.name))
 
     def _nodes_lost(self, child: RemoteChild) -> bool:
-        """The session ended: the nodes it still ran are lost with it (and pending for the next one)."""
-        lost = [rn for rn in child.nodes if rn.on_child and not rn.operator_stopped]
+        """The session ended: the nodes it ran, or was being handed, are lost with it (and queued for the
+        next one). Were any?"""
+        lost = False
         for rn in child.nodes:
-            rn.on_child = False
-        for rn in lost:
-            status = self.fleet.nodes.get(rn.name)
-            if status is not None and status.state in (state.RUNNING, state.RESPAWNING):
-                self.fleet.change(rn.name, state.EXITED, reason="machine [%s] dropped" % child.machine.name)
-            if rn.node.required:
-                console.printerrlog("=" * 80 + "REQUIRED process [%s] was lost with machine [%s]!\n"
-                                    "Initiating shutdown!\n" % (rn.name, child.machine.name) + "=" * 80)
-                self.supervisor.end(failed=True)
-        child.pending[:0] = lost  # started again when the machine answers
-        return bool(lost)
+            self._tell(rn, Event(machine.LINK_LOST, reason="machine [%s] dropped" % child.machine.name))
+            lost = lost or self._state(rn) == machine.LOST
+        return lost
+
+    # states in which a node has a process on its child (or is being given one)
+    _ON_CHILD = frozenset((machine.LAUNCHING, machine.RUNNING, machine.STOPPING))
 
     def _check_child_ending(self, child: RemoteChild) -> None:
         """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
         a new session rather than racing the child's exit with a `launch` call. (Not after starts
         that failed: Debian's child ends only when a node died; ours, which also ends then, refuses
         the next `launch`, which then waits for the next session.)"""
-        if child.launched_ok and not any(rn.on_child for rn in child.nodes):
+        def on_child(rn: RemoteNode) -> bool:
+            state_ = self._state(rn)
+            return state_ in self._ON_CHILD or (state_ == machine.RESPAWNING and not rn.owned)
+        if child.launched_ok and not any(on_child(rn) for rn in child.nodes):
             child.accepting = False
 
     def _process_died(self, process_name: str, exit_code: Any) -> None:
@@ -515,68 +509,11 @@ class RemoteParent:
             rn = child.node_for_process(process_name)
             if rn is None:
                 continue
-            if rn.operator_stopped:
-                # it died as it was being stopped: the operator's stop decides its state (a child that
-                # cannot stop it respawns it itself, if it is one the child respawns)
-                rn.on_child = rn.node.respawn and not rn.owned
-                return
             code = exit_code if isinstance(exit_code, int) else None
             code_, sig = (None, -code) if code is not None and code < 0 else (code, None)
-            if rn.node.required:
-                console.printerrlog("=" * 80 + "REQUIRED process [%s] on machine [%s] has died!\nexit code %s\n"
-                                    "Initiating shutdown!\n" % (process_name, child.machine.name, exit_code)
-                                    + "=" * 80)
-                self.supervisor.end(failed=code != 0)
-            if rn.owned:
-                rn.on_child = False
-                self._run_ended(rn, code_, sig, started=True)
-            else:  # the child respawns it itself, as roslaunch's
-                rn.on_child = rn.node.respawn
-                self.fleet.change(rn.name, state.RESPAWNING if rn.node.respawn else state.EXITED,
-                                  exit_code=code_, exit_signal=sig)
+            self._tell(rn, Event(machine.EXITED_, exit_code=code_, exit_signal=sig, process=process_name))
             self._check_child_ending(child)
             return
-
-    def _run_ended(self, rn: RemoteNode, exit_code: int | None, exit_signal: int | None, started: bool) -> None:
-        """A run of a node the parent owns has ended: the restart policy decides, as for a local node."""
-        loop = asyncio.get_running_loop()
-        node, machine = rn.node, rn.child.machine
-        if node.required and not started:
-            self.fleet.change(rn.name, state.EXITED, reason="could not be started")
-            self.supervisor.not_started(rn.name, True)
-            return
-        decision = restart.after_run(node.respawn, node.respawn_delay, rn.spec.policy, exit_code, started,
-                                     loop.time() - rn.started_at, rn.failures)
-        rn.failures = decision.failures
-        if decision.action == restart.FATAL:
-            console.printerrlog("[%s] on machine [%s] %s" % (rn.spec.name, machine.name, decision.note))
-            self.fleet.change(rn.name, state.FATAL, exit_code=exit_code, exit_signal=exit_signal,
-                              reason=decision.reason, failures=rn.failures)
-            if rn.spec.policy.on_fatal == "shutdown":
-                self.supervisor.fatal_shutdown(rn.spec.name)
-            return
-        if decision.note:
-            console.printlog("[%s] on machine [%s] %s" % (rn.spec.name, machine.name, decision.note))
-        if decision.action == restart.STAY_DOWN:
-            self.fleet.change(rn.name, state.EXITED, exit_code=exit_code, exit_signal=exit_signal,
-                              reason=decision.reason, failures=rn.failures)
-            return
-        self.fleet.change(rn.name, state.RESPAWNING, exit_code=exit_code, exit_signal=exit_signal,
-                          next_start=time.time() + decision.delay, reason=decision.reason, failures=rn.failures)
-        rn.timer = loop.call_later(decision.delay, self._respawn, rn)
-
-    def _respawn(self, rn: RemoteNode) -> None:
-        rn.timer = None
-        if self.stopping:
-            return
-        console.printlog("[%s] restarting process on machine [%s]" % (rn.spec.name, rn.child.machine.name))
-        rn.restarts += 1
-        threshold = rn.spec.policy.restart_warn_threshold
-        if threshold is not None and rn.restarts > threshold and not rn.restart_warned:
-            rn.restart_warned = True
-            console.printerrlog("[%s] WARNING: restarted %d times, more than its restart_warn_threshold (%d)"
-                                % (rn.spec.name, rn.restarts, threshold))
-        self._want(rn)
 
     # ---- operator control: `launcher start|stop|restart` of a node on another machine -----------------
 
@@ -593,34 +530,23 @@ class RemoteParent:
     async def stop_node(self, name: str) -> str:
         """Stop the node and keep it stopped, as a local `launcher stop`: '' once done, else why not.
 
-        The one place that sets `operator_stopped`: from then on neither the death its child reports,
-        nor its machine dropping and answering again, starts it; only `start_node` does. The child is
-        asked to stop that one process (`stop_process`, our child's extension); roslaunch's child has
-        no such call, and the node is then left as it was."""
+        From the STOP on, the state machine keeps it stopped: neither the death its child reports, nor
+        its machine dropping and answering again, starts it; only `start_node` does. The child is asked
+        to stop that one process (`stop_process`, our child's extension); roslaunch's child has no
+        such call, and the node is then left running."""
         rn = self._node(name)
         if rn is None or self.stopping or self.fleet is None:
             return ""
-        child, machine = rn.child, rn.child.machine
+        child, machine_ = rn.child, rn.child.machine
         # handed to the child by a `launch` call still under way: its process name comes with the answer
-        while rn.on_child and not rn.process and child.launching is not None and not child.launching.done():
+        while self._state(rn) == machine.LAUNCHING and child.launching is not None and not child.launching.done():
             await asyncio.wait([child.launching])
-        if rn.operator_stopped:
-            return ""  # stopped, or being stopped
-        if not rn.on_child:
-            # a start to come (respawn delay, spawn_delay, wait_for, its machine's return) is called off;
-            # a node that ended for good stays as it is, as a local one does
-            if rn.timer is not None or rn.held or rn in child.pending:
-                rn.cancel()
-                if rn in child.pending:
-                    child.pending.remove(rn)
-                rn.operator_stopped = True
-                self.fleet.change(rn.name, state.STOPPED, reason="stopped by operator")
-            return ""
-        rn.operator_stopped = True
-        console.printlog("[%s] stopping process on machine [%s] (operator)" % (rn.process, machine.name))
+        if machine.BEGIN_STOP not in {a.kind for a in self._tell(rn, Event(machine.STOP))}:
+            return ""  # stopped before its next start; or stopped, being stopped, or down for good
+        process = self.fleet.records[rn.name].process
         exit_code = None
         try:
-            code, msg, exit_code = await call(child.uri or "", "stop_process", rn.process,
+            code, msg, exit_code = await call(child.uri or "", "stop_process", process,
                                               timeout=self.sigint_timeout + self.sigterm_timeout + 5)
             refusal = "" if code == 1 else msg
         except Fault as e:
@@ -630,15 +556,14 @@ class RemoteParent:
                            "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
         except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
             refusal = str(e) or type(e).__name__
-        if refusal and rn.on_child:
-            rn.operator_stopped = False
-            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine.name, machine.address, refusal)
-        # stopped; or gone meanwhile (it died, or its machine dropped): it stays stopped all the same
-        rn.on_child = False
+        if self._state(rn) != machine.STOPPING:
+            return ""  # gone meanwhile (its machine dropped): it stays stopped all the same
+        if refusal:
+            self._tell(rn, Event(machine.STOP_REFUSED, reason="stop refused: " + refusal))
+            return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine_.name, machine_.address, refusal)
         code_ = exit_code if isinstance(exit_code, int) else None
-        self.fleet.change(rn.name, state.STOPPED, exit_code=None if code_ is None or code_ < 0 else code_,
-                          exit_signal=-code_ if code_ is not None and code_ < 0 else None,
-                          reason="stopped by operator")
+        self._tell(rn, Event(machine.DOWN, exit_code=None if code_ is None or code_ < 0 else code_,
+                             exit_signal=-code_ if code_ is not None and code_ < 0 else None))
         return ""
 
     def start_node(self, name: str) -> str:
@@ -647,16 +572,11 @@ class RemoteParent:
         rn = self._node(name)
         if rn is None or self.stopping or self.fleet is None:
             return ""
-        child, machine = rn.child, rn.child.machine
+        child, machine_ = rn.child, rn.child.machine
         if child.task is None or child.task.done():
-            return "cannot start [%s]: machine [%s] (%s) could not be reached at launch" % (rn.name, machine.name,
-                                                                                        machine.address)
-        if rn.on_child or rn in child.pending:
-            return ""  # it runs (or is being stopped), or starts as soon as its machine answers
-        rn.cancel()
-        rn.operator_stopped = False
-        console.printlog("[%s] starting process on machine [%s] (operator)" % (rn.spec.name, machine.name))
-        self._want(rn)
+            return "cannot start [%s]: machine [%s] (%s) could not be reached at launch" % (rn.name, machine_.name,
+                                                                                        machine_.address)
+        self._tell(rn, Event(machine.OPERATOR_START))  # (it runs, or starts as soon as its machine answers)
         return ""
 
     async def restart_node(self, name: str) -> str:
@@ -699,36 +619,27 @@ class RemoteParent:
             m = _STARTED.search(message)
             child = self.children.get(client)
             rn = child.node_for_process(m.group("proc")) if m and child else None
-            if rn is not None and self.fleet is not None and not rn.operator_stopped:
-                rn.process = m.group("proc")
-                rn.started_at = asyncio.get_running_loop().time()  # (its uptime counts for the restart policy)
-                self.fleet.change(rn.name, state.RUNNING, pid=int(m.group("pid")))
+            if rn is not None and self.fleet is not None:
+                self._tell(rn, Event(machine.SPAWNED, pid=int(m.group("pid")), process=m.group("proc")))
         else:
             console.printlog(text)
         return [1, "", 1]
 
+    def _local(self) -> list[state.NodeStatus]:
+        return [s for s in self.fleet or () if s.host == state.LOCAL_HOST]
+
     def list_processes(self) -> list:
-        active, dead = [], []
-        for status in self.fleet or ():
-            if status.host == "localhost":
-                (active if status.state in (state.RUNNING, state.RESPAWNING) else dead).append(
-                    [status.process, status.restarts + 1])
-        return [1, "processes on parent machine", [active, dead]]
+        return processes.list_processes(self._local())
 
     def process_info(self, process_name: str) -> list:
-        for status in self.fleet or ():
-            if status.process == process_name and status.host == "localhost":
-                return [1, "process info", {"name": status.process, "pid": status.pid or 0,
-                                            "alive": status.state == state.RUNNING,
-                                            "respawn_count": status.restarts}]
-        return [-1, "no process by that name", {}]
+        return processes.process_info(self._local(), process_name)
 
     def get_pid(self) -> list:
         pid = os.getpid()
         return [1, str(pid), pid]
 
     def get_node_names(self) -> list:
-        return [1, "node names", [s.name for s in self.fleet or () if s.host == "localhost" and s.state == state.RUNNING]]
+        return processes.node_names(self._local())
 
     _API = {"register": register, "list_children": list_children, "process_died": process_died, "log": log,
             "list_processes": list_processes, "process_info": process_info, "get_pid": get_pid,
@@ -739,14 +650,12 @@ class RemoteParent:
     async def shutdown(self) -> None:
         """Ask every child to stop its nodes, then close the sessions."""
         self.stopping = True
+        if self.fleet is not None:
+            for child in self.children.values():
+                for rn in child.nodes:
+                    self._tell(rn, Event(machine.SHUTDOWN))  # (a start to come is called off)
         if self.readiness is not None:
             self.readiness.close()
-        for child in self.children.values():
-            for rn in child.nodes:
-                if rn.timer is not None or rn.held:
-                    rn.cancel()
-                    if self.fleet is not None:
-                        self.fleet.change(rn.name, state.STOPPED, reason="stopped before its next start")
         live = [c for c in self.children.values() if c.ssh is not None]
         for child in live:
             console.printlog("[%s] killing on exit" % child.name)
@@ -764,6 +673,11 @@ class RemoteParent:
             await self._end_ssh(child, orderly)
 
         await asyncio.gather(*(stop(c) for c in live))
+        if self.fleet is not None:  # what ran there is stopped with its child's shutdown, or its session's end
+            for child in self.children.values():
+                for rn in child.nodes:
+                    if self._state(rn) == machine.STOPPING:
+                        self._tell(rn, Event(machine.DOWN))
         for child in self.children.values():
             if child.task is not None:
                 child.task.cancel()

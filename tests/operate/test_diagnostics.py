@@ -3,24 +3,28 @@
 from rosbags.typesys import Stores, get_typestore
 
 from launcher.operate import diagnostics
+from launcher.config import NodePolicy
+from launcher.process import machine as m
+from launcher.process.machine import Event, Rules
 from launcher.process.state import Fleet
 
 
 def test_each_node_is_one_status_named_after_it():
     fleet = Fleet()
     fleet.add("/ok", process="ok-2")
-    fleet.change("/ok", "running", pid=42)
-    fleet.sample("/ok", 0.25, 1 << 20)
-    fleet.add("/again")
-    fleet.change("/again", "running", pid=43)
-    fleet.change("/again", "respawning", exit_signal=9, next_start=0)
-    fleet.add("/broken")
-    fleet.change("/broken", "running", pid=44)
-    fleet.change("/broken", "fatal", exit_code=3)
+    fleet.add("/again", rules=Rules(respawn=True))
+    fleet.add("/broken", rules=Rules(respawn=True, policy=NodePolicy(respawn_max_retries=0)))
     fleet.add("/crashed")
-    fleet.change("/crashed", "exited", exit_code=1)
     fleet.add("/done")
-    fleet.change("/done", "exited", exit_code=0)
+    for name, pid, end in (("/ok", 42, None), ("/again", 43, Event(m.EXITED_, exit_signal=9)),
+                           ("/broken", 44, Event(m.EXITED_, exit_code=3)), ("/crashed", 45, Event(m.EXITED_, exit_code=1)),
+                           ("/done", 46, Event(m.EXITED_, exit_code=0))):
+        assert fleet.apply(name, Event(m.START)) == [m.Action(m.SPAWN)]
+        fleet.apply(name, Event(m.SPAWNED, pid=pid))
+        if end is not None:
+            fleet.apply(name, end)
+    fleet.sample("/ok", 0.25, 1 << 20)
+    assert [s.state for s in fleet] == ["running", "respawning", "fatal", "exited", "exited"]
     raw = diagnostics.serialize(fleet, 7, 1234.5)
     msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, "diagnostic_msgs/msg/DiagnosticArray")
     assert msg.header.seq == 7 and msg.header.stamp.sec == 1234 and msg.header.stamp.nanosec == 500000000

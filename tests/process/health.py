@@ -12,7 +12,7 @@ from launcher.config import NodePolicy
 from launcher.masterlink import start_master
 from launcher.process import console
 from launcher.process.spawn import ProcessSpec
-from launcher.process.state import Fleet
+from launcher.process.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor
 
 ROS_PYTHON = "/usr/bin/python3"  # Debian's, with rospy
@@ -62,7 +62,12 @@ class Events:
 
     def __init__(self, fleet: Fleet):
         self.items: list[tuple[float, str, str, str]] = []
-        fleet.listeners.append(lambda s: self.items.append((time.monotonic(), s.name, s.state, s.reason)))
+        fleet.listeners.append(self._changed)
+
+    def _changed(self, change: Change) -> None:
+        if visible(change):
+            s = change.status
+            self.items.append((time.monotonic(), s.name, s.state, s.reason))
 
     def of(self, node: str, state: str) -> list[tuple[float, str, str, str]]:
         return [e for e in self.items if e[1] == node and e[2] == state]

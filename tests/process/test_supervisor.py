@@ -142,7 +142,8 @@ def test_respawn_immediately_and_with_delay(tmp_path, capsys):
         lat = []
         for _ in range(5):
             # a node that ran a while (a crash loop is paced: see below)
-            await wait_for(lambda: asyncio.get_running_loop().time() - fast.started_at > MIN_RESPAWN_INTERVAL_S)
+            await wait_for(lambda: asyncio.get_running_loop().time() - sup.fleet.records[fast.spec.node_name].started
+                           > MIN_RESPAWN_INTERVAL_S)
             old = fast.pid
             t0 = time.monotonic()
             os.kill(old, signal.SIGKILL)
