@@ -13,13 +13,7 @@ import pytest
 
 from launcher.net import open_files
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from helpers import ROOT, free_port, still_running, until
 
 
 def _get_pid(uri: str, timeout: float) -> int:
@@ -56,7 +50,7 @@ def test_raise_open_file_limit_raises_the_soft_limit_to_the_hard_one():
 
 @pytest.mark.parametrize("slow_clients", [400])
 def test_slow_clients_beyond_the_open_file_limit_do_not_lock_out_legitimate_calls(slow_clients):
-    port = _free_port()
+    port = free_port()
     uri = "http://127.0.0.1:%d/" % port
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI=uri, ROS_IP="127.0.0.1")
     env.pop("ROS_HOSTNAME", None)
@@ -66,14 +60,7 @@ def test_slow_clients_beyond_the_open_file_limit_do_not_lock_out_legitimate_call
                             stderr=subprocess.PIPE)
     slow: list[socket.socket] = []
     try:
-        deadline = time.monotonic() + 15
-        pid = None
-        while pid is None:
-            try:
-                pid = _get_pid(uri, 1.0)
-            except OSError:
-                assert time.monotonic() < deadline and proc.poll() is None, "master did not start"
-                time.sleep(0.05)
+        pid = until(lambda: still_running(proc) and _get_pid(uri, 1.0), 15, 0.05, what="master up", errors=(OSError,))
         latencies = []
         for i in range(slow_clients):
             s = socket.create_connection(("127.0.0.1", port), timeout=5)

@@ -6,33 +6,24 @@ import os
 import socket
 import subprocess
 import sys
-import time
 import xmlrpc.client
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from helpers import ROOT, free_port, still_running, until
 
 
 @pytest.fixture
 def core_uri():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     uri = "http://127.0.0.1:%d/" % port
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI=uri, ROS_IP="127.0.0.1")
     env.pop("ROS_HOSTNAME", None)
     proc = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                xmlrpc.client.ServerProxy(uri).getPid("/t")
-                break
-            except OSError:
-                assert time.monotonic() < deadline and proc.poll() is None, "master did not start"
-                time.sleep(0.05)
+        until(lambda: still_running(proc) and xmlrpc.client.ServerProxy(uri).getPid("/t"), 15, 0.05, what="master up",
+              errors=(OSError,))
         yield uri
     finally:
         proc.terminate()
@@ -101,9 +92,7 @@ def test_in_process_set_param_refuses_it_too():
 def test_launch_file_with_such_a_value_fails_cleanly(tmp_path):
     launch = tmp_path / "big.launch"
     launch.write_text('<launch><param name="big" value="4294967296"/></launch>')
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI="http://127.0.0.1:%d/" % port, ROS_IP="127.0.0.1",
                ROS_HOME=str(tmp_path))
     env.pop("ROS_HOSTNAME", None)
