@@ -193,7 +193,7 @@ def test_log_check_warns_in_background_with_threshold(tmp_path, pkgs):
     try:
         started = lp.wait_output(r"started with pid")
         assert started
-        lp.wait_output(r"WARNING: disk usage in log directory \[%s\] is over 10KB\." % env["ROS_LOG_DIR"],
+        lp.wait_output(r"WARNING: disk usage in log directory \[%s\] is over 10kB\." % env["ROS_LOG_DIR"],
                        timeout=20, stream="stderr")
         # after start-up, never before it
         assert "disk usage" not in lp.stdout.split("started with pid")[0]

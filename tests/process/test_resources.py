@@ -61,7 +61,7 @@ def test_memory_limit_warns_once_per_crossing(tmp_path, capsys):
                                 lambda sup, events: len(sup.fleet.nodes["/grower"].history) >= 8)
     err = console_err(capsys)
     assert err.count("[grower-1] WARNING: uses ") == 1
-    assert " of memory, over its limit of 40.0 MB" in err
+    assert " of memory, over its limit of 40MiB" in err
     assert procs[0].spawn_count == 1  # warned, not restarted
 
 
@@ -72,7 +72,7 @@ def test_memory_limit_restart_restarts_the_node(tmp_path, capsys):
     err = console_err(capsys)
     assert "[grower-1] restarting: uses " in err
     respawning = events.of("/grower", state.RESPAWNING)
-    assert respawning and "over its limit of 40.0 MB" in respawning[0][3]
+    assert respawning and "over its limit of 40MiB" in respawning[0][3]
     assert sup.fleet.nodes["/grower"].restarts >= 1  # though the node does not respawn
 
 
@@ -166,7 +166,7 @@ def test_over_a_limit_is_in_the_state_model_set_and_cleared(tmp_path, capsys):
     assert seen[:6] == [("running", 0, {}, ""), ("running", 0, over, "over memory_limit"),
                         ("respawning", 0, {}, ""), ("running", 1, {}, ""), ("running", 1, over, "over memory_limit"),
                         ("running", 1, {}, "back under memory_limit")], seen
-    assert " of memory, over its limit of 40.0 MB" in lines[1]["reason"]
+    assert " of memory, over its limit of 40MiB" in lines[1]["reason"]
     console.flush()
     said = capsys.readouterr()
     assert said.err.count("[holder-1] WARNING: uses ") == 2
