@@ -58,6 +58,18 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def post_once(port: int, body: bytes, timeout: float = 10.0, headers: bytes = b"") -> bytes:
+    """The whole response to one HTTP POST of `body` to 127.0.0.1:`port`, on a connection of its own
+    (`headers`: more header lines, each ending in CRLF)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as s:
+        s.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\nConnection: close\r\n%s\r\n"
+                  % (len(body), headers) + body)
+        chunks = []
+        while chunk := s.recv(65536):
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
 def still_running(proc: subprocess.Popen) -> bool:
     """True while `proc` runs; once it has exited, an AssertionError (which ends an `until` at once)."""
     assert proc.poll() is None, "%s exited (%s)" % (proc.args, proc.returncode)

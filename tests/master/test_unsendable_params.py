@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import xmlrpc.client
 
 import pytest
 
-from helpers import ROOT, free_port, still_running, until
+from helpers import ROOT, free_port, post_once, still_running, until
 
 
 @pytest.fixture
@@ -36,17 +35,8 @@ def _set_raw(uri: str, key: str, value_xml: str):
             "<param><value><string>/t</string></value></param>"
             "<param><value><string>%s</string></value></param>"
             "<param>%s</param></params></methodCall>" % (key, value_xml)).encode()
-    host, port = uri[len("http://"):].rstrip("/").split(":")
-    with socket.create_connection((host, int(port)), timeout=5) as s:
-        s.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % len(body)
-                  + body)
-        data = b""
-        while True:
-            chunk = s.recv(65536)
-            if not chunk:
-                break
-            data += chunk
-    return xmlrpc.client.loads(data.partition(b"\r\n\r\n")[2])[0][0]
+    reply = post_once(int(uri.rstrip("/").rsplit(":", 1)[1]), body, 5)
+    return xmlrpc.client.loads(reply.partition(b"\r\n\r\n")[2])[0][0]
 
 
 @pytest.mark.parametrize("value_xml", [
