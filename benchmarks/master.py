@@ -4,7 +4,7 @@
 K client processes, each a sequential keep-alive HTTP/1.1 XML-RPC client,
 call a fixed mix of Master/Parameter Server methods for T seconds against a
 master preloaded with 200 parameters and 50 publishers (the scenario of
-/work/shared/bench `bench.py master`). Masters alternate in ABBA order over
+../shared/bench `bench.py master`). Masters alternate in ABBA order over
 the repetitions; the summary gives medians and paired ratios ours/reference.
 
     PATH=/usr/bin:$PATH python3 benchmarks/master.py [--reps 4] [--k 8] [--duration 10]

@@ -9,8 +9,8 @@ scenario of issue 4 and prints the ratio ours/roslaunch next to its goal:
 (with the Python `launcher` is installed in; Debian's ROS tools are put first
 on PATH for the driver and roslaunch).
 
-`--bench` points at bench.py (default: /work/shared/bench/bench.py or
-$LAUNCHER_BENCH). Our command is the `launch` script next to this Python (not
+`--bench` points at bench.py (default: $LAUNCHER_BENCH, else ../shared/bench/bench.py
+beside the checkout). Our command is the `launch` script next to this Python (not
 a pyenv shim, which adds ~0.1 s of bash to every start).
 """
 
@@ -24,6 +24,9 @@ import sys
 import tempfile
 
 ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+# the project's shared driver, beside the checkout
+SHARED_BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "bench",
+                            "bench.py")
 
 # (name, bench.py arguments, metric, goal description, check(ratio or value) -> bool)
 SCENARIOS = [
@@ -70,7 +73,7 @@ def run_bench(bench: str, args: list[str], reps: int, extra: list[str]) -> list[
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--bench", default=os.environ.get("LAUNCHER_BENCH", "/work/shared/bench/bench.py"))
+    ap.add_argument("--bench", default=os.environ.get("LAUNCHER_BENCH", os.path.normpath(SHARED_BENCH)))
     ap.add_argument("--reps", type=int, default=5)
     ap.add_argument("--only", default="", help="comma-separated scenario names")
     ap.add_argument("--extra", default="", help="extra bench.py arguments")

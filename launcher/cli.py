@@ -72,8 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--local", action="store_true", help="do not launch nodes on other machines")
     p.add_argument("--no-summary", dest="no_summary", action="store_true", help="do not print the summary")
     p.add_argument("--skip-log-check", dest="skip_log_check", action="store_true", help="do not check the log directory's size")
-    p.add_argument("--log-check-threshold", dest="log_check_threshold", default="1GB", metavar="SIZE",
-                   help="warn when the log directory is larger than this (default 1GB)")
+    p.add_argument("--log-check-threshold", dest="log_check_threshold", default="1GiB", metavar="SIZE",
+                   help="warn when the log directory is larger than this (default 1GiB, roslaunch's)")
     p.add_argument("--log-max-size", dest="log_max_size", default="100MB", metavar="SIZE",
                    help="rotate a node's output log past this size (default 100MB; 0: never)")
     p.add_argument("--log-backups", dest="log_backups", type=int, default=4, metavar="N",
@@ -117,7 +117,7 @@ _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params"
           "--no-diagnostics": "no_diagnostics"}
 _DEFAULTS: dict[str, object] = dict(
     {dest: False for dest in _FLAGS.values()}, node_args=None, find_node=None, port=None,
-    log_check_threshold="1GB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0,
+    log_check_threshold="1GiB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0,
     monitor_period=1.0, pid_fn=None, run_id=None,
     num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None, master_allow=None)
 

@@ -29,12 +29,11 @@ def is_private(name: str) -> bool:
 
 def canonicalize_name(name: str) -> str:
     """Remove duplicate and trailing separators (`//a/b/` -> `/a/b`)."""
-    if not name or name == SEP:
+    # Nearly every name is canonical already, and the master and the loader ask for each name they see.
+    if not name or name == SEP or ("//" not in name and name[-1] != SEP):
         return name
     parts = [p for p in name.split(SEP) if p]
-    if name[0] == SEP:
-        return SEP + SEP.join(parts)
-    return SEP.join(parts)
+    return (SEP if name[0] == SEP else "") + SEP.join(parts)
 
 
 def ns_join(ns: str, name: str) -> str:
@@ -51,9 +50,9 @@ def ns_join(ns: str, name: str) -> str:
 
 
 def namespace(name: str) -> str:
-    """The namespace of a name, with a trailing slash (`/a/b` -> `/a/`)."""
+    """The namespace of a name, with a trailing slash (`/a/b` -> `/a/`; that of "" is `/`, as rosgraph says)."""
     if not name:
-        raise ValueError("name must be a non-empty string")
+        return SEP
     if name[-1] == SEP:
         name = name[:-1]
     return name[: name.rfind(SEP) + 1] or SEP
@@ -71,23 +70,23 @@ def make_global_ns(ns: str) -> str:
 
 
 def resolve_name(name: str, namespace_: str, remappings: dict[str, str] | None = None) -> str:
-    """Resolve `name` against the node name or namespace `namespace_`.
+    """Resolve `name` against the node name or namespace `namespace_` (the master: against the caller id).
 
     A private name (`~x`) is resolved against `namespace_` itself (a node's
-    full name); a relative one against the namespace of `namespace_`.
+    full name); a relative one against the namespace of `namespace_`; ""
+    names the namespace of `namespace_` (`/` for an empty caller id).
     """
     if not name:
         return namespace(namespace_)
     name = canonicalize_name(name)
-    if name[0] == SEP:
+    first = name[0]  # (is_global and is_private, inline: the master resolves a key in nearly every call)
+    if first == SEP:
         resolved = name
-    elif is_private(name):
+    elif first == PRIV_NAME:
         resolved = canonicalize_name(namespace_ + SEP + name[1:])
     else:
         resolved = namespace(namespace_) + name
-    if remappings and resolved in remappings:
-        return remappings[resolved]
-    return resolved
+    return remappings.get(resolved, resolved) if remappings else resolved
 
 
 def anonymous_name(id_: str) -> str:

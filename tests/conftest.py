@@ -8,9 +8,7 @@ import subprocess
 
 import pytest
 
-# Debian's ROS scripts (rosnode, rostopic, ...) need Debian's own python.
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
-ROS_PYTHON = os.environ.get("ROS_PYTHON", "/usr/bin/python3")
+from helpers import ROS_PATH, ROS_PYTHON
 
 
 def _ros_available() -> str | None:

@@ -15,8 +15,8 @@ from launcher.errors import LaunchError
 from launcher.packages import PackageIndex
 from launcher.xml import resolve_launch_arguments
 
-ROS_PYTHON = os.environ.get("ROS_PYTHON", "/usr/bin/python3")  # Debian's, with roslaunch (as conftest's)
-COMPAT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "compat")
+from helpers import COMPAT, ROS_PYTHON
+
 PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>%s</name><version>0.0.1</version>'
                '<description>d</description><maintainer email="m@example.com">m</maintainer>'
                '<license>BSD</license></package>\n')

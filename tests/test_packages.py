@@ -13,7 +13,7 @@ from launcher import packages as packages_mod
 from launcher.errors import LaunchError
 from launcher.packages import ExecutableNotFound, MultipleResources, PackageIndex, PackageNotFound
 
-COMPAT = "/work/shared/compat"
+from helpers import COMPAT
 
 
 def make_pkg(root, rel, name=None, meta=False, manifest=False):

@@ -9,9 +9,10 @@ import pytest
 
 from launcher import tool
 
+from helpers import ROOT
+
 tomllib = pytest.importorskip("tomllib")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # distribution name -> the module it provides, where they differ
 MODULE_OF = {"pyyaml": "yaml"}
 
@@ -45,7 +46,7 @@ def test_a_python_without_a_dependency_gets_a_clear_error_not_a_traceback():
     import sys
     code = "import sys; sys.modules['lxml'] = None\nfrom launcher.tool import main\nsys.exit(main(['test', '--help']))"
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+                       cwd=ROOT)
     assert p.returncode == 1
     assert "Traceback" not in p.stderr
     assert "lacks lxml" in p.stderr and sys.executable in p.stderr

@@ -7,9 +7,10 @@ import os
 import socket
 from typing import Any, Mapping
 
-from launcher.master.api import MasterApi, resolve, unsendable
+from launcher.master.api import MasterApi, unsendable
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
+from launcher.names import resolve_name
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.params.tree import ParamTree, copy_tree
 
@@ -141,7 +142,7 @@ class Master:
         None), as setParam refuses it: stored, it would break getParam('/') for everyone.
         """
         self._require_started()
-        key = resolve(key, "/")
+        key = resolve_name(key, "/")
         problem = unsendable(value)
         if problem:
             raise ValueError("parameter [%s] is not set: %s" % (key, problem))
@@ -150,7 +151,7 @@ class Master:
     def delete_param(self, key: str) -> None:
         """Delete a parameter in-process (KeyError if not set); subscribers get `{}`."""
         self._require_started()
-        self._api.delete_param(resolve(key, "/"))
+        self._api.delete_param(resolve_name(key, "/"))
 
     def _require_started(self) -> None:
         if self._api is None:

@@ -15,12 +15,9 @@ from typing import Any, Callable
 from launcher.master import registry as reg
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier
+from launcher.names import ANYTYPE, SEP, canonicalize_name, resolve_name
 from launcher.params.tree import ParamTree, copy_tree
 from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
-
-
-SEP = "/"
-ANYTYPE = "*"
 
 
 NO_CHECK = None  # an argument passed on as it is
@@ -28,39 +25,6 @@ NO_CHECK = None  # an argument passed on as it is
 
 class ParameterInvalid(Exception):
     """An argument rejected by a validator (answered with -1)."""
-
-
-# ---------------------------------------------------------------------------
-# names, with rosgraph.names' exact rules (an empty caller id resolves against "/")
-# ---------------------------------------------------------------------------
-
-def _canonicalize(name: str) -> str:
-    if not name or name == SEP:
-        return name
-    if "//" not in name and name[-1] != SEP:
-        return name
-    parts = [p for p in name.split(SEP) if p]
-    return (SEP if name[0] == SEP else "") + SEP.join(parts)
-
-
-def _namespace(name: str) -> str:
-    if not name:
-        return SEP
-    if name[-1] == SEP:
-        name = name[:-1]
-    return name[: name.rfind(SEP) + 1] or SEP
-
-
-def resolve(name: str, caller_id: str) -> str:
-    """rosgraph.names.resolve_name(name, caller_id)."""
-    if not name:
-        return _namespace(caller_id)
-    name = _canonicalize(name)
-    if name[0] == SEP:
-        return name
-    if name[0] == "~":
-        return _canonicalize(caller_id + SEP + name[1:])
-    return _namespace(caller_id) + name
 
 
 # ---------------------------------------------------------------------------
@@ -101,7 +65,7 @@ def valid_name(pname: str) -> Callable[[Any, str], Any]:
             raise ParameterInvalid("ERROR: parameter [%s] must be a non-empty string" % pname)
         if ":" in value or " " in value:
             raise ParameterInvalid("ERROR: parameter [%s] contains illegal chars" % pname)
-        return resolve(value, caller_id)
+        return resolve_name(value, caller_id)
     return v
 
 
@@ -123,7 +87,7 @@ def empty_or_valid_name(pname: str) -> Callable[[Any, str], Any]:
             raise ParameterInvalid("ERROR: parameter [%s] must be a string" % pname)
         if not value:
             return ""
-        return resolve(value, caller_id)
+        return resolve_name(value, caller_id)
     return v
 
 
@@ -158,7 +122,7 @@ def param_updates(subscribers: reg.Registrations, key: str, value: Any, ignore_c
     if not subscribers.map:
         return []
     if key != SEP:
-        key = _canonicalize(key) + SEP
+        key = canonicalize_name(key) + SEP
     all_keys = _all_keys(key, value, []) if type(value) is dict else None
     updates = []
     for sub_key, node_apis in subscribers.map.items():
@@ -335,7 +299,7 @@ class MasterApi:
         return 1, "", self.pid
 
     def deleteParam(self, caller_id: str, key: str) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
+        key = resolve_name(key, caller_id)
         try:
             self.delete_param(key)
         except KeyError:
@@ -344,7 +308,7 @@ class MasterApi:
         return 1, "parameter %s deleted" % key, 0
 
     def setParam(self, caller_id: str, key: str, value: Any) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
+        key = resolve_name(key, caller_id)
         problem = unsendable(value)
         if problem:
             # stored, it would break every later getParam of it or of a namespace above it, '/'
@@ -355,7 +319,7 @@ class MasterApi:
         return 1, "parameter %s set" % key, 0
 
     def getParam(self, caller_id: str, key: str) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
+        key = resolve_name(key, caller_id)
         try:
             return 1, "Parameter [%s]" % key, self.params.get(key)
         except KeyError:
@@ -368,8 +332,8 @@ class MasterApi:
         return -1, "Cannot find parameter [%s] in an upwards search" % key, ""
 
     def subscribeParam(self, caller_id: str, caller_api: str, key: str) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
-        sub_key = key if key == SEP else _canonicalize(key) + SEP
+        key = resolve_name(key, caller_id)
+        sub_key = key if key == SEP else canonicalize_name(key) + SEP
         try:
             val = self.params.get(sub_key)
         except KeyError:
@@ -379,14 +343,14 @@ class MasterApi:
         return 1, "Subscribed to parameter [%s]" % key, val
 
     def unsubscribeParam(self, caller_id: str, caller_api: str, key: str) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
-        sub_key = key if key == SEP else _canonicalize(key) + SEP
+        key = resolve_name(key, caller_id)
+        sub_key = key if key == SEP else canonicalize_name(key) + SEP
         self.registry.unregister(reg.PARAM_SUBSCRIPTIONS, sub_key, caller_id, caller_api)
         mlog.info("-CACHEDPARAM [%s] by %s", key, caller_id)
         return 1, "Unsubscribe to parameter [%s]" % key, 1
 
     def hasParam(self, caller_id: str, key: str) -> tuple:  # noqa: N802
-        key = resolve(key, caller_id)
+        key = resolve_name(key, caller_id)
         return 1, key, self.params.has(key)
 
     def getParamNames(self, caller_id: str) -> tuple:  # noqa: N802

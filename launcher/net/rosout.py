@@ -24,7 +24,7 @@ _LEVEL_NAMES = {1: b"DEBUG", 2: b"INFO", 4: b"WARN", 8: b"ERROR", 16: b"FATAL"}
 
 # The only messages rosout speaks, as in their .msg files: the type store is built from these
 # alone (~3 ms) rather than from rosbags' whole Noetic store (~100 ms at every launch's start).
-# Same text, same md5sums and definitions (tests/test_rosout.py checks against the Noetic store).
+# Same text, same md5sums and definitions (tests/net/test_rosout.py checks against the Noetic store).
 _ROSOUT_MSG_TYPES = {
     "std_msgs/msg/Header": "uint32 seq\ntime stamp\nstring frame_id",
     "rosgraph_msgs/msg/Log": "byte DEBUG=1\nbyte INFO=2\nbyte WARN=4\nbyte ERROR=8\nbyte FATAL=16\n"
@@ -33,7 +33,7 @@ _ROSOUT_MSG_TYPES = {
     "roscpp/msg/Logger": "string name\nstring level",
 }
 # What rosout announces at registration, as rosbags computes it from the definitions above
-# (tests/test_rosout.py checks): constants, so that registering /rosout needs no type store and
+# (tests/net/test_rosout.py checks): constants, so that registering /rosout needs no type store and
 # rosbags is not imported before the nodes are spawned.
 LOG_MD5 = "acffd30cd6b6de30f120938c17c593fb"
 LOG_DEFINITION = (

@@ -17,6 +17,7 @@ from typing import Any
 
 from launcher.operate import client
 from launcher.process.state import over_limit_text
+from launcher.units import format_size
 
 
 def parser() -> argparse.ArgumentParser:
@@ -40,16 +41,6 @@ def duration(seconds: float | None) -> str:
     return "%dd%02dh" % (s // 86400, s % 86400 // 3600)
 
 
-def size(n: int | None) -> str:
-    if n is None:
-        return "-"
-    for unit in ("B", "K", "M", "G"):
-        if n < 1024 or unit == "G":
-            return ("%d%s" if unit == "B" else "%.1f%s") % (n, unit)
-        n /= 1024  # type: ignore[assignment]
-    return "-"
-
-
 def last_exit(node: dict[str, Any]) -> str:
     if node.get("exit_signal") is not None:
         try:
@@ -69,7 +60,8 @@ def table(info: dict[str, Any]) -> str:
     for n in info["nodes"]:
         rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
                      duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
-                     "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]), size(n.get("rss")),
+                     "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]),
+                     "-" if n.get("rss") is None else format_size(n["rss"]),
                      n.get("host", "")))
     if any(n.get("over_limit") for n in info["nodes"]):  # (a column only while some node is over a limit)
         rows = [rows[0] + ("OVER LIMIT",)] + [

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import re
 import shutil
 import subprocess
 from typing import Awaitable, Callable, Mapping
@@ -12,9 +11,10 @@ from typing import Awaitable, Callable, Mapping
 from launcher.errors import LaunchError
 from launcher.process import console
 from launcher.roshome import log_root
+from launcher.units import format_size, parse_size  # noqa: F401 (parse_size: runtime.py imports it from here)
 
-# roslaunch's threshold: 1 GiB, though it says "1GB".
-DEFAULT_THRESHOLD = 1073741824
+# roslaunch's threshold: 2**30 bytes, which its messages call "1GB" (`1GiB` in our units).
+DEFAULT_THRESHOLD = 1 << 30
 # Warn when the disk holding the logs has less than this free (or less than 5 %).
 LOW_DISK_BYTES = 1073741824
 LOW_DISK_FRACTION = 0.05
@@ -22,26 +22,6 @@ LOW_DISK_FRACTION = 0.05
 # then again at this interval while the launch runs.
 FIRST_CHECK_DELAY_S = 2.0
 RECHECK_INTERVAL_S = 600.0
-
-_SIZE_RE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgGtT]?)(i?[bB]?)\s*$")
-_UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
-
-
-def parse_size(text: str) -> int:
-    """`1GB`, `500MB`, `2G`, `1073741824` -> bytes (binary units, as roslaunch's 1GB is 2**30)."""
-    m = _SIZE_RE.match(str(text))
-    if not m:
-        raise ValueError("invalid size [%s]: expected a number with an optional unit (KB, MB, GB, TB)" % text)
-    return int(float(m.group(1)) * _UNITS[m.group(2).lower()])
-
-
-def format_size(n: int) -> str:
-    for unit, size in (("TB", 1 << 40), ("GB", 1 << 30), ("MB", 1 << 20), ("KB", 1 << 10)):
-        if n >= size:
-            value = n / size
-            return ("%d%s" % (value, unit)) if value == int(value) else ("%.1f%s" % (value, unit))
-    return "%dB" % n
-
 
 def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
     """Create `<log root>/<run_id>` and point `<log root>/latest` at it (as rosgraph.roslogging does)."""
@@ -133,12 +113,13 @@ async def check_once(root: str, threshold: int) -> list[tuple[bool, str]]:
     messages: list[tuple[bool, str]] = []
     if os.path.isdir(root):
         usage = await disk_usage_bytes(root)
+        # roslaunch's own lines for its threshold
+        limit = "1GB" if threshold == DEFAULT_THRESHOLD else format_size(threshold)
         if usage > threshold:
             messages.append((True, "WARNING: disk usage in log directory [%s] is over %s.\n"
-                                   "It's recommended that you use the 'rosclean' command."
-                             % (root, format_size(threshold))))
+                                   "It's recommended that you use the 'rosclean' command." % (root, limit)))
         else:
-            messages.append((False, "Done checking log file disk usage. Usage is <%s." % format_size(threshold)))
+            messages.append((False, "Done checking log file disk usage. Usage is <%s." % limit))
     warning = disk_space_warning(root)
     if warning:
         messages.append((True, warning))

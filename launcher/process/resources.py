@@ -26,7 +26,7 @@ import errno
 import os
 from typing import Any
 
-from launcher.process.state import size_text as _size
+from launcher.units import format_size
 
 DEFAULT_PERIOD_S = 1.0
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -195,7 +195,7 @@ class ResourceMonitor:
         if policy.memory_limit is not None:
             over = rss > policy.memory_limit
             self._limit(proc, "memory_limit", policy.memory_limit, over, "uses %s of memory, %s its limit of %s"
-                        % (_size(rss), "over" if over else "under", _size(policy.memory_limit)))
+                        % (format_size(rss), "over" if over else "under", format_size(policy.memory_limit)))
         if policy.cpu_limit is not None:
             over = cpu > policy.cpu_limit
             self._limit(proc, "cpu_limit", policy.cpu_limit, over, "uses %.2f CPU cores, %s its limit of %g"

@@ -1,1 +1,1 @@
-"""Nodes on other machines: roslaunch's remote protocol (parent and child XML-RPC APIs) over the system's OpenSSH."""
+"""Nodes on other machines: the parent side of roslaunch's remote protocol over the system's OpenSSH (the child side is launcher/child.py)."""

@@ -7,19 +7,17 @@ This module turns an element's attributes (already substituted) into a dict of
 `Node.policy` from them. A bad value is a `PolicyError` whose message the loader
 prefixes with file and line.
 
-Units: times are seconds (a decimal number); sizes are bytes, with an optional
-unit, case-insensitive: `k`/`kB` = 1000, `M`/`MB`, `G`/`GB`, `T`/`TB` (powers of
-1000, as rosmon), `KiB`/`Ki`, `MiB`, `GiB`, `TiB` (powers of 1024), `B` or none
-= bytes (`500MB`, `1.5GiB`, `200k`). CPU is in cores (`0.5` = half of one core;
-rosmon's `rosmon-cpu-limit` has the same unit).
+Units: times are seconds (a decimal number); sizes are bytes as `launcher.units`
+reads them (`500MB`, `1.5GiB`, `200k`), as `--log-max-size` is. CPU is in cores
+(`0.5` = half of one core; rosmon's `rosmon-cpu-limit` has the same unit).
 """
 
 from __future__ import annotations
 
 import math
-import re
 from typing import Any, Callable
 
+from launcher import units
 from launcher.names import is_legal_name
 
 
@@ -29,19 +27,12 @@ class PolicyError(ValueError):
 
 WAIT_KINDS = ("topic", "service", "param", "node")
 
-_SIZE = re.compile(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([A-Za-z]*)\s*\Z")
-_SIZE_UNITS = {"": 1, "b": 1, "k": 10**3, "kb": 10**3, "m": 10**6, "mb": 10**6, "g": 10**9, "gb": 10**9,
-               "t": 10**12, "tb": 10**12, "ki": 2**10, "kib": 2**10, "mi": 2**20, "mib": 2**20,
-               "gi": 2**30, "gib": 2**30, "ti": 2**40, "tib": 2**40}
-
-
-def parse_size(text: str) -> int:
-    """`500MB`, `1.5GiB`, `200k`, `4096` -> bytes (see the module docstring for the units)."""
-    m = _SIZE.match(text)
-    unit = m and _SIZE_UNITS.get(m.group(2).lower())
-    if unit is None or not m:
-        raise PolicyError("a size such as 500MB, 1.5GiB, 200k or a number of bytes")
-    size = int(float(m.group(1)) * unit)
+def _size(text: str) -> int:
+    """A size greater than zero, in bytes (`launcher.units.parse_size`)."""
+    try:
+        size = units.parse_size(text)
+    except ValueError:
+        raise PolicyError(units.SIZE_EXPECTED) from None
     if size <= 0:
         raise PolicyError("a size greater than zero")
     return size
@@ -155,16 +146,16 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "wait_for": ("wait_for", parse_wait_for),
     "wait_timeout": ("wait_timeout", _seconds(positive=True)),
     "hang_timeout": ("hang_timeout", _seconds(positive=True)),
-    "memory_limit": ("memory_limit", parse_size),
+    "memory_limit": ("memory_limit", _size),
     "cpu_limit": ("cpu_limit", _cores),
     "on_limit": ("on_limit", _choice("warn", "restart")),
     "enable_coredumps": ("enable_coredumps", _bool),
-    "log_max_size": ("log_max_size", parse_size),
+    "log_max_size": ("log_max_size", _size),
     "log_backups": ("log_backups", _count),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),
-    "rosmon-memory-limit": ("memory_limit", parse_size),
+    "rosmon-memory-limit": ("memory_limit", _size),
     "rosmon-cpu-limit": ("cpu_limit", _cores),
     "rosmon-spawn-delay": ("spawn_delay", _seconds(positive=False)),
     "rosmon-restart-warn-threshold": ("restart_warn_threshold", _count),

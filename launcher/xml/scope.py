@@ -14,20 +14,14 @@ from typing import Any, Callable, Mapping
 
 import functools
 
-from launcher.names import PRIV_NAME, SEP, canonicalize_name, make_global_ns, ns_join
+from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
+from launcher.names import canonicalize_name as canonical
 from launcher.names import is_legal_name as _is_legal_name
 from launcher.xml.substitution import SubstitutionScope
 
 # names.is_legal_name, remembered: a launch tree checks the same few names (remaps, node names)
 # thousands of times; a pure function of the name
 is_legal_name = functools.lru_cache(maxsize=8192)(_is_legal_name)
-
-
-def canonical(name: str) -> str:
-    """canonicalize_name, skipping the work for names that are already canonical (nearly all)."""
-    if "//" in name or (len(name) > 1 and name[-1] == SEP):
-        return canonicalize_name(name)
-    return name
 
 
 class ScopeError(ValueError):

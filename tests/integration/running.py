@@ -7,14 +7,13 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
 import xmlrpc.client
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
-ROS_PYTHON = "/usr/bin/python3"
+from helpers import ROS_PATH, free_port, until
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>%s</name><version>0.0.1</version>'
@@ -36,24 +35,6 @@ while not rospy.is_shutdown():
     except rospy.ROSInterruptException:
         break
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def poll(cond, timeout: float = 20.0, period: float = 0.02, what: str = "condition"):
-    """Wait until `cond()` is truthy (returns it), or fail after `timeout`."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError("%s not met within %.1f s" % (what, timeout))
-        time.sleep(period)
 
 
 def make_package(root: str, name: str, scripts: dict[str, str]) -> str:
@@ -125,7 +106,7 @@ class RosMaster:
         env = dict(os.environ, PATH=ROS_PATH, ROS_HOME=os.path.join(tmp, "masterhome"))
         self.proc = subprocess.Popen(["rosmaster", "--core", "-p", str(self.port)], env=env,
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-        poll(lambda: master_up(self.port), 20, what="rosmaster up")
+        until(lambda: master_up(self.port), 20, what="rosmaster up")
 
     def stop(self) -> None:
         stop_group(self.proc, 10)
@@ -177,7 +158,7 @@ class Launcher:
                     raise AssertionError("launcher exited (%s) before %r appeared\nstdout:\n%s\nstderr:\n%s"
                                          % (self.proc.returncode, pattern, self.stdout, self.stderr))
             return m
-        return poll(found, timeout, what="%r in launcher %s" % (pattern, stream))
+        return until(found, timeout, what="%r in launcher %s" % (pattern, stream))
 
     def started_pids(self) -> dict[str, int]:
         """process name -> pid of its latest start."""
@@ -200,33 +181,6 @@ class Launcher:
                 self.proc.wait()
         self._out.close()
         self._err.close()
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        with open("/proc/%d/stat" % pid) as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def descendants(root: int) -> set[int]:
-    kids: dict[int, list[int]] = {}
-    for e in os.listdir("/proc"):
-        if e.isdigit():
-            try:
-                with open("/proc/%s/stat" % e) as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            kids.setdefault(ppid, []).append(int(e))
-    out: set[int] = set()
-    todo = [root]
-    while todo:
-        for c in kids.get(todo.pop(), []):
-            out.add(c)
-            todo.append(c)
-    return out
 
 
 def write_launch(tmp: str, body: str, name: str = "test.launch") -> str:

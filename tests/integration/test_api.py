@@ -13,7 +13,8 @@ import psutil
 import pytest
 
 from launcher.api import Launch, LaunchFailed
-from running import ROS_PATH, RospyTalker, make_package, poll, write_launch
+from helpers import ROOT, ROS_PATH, until
+from running import RospyTalker, make_package, write_launch
 
 pytestmark = pytest.mark.integration
 
@@ -60,8 +61,8 @@ def test_launch_context_leaves_no_thread_process_or_socket(demo):
         publishers = launch.wait_for_publisher("/chatter", timeout=60)
         assert publishers == ["/talker"]
         launch.wait_for_nodes("/talker", "/listener", timeout=60)
-        poll(lambda: launch.status().get("/talker") == "running" and launch.status().get("/listener") == "running",
-             30, what="both nodes running in status()")
+        until(lambda: launch.status().get("/talker") == "running" and launch.status().get("/listener") == "running",
+              30, what="both nodes running in status()")
         port = launch.port
         assert _port_open(port)
         launcher_proc = psutil.Process(launch.process.pid)
@@ -104,8 +105,7 @@ def test_pytest_fixture_runs_a_launch_in_a_plain_pytest_test(demo, tmp_path):
             assert PIDS and not any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE
                                     for p in PIDS)
     ''' % launch_file))
-    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(env, PYTHONPATH=here)
+    env = dict(env, PYTHONPATH=ROOT)
     # the plugin is loaded through its pytest11 entry point, as in any project that installs launcher
     # (PYTHONPATH makes the entry point's module this tree's copy)
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(test_file)],

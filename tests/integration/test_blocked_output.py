@@ -10,7 +10,8 @@ import termios
 import time
 import xmlrpc.client
 
-from running import free_port, make_package, master_up, poll, ros_env, write_launch
+from helpers import free_port, until
+from running import make_package, master_up, ros_env, write_launch
 
 # Appends a line per start to $STARTS, then dies: a respawning node that is never up for long.
 Crasher = """#!/bin/sh
@@ -59,9 +60,9 @@ def test_master_answers_and_nodes_respawn_while_stdout_is_blocked(tmp_path):
                             stdout=write_end, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
     os.close(write_end)
     try:
-        poll(lambda: master_up(port), 30, what="master up")
+        until(lambda: master_up(port), 30, what="master up")
         # nobody reads: the pipe fills with "started"/"restarting" lines
-        poll(lambda: _unread(read_end) >= 3000, 60, what="stdout pipe full")  # (a line that does not fit waits whole)
+        until(lambda: _unread(read_end) >= 3000, 60, what="stdout pipe full")  # (a line that does not fit waits whole)
         full_at = _starts(starts)
         master = xmlrpc.client.ServerProxy("http://127.0.0.1:%d/" % port, transport=_TimeoutTransport())
         slow = []
@@ -72,7 +73,7 @@ def test_master_answers_and_nodes_respawn_while_stdout_is_blocked(tmp_path):
             slow += [time.monotonic() - t0] if time.monotonic() - t0 > 1.0 else []
         assert not slow, slow
         # and the nodes keep being respawned, long enough for the console to drop lines
-        poll(lambda: _starts(starts) >= full_at + 500, 60, what="respawns while stdout is blocked")
+        until(lambda: _starts(starts) >= full_at + 500, 60, what="respawns while stdout is blocked")
         # once the output flows again, the launcher says how much it dropped
         got = b""
         fcntl.fcntl(read_end, fcntl.F_SETFL, os.O_NONBLOCK)
@@ -84,7 +85,7 @@ def test_master_answers_and_nodes_respawn_while_stdout_is_blocked(tmp_path):
             except BlockingIOError:
                 pass
             return b"dropped while the output was blocked" in got
-        poll(drained, 30, what="the dropped-lines notice")
+        until(drained, 30, what="the dropped-lines notice")
     finally:
         proc.terminate()
         try:

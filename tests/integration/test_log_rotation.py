@@ -5,7 +5,8 @@ from __future__ import annotations
 import glob
 import os
 
-from running import Launcher, free_port, make_package, poll, ros_env, write_launch
+from helpers import free_port, until
+from running import Launcher, make_package, ros_env, write_launch
 
 # writes 256 KiB chunks at ~4 MiB/s to stdout, and the total so far to $TOTAL
 Writer = """#!/usr/bin/env python3
@@ -44,8 +45,8 @@ def test_a_fast_writer_is_rotated_and_bounded(tmp_path):
             except (OSError, ValueError):
                 return 0
         bound = 3 * (MAX + 2 * RATE)  # each file: the limit plus what a check period (1 s) lets through, twice over
-        poll(lambda: written() > bound + MAX and os.path.exists(stdout_log + ".2"), 60,
-             what="more written than the files may hold")
+        until(lambda: written() > bound + MAX and os.path.exists(stdout_log + ".2"), 60,
+              what="more written than the files may hold")
         files = glob.glob(stdout_log + "*")
         assert sorted(files) == [stdout_log, stdout_log + ".1", stdout_log + ".2"]  # never a third copy
         on_disk = sum(os.path.getsize(f) for f in files)
@@ -70,9 +71,9 @@ def test_a_node_sets_its_own_limit(tmp_path):
     try:
         run_dir = os.path.dirname(lp.wait_output(r"\.\.\. logging to (\S+)").group(1))
         stdout_log = os.path.join(run_dir, "chatty-2-stdout.log")
-        poll(lambda: os.path.exists(stdout_log + ".1") and os.path.getsize(stdout_log + ".1") > 0, 60,
-             what="a rotation")
-        poll(lambda: int(open(env["TOTAL"]).read()) > 2 * (MAX + 2 * RATE), 60, what="more written")
+        until(lambda: os.path.exists(stdout_log + ".1") and os.path.getsize(stdout_log + ".1") > 0, 60,
+              what="a rotation")
+        until(lambda: int(open(env["TOTAL"]).read()) > 2 * (MAX + 2 * RATE), 60, what="more written")
         assert sorted(glob.glob(stdout_log + "*")) == [stdout_log, stdout_log + ".1"]
     finally:
         lp.close()

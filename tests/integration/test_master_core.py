@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
+import re
 import select
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -14,58 +14,12 @@ import xmlrpc.client
 
 import pytest
 
+from helpers import Procs, free_port, until
+from running import master_up
+
 pytestmark = pytest.mark.integration
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(cond, timeout=20.0, what="condition"):
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            value = cond()
-        except (OSError, xmlrpc.client.Error):
-            value = None
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError("timed out waiting for %s" % what)
-        time.sleep(0.05)
-
-
-class Procs:
-    """Processes of one test, each in its own process group, all stopped at the end."""
-
-    def __init__(self, env):
-        self.env = env
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, argv, **kw) -> subprocess.Popen:
-        p = subprocess.Popen(argv, env=kw.pop("env", self.env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                             text=True, start_new_session=True, **kw)
-        self.procs.append(p)
-        return p
-
-    def run(self, argv, timeout=30) -> subprocess.CompletedProcess:
-        return subprocess.run(argv, env=self.env, capture_output=True, text=True, timeout=timeout)
-
-    def stop_all(self):
-        for p in self.procs:
-            if p.poll() is None:
-                try:
-                    os.killpg(p.pid, signal.SIGINT)
-                except ProcessLookupError:
-                    continue
-        for p in self.procs:
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(5)
+RPC_DOWN = (OSError, xmlrpc.client.Error)  # while a master starts or stops, a call may fail: not yet
 
 
 @pytest.fixture
@@ -76,11 +30,11 @@ def core(ros_env, tmp_path):
                ROS_MASTER_URI="http://127.0.0.1:%d/" % port, ROS_HOME=str(tmp_path / "home"),
                ROS_LOG_DIR=str(tmp_path / "log"), ROS_IP="127.0.0.1", PYTHONPATH="")
     env.pop("ROS_HOSTNAME", None)
-    procs = Procs(env)
+    procs = Procs(env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     launch_env = dict(env, PATH=os.environ.get("PATH", ""))  # our launch runs on this python
     p = procs.start([sys.executable, "-m", "launcher", "--core", "-p", str(port)], env=launch_env)
     master = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])
-    wait_for(lambda: master.getParam("/t", "/run_id")[0] == 1, what="launch --core")
+    until(lambda: master.getParam("/t", "/run_id")[0] == 1, 20, what="launch --core", errors=RPC_DOWN)
     try:
         yield procs, master, env, p
     finally:
@@ -188,7 +142,7 @@ def test_rosnode_kill_and_cleanup(core, ros_env):
     assert out.returncode == 0, out
     talker.wait(20)
     # rospy unregisters through system.multicall on its way out
-    wait_for(lambda: master.lookupNode("/t", "/talker")[0] == -1, what="/talker to unregister")
+    until(lambda: master.lookupNode("/t", "/talker")[0] == -1, 20, what="/talker to unregister", errors=RPC_DOWN)
 
 
 CPP_NODE = r"""
@@ -267,8 +221,9 @@ def test_pid_file_is_written_and_removed(ros_env, tmp_path):
     p = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port), "--pid", str(pid_fn)],
                          env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        wait_for(lambda: pid_fn.exists() and pid_fn.read_text() == str(p.pid), what="pid file")
-        wait_for(lambda: xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).getPid("/t")[2] == p.pid, what="master")
+        until(lambda: pid_fn.exists() and pid_fn.read_text() == str(p.pid), 20, what="pid file", errors=RPC_DOWN)
+        until(lambda: xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).getPid("/t")[2] == p.pid, 20, what="master",
+              errors=RPC_DOWN)
     finally:
         os.killpg(p.pid, signal.SIGINT)
         assert p.wait(10) == 0
@@ -277,13 +232,6 @@ def test_pid_file_is_written_and_removed(ros_env, tmp_path):
 
 def test_core_logs_to_its_run_directory_as_roscore(tmp_path):
     """roscore's first line is where it logs; the run directory gets the launch log, master.log and `latest`."""
-    import os
-    import re
-    import signal
-    import subprocess
-    import sys
-
-    from running import free_port, master_up, poll
     port = free_port()
     out = tmp_path / "core.out"
     env = dict(os.environ, ROS_HOME=str(tmp_path / "home"))
@@ -292,7 +240,7 @@ def test_core_logs_to_its_run_directory_as_roscore(tmp_path):
         proc = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], env=env, stdout=f,
                                 stderr=subprocess.STDOUT)
     try:
-        poll(lambda: master_up(port), 30, what="core up")
+        until(lambda: master_up(port), 30, what="core up")
         first = out.read_text().splitlines()[0]
         m = re.match(r"\.\.\. logging to (\S+)/roslaunch-[^/]+-%d\.log$" % proc.pid, first)
         assert m, first

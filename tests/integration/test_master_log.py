@@ -10,7 +10,8 @@ import subprocess
 import sys
 import xmlrpc.client
 
-from running import ROS_PATH, free_port, master_up, poll
+from helpers import ROS_PATH, free_port, until
+from running import master_up
 
 LINE = re.compile(r"^\[(rosmaster\.\w+)\]\[INFO\] \d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}: (.*)$")
 
@@ -52,13 +53,13 @@ def run_master(cmd: list[str], env: dict[str, str], port: int, log_pattern: str)
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     try:
-        poll(lambda: master_up(port), 30, what="master up")
+        until(lambda: master_up(port), 30, what="master up")
         calls(port)
 
         def callbacks_logged():  # (both masters call the nodes back in the background)
             path = log_file(log_pattern)
             return path if path and open(path).read().count("paramUpdate[/talker/gain") == 2 else None
-        return poll(callbacks_logged, 30, what="the callbacks in master.log")
+        return until(callbacks_logged, 30, what="the callbacks in master.log")
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         proc.wait(30)

@@ -16,8 +16,9 @@ import xmlrpc.client
 
 import pytest
 
-from running import (ROS_PATH, ROS_PYTHON, Launcher, compile_roscpp, free_port, get_param, make_package, master_proxy,
-                     master_up, pid_alive, poll, ros_env, write_launch)
+from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
+from running import (Launcher, RosMaster, compile_roscpp, get_param, make_package, master_proxy, master_up, ros_env,
+                     write_launch)
 
 pytestmark = pytest.mark.integration
 
@@ -94,7 +95,7 @@ def running_ready(tmp_path, env, names) -> dict:
         st = status(env, starting=True)
         return st if st and all(st[n]["state"] == "running" and ready(tmp_path, n, st[n]["pid"]) for n in names) \
             else None
-    return poll(check, 60, 0.2, what="nodes %s running and initialized" % (names,))
+    return until(check, 60, 0.2, what="nodes %s running and initialized" % (names,))
 
 
 def test_status_reports_real_pids_and_restart_counts(tmp_path, pkgs):
@@ -103,13 +104,13 @@ def test_status_reports_real_pids_and_restart_counts(tmp_path, pkgs):
       <node pkg="op_tests" type="param_cpp" name="cpp"><param name="out" value="%s/cpp.txt"/></node>
     """ % tmp_path)
     try:
-        poll(lambda: os.path.exists(tmp_path / "cpp.txt"), 60, what="roscpp node up")
+        until(lambda: os.path.exists(tmp_path / "cpp.txt"), 60, what="roscpp node up")
         st = running_ready(tmp_path, env, ["/py"])
         pids = lp.started_pids()
         assert st["/py"]["pid"] == pids["py-2"] and st["/cpp"]["pid"] == pids["cpp-3"]
         assert st["/py"]["restarts"] == 0 and st["/cpp"]["state"] == "running"
         os.kill(pids["py-2"], signal.SIGKILL)
-        st = poll(lambda: (lambda s: s if s["/py"]["restarts"] == 1 and s["/py"]["state"] == "running" else None)(
+        st = until(lambda: (lambda s: s if s["/py"]["restarts"] == 1 and s["/py"]["state"] == "running" else None)(
             status(env)), 30, 0.2, what="respawn seen in status: %s" % lp.stdout[-2000:])
         assert st["/py"]["pid"] == lp.started_pids()["py-2"] != pids["py-2"]
         assert st["/py"]["exit_signal"] is None  # a running node shows its run, the exit is in the events
@@ -211,9 +212,9 @@ def test_logs_follow_a_screen_node_and_a_log_node(tmp_path, pkgs):
             with open(tmp_path / ("follow%s.txt" % node.replace("/", "_"))) as f:
                 return [int(n) for n in re.findall(r"tick (\d+)", f.read())]
         for node, _, _ in followers:
-            first = poll(lambda: ticks(node), 60, 0.2, what="%s's output followed" % node)
+            first = until(lambda: ticks(node), 60, 0.2, what="%s's output followed" % node)
             # it keeps following: later ticks arrive while the node runs
-            poll(lambda: max(ticks(node)) >= max(first) + 3, 30, 0.2, what="%s's new output followed" % node)
+            until(lambda: max(ticks(node)) >= max(first) + 3, 30, 0.2, what="%s's new output followed" % node)
         r = tool(env, "logs", "lg", "-n", "2")
         assert r.returncode == 0 and len(r.stdout.splitlines()) == 2 and "tick" in r.stdout
     finally:
@@ -232,8 +233,8 @@ def test_no_start_then_launcher_start(tmp_path, pkgs):
     """, "--no-start")
     try:
         port = int(env["ROS_MASTER_URI"].rsplit(":", 1)[1].strip("/"))
-        st = poll(lambda: (lambda s: s if len(s) == 2 else None)(status(env, starting=True)) if master_up(port) and get_param(port, "/shared/value")
-                  else None, 30, 0.2, what="launch up with its parameters")
+        st = until(lambda: (lambda s: s if len(s) == 2 else None)(status(env, starting=True)) if master_up(port) and get_param(port, "/shared/value")
+                   else None, 30, 0.2, what="launch up with its parameters")
         assert st["/a"]["state"] == st["/b"]["state"] == "stopped" and st["/a"]["pid"] is None
         assert "started with pid" not in lp.stdout
         r = tool(env, "start", "a")
@@ -308,8 +309,8 @@ def test_over_a_limit_shows_in_status_events_and_diagnostics(tmp_path, pkgs):
       <node pkg="op_tests" type="spinner" name="a"/>
     """, "--monitor-period", "0.2")
     try:
-        st = poll(lambda: (lambda s: s if s.get("/holder", {}).get("over_limit") else None)(status(env, True)), 60,
-                  0.2, what="holder over its memory_limit")
+        st = until(lambda: (lambda s: s if s.get("/holder", {}).get("over_limit") else None)(status(env, True)), 60,
+                   0.2, what="holder over its memory_limit")
         assert st["/holder"]["over_limit"] == {"memory_limit": 32 << 20} and st["/a"]["over_limit"] == {}
         assert st["/holder"]["state"] == "running" and st["/holder"]["restarts"] == 0
         table = tool(env, "status").stdout.splitlines()
@@ -322,7 +323,7 @@ def test_over_a_limit_shows_in_status_events_and_diagnostics(tmp_path, pkgs):
                          r'\(uses \d+\.\d MB\)"', out), out
         assert re.search(r'key: "memory_limit"\s+value: "33554432"', out), out
         (tmp_path / "ready" / "release").touch()
-        poll(lambda: status(env)["/holder"]["over_limit"] == {}, 60, 0.2, what="holder back under its limit")
+        until(lambda: status(env)["/holder"]["over_limit"] == {}, 60, 0.2, what="holder back under its limit")
         assert "OVER LIMIT" not in tool(env, "status").stdout
         out = _diagnostics(env)
         assert re.search(r'level: 0\s+name: "/holder"\s+message: "running"', out), out
@@ -402,19 +403,19 @@ def test_api_answers_as_debian_roslaunch(tmp_path, pkgs):
         else:
             lp = Launcher([launch, "-p", str(port)], env, str(tmp_path))
         try:
-            uris = poll(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(port, "/roslaunch")),
-                        60, 0.2, what="%s registered on its master" % which)["uris"]
+            uris = until(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(port, "/roslaunch")),
+                         60, 0.2, what="%s registered on its master" % which)["uris"]
             (key, uri), = uris.items()
             assert key == "host_127_0_0_1__%s" % uri.rsplit(":", 1)[1].strip("/")
             api = xmlrpc.client.ServerProxy(uri)
-            poll(lambda: sum(1 for f in os.listdir(tmp_path / "ready")) >= (3 if which == "roslaunch" else 6), 60,
-                 0.2, what="nodes up")
+            until(lambda: sum(1 for f in os.listdir(tmp_path / "ready")) >= (3 if which == "roslaunch" else 6), 60,
+                  0.2, what="nodes up")
             b_pid = api.process_info("g/b-3")[2]["pid"]
             c_pid = api.process_info("c-4")[2]["pid"]
             os.kill(b_pid, signal.SIGKILL)  # respawned: active, spawned twice
             os.kill(c_pid, signal.SIGKILL)  # dead
-            poll(lambda: api.process_info("g/b-3")[2].get("spawn_count") == 2 and api.list_processes()[2][1], 30,
-                 0.2, what="%s saw the deaths" % which)
+            until(lambda: api.process_info("g/b-3")[2].get("spawn_count") == 2 and api.list_processes()[2][1], 30,
+                  0.2, what="%s saw the deaths" % which)
             answers[which] = _api_answers(uri)
             answers[which]["launcher_pid"] = api.get_pid()[2]
         finally:
@@ -435,7 +436,7 @@ def _stop(p) -> None:
 
 def _registered_api(port: int) -> str:
     """The URI of the one launch registered on the master, its key checked as roslaunch's."""
-    uris = poll(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(
+    uris = until(lambda: (lambda v: v if v and len(v.get("uris", {})) else None)(master_up(port) and get_param(
         port, "/roslaunch")), 60, 0.2, what="a launch registered on the master")["uris"]
     (key, uri), = uris.items()
     assert key == "host_127_0_0_1__%s" % uri.rsplit(":", 1)[1].strip("/")
@@ -460,7 +461,7 @@ def test_core_serves_roslaunch_api_as_debian_roscore(tmp_path, pkgs):
         try:
             uri = _registered_api(port)
             api = xmlrpc.client.ServerProxy(uri)
-            poll(lambda: api.get_node_names()[2] == ["master", "rosout-1"], 30, 0.2, what="%s's core processes" % which)
+            until(lambda: api.get_node_names()[2] == ["master", "rosout-1"], 30, 0.2, what="%s's core processes" % which)
             answers[which] = _api_answers(uri, node=None)
             answers[which]["launcher_pid"] = api.get_pid()[2]
             if which == "ours":
@@ -476,8 +477,8 @@ def test_core_serves_roslaunch_api_as_debian_roscore(tmp_path, pkgs):
                 lp = Launcher([launch], env, str(tmp_path))
             try:
                 uri = _registered_api(port)
-                poll(lambda: xmlrpc.client.ServerProxy(uri).get_node_names()[2] == ["a-1"], 60, 0.2,
-                     what="%s's launch running" % which)
+                until(lambda: xmlrpc.client.ServerProxy(uri).get_node_names()[2] == ["a-1"], 60, 0.2,
+                      what="%s's launch running" % which)
                 answers[which + " launch"] = _api_answers(uri, node="a-1")
             finally:
                 _stop(proc if which == "roscore" else lp)
@@ -540,7 +541,7 @@ def test_master_allow_refuses_clients_from_other_networks(tmp_path, netns):
     env.update(ROS_HOME=str(tmp_path / "home"), ROS_LOG_DIR=str(tmp_path / "log"))
     lp = Launcher(["--core", "-p", str(port), "--allow", "10.231.77.2/32"], env, str(tmp_path))
     try:
-        poll(lambda: master_up(port), 30, what="master up")
+        until(lambda: master_up(port), 30, what="master up")
         lp.wait_output(r"master answers only clients from loopback, this machine and: 10\.231\.77\.2/32")
 
         def from_outside(source: str) -> str:
@@ -557,7 +558,6 @@ def test_master_allow_refuses_clients_from_other_networks(tmp_path, netns):
 
 
 def test_several_launches_on_one_master(tmp_path, pkgs):
-    from running import RosMaster
     master = RosMaster(str(tmp_path))
     env = ros_env(str(tmp_path), master.port, pkgs)
     env["READY_DIR"] = str(tmp_path / "ready")
@@ -567,8 +567,8 @@ def test_several_launches_on_one_master(tmp_path, pkgs):
     two = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="two"/>', "two.launch")],
                    env, str(tmp_path))
     try:
-        poll(lambda: len((get_param(master.port, "/roslaunch") or {}).get("uris", {})) == 2, 60, 0.2,
-             what="both launches registered")
+        until(lambda: len((get_param(master.port, "/roslaunch") or {}).get("uris", {})) == 2, 60, 0.2,
+              what="both launches registered")
         r = tool(env, "status")
         assert r.returncode == 2 and "2 launches use the master" in r.stderr and "--launch" in r.stderr
         assert "(pid %d)" % one.pid in r.stderr and "(pid %d)" % two.pid in r.stderr
@@ -576,7 +576,7 @@ def test_several_launches_on_one_master(tmp_path, pkgs):
         assert r.returncode == 0 and [n["name"] for n in json.loads(r.stdout)["nodes"]] == ["/two"]
         one.close()
         # the launch that ended took its key off the master: the other is found alone again
-        poll(lambda: len(get_param(master.port, "/roslaunch")["uris"]) == 1, 30, 0.2, what="key removed")
+        until(lambda: len(get_param(master.port, "/roslaunch")["uris"]) == 1, 30, 0.2, what="key removed")
         r = tool(env, "status", "--json")
         assert r.returncode == 0 and json.loads(r.stdout)["pid"] == two.pid
     finally:
@@ -592,7 +592,7 @@ def test_completion_offers_the_running_launchs_node_names(tmp_path, pkgs):
       <node pkg="op_tests" type="spinner" name="base"/>
     """)
     try:
-        poll(lambda: len(status(env, starting=True)) == 3, 60, 0.2, what="the launch answers")
+        until(lambda: len(status(env, starting=True)) == 3, 60, 0.2, what="the launch answers")
         for line in ("launcher restart /arm", "launcher logs /arm_c"):
             r = tool(env, "__complete", line)
             expected = ["/arm_camera", "/arm_driver"] if line.endswith("/arm") else ["/arm_camera"]

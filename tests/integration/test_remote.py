@@ -21,7 +21,8 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from testhosts import TestHosts  # noqa: E402
 
-from running import ROS_PATH, Launcher, free_port, poll  # noqa: E402
+from helpers import ROS_PATH, descendants, free_port, until  # noqa: E402
+from running import Launcher  # noqa: E402
 
 NO_ORPHAN_S = 5.0  # the issue's bound: a machine's nodes are gone this long after the launcher or link is
 
@@ -123,8 +124,8 @@ def launched(tmp_path, hosts):
 @pytest.mark.parametrize("child", ["debian", "ours"])
 def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
     la, env = launched(TALKER % "" + LISTENER % "" + LOCAL, child=child)
-    poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 60, period=0.5,
-         what="nodes of all three hosts registered")
+    until(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 60, period=0.5,
+          what="nodes of all three hosts registered")
     h1, h2 = hosts.hosts
     assert on_host(h1, "__name:=talker") and not on_host(h1, "__name:=listener")
     assert on_host(h2, "__name:=listener") and not on_host(h2, "__name:=talker")
@@ -143,8 +144,8 @@ def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
                            capture_output=True, text=True, timeout=30)
         assert r.returncode == 0, r.stderr
         return r.stdout
-    text = poll(lambda: (lambda out: out if "/talker on %s running" % h1.address in out else None)(events()), 30,
-                0.5, what="the remote talker's events")
+    text = until(lambda: (lambda out: out if "/talker on %s running" % h1.address in out else None)(events()), 30,
+                 0.5, what="the remote talker's events")
     assert re.search(r" /local_echo running pid \d+", text), text
     hosts_of = {e["node"]: e["host"] for e in map(json.loads, events("--json").splitlines())}
     assert hosts_of == {"/talker": h1.address, "/listener": h2.address, "/local_echo": "localhost"}
@@ -154,11 +155,11 @@ def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
 def test_remote_node_killed_is_reported_and_respawned(hosts, launched, child):
     la, env = launched(TALKER % ' respawn="true"', child=child)
     h1 = hosts.hosts[0]
-    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    first = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
     la.wait_output(r"\[talker-1\]: started with pid", 30)
     os.kill(first, signal.SIGKILL)
     la.wait_output(r"\[talker-1\] process has died \[pid %d, exit code -9" % first, 30, stream="stderr")
-    again = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
+    again = until(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
     assert again
 
 
@@ -180,7 +181,7 @@ def test_unreachable_host_and_refused_key_are_errors_while_local_nodes_run(tmp_p
     la2.wait_output(r"robot\.launch:3: remote\[[^\]]+\]: failed to launch on machine \[one\]:\s+authentication "
                     r"to remote computer \[%s:22\] failed: the key was refused" % re.escape(h1.address), 60,
                     stream="stderr")
-    poll(lambda: "/local_echo" in node_names(env2), 30, period=0.5, what="local node registered")
+    until(lambda: "/local_echo" in node_names(env2), 30, period=0.5, what="local node registered")
     assert la2.proc.poll() is None and not on_host(h1, "__name:=talker")
 
 
@@ -193,7 +194,7 @@ def test_unknown_host_key_is_an_error_unless_roslaunch_ssh_unknown(tmp_path, hos
     la.close()
     la, env = launched(TALKER % "", LAUNCHER_SSH_COMMAND=hosts.ssh_command(known_hosts=empty),
                        ROSLAUNCH_SSH_UNKNOWN="1")
-    poll(lambda: "/talker" in node_names(env), 60, period=0.5, what="talker registered")
+    until(lambda: "/talker" in node_names(env), 60, period=0.5, what="talker registered")
 
 
 def test_password_and_loopback_master_are_clear_errors(tmp_path, hosts, launched):
@@ -229,11 +230,11 @@ def test_required_node_on_a_failed_machine_ends_the_launch_with_status_1(tmp_pat
 def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched, child):
     la, env = launched(TALKER % "" + LISTENER % "", child=child)
     h1, h2 = hosts.hosts
-    poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 60, what="remote nodes")
+    until(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 60, what="remote nodes")
     la.proc.kill()
     la.proc.wait()
     try:
-        poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the test hosts")
+        until(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the test hosts")
     except AssertionError as e:
         raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
 
@@ -242,14 +243,14 @@ def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched,
 def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched, child):
     la, env = launched(TALKER % "" + LISTENER % "", child=child)
     h1, h2 = hosts.hosts
-    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
-    poll(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
+    first = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    until(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
     h1.cut()
     try:
         # (the host's sshd keeps its half of the dead connection: only ssh's own processes may stay)
         try:
-            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
-                 period=0.1, what="host one's nodes stopped after its link was cut")
+            until(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                  period=0.1, what="host one's nodes stopped after its link was cut")
         except AssertionError as e:
             raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
         assert on_host(h2, "__name:=listener"), la.stdout + la.stderr  # the other machine carries on
@@ -257,16 +258,15 @@ def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(
     finally:
         h1.restore()
     try:
-        again = poll(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
+        again = until(lambda: on_host(h1, "__name:=talker"), 60, period=0.2, what="talker started again on host one")
     except AssertionError as e:
         raise AssertionError("%s\n%s%s" % (e, la.stdout, la.stderr)) from None
     assert again[0] != first
-    poll(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
+    until(lambda: "/talker" in node_names(env), 30, period=0.5, what="talker registered again")
 
 
 def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
     """Debian's roslaunch runs `roslaunch -c` on the hosts, which there is our launcher."""
-    from running import descendants
     loaders = our_child_loaders(tmp_path, hosts)
     env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
     path = launch_file(tmp_path, hosts, TALKER % ' respawn="true"' + LISTENER % "" + LOCAL, loaders=loaders)
@@ -282,12 +282,12 @@ def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
             return f.read()
 
     try:
-        poll(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 90, period=0.5,
-             what="nodes of all three hosts registered")
+        until(lambda: {"/talker", "/listener", "/local_echo"} <= node_names(env), 90, period=0.5,
+              what="nodes of all three hosts registered")
         assert [line for line in h1.process_lines() if "-m launcher -c" in line]  # our child runs there
         # the child's console lines reach Debian's parent (which prints them as "[child]: ..."), once each
         # and in order, also when several went in one system.multicall
-        poll(lambda: "... done launching nodes" in parent_output(), 30, what="the children's lines printed")
+        until(lambda: "... done launching nodes" in parent_output(), 30, what="the children's lines printed")
         text = re.sub(r"\x1b\[[0-9;]*m", "", parent_output())  # (it prints "started" lines in bold)
         for host in (h1, h2):
             lines = re.findall(r"^\[%s-\d+\]: (.*)$" % re.escape(host.address), text, re.M)
@@ -298,13 +298,13 @@ def test_debian_roslaunch_parent_with_our_child(tmp_path, hosts, launched):
         assert 'data: "hello"' in r.stdout
         first = on_host(h1, "__name:=talker")[0]
         os.kill(first, signal.SIGKILL)
-        poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
+        until(lambda: [p for p in on_host(h1, "__name:=talker") if p != first], 30, what="talker respawned")
         # SIGKILL of Debian's roslaunch: its ssh channel closes, and our child stops the nodes
         local = descendants(la.pid)
         la.kill()
         la.wait()
         try:
-            poll(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the hosts")
+            until(lambda: not h1.pids() and not h2.pids(), NO_ORPHAN_S, period=0.1, what="no process on the hosts")
         except AssertionError as e:
             raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
     finally:
@@ -325,8 +325,8 @@ def test_a_machine_whose_nodes_all_ended_is_not_started_again(hosts, launched, c
                        child=child)
     h1 = hosts.hosts[0]
     la.wait_output(r"\[once-1\]: started with pid", 60)
-    poll(lambda: not h1.pids(), 30, period=0.1, what="the child on host one ended with its only node")
-    poll(lambda: "/local_echo" in node_names(env), 30, period=0.5, what="local node registered")
+    until(lambda: not h1.pids(), 30, period=0.1, what="the child on host one ended with its only node")
+    until(lambda: "/local_echo" in node_names(env), 30, period=0.5, what="local node registered")
     la.signal(signal.SIGINT)
     la.wait(60)
     assert "dropped" not in la.stderr
@@ -335,7 +335,6 @@ def test_a_machine_whose_nodes_all_ended_is_not_started_again(hosts, launched, c
 
 def test_debian_parent_cut_off_from_our_child_leaves_no_process_on_that_host(tmp_path, hosts, launched):
     """Debian's parent gives the child no pty: our child notices the silent parent by itself."""
-    from running import descendants
     loaders = our_child_loaders(tmp_path, hosts)
     env = run_env(tmp_path, hosts, HOME=hosts.home)
     path = launch_file(tmp_path, hosts, TALKER % "" + LISTENER % "", loaders=loaders)
@@ -344,11 +343,11 @@ def test_debian_parent_cut_off_from_our_child_leaves_no_process_on_that_host(tmp
     h1, h2 = hosts.hosts
     local: set[int] = set()
     try:
-        poll(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 90, what="remote nodes")
+        until(lambda: on_host(h1, "__name:=talker") and on_host(h2, "__name:=listener"), 90, what="remote nodes")
         h1.cut()
         try:
-            poll(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
-                 period=0.1, what="host one's nodes stopped after its link was cut")
+            until(lambda: not [line for line in h1.process_lines() if "sshd" not in line], NO_ORPHAN_S,
+                  period=0.1, what="host one's nodes stopped after its link was cut")
         except AssertionError as e:
             raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
         finally:
@@ -391,13 +390,13 @@ def test_restart_policy_of_a_remote_node_backoff_then_fatal(tmp_path, hosts, lau
     roslaunch's children do) and the next start comes with a new session."""
     la, env = launched(POLICY_TALKER + ("" if alone else KEEPER), child=child)
     h1 = hosts.hosts[0]
-    keeper = [] if alone else poll(lambda: on_host(h1, "__name:=keeper"), 60, what="keeper on host one")
+    keeper = [] if alone else until(lambda: on_host(h1, "__name:=keeper"), 60, what="keeper on host one")
     started = r"process\[talker-\d+\]: started with pid"
     killed: list[int] = []
     for run in range(3):
-        pid = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p not in killed], 60,
-                   what="talker run %d on host one" % (run + 1))[0]
-        poll(lambda: len(re.findall(started, la.stdout)) == run + 1, 60, what="talker run %d reported" % (run + 1))
+        pid = until(lambda: [p for p in on_host(h1, "__name:=talker") if p not in killed], 60,
+                    what="talker run %d on host one" % (run + 1))[0]
+        until(lambda: len(re.findall(started, la.stdout)) == run + 1, 60, what="talker run %d reported" % (run + 1))
         os.kill(pid, signal.SIGKILL)
         killed.append(pid)
     la.wait_output(r"\[talker\] on machine \[one\] FATAL: failed 3 starts in a row \(respawn_max_retries=2\)", 60,
@@ -491,15 +490,15 @@ RESPAWNING_TALKER = TALKER % (' respawn="true" respawn_delay="%g"' % RESPAWN_DEL
 def test_operator_stop_start_restart_of_a_remote_node_with_our_child(tmp_path, hosts, launched):
     la, env = launched(RESPAWNING_TALKER + LOCAL, child="ours")
     h1 = hosts.hosts[0]
-    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
-    poll(lambda: pid_of_registered(env, "/talker") == first, 60, period=0.2, what="talker registered")
-    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    first = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    until(lambda: pid_of_registered(env, "/talker") == first, 60, period=0.2, what="talker registered")
+    until(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
 
     r = tool(env, "stop", "/talker")
     assert r.returncode == 0 and r.stdout == "stopped /talker\n", r.stdout + r.stderr
     # the answer comes once the process has exited; its child does not respawn it (respawn="true"), nor
     # does the parent
-    poll(lambda: not on_host(h1, "__name:=talker"), 10, what="talker gone from host one")
+    until(lambda: not on_host(h1, "__name:=talker"), 10, what="talker gone from host one")
     stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker was respawned")
     st = node_status(env)
     assert st["/talker"]["state"] == "stopped" and st["/talker"]["reason"] == "stopped by operator", st["/talker"]
@@ -508,22 +507,22 @@ def test_operator_stop_start_restart_of_a_remote_node_with_our_child(tmp_path, h
 
     r = tool(env, "start", "talker")
     assert r.returncode == 0 and r.stdout == "started /talker\n", r.stdout + r.stderr
-    second = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker started again on host one")[0]
+    second = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker started again on host one")[0]
     assert second != first
-    poll(lambda: pid_of_registered(env, "/talker") == second, 60, period=0.2, what="the new talker registered")
-    poll(lambda: (lambda s: s["state"] == "running" and s["pid"] == second)(node_status(env)["/talker"]), 30,
-         period=0.2, what="talker running again in the status")
+    until(lambda: pid_of_registered(env, "/talker") == second, 60, period=0.2, what="the new talker registered")
+    until(lambda: (lambda s: s["state"] == "running" and s["pid"] == second)(node_status(env)["/talker"]), 30,
+          period=0.2, what="talker running again in the status")
 
     # local and remote nodes in one call, one answer
     local_first = node_status(env)["/local_echo"]["pid"]
     r = tool(env, "restart", "/(talker|local_echo)")
     assert r.returncode == 0 and sorted(r.stdout.splitlines()) == ["restarted /local_echo", "restarted /talker"], \
         r.stdout + r.stderr
-    third = poll(lambda: [p for p in on_host(h1, "__name:=talker") if p != second], 60, what="talker restarted")[0]
-    poll(lambda: pid_of_registered(env, "/talker") == third, 60, period=0.2, what="the restarted talker registered")
-    st = poll(lambda: (lambda s: s if s["/talker"]["pid"] == third and s["/talker"]["state"] == "running"
+    third = until(lambda: [p for p in on_host(h1, "__name:=talker") if p != second], 60, what="talker restarted")[0]
+    until(lambda: pid_of_registered(env, "/talker") == third, 60, period=0.2, what="the restarted talker registered")
+    st = until(lambda: (lambda s: s if s["/talker"]["pid"] == third and s["/talker"]["state"] == "running"
                        and s["/local_echo"]["state"] == "running" else None)(node_status(env)), 30, period=0.2,
-              what="both running again")
+               what="both running again")
     assert st["/local_echo"]["pid"] != local_first
     states = [e["state"] for e in events(tmp_path, "/talker")]
     assert states[-4:] == ["stopped", "running", "stopped", "running"] and states.count("stopped") == 2, states
@@ -535,8 +534,8 @@ def test_operator_stop_of_a_node_under_debians_child_is_refused_and_it_runs_on(t
     once = '<node machine="two" pkg="rostopic" type="rostopic" name="once" args="list"/>\n'
     la, env = launched(RESPAWNING_TALKER + LOCAL + once)
     h1, h2 = hosts.hosts
-    first = poll(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
-    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    first = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    until(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
 
     for verb in ("stop", "restart"):
         r = tool(env, verb, "/talker")
@@ -553,19 +552,19 @@ def test_operator_stop_of_a_node_under_debians_child_is_refused_and_it_runs_on(t
     assert on_host(h1, "__name:=talker") == [first]
 
     # a remote node that ended is started again by a `launch` call, also by Debian's child
-    poll(lambda: node_status(env)["/once"]["state"] == "exited", 60, period=0.2, what="once ended on host two")
+    until(lambda: node_status(env)["/once"]["state"] == "exited", 60, period=0.2, what="once ended on host two")
     r = tool(env, "start", "/once")
     assert r.returncode == 0 and r.stdout == "started /once\n", r.stdout + r.stderr
     la.wait_output(r"process\[once-\d+\]: started with pid(.|\n)*process\[once-\d+\]: started with pid", 60)
-    poll(lambda: [e["state"] for e in events(tmp_path, "/once")].count("running") == 2, 30, period=0.2,
-         what="once running a second time")
+    until(lambda: [e["state"] for e in events(tmp_path, "/once")].count("running") == 2, 30, period=0.2,
+          what="once running a second time")
 
 
 def test_a_remote_node_stopped_by_the_operator_stays_stopped_when_its_machine_comes_back(tmp_path, hosts, launched):
     la, env = launched(RESPAWNING_TALKER + KEEPER, child="ours")
     h1 = hosts.hosts[0]
-    poll(lambda: on_host(h1, "__name:=talker") and on_host(h1, "__name:=keeper"), 60, what="nodes on host one")
-    poll(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    until(lambda: on_host(h1, "__name:=talker") and on_host(h1, "__name:=keeper"), 60, what="nodes on host one")
+    until(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
     r = tool(env, "stop", "/talker")
     assert r.returncode == 0, r.stderr
     keeper = on_host(h1, "__name:=keeper")
@@ -574,8 +573,8 @@ def test_a_remote_node_stopped_by_the_operator_stays_stopped_when_its_machine_co
         la.wait_output(r"machine \[one\] dropped; trying again", 30, stream="stderr")
     finally:
         h1.restore()
-    poll(lambda: [p for p in on_host(h1, "__name:=keeper") if p not in keeper], 60, period=0.2,
-         what="keeper started again on host one")
-    poll(lambda: node_status(env)["/keeper"]["state"] == "running", 30, period=0.2, what="keeper running again")
+    until(lambda: [p for p in on_host(h1, "__name:=keeper") if p not in keeper], 60, period=0.2,
+          what="keeper started again on host one")
+    until(lambda: node_status(env)["/keeper"]["state"] == "running", 30, period=0.2, what="keeper running again")
     stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker came back")
     assert node_status(env)["/talker"]["state"] == "stopped"

@@ -7,7 +7,8 @@ import subprocess
 
 import pytest
 
-from running import ROS_PATH, Launcher, free_port, get_param, make_package, master_up, poll, stop_group, write_launch
+from helpers import ROS_PATH, free_port, until
+from running import Launcher, get_param, make_package, master_up, stop_group, write_launch
 from running import ros_env as run_env
 
 RUNS = 20
@@ -39,10 +40,10 @@ def test_launch_waiting_for_roscore_leaves_it_the_run_id(tmp_path, ros_env, batc
             launcher.wait_output(r"waiting for it")
             cores.append(_roscore(tmp, port, env))  # the roscore comes up while the launch polls for it
         for (tmp, port, env, launcher), core in zip(runs, cores):
-            poll(lambda: master_up(port), 60, what="roscore's master up")
+            until(lambda: master_up(port), 60, what="roscore's master up")
             launcher.wait_output(r"process\[q-\d+\]: started with pid", timeout=60)
             # roscore's own run id is the one on the master, and roscore is alive and well
-            poll(lambda: get_param(port, "/rosdistro") is not None, 60, what="roscore's parameters")
+            until(lambda: get_param(port, "/rosdistro") is not None, 60, what="roscore's parameters")
             assert core.poll() is None, open(os.path.join(tmp, "roscore.out")).read()
             assert "setting /run_id" not in launcher.stdout
             with open(os.path.join(tmp, "roscore.out")) as f:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
 import sys
 import xmlrpc.client
 
@@ -12,7 +13,8 @@ import pytest
 pytestmark = pytest.mark.integration
 
 sys.path.insert(0, os.path.dirname(__file__))
-from test_rosout_nodes import PY_LOGGER, Procs, free_port, wait_for  # noqa: E402
+from helpers import Procs, free_port, until  # noqa: E402
+from test_rosout_nodes import PY_LOGGER  # noqa: E402
 
 
 def _core(procs: Procs, argv: list[str], env: dict[str, str]) -> xmlrpc.client.ServerProxy:
@@ -24,7 +26,7 @@ def _core(procs: Procs, argv: list[str], env: dict[str, str]) -> xmlrpc.client.S
             return any(s[0] == "/rosout/set_logger_level" for s in master.getSystemState("/t")[2][2])
         except OSError:
             return False
-    wait_for(rosout_up, timeout=60, what="%s with /rosout" % argv[0])
+    until(rosout_up, timeout=60, what="%s with /rosout" % argv[0])
     return master
 
 
@@ -66,20 +68,20 @@ def test_launch_core_rosout_looks_like_roscore_rosout(ros_env, tmp_path):
             argv = [sys.executable, "-m", "launcher", "--core", "-p", str(port)]
         else:
             argv = ["roscore", "-p", str(port)]
-        procs = Procs(env)
+        procs = Procs(env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             master = _core(procs, argv, env)
-            info = procs.run(["rosnode", "info", "/rosout"])
+            info = procs.output(["rosnode", "info", "/rosout"])
             procs.start([ros_env["python"], str(script), "__name:=py_logger"])
             path = _rosout_log(env, master)
             # registered is not connected: lines logged before rosout's subscription is up are lost
             # (by roscore's rosout too), so "go" only once a "waiting" line has come through
-            wait_for(lambda: _waiting_seen(path), what="py_logger connected to rosout")
+            until(lambda: _waiting_seen(path), 20, what="py_logger connected to rosout")
             master.setParam("/t", "/rosout_test/go", True)
-            lines = wait_for(lambda: _demo_lines(path), what="demo lines in %s" % path)
+            lines = until(lambda: _demo_lines(path), 20, what="demo lines in %s" % path)
             results[kind] = (info, lines, open(path).read().splitlines()[:3])
         finally:
-            procs.kill_all()
+            procs.stop_all()
 
     def norm_info(text: str) -> str:
         return re.sub(r"Pid: \d+", "Pid: N", re.sub(r"http://[\d.]+:\d+/", "URI", text))

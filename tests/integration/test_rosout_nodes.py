@@ -5,16 +5,17 @@ from __future__ import annotations
 import asyncio
 import os
 import re
-import signal
 import socket
 import subprocess
 import threading
-import time
 import xmlrpc.client
 from collections.abc import Callable
 from typing import Any
 
 import pytest
+
+from helpers import Procs, free_port, until
+from running import master_up
 
 pytestmark = pytest.mark.integration
 
@@ -93,56 +94,6 @@ rospy.spin()
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(cond: Callable[[], Any], timeout: float = 20.0, what: str = "condition") -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError("timed out after %.0fs waiting for %s" % (timeout, what))
-        time.sleep(0.05)
-
-
-class Procs:
-    """Processes a test started, each in its own group, all killed at the end."""
-
-    def __init__(self, env: dict[str, str]):
-        self.env = env
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, argv: list[str], **kw: Any) -> subprocess.Popen:
-        kw.setdefault("stdout", subprocess.DEVNULL)
-        kw.setdefault("stderr", subprocess.DEVNULL)
-        proc = subprocess.Popen(argv, env=self.env, start_new_session=True, **kw)
-        self.procs.append(proc)
-        return proc
-
-    def run(self, argv: list[str], timeout: float = 30) -> str:
-        return subprocess.run(argv, env=self.env, capture_output=True, text=True,
-                              timeout=timeout, check=True).stdout
-
-    def kill_all(self) -> None:
-        for proc in self.procs:
-            if proc.poll() is None:
-                try:
-                    os.killpg(proc.pid, signal.SIGINT)
-                except ProcessLookupError:
-                    pass
-        for proc in self.procs:
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-
-
 class RosoutThread:
     """Our Rosout running on its own asyncio loop in a thread, as the launcher would run it."""
 
@@ -215,14 +166,14 @@ def graph(request, ros_env, tmp_path):
     env.update(PATH=ros_env["path"], ROS_MASTER_URI="http://127.0.0.1:%d/" % port,
                ROS_HOSTNAME="127.0.0.1", ROS_LOG_DIR=str(tmp_path / "ros_log"),
                ROS_HOME=str(tmp_path / "ros_home"), PYTHONUNBUFFERED="1")
-    procs = Procs(env)
+    procs = Procs(env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     embedded = None
     if request.param == "rosmaster":
         procs.start(["rosmaster", "--core", "-p", str(port)])
     else:
         embedded = MasterThread(port)
     master = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])
-    wait_for(lambda: _master_up(master), what="rosmaster")
+    until(lambda: master_up(port), 20, what="rosmaster")
     py = tmp_path / "py_logger.py"
     py.write_text(PY_LOGGER)
     g = type("Graph", (), {})()
@@ -231,16 +182,9 @@ def graph(request, ros_env, tmp_path):
     try:
         yield g
     finally:
-        procs.kill_all()
+        procs.stop_all()
         if embedded is not None:
             embedded.stop()
-
-
-def _master_up(master: xmlrpc.client.ServerProxy) -> bool:
-    try:
-        return master.getPid("/test")[0] == 1
-    except OSError:
-        return False
 
 
 @pytest.fixture
@@ -268,7 +212,7 @@ def lines_of(path: str, node: str, text: str | None = None) -> list[str]:
 def start_go(graph: Any, path: str, nodes: list[str]) -> None:
     """Once each node's "waiting" line reached rosout.log, let them all start logging."""
     for node in nodes:
-        wait_for(lambda: lines_of(path, node, "waiting"), what="%s connected to rosout" % node)
+        until(lambda: lines_of(path, node, "waiting"), 20, what="%s connected to rosout" % node)
     graph.master.setParam("/test", "/rosout_test/go", True)
 
 
@@ -279,10 +223,10 @@ LINE = re.compile(r"^(\d+\.\d{9}) (INFO|WARN|ERROR|FATAL) (\S+) \[([^:\]]+):(\d+
 def check_four_levels(path: str, node: str, source: str, function: str) -> list[re.Match]:
     expected = [("INFO", "hello info 1"), ("WARN", "warn: two"), ("ERROR", "error three"),
                 ("FATAL", "fatal four")]
-    found = wait_for(lambda: [LINE.match(l) for l in lines_of(path, node)
-                              if not l.endswith("] waiting")][:5]
-                     if len(lines_of(path, node)) and lines_of(path, node, "done") else None,
-                     what="the demo lines of %s" % node)
+    found = until(lambda: [LINE.match(l) for l in lines_of(path, node)
+                           if not l.endswith("] waiting")][:5]
+                  if len(lines_of(path, node)) and lines_of(path, node, "done") else None, 20,
+                  what="the demo lines of %s" % node)
     assert [(m.group(2), m.group(8)) for m in found[:4]] == expected, found
     for m in found[:4]:
         assert m.group(3) == node
@@ -302,8 +246,8 @@ def test_node_logs_reach_rosout_log_and_rosout_agg(graph, rosout, cpp_logger, ki
     assert log_lines(path)[2].endswith("  Node Startup")
     echo_file = open(graph.tmp / "echo.csv", "w")
     graph.procs.start(["rostopic", "echo", "-p", "/rosout_agg"], stdout=echo_file)
-    wait_for(lambda: rosout.call(lambda: len(rosout.rosout._agg.links)),
-             what="rostopic echo subscribed to /rosout_agg")
+    until(lambda: rosout.call(lambda: len(rosout.rosout._agg.links)), 20,
+          what="rostopic echo subscribed to /rosout_agg")
     node = "/%s_logger" % kind
     if kind == "rospy":
         graph.procs.start([graph.python, graph.py_logger, "__name:=rospy_logger"])
@@ -319,10 +263,10 @@ def test_node_logs_reach_rosout_log_and_rosout_agg(graph, rosout, cpp_logger, ki
         rows = [r for r in echo_rows((graph.tmp / "echo.csv").read_text())
                 if len(r) > 6 and r[5] == node and r[6] != "waiting"]
         return rows if len(rows) >= 5 else []
-    rows = wait_for(agg_rows, what="/rosout_agg rows from rostopic echo")
+    rows = until(agg_rows, 20, what="/rosout_agg rows from rostopic echo")
     echo_file.close()
     # `rosnode info` sees both connections, described the way it describes roscpp's.
-    info = graph.procs.run(["rosnode", "info", "/rosout"])
+    info = graph.procs.output(["rosnode", "info", "/rosout"])
     assert re.search(r"\* topic: /rosout_agg\n    \* to: /rostopic_\S+\n    \* direction: outbound "
                      r"\(\d+ - 127\.0\.0\.1:\d+\) \[\d+\]\n    \* transport: TCPROS\n", info), info
     assert re.search(r"\* topic: /rosout\n    \* to: %s \(http://127\.0\.0\.1:\d+/\)\n    \* "
@@ -336,22 +280,21 @@ def test_node_logs_reach_rosout_log_and_rosout_agg(graph, rosout, cpp_logger, ki
 
 
 def test_rosnode_info_matches_the_reference_rosout(graph, rosout):
-    ours = graph.procs.run(["rosnode", "info", "/rosout"])
+    ours = graph.procs.output(["rosnode", "info", "/rosout"])
     # The reference: Debian's roscpp rosout, alone on a second master.
     port = free_port()
     env = dict(graph.env, ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
-    ref_procs = Procs(env)
+    ref_procs = Procs(env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         ref_procs.start(["rosmaster", "--core", "-p", str(port)])
-        wait_for(lambda: _master_up(xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])),
-                 what="second rosmaster")
+        until(lambda: master_up(port), 20, what="second rosmaster")
         ref_procs.start(["/usr/lib/rosout/rosout"])
-        wait_for(lambda: "/rosout/set_logger_level" in subprocess.run(
-            ["rosservice", "list"], env=env, capture_output=True, text=True).stdout,
+        until(lambda: "/rosout/set_logger_level" in subprocess.run(
+            ["rosservice", "list"], env=env, capture_output=True, text=True).stdout, 20,
             what="reference rosout up")
-        reference = ref_procs.run(["rosnode", "info", "/rosout"])
+        reference = ref_procs.output(["rosnode", "info", "/rosout"])
     finally:
-        ref_procs.kill_all()
+        ref_procs.stop_all()
 
     def normalize(text: str) -> str:
         text = re.sub(r"http://[\d.]+:\d+/", "URI", text)
@@ -361,10 +304,10 @@ def test_rosnode_info_matches_the_reference_rosout(graph, rosout):
 
 
 def test_logger_services_answer_rosservice(graph, rosout):
-    out = graph.procs.run(["rosservice", "call", "/rosout/get_loggers"])
+    out = graph.procs.output(["rosservice", "call", "/rosout/get_loggers"])
     assert 'name: "launcher.rosout"' in out
-    graph.procs.run(["rosservice", "call", "/rosout/set_logger_level", "launcher.rosout", "error"])
-    out = graph.procs.run(["rosservice", "call", "/rosout/get_loggers"])
+    graph.procs.output(["rosservice", "call", "/rosout/set_logger_level", "launcher.rosout", "error"])
+    out = graph.procs.output(["rosservice", "call", "/rosout/get_loggers"])
     assert re.search(r'name: "launcher.rosout"\s+level: "error"', out)
     bad = subprocess.run(["rosservice", "call", "/rosout/set_logger_level", "nope", "debug"],
                          env=graph.env, capture_output=True, text=True, timeout=30)
@@ -376,10 +319,10 @@ def test_logger_services_answer_rosservice(graph, rosout):
 def test_omit_topics_parameter_is_followed(graph, rosout):
     path = rosout.rosout.log_path
     graph.master.setParam("/test", "/rosout/omit_topics", True)
-    wait_for(lambda: rosout.call(lambda: rosout.rosout.omit_topics), what="paramUpdate")
+    until(lambda: rosout.call(lambda: rosout.rosout.omit_topics), 20, what="paramUpdate")
     graph.procs.start([graph.python, graph.py_logger, "__name:=rospy_logger"])
     start_go(graph, path, ["/rospy_logger"])
-    line = wait_for(lambda: lines_of(path, "/rospy_logger", "hello info 1"), what="info line")[0]
+    line = until(lambda: lines_of(path, "/rospy_logger", "hello info 1"), 20, what="info line")[0]
     assert "[topics:" not in line and re.match(r"^\d+\.\d{9} INFO /rospy_logger \[", line)
 
 
@@ -438,7 +381,7 @@ def test_bad_publishers_do_not_affect_a_good_one(graph, rosout, cpp_logger):
     try:
         graph.procs.start([cpp_logger, "__name:=load_a", "500", "2000"])
         start_go(graph, path, ["/load_a"])
-        wait_for(lambda: lines_of(path, "/load_a", "done"), what="all lines of /load_a")
+        until(lambda: lines_of(path, "/load_a", "done"), 20, what="all lines of /load_a")
         got = [l.rsplit("] ", 1)[1] for l in lines_of(path, "/load_a")]
         assert [g for g in got if g.startswith("load ")] == ["load %d" % i for i in range(500)]
         # The publishers that sent garbage were dropped; the good one is still connected.
@@ -459,7 +402,7 @@ def test_stop_mid_stream_keeps_everything_received(graph, cpp_logger):
             graph.procs.start([cpp_logger, "__name:=" + name, "4000", "2000"])
         start_go(graph, path, ["/load_a", "/load_b"])
         # Stop while both nodes are still sending, without waiting for the file to catch up.
-        wait_for(lambda: r.call(lambda: r.rosout.received) > 2000, what="messages flowing")
+        until(lambda: r.call(lambda: r.rosout.received) > 2000, 20, what="messages flowing")
         r.stop()
         stopped = True
         received = r.rosout.received
@@ -478,14 +421,14 @@ def test_stop_mid_stream_keeps_everything_received(graph, cpp_logger):
 
 def test_rosnode_kill_respawns_rosout(graph, rosout):
     before = graph.master.lookupNode("/test", "/rosout")[2]
-    graph.procs.run(["rosnode", "kill", "/rosout"])
-    after = wait_for(lambda: (lambda u: u if u != before else None)(
-        graph.master.lookupNode("/test", "/rosout")[2]), what="a new /rosout registration")
+    graph.procs.output(["rosnode", "kill", "/rosout"])
+    after = until(lambda: (lambda u: u if u != before else None)(
+        graph.master.lookupNode("/test", "/rosout")[2]), 20, what="a new /rosout registration")
     assert after.startswith("http://127.0.0.1:")
     graph.procs.start([graph.python, graph.py_logger, "__name:=rospy_logger"])
     start_go(graph, rosout.rosout.log_path, ["/rospy_logger"])
-    wait_for(lambda: lines_of(rosout.rosout.log_path, "/rospy_logger", "hello info 1"),
-             what="logging after the respawn")
+    until(lambda: lines_of(rosout.rosout.log_path, "/rospy_logger", "hello info 1"), 20,
+          what="logging after the respawn")
 
 
 def test_rosgraph_encodes_headers_like_us(graph):
@@ -510,8 +453,8 @@ def test_load_from_several_publishers_loses_nothing(graph, rosout, cpp_logger):
     graph.procs.start([graph.python, graph.py_logger, "__name:=py_load", "300"])
     nodes = ["/" + n for n in names] + ["/py_load"]
     start_go(graph, path, nodes)
-    wait_for(lambda: all(lines_of(path, n, "done") for n in nodes), timeout=60,
-             what="every node's last line")
+    until(lambda: all(lines_of(path, n, "done") for n in nodes), timeout=60,
+          what="every node's last line")
     for node, count in [(n, 2000) for n in nodes[:3]] + [("/py_load", 300)]:
         got = [l.rsplit("] ", 1)[1] for l in lines_of(path, node)]
         assert [g for g in got if g.startswith("load ")] == ["load %d" % i for i in range(count)]
@@ -522,8 +465,8 @@ def test_text_that_is_not_utf8_reaches_rosout_log_unchanged(graph, rosout, cpp_l
     path = rosout.rosout.log_path
     graph.procs.start([cpp_logger, "__name:=raw_bytes", "-1"])
     start_go(graph, path, ["/raw_bytes"])
-    wait_for(lambda: len([l for l in lines_of(path, "/raw_bytes") if "waiting" not in l]) >= 2,
-             what="the lines of /raw_bytes")
+    until(lambda: len([l for l in lines_of(path, "/raw_bytes") if "waiting" not in l]) >= 2, 20,
+          what="the lines of /raw_bytes")
     with open(path, "rb") as f:
         raw = [l for l in f.read().split(b"\n") if b" /raw_bytes " in l and b"waiting" not in l]
     assert any(l.endswith(b" [topics: /t\xfe] raw \xff\xfe bytes") for l in raw), raw

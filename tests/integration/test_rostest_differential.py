@@ -11,7 +11,8 @@ import time
 
 import pytest
 
-from running import ROS_PATH, RospyTalker, RosMaster, compile_roscpp, make_package
+from helpers import ROS_PATH
+from running import RospyTalker, RosMaster, compile_roscpp, make_package
 
 pytestmark = pytest.mark.integration
 

@@ -6,9 +6,9 @@ import os
 import re
 import sys
 
-from running import Launcher, free_port
+from helpers import ROOT, free_port
+from running import Launcher
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def test_demo_runs_and_ends_by_itself(tmp_path):

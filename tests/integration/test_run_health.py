@@ -12,7 +12,8 @@ from launcher.config import LaunchConfig, Node, NodePolicy
 from launcher.packages import PackageIndex
 from launcher.runtime import EVENTS_FILE, Plan, Run
 
-from tests.integration.running import free_port, make_package
+from helpers import free_port
+from tests.integration.running import make_package
 from tests.process.health import console_err
 
 

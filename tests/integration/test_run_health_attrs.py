@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import xmlrpc.client
 
-from running import Launcher, free_port, make_package, poll, ros_env, write_launch
+from helpers import free_port, until
+from running import Launcher, make_package, ros_env, write_launch
 
 # allocates 64 MiB and keeps it
 Hog = """#!/usr/bin/env python3
@@ -44,7 +45,7 @@ def test_memory_limit_restart_in_a_launch_file(tmp_path):
     lp = Launcher(["--monitor-period", "0.2", launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
         first = int(lp.wait_output(r"process\[hog-\d+\]: started with pid \[(\d+)\]").group(1))
-        poll(lambda: any(pid != first for pid in lp.started_pids().values()), 60, what="hog restarted")
+        until(lambda: any(pid != first for pid in lp.started_pids().values()), 60, what="hog restarted")
         assert "memory" in (lp.stdout + lp.stderr).lower()
     finally:
         lp.close()

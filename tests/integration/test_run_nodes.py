@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from running import (ROS_PATH, ROS_PYTHON, Launcher, RosMaster, compile_roscpp, free_port, make_package,
-                     master_proxy, pid_alive, poll, ros_env, write_launch)
+from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
+from running import Launcher, RosMaster, compile_roscpp, make_package, master_proxy, ros_env, write_launch
 
 # rospy node: prints, then spins until SIGINT
 RospySpinner = """#!%s
@@ -60,20 +60,20 @@ def test_respawn_and_respawn_delay_with_real_nodes(tmp_path, pkgs):
     """ % tmp_path)
     lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
-        poll(lambda: lookup_node(port, "/fast") and lookup_node(port, "/slow"), 60, what="both registered")
+        until(lambda: lookup_node(port, "/fast") and lookup_node(port, "/slow"), 60, what="both registered")
         pids = lp.started_pids()
         fast_pid, slow_pid = pids["fast-2"], pids["slow-3"]  # rosout counts as process 1, as in roslaunch
         old_uri = lookup_node(port, "/fast")
         os.kill(fast_pid, signal.SIGKILL)
         t0 = time.monotonic()
-        new_fast = poll(lambda: lp.started_pids()["fast-2"] != fast_pid and lp.started_pids()["fast-2"], 10,
-                        period=0.005, what="fast respawned")
+        new_fast = until(lambda: lp.started_pids()["fast-2"] != fast_pid and lp.started_pids()["fast-2"], 10,
+                         period=0.005, what="fast respawned")
         assert time.monotonic() - t0 < 1.0  # at once (the delayed node below takes 1.5 s); margin for a loaded box
-        poll(lambda: lookup_node(port, "/fast") not in (None, old_uri), 30, what="fast re-registered")
+        until(lambda: lookup_node(port, "/fast") not in (None, old_uri), 30, what="fast re-registered")
         assert pid_alive(new_fast)
         os.kill(slow_pid, signal.SIGKILL)
         t0 = time.monotonic()
-        poll(lambda: lp.started_pids()["slow-3"] != slow_pid, 10, period=0.01, what="slow respawned")
+        until(lambda: lp.started_pids()["slow-3"] != slow_pid, 10, period=0.01, what="slow respawned")
         assert 1.4 <= time.monotonic() - t0 < 3.0
         out, err = lp.stdout, lp.stderr
         assert "[fast-2] process has died [pid %d, exit code -9, cmd " % fast_pid in err
@@ -125,7 +125,7 @@ def test_missing_executable_is_reported_and_the_rest_run(tmp_path, pkgs):
     """)
     lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
-        poll(lambda: lookup_node(port, "/survivor"), 60, what="survivor registered")
+        until(lambda: lookup_node(port, "/survivor"), 60, what="survivor registered")
         err = lp.stderr
         assert re.search(r"ERROR: cannot launch node of type \[run_tests/no_such_exe\]: .*node \[/ghost\].*"
                          r"Cannot locate node of type \[no_such_exe\] in package \[run_tests\]", err)
@@ -292,7 +292,7 @@ def test_launch_log_holds_what_a_debugging_user_needs(tmp_path, pkgs):
             with open(path) as f:
                 text = f.read()
             return text if text.count("is respawning") >= 2 else None
-        text = poll(exits_logged, 30, what="two exits in the launch log")
+        text = until(exits_logged, 30, what="two exits in the launch log")
         assert "[launch] launch files: %s" % launch in text
         assert "ROS_MASTER_URI=%s" % env["ROS_MASTER_URI"] in text
         assert "[launch] param /answer = 42" in text

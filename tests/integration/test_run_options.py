@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from running import (ROS_PATH, ROS_PYTHON, Launcher, RosMaster, free_port, get_param, make_package, master_proxy,
-                     poll, ros_env, write_launch)
+from helpers import ROS_PATH, ROS_PYTHON, free_port, until
+from running import Launcher, RosMaster, get_param, make_package, master_proxy, ros_env, write_launch
 
 Spinner = """#!%s
 import rospy
@@ -151,7 +151,7 @@ def test_local_prints_roslaunchs_banner_and_leaves_remote_nodes_out_as_it_does(t
                 proc = subprocess.Popen(["roslaunch", "--local", launch], env=env, stdout=f,
                                         stderr=subprocess.STDOUT, start_new_session=True)
             try:
-                poll(lambda: b"process[here-2]: started" in out.read_bytes(), 60, what="roslaunch's node")
+                until(lambda: b"process[here-2]: started" in out.read_bytes(), 60, what="roslaunch's node")
             finally:
                 os.killpg(proc.pid, signal.SIGINT)
                 proc.wait(30)
@@ -193,7 +193,7 @@ def test_log_check_warns_in_background_with_threshold(tmp_path, pkgs):
     try:
         started = lp.wait_output(r"started with pid")
         assert started
-        lp.wait_output(r"WARNING: disk usage in log directory \[%s\] is over 10KB\." % env["ROS_LOG_DIR"],
+        lp.wait_output(r"WARNING: disk usage in log directory \[%s\] is over 10kB\." % env["ROS_LOG_DIR"],
                        timeout=20, stream="stderr")
         # after start-up, never before it
         assert "disk usage" not in lp.stdout.split("started with pid")[0]

@@ -7,8 +7,9 @@ import re
 
 import pytest
 
-from running import (ROS_PYTHON, Launcher, RosMaster, compile_roscpp, free_port, get_param, make_package,
-                     master_proxy, master_up, poll, ros_env, write_launch)
+from helpers import ROS_PYTHON, free_port, until
+from running import (Launcher, RosMaster, compile_roscpp, get_param, make_package, master_proxy, master_up, ros_env,
+                     write_launch)
 
 RospyParamNode = """#!%s
 import os, rospy
@@ -60,8 +61,8 @@ def test_params_visible_to_nodes_before_they_start(tmp_path, pkgs, master):
     launch = write_launch(str(tmp_path), LAUNCH.format(tmp=tmp_path))
     lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
-        poll(lambda: os.path.exists(tmp_path / "py.txt") and os.path.exists(tmp_path / "cpp.txt"), 60,
-             what="both nodes wrote what they saw")
+        until(lambda: os.path.exists(tmp_path / "py.txt") and os.path.exists(tmp_path / "cpp.txt"), 60,
+              what="both nodes wrote what they saw")
         assert read_seen(str(tmp_path / "py.txt")) == {"private": "py-private", "global": "from-launch",
                                                        "stale": "absent"}
         assert read_seen(str(tmp_path / "cpp.txt")) == {"private": "cpp-private", "global": "from-launch",
@@ -93,7 +94,7 @@ def test_params_set_in_one_multicall_on_external_master(tmp_path, pkgs):
     launch = write_launch(str(tmp_path), body)
     lp = Launcher([launch], ros_env(str(tmp_path), ext.port, pkgs), str(tmp_path))
     try:
-        poll(lambda: os.path.exists(tmp_path / "last.txt"), 60, what="node wrote its params")
+        until(lambda: os.path.exists(tmp_path / "last.txt"), 60, what="node wrote its params")
         assert read_seen(str(tmp_path / "last.txt"))["global"] == "v"
         assert get_param(ext.port, "/many") == {"p%d" % i: i for i in range(300)}
     finally:

@@ -14,7 +14,8 @@ import time
 
 import pytest
 
-from running import Launcher, free_port, make_package, master_up, poll, ros_env
+from helpers import free_port, until
+from running import Launcher, make_package, master_up, ros_env
 
 SLACK = 0.35  # how much later than planned a start may come on a busy 2-core machine
 
@@ -142,8 +143,8 @@ def test_respawn_on_failure_and_success_exit_codes(tmp_path, pkgs):
         lp.wait_output(r"\[clean-2\] not restarted: exit code 0 counts as success \(respawn_on=\"failure\"\)")
         lp.wait_output(r"\[three-3\] not restarted: exit code 3 counts as success")
         # a failure still respawns, and so does a success with respawn_on="always" (the node's own setting)
-        poll(lambda: lp.stdout.count("process[four-4]: started with pid") >= 2, what="four-4 restarted")
-        poll(lambda: lp.stdout.count("process[always-5]: started with pid") >= 2, what="always-5 restarted")
+        until(lambda: lp.stdout.count("process[four-4]: started with pid") >= 2, 20, what="four-4 restarted")
+        until(lambda: lp.stdout.count("process[always-5]: started with pid") >= 2, 20, what="always-5 restarted")
         assert lp.stdout.count("process[clean-2]: started with pid") == 1
         assert lp.stdout.count("process[three-3]: started with pid") == 1
         assert [e["state"] for e in node_events(tmp_path, "/clean")] == ["running", "exited"]
@@ -161,7 +162,7 @@ def test_a_run_longer_than_min_uptime_resets_the_backoff(tmp_path, pkgs):
         </launch>""" % counter)
     lp = Launcher([launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
     try:
-        poll(lambda: len(restart_delays(node_events(tmp_path, "/flaky"))) >= 5, timeout=30, what="5 restarts")
+        until(lambda: len(restart_delays(node_events(tmp_path, "/flaky"))) >= 5, timeout=30, what="5 restarts")
         evs = node_events(tmp_path, "/flaky")
         # runs 1, 2 fail at once (0.2, 0.4); run 3 lasts 1.5 s > 1 s: back to 0.2 (not 0.8), then growing again
         assert_delays(restart_delays(evs)[:5], [0.2, 0.4, 0.2, 0.2, 0.4])
@@ -182,7 +183,7 @@ def test_per_node_stop_timeouts(tmp_path, pkgs):
         </launch>""")
     lp = Launcher([launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
     try:
-        poll(lambda: lp.stdout.count("ready") >= 2, what="both nodes ready")
+        until(lambda: lp.stdout.count("ready") >= 2, 20, what="both nodes ready")
         began = time.monotonic()
         lp.signal(signal.SIGINT)
         assert lp.wait(30) == 0
@@ -221,7 +222,7 @@ def test_a_node_waiting_at_shutdown_is_stopped(tmp_path, pkgs):
     lp = Launcher([launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
     try:
         lp.wait_output(r"\[s-2\] waiting 60 s before starting")
-        poll(lambda: node_events(tmp_path, "/s"), what="waiting event")
+        until(lambda: node_events(tmp_path, "/s"), 20, what="waiting event")
         lp.signal(signal.SIGINT)
         assert lp.wait(30) == 0
         assert [e["state"] for e in node_events(tmp_path, "/s")] == ["waiting", "stopped"]

@@ -8,7 +8,8 @@ import subprocess
 
 import pytest
 
-from running import Launcher, free_port, make_package, pid_alive, poll, ros_env, write_launch
+from helpers import free_port, pid_alive, until
+from running import Launcher, make_package, ros_env, write_launch
 
 
 @pytest.fixture
@@ -29,8 +30,8 @@ def test_respawning_node_comes_back_after_its_executable_was_briefly_missing(tmp
         os.kill(first, signal.SIGKILL)
         lp.wait_output(r"\[s-2\] got a 'No such file or directory' error", stream="stderr")
         os.rename(exe + ".away", exe)
-        poll(lambda: lp.started_pids().get("s-2") not in (None, first) and pid_alive(lp.started_pids()["s-2"]),
-             what="s-2 started again")
+        until(lambda: lp.started_pids().get("s-2") not in (None, first) and pid_alive(lp.started_pids()["s-2"]), 20,
+              what="s-2 started again")
         lp.signal(signal.SIGINT)
         assert lp.wait(30) == 0
     finally:

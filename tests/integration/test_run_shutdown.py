@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from running import (ROS_PYTHON, Launcher, RosMaster, compile_roscpp, descendants, free_port, make_package,
-                     master_proxy, pid_alive, poll, ros_env, write_launch)
+from helpers import ROS_PYTHON, descendants, free_port, pid_alive, until
+from running import Launcher, RosMaster, compile_roscpp, make_package, master_proxy, ros_env, write_launch
 
 # `trap ''` makes the signal ignored, which survives exec
 IgnoreInt = "#!/bin/sh\ntrap '' INT\nexec sleep 1000\n"
@@ -65,7 +65,7 @@ def test_escalation_is_per_node_and_parallel(tmp_path, pkgs):
                   ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
         lp.wait_output(r"process\[polite-18\]: started")
-        poll(lambda: os.path.exists(tmp_path / "polite"), 60, what="rospy node initialized")
+        until(lambda: os.path.exists(tmp_path / "polite"), 60, what="rospy node initialized")
         procs = descendants(lp.pid)
         t0 = time.monotonic()
         lp.signal(signal.SIGINT)
@@ -101,16 +101,16 @@ def test_sigkill_of_launcher_leaves_no_process(tmp_path, pkgs):
     """ % tmp_path)
     lp = Launcher([launch], ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
-        poll(lambda: os.path.exists(tmp_path / "cpp.txt"), 60, what="roscpp node up")
-        poll(lambda: master_proxy(port).lookupNode("/t", "/py")[0] == 1, 30, what="rospy node up")
-        poll(lambda: len(descendants(lp.pid)) >= 4 + 3 + 1, 10, what="family's children up")
+        until(lambda: os.path.exists(tmp_path / "cpp.txt"), 60, what="roscpp node up")
+        until(lambda: master_proxy(port).lookupNode("/t", "/py")[0] == 1, 30, what="rospy node up")
+        until(lambda: len(descendants(lp.pid)) >= 4 + 3 + 1, 10, what="family's children up")
         procs = descendants(lp.pid)
         os.kill(lp.pid, signal.SIGKILL)
         lp.wait(10)
         t0 = time.monotonic()
         # the guard's SIGTERM grace is 0.4 s, then SIGKILL; the rest is margin for a loaded CI box
-        poll(lambda: not [p for p in procs if pid_alive(p)], 2.0, period=0.01,
-             what="every process started by the launcher gone")
+        until(lambda: not [p for p in procs if pid_alive(p)], 2.0, period=0.01,
+              what="every process started by the launcher gone")
         assert time.monotonic() - t0 < 2.0
     finally:
         lp.close()
@@ -129,10 +129,10 @@ def test_many_real_nodes_stop_cleanly_and_unregister(tmp_path, pkgs):
             _c, _m, state = master_proxy(rosmaster.port).getSystemState("/t")
             nodes = {n for _topic, ns in state[0] + state[1] for n in ns}
             return nodes >= {"/c%d" % i for i in range(15)} | {"/p%d" % i for i in range(5)}
-        poll(registered, 60, what="all 20 nodes registered")
+        until(registered, 60, what="all 20 nodes registered")
         # roscpp wrote its file after its last master call; rospy's init_node is over (see RospySpinner)
-        poll(lambda: all(os.path.exists(tmp_path / ("c%d" % i)) for i in range(15))
-             and all(os.path.exists(tmp_path / ("p%d" % i)) for i in range(5)), 60, what="all 20 nodes initialized")
+        until(lambda: all(os.path.exists(tmp_path / ("c%d" % i)) for i in range(15))
+              and all(os.path.exists(tmp_path / ("p%d" % i)) for i in range(5)), 60, what="all 20 nodes initialized")
         procs = descendants(lp.pid)
         t0 = time.monotonic()
         lp.signal(signal.SIGINT)
@@ -160,8 +160,8 @@ def test_rospy_node_deadlocked_in_its_sigint_handler_is_killed_after_the_timeout
     lp = Launcher(["--sigint-timeout", "1", "--sigterm-timeout", "1", launch],
                   ros_env(str(tmp_path), port, pkgs), str(tmp_path))
     try:
-        poll(lambda: os.path.exists(tmp_path / "wedged") and os.path.exists(tmp_path / "polite"), 60,
-             what="both rospy nodes initialized")
+        until(lambda: os.path.exists(tmp_path / "wedged") and os.path.exists(tmp_path / "polite"), 60,
+              what="both rospy nodes initialized")
         procs = descendants(lp.pid)
         t0 = time.monotonic()
         lp.signal(signal.SIGINT)

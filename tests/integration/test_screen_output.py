@@ -20,8 +20,8 @@ import time
 
 import pytest
 
-from running import (ROS_PYTHON, Launcher, compile_roscpp, free_port, make_package, master_up, poll, ros_env,
-                     stop_group, write_launch)
+from helpers import ROS_PYTHON, free_port, until
+from running import Launcher, compile_roscpp, make_package, master_up, ros_env, stop_group, write_launch
 
 pytestmark = pytest.mark.integration
 
@@ -114,9 +114,9 @@ def test_logs_follow_roscpp_and_rospy_screen_nodes_and_a_log_node(tmp_path, pkgs
         def numbers(node, word):
             return [int(n) for n in re.findall(word + r" (\d+)", followers[node][0].read_text())]
         for node, word in (("/cpp", r"\[ INFO\] \[[\d.]+\]: tick"), ("/py", "print"), ("/lg", "print")):
-            first = poll(lambda: numbers(node, word), 60, 0.2, what="%s's output followed" % node)
+            first = until(lambda: numbers(node, word), 60, 0.2, what="%s's output followed" % node)
             assert first == list(range(1, len(first) + 1))  # from its first line, in order
-            poll(lambda: max(numbers(node, word)) >= max(first) + 3, 30, 0.2, what="%s's new output" % node)
+            until(lambda: max(numbers(node, word)) >= max(first) + 3, 30, 0.2, what="%s's new output" % node)
         # the screen nodes' lines are on the launcher's stdout too, as under roslaunch
         assert re.search(r"\[ INFO\] \[[\d.]+\]: tick 1\b", lp.stdout) and "print 1\n" in lp.stdout
         r = tool(env, "logs", "/cpp", "-n", "2")
@@ -156,14 +156,14 @@ def test_a_screen_node_sees_a_tty_under_a_terminal(tmp_path, pkgs):
                     return f.read()
             except FileNotFoundError:
                 return ""
-        look = poll(lambda: _look(terminal()), 60, 0.1, what="the node's look at its streams")
+        look = until(lambda: _look(terminal()), 60, 0.1, what="the node's look at its streams")
         # one pty for both streams, sized like the terminal, and not the node's controlling terminal
         assert look == {"stdout": "tty", "stderr": "tty", "same": True, "controlling": False, "size": [100, 37]}
         # line buffered, as on a terminal: unflushed prints arrive one by one
-        poll(lambda: "line 3\r\n" in terminal(), 30, 0.1, what="unflushed lines on the terminal")
+        until(lambda: "line 3\r\n" in terminal(), 30, 0.1, what="unflushed lines on the terminal")
         # and the copy has the node's bytes ("\n"), not the terminal's ("\r\n")
-        log = poll(lambda: _file(tmp_path, "looker-2-stdout.log"), 30, 0.1, what="the copy")
-        poll(lambda: "line 3\n" in _file(tmp_path, "looker-2-stdout.log"), 30, 0.1, what="lines in the copy")
+        log = until(lambda: _file(tmp_path, "looker-2-stdout.log"), 30, 0.1, what="the copy")
+        until(lambda: "line 3\n" in _file(tmp_path, "looker-2-stdout.log"), 30, 0.1, what="lines in the copy")
         assert "\r" not in _file(tmp_path, "looker-2-stdout.log") and log.startswith("LOOK ")
     finally:
         stop_group(proc, 30)
@@ -198,9 +198,9 @@ def test_a_screen_node_sees_the_terminal_resized(tmp_path, pkgs):
     reader = threading.Thread(target=read_terminal, daemon=True)
     reader.start()
     try:
-        poll(lambda: b"SIZE 80x24" in screen, 60, 0.1, what="the node's first size")
+        until(lambda: b"SIZE 80x24" in screen, 60, 0.1, what="the node's first size")
         fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
-        poll(lambda: b"SIZE 120x40" in screen, 30, 0.1, what="the new size seen by the node")
+        until(lambda: b"SIZE 120x40" in screen, 30, 0.1, what="the new size seen by the node")
     finally:
         stop_group(proc, 30)
         os.close(terminal)
@@ -211,7 +211,7 @@ def test_a_screen_node_sees_a_pipe_when_the_output_is_not_a_terminal(tmp_path, p
     env = ros_env(str(tmp_path), free_port(), pkgs)
     lp = Launcher([write_launch(str(tmp_path), LOOKER_LAUNCH)], env, str(tmp_path))
     try:
-        look = poll(lambda: _look(lp.stdout), 60, 0.1, what="the node's look at its streams")
+        look = until(lambda: _look(lp.stdout), 60, 0.1, what="the node's look at its streams")
         assert look == {"stdout": "pipe", "stderr": "pipe", "same": False, "controlling": False, "size": None}
     finally:
         lp.close()
@@ -243,11 +243,11 @@ def test_no_output_lost_while_the_terminal_is_blocked_and_all_before_the_exit_li
     os.close(write_end)
     got = bytearray()
     try:
-        poll(lambda: master_up(port), 30, what="master up")
+        until(lambda: master_up(port), 30, what="master up")
         # nobody reads the launcher's stdout: the node is held back (its copy stops growing) rather than
         # its output dropped
         copy = tmp_path / "log" / "latest" / "flood-2-stdout.log"
-        poll(lambda: copy.exists() and copy.stat().st_size > 0, 30, what="the node writing")
+        until(lambda: copy.exists() and copy.stat().st_size > 0, 30, what="the node writing")
         size = -1
         deadline = time.monotonic() + 60
         while copy.stat().st_size != size:  # (settles once the node blocks)
@@ -268,7 +268,7 @@ def test_no_output_lost_while_the_terminal_is_blocked_and_all_before_the_exit_li
             except BlockingIOError:
                 pass
             return b"[flood-2] process has finished cleanly" in got
-        poll(read_all, 120, 0.05, what="the node's exit line")
+        until(read_all, 120, 0.05, what="the node's exit line")
         # (the launcher's own lines come between chunks of the node's output, as they would between the node's
         # writes on a shared terminal)
         text = re.sub(r"Done checking log file disk usage\. Usage is <1GB\.\n", "", got.decode())

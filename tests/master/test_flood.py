@@ -13,29 +13,13 @@ import pytest
 
 from launcher.net import open_files
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from helpers import ROOT, free_port, post_once, still_running, until
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _get_pid(uri: str, timeout: float) -> int:
+def _get_pid(port: int, timeout: float) -> int:
     """One legitimate call on its own connection, bounded by `timeout`."""
-    host, port = uri[len("http://"):].rstrip("/").split(":")
-    body = xmlrpc.client.dumps(("/legit",), "getPid").encode()
-    with socket.create_connection((host, int(port)), timeout=timeout) as s:
-        s.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % len(body)
-                  + body)
-        data = b""
-        while True:
-            chunk = s.recv(65536)
-            if not chunk:
-                break
-            data += chunk
-    code, _msg, pid = xmlrpc.client.loads(data.partition(b"\r\n\r\n")[2])[0][0]
+    reply = post_once(port, xmlrpc.client.dumps(("/legit",), "getPid").encode(), timeout)
+    code, _msg, pid = xmlrpc.client.loads(reply.partition(b"\r\n\r\n")[2])[0][0]
     assert code == 1
     return pid
 
@@ -56,7 +40,7 @@ def test_raise_open_file_limit_raises_the_soft_limit_to_the_hard_one():
 
 @pytest.mark.parametrize("slow_clients", [400])
 def test_slow_clients_beyond_the_open_file_limit_do_not_lock_out_legitimate_calls(slow_clients):
-    port = _free_port()
+    port = free_port()
     uri = "http://127.0.0.1:%d/" % port
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI=uri, ROS_IP="127.0.0.1")
     env.pop("ROS_HOSTNAME", None)
@@ -66,14 +50,7 @@ def test_slow_clients_beyond_the_open_file_limit_do_not_lock_out_legitimate_call
                             stderr=subprocess.PIPE)
     slow: list[socket.socket] = []
     try:
-        deadline = time.monotonic() + 15
-        pid = None
-        while pid is None:
-            try:
-                pid = _get_pid(uri, 1.0)
-            except OSError:
-                assert time.monotonic() < deadline and proc.poll() is None, "master did not start"
-                time.sleep(0.05)
+        pid = until(lambda: still_running(proc) and _get_pid(port, 1.0), 15, 0.05, what="master up", errors=(OSError,))
         latencies = []
         for i in range(slow_clients):
             s = socket.create_connection(("127.0.0.1", port), timeout=5)
@@ -81,11 +58,11 @@ def test_slow_clients_beyond_the_open_file_limit_do_not_lock_out_legitimate_call
             slow.append(s)
             if i % 20 == 19:  # legitimate calls all along the flood
                 t0 = time.monotonic()
-                assert _get_pid(uri, 1.0) == pid
+                assert _get_pid(port, 1.0) == pid
                 latencies.append(time.monotonic() - t0)
         for _ in range(10):
             t0 = time.monotonic()
-            assert _get_pid(uri, 1.0) == pid
+            assert _get_pid(port, 1.0) == pid
             latencies.append(time.monotonic() - t0)
         assert max(latencies) < 1.0
     finally:

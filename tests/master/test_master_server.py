@@ -14,6 +14,8 @@ import pytest
 
 from launcher.master import Master
 
+from helpers import post_once
+
 
 class MasterThread:
     """A Master on its own event loop in a thread, so that blocking clients can talk to it."""
@@ -121,17 +123,6 @@ class Hanging:
         self.sock.close()
 
 
-def _post(port, body: bytes, extra=b"") -> bytes:
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-        s.sendall(b"POST / HTTP/1.1\r\nContent-Length: %d\r\nConnection: close\r\n%s\r\n" % (len(body), extra) + body)
-        out = b""
-        while True:
-            c = s.recv(65536)
-            if not c:
-                return out
-            out += c
-
-
 def _alive(master):
     return master.proxy().getPid("/probe")[0] == 1
 
@@ -156,7 +147,7 @@ XXE = (b"<?xml version='1.0'?><!DOCTYPE m [<!ENTITY x SYSTEM 'file:///etc/passwd
                          ids=["billion-laughs", "xxe", "truncated", "deep-nesting"])
 def test_hostile_xml_gets_a_fault_and_nothing_is_set(master, body):
     t0 = time.monotonic()
-    out = _post(master.master.port, body)
+    out = post_once(master.master.port, body)
     assert time.monotonic() - t0 < 2
     assert out.startswith(b"HTTP/1.1 200")
     with pytest.raises(xmlrpc.client.Fault):
@@ -166,7 +157,7 @@ def test_hostile_xml_gets_a_fault_and_nothing_is_set(master, body):
 
 
 def test_oversized_request_is_refused_without_reading_it(master):
-    out = _post(master.master.port, b"", extra=b"Content-Length: 900000000\r\n")
+    out = post_once(master.master.port, b"", headers=b"Content-Length: 900000000\r\n")
     assert out.split(b" ", 2)[1] in (b"400", b"413")
     assert _alive(master)
 

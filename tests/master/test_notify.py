@@ -7,6 +7,8 @@ import asyncio
 from launcher.net import xmlrpc_server
 from launcher.master.notify import Notifier
 
+from helpers import until_async
+
 
 class SlowNode:
     """A node's slave API on loopback that records calls; `delay` seconds before each answer."""
@@ -34,24 +36,17 @@ class SlowNode:
         await self.server.stop()
 
 
-async def _until(cond, timeout=5.0):
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not cond():
-        assert asyncio.get_running_loop().time() < deadline, "condition not reached"
-        await asyncio.sleep(0.01)
-
-
 def test_calls_to_one_node_keep_their_order_and_queued_publisher_updates_coalesce():
     async def scenario():
         n = Notifier(timeout=5)
         async with SlowNode(delay=0.2) as node:
             n.publisher_update(node.uri, "/t", ["a"])          # sent at once
-            await _until(lambda: len(node.calls) == 1)
+            await until_async(lambda: len(node.calls) == 1, 5)
             n.param_update(node.uri, "/p/", 1)                  # queued behind it
             n.publisher_update(node.uri, "/t", ["a", "b"])     # queued
             n.publisher_update(node.uri, "/t", ["a", "b", "c"])  # supersedes the queued one
             n.publisher_update(node.uri, "/u", ["x"])          # another topic: kept
-            await _until(lambda: n.pending() == 0)
+            await until_async(lambda: n.pending() == 0, 5)
             assert node.calls == [
                 ("publisherUpdate", ["/master", "/t", ["a"]]),
                 ("paramUpdate", ["/master", "/p/", 1]),
@@ -69,10 +64,10 @@ def test_a_hanging_node_only_delays_itself():
             n.shutdown_node(hung.uri, "/x", "why")
             n.param_update(hung.uri, "/p/", 2)
             n.param_update(fine.uri, "/p/", 3)
-            await _until(lambda: len(hung.calls) == 1)
+            await until_async(lambda: len(hung.calls) == 1, 5)
             t0 = asyncio.get_running_loop().time()
-            await _until(lambda: len(fine.calls) == 1, timeout=1.5)  # not behind the hung node's 2 s
-            await _until(lambda: len(hung.calls) == 2, timeout=5)      # time-out, then the next call
+            await until_async(lambda: len(fine.calls) == 1, timeout=1.5)  # not behind the hung node's 2 s
+            await until_async(lambda: len(hung.calls) == 2, timeout=5)      # time-out, then the next call
             assert asyncio.get_running_loop().time() - t0 >= 1.5
             assert hung.calls[0] == ("shutdown", ["/master", "[/x] Reason: why"])
         await n.close()
@@ -86,12 +81,12 @@ def test_results_reach_the_callback_and_close_cancels_everything():
         results = []
         async with SlowNode(answer=(-1, "not subscribed", 0)) as node:
             n.param_update(node.uri, "/p/", 1, results.append)
-            await _until(lambda: results)
+            await until_async(lambda: results, 5)
             assert results == [[-1, "not subscribed", 0]]
             node.delay = 30
             for i in range(5):
                 n.param_update(node.uri, "/p/", i)
-            await _until(lambda: len(node.calls) == 2)
+            await until_async(lambda: len(node.calls) == 2, 5)
             await n.close()
             assert n.pending() == 0
             n.param_update(node.uri, "/p/", 9)  # after close: dropped
@@ -105,6 +100,6 @@ def test_unreachable_and_non_http_apis_are_skipped():
         n.publisher_update("rosrpc://127.0.0.1:1", "/t", [])
         assert n.pending() == 0
         n.publisher_update("http://127.0.0.1:1/", "/t", [])  # nothing listens: fails fast, logged
-        await _until(lambda: n.pending() == 0)
+        await until_async(lambda: n.pending() == 0, 5)
         await n.close()
     asyncio.run(scenario())

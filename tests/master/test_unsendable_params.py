@@ -3,36 +3,26 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
-import time
 import xmlrpc.client
 
 import pytest
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from helpers import ROOT, free_port, post_once, still_running, until
 
 
 @pytest.fixture
 def core_uri():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     uri = "http://127.0.0.1:%d/" % port
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI=uri, ROS_IP="127.0.0.1")
     env.pop("ROS_HOSTNAME", None)
     proc = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 15
-        while True:
-            try:
-                xmlrpc.client.ServerProxy(uri).getPid("/t")
-                break
-            except OSError:
-                assert time.monotonic() < deadline and proc.poll() is None, "master did not start"
-                time.sleep(0.05)
+        until(lambda: still_running(proc) and xmlrpc.client.ServerProxy(uri).getPid("/t"), 15, 0.05, what="master up",
+              errors=(OSError,))
         yield uri
     finally:
         proc.terminate()
@@ -45,17 +35,8 @@ def _set_raw(uri: str, key: str, value_xml: str):
             "<param><value><string>/t</string></value></param>"
             "<param><value><string>%s</string></value></param>"
             "<param>%s</param></params></methodCall>" % (key, value_xml)).encode()
-    host, port = uri[len("http://"):].rstrip("/").split(":")
-    with socket.create_connection((host, int(port)), timeout=5) as s:
-        s.sendall(b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\nConnection: close\r\n\r\n" % len(body)
-                  + body)
-        data = b""
-        while True:
-            chunk = s.recv(65536)
-            if not chunk:
-                break
-            data += chunk
-    return xmlrpc.client.loads(data.partition(b"\r\n\r\n")[2])[0][0]
+    reply = post_once(int(uri.rstrip("/").rsplit(":", 1)[1]), body, 5)
+    return xmlrpc.client.loads(reply.partition(b"\r\n\r\n")[2])[0][0]
 
 
 @pytest.mark.parametrize("value_xml", [
@@ -101,9 +82,7 @@ def test_in_process_set_param_refuses_it_too():
 def test_launch_file_with_such_a_value_fails_cleanly(tmp_path):
     launch = tmp_path / "big.launch"
     launch.write_text('<launch><param name="big" value="4294967296"/></launch>')
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_MASTER_URI="http://127.0.0.1:%d/" % port, ROS_IP="127.0.0.1",
                ROS_HOME=str(tmp_path))
     env.pop("ROS_HOSTNAME", None)

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
 
 import pytest
 
 from launcher.net.rosout import (RosoutLogFile, file_logging_disabled, format_log_line, format_stamp,
                              rosout_typestore, service_md5)
+
+from helpers import ROOT, free_port, still_running, until
 
 
 @pytest.fixture(scope="module")
@@ -168,26 +173,16 @@ def test_a_failing_disk_is_reported_once_and_writing_resumes(tmp_path, caplog):
 
 def test_without_rosbags_rosout_says_so_once_and_no_traceback(tmp_path):
     """An interpreter that lacks rosbags (Debian's python running `python3 -m launcher`): one error line."""
-    import signal
-    import socket
-    import subprocess
-    import sys
-    import time
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    port = free_port()
     code = "import sys; sys.modules['rosbags'] = None\nfrom launcher.cli import main\nsys.exit(main())"
-    env = dict(os.environ, PYTHONPATH=root, ROS_HOME=str(tmp_path), ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
+    env = dict(os.environ, PYTHONPATH=ROOT, ROS_HOME=str(tmp_path), ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
     err = tmp_path / "stderr"
     with open(err, "w") as f:
         p = subprocess.Popen([sys.executable, "-c", code, "--core", "-p", str(port)], env=env,
                              stdout=subprocess.DEVNULL, stderr=f)
     try:
-        deadline = time.monotonic() + 30
-        while "rosout cannot decode" not in err.read_text():
-            assert p.poll() is None and time.monotonic() < deadline, err.read_text()
-            time.sleep(0.05)
+        until(lambda: still_running(p) and "rosout cannot decode" in err.read_text(), 30, 0.05,
+              what="rosout's error line")
         p.send_signal(signal.SIGINT)
         assert p.wait(30) == 0
     finally:

@@ -11,18 +11,11 @@ from launcher.net.slave import SlaveNode, Subscription, bind_address
 from launcher.net.tcpros import Publication, TopicType
 from launcher.net.xmlrpc import Fault, call
 
+from helpers import until_async
+
 CHAT = TopicType("std_msgs/String", "992ce8a1687cec8c8bd883ec73ca41d1", "string data\n")
 # Nothing listens here: these tests never reach a master.
 NO_MASTER = "http://127.0.0.1:9/"
-
-
-async def _wait_for(cond, timeout: float = 5.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not cond():
-        if loop.time() > deadline:
-            raise AssertionError("condition not met in %.1fs" % timeout)
-        await asyncio.sleep(0.005)
 
 
 async def _node(name: str) -> SlaveNode:
@@ -90,9 +83,9 @@ def test_publisher_update_connects_and_disconnects():
 
         assert await call(sub_node.uri, "publisherUpdate", "/master", "/chat",
                           [pub_node.uri]) == [1, "", 0]
-        await _wait_for(lambda: len(pub.links) == 1)
+        await until_async(lambda: len(pub.links) == 1, 5)
         pub.publish(b"\x05\x00\x00\x00hello")
-        await _wait_for(lambda: received == [b"\x05\x00\x00\x00hello"])
+        await until_async(lambda: received == [b"\x05\x00\x00\x00hello"], 5)
 
         _, _, info = await call(sub_node.uri, "getBusInfo", "/x")
         assert [i[1:6] for i in info] == [[pub_node.uri, "i", "TCPROS", "/chat", True]]
@@ -111,7 +104,7 @@ def test_publisher_update_connects_and_disconnects():
 
         # The publisher left the graph: the link goes, on both sides.
         await call(sub_node.uri, "publisherUpdate", "/master", "/chat", [])
-        await _wait_for(lambda: not pub.links and not sub.links)
+        await until_async(lambda: not pub.links and not sub.links, 5)
         await _close(sub_node)
         await _close(pub_node)
     asyncio.run(main())
@@ -128,10 +121,10 @@ def test_unreachable_publisher_does_not_block_the_others():
         sub_node.subscriptions["/chat"] = sub
         await call(sub_node.uri, "publisherUpdate", "/master", "/chat",
                    ["http://127.0.0.1:9/", pub_node.uri])
-        await _wait_for(lambda: len(pub.links) == 1)
+        await until_async(lambda: len(pub.links) == 1, 5)
         pub.publish(b"x")
-        await _wait_for(lambda: received == [b"x"])
-        await _wait_for(lambda: not sub.connecting)
+        await until_async(lambda: received == [b"x"], 5)
+        await until_async(lambda: not sub.connecting, 5)
         assert list(sub.links) == [pub_node.uri]
         await _close(sub_node)
         await _close(pub_node)

@@ -13,6 +13,8 @@ from launcher.net.tcpros import (FrameDecoder, InboundConnection, Publication, P
                              ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
                              decode_header, encode_frame, encode_header, transport_info)
 
+from helpers import until_async
+
 LOG = TopicType("rosgraph_msgs/Log", "acffd30cd6b6de30f120938c17c593fb", "byte level\n")
 
 # A header laid out by hand from the TCPROS spec: 4-byte little-endian length before each field.
@@ -99,15 +101,6 @@ async def _server_with_publication(latch: bool = False) -> tuple[TcprosServer, P
     return server, pub
 
 
-async def _wait_for(cond, timeout: float = 5.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not cond():
-        if loop.time() > deadline:
-            raise AssertionError("condition not met in %.1fs" % timeout)
-        await asyncio.sleep(0.005)
-
-
 def _subscriber(received: list[bytes], mtype: TopicType = LOG, topic: str = "/chat") -> PublisherLink:
     return PublisherLink(topic, mtype, "/subnode", "http://pub:1/",
                          lambda payload, link: received.append(payload), lambda link: None)
@@ -121,15 +114,15 @@ def test_publish_and_subscribe_over_loopback():
         assert link.header["callerid"] == "/pubnode"
         assert link.header["md5sum"] == LOG.md5sum
         assert link.header["latching"] == "0"
-        await _wait_for(lambda: len(pub.links) == 1)
+        await until_async(lambda: len(pub.links) == 1, 5)
         assert pub.links[0].callerid == "/subnode"
         assert "TCPROS connection on port %d to [127.0.0.1:" % server.port in pub.links[0].info
         for i in range(1000):
             pub.publish(b"m%d" % i)
-        await _wait_for(lambda: len(received) == 1000)
+        await until_async(lambda: len(received) == 1000, 5)
         assert received == [b"m%d" % i for i in range(1000)]
         link.close()
-        await _wait_for(lambda: not pub.links)
+        await until_async(lambda: not pub.links, 5)
         await server.stop()
     asyncio.run(main())
 
@@ -170,7 +163,7 @@ def test_garbage_client_does_not_disturb_a_good_subscriber():
         assert await asyncio.wait_for(bad2[0].read(), 5) == b""
         for i in range(100):
             pub.publish(b"%d" % i)
-        await _wait_for(lambda: len(received) == 100)
+        await until_async(lambda: len(received) == 100, 5)
         stall[1].close()
         await server.stop()
     asyncio.run(main())
@@ -187,14 +180,14 @@ def test_a_subscriber_that_stops_reading_is_dropped_from_not_waited_for(monkeypa
         # A raw subscriber that completes the handshake, then never reads again.
         reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
         writer.write(encode_header({"callerid": "/stuck", "topic": "/chat", "md5sum": "*"}))
-        await _wait_for(lambda: len(pub.links) == 2)
+        await until_async(lambda: len(pub.links) == 2, 5)
         stuck = [l for l in pub.links if l.callerid == "/stuck"][0]
         payload = b"x" * 10000
         for i in range(0, 2000, 5):
             for _ in range(5):
                 pub.publish(payload)
             # Keep pace with the good reader, so that only the stuck one ever falls behind.
-            await _wait_for(lambda: len(good) == i + 5, timeout=20)
+            await until_async(lambda: len(good) == i + 5, timeout=20)
         assert stuck.conn.drops > 0
         writer.close()
         await server.stop()
@@ -209,7 +202,7 @@ def test_latched_publication_sends_the_last_message_on_connect():
         received: list[bytes] = []
         link = await connect_publisher("127.0.0.1", server.port, _subscriber(received))
         assert link.header["latching"] == "1"
-        await _wait_for(lambda: received == [b"last"])
+        await until_async(lambda: received == [b"last"], 5)
         await server.stop()
     asyncio.run(main())
 
@@ -251,9 +244,9 @@ def test_inbound_connections_are_forgotten_when_closed():
     async def main():
         server, pub = await _server_with_publication()
         reader, writer = await asyncio.open_connection("127.0.0.1", server.port)
-        await _wait_for(lambda: len(server.connections) == 1)
+        await until_async(lambda: len(server.connections) == 1, 5)
         assert isinstance(next(iter(server.connections)), InboundConnection)
         writer.close()
-        await _wait_for(lambda: not server.connections)
+        await until_async(lambda: not server.connections, 5)
         await server.stop()
     asyncio.run(main())

@@ -14,6 +14,8 @@ from hypothesis import given, settings, strategies as st
 from launcher.net import xmlrpc as X
 from launcher.net import xmlrpc_server as S
 
+from helpers import ROOT, free_port, until
+
 # ---------------------------------------------------------------------------
 # codec
 # ---------------------------------------------------------------------------
@@ -572,11 +574,8 @@ def test_blocking_client_values_faults_and_http_errors(server):
 
 
 def test_blocking_client_refused_and_timeout():
-    with socket.socket() as s:  # a port nobody listens on
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
     with pytest.raises(OSError):
-        X.call_blocking("http://127.0.0.1:%d/" % port, "echo", timeout=2.0)
+        X.call_blocking("http://127.0.0.1:%d/" % free_port(), "echo", timeout=2.0)
     with socket.socket() as silent:  # accepts (backlog) but never answers
         silent.bind(("127.0.0.1", 0))
         silent.listen(1)
@@ -675,9 +674,8 @@ asyncio.run(main())
 def test_accept_out_of_files_backs_off_with_one_warning():
     import subprocess
     import sys
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    proc = subprocess.Popen([sys.executable, "-c", _OUT_OF_FILES_SERVER], cwd=root, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=root))
+    proc = subprocess.Popen([sys.executable, "-c", _OUT_OF_FILES_SERVER], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=ROOT))
     hogs = []
     try:
         port = int(proc.stdout.readline())
@@ -693,13 +691,9 @@ def test_accept_out_of_files_backs_off_with_one_warning():
         for h in hogs:
             h.close()
         hogs = []
-        deadline = time.monotonic() + 10
-        while True:  # once files are free again, clients are served
-            try:
-                assert X.call_blocking("http://127.0.0.1:%d/" % port, "echo", "back", timeout=2) == ["back"]
-                break
-            except OSError:
-                assert time.monotonic() < deadline
+        # once files are free again, clients are served
+        assert until(lambda: X.call_blocking("http://127.0.0.1:%d/" % port, "echo", "back", timeout=2), 10,
+                     what="an answer", errors=(OSError,)) == ["back"]
     finally:
         for h in hogs:
             h.close()

@@ -18,7 +18,7 @@ from launcher.errors import LaunchError
 from launcher.params import rosyaml
 from launcher.params.rosyaml import RosYamlError, degrees_value, dump_yaml, load_yaml, radians_value
 
-COMPAT = "/work/shared/compat"
+from helpers import COMPAT
 
 
 @pytest.mark.parametrize("text,expected", [

@@ -11,6 +11,8 @@ import pytest
 
 from launcher.params.tree import ParamTree, copy_tree
 
+from helpers import ROS_PYTHON
+
 
 def test_set_dict_replaces_namespace_and_scalar_becomes_namespace():
     t = ParamTree()
@@ -202,11 +204,10 @@ def _ours(seq):
 
 
 def _reference_python():
-    py = os.environ.get("ROS_PYTHON", "/usr/bin/python3")
-    if not os.path.exists(py):
+    if not os.path.exists(ROS_PYTHON):
         return None
-    r = subprocess.run([py, "-c", "import rosmaster.paramserver"], capture_output=True)
-    return py if r.returncode == 0 else None
+    r = subprocess.run([ROS_PYTHON, "-c", "import rosmaster.paramserver"], capture_output=True)
+    return ROS_PYTHON if r.returncode == 0 else None
 
 
 def test_matches_rosmaster_paramdictionary_on_random_operations(ros_env, ros_part_missing):

@@ -14,7 +14,7 @@ from launcher.params import yamlcache
 from launcher.params.rosyaml import load_yaml
 from launcher.params.yamlcache import YamlCache
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from helpers import ROOT
 
 # A launch that loads a parameter file, then tells whether PyYAML was imported and what it loaded.
 PROBE = r"""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import os
 import sys
 import time
@@ -15,7 +14,7 @@ from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor
 
-ROS_PYTHON = "/usr/bin/python3"  # Debian's, with rospy
+from helpers import ROS_PYTHON
 
 TALKER = """
 import sys, rospy, std_msgs.msg
@@ -43,18 +42,6 @@ def talker(tmp_path, name: str, topic: str, master_uri: str, **kw) -> ProcessSpe
 
 def python_node(tmp_path, name: str, code: str, **kw) -> ProcessSpec:
     return node_spec(tmp_path, name, [sys.executable, "-I", "-S", "-c", code], **kw)
-
-
-async def until(cond, timeout: float = 20.0, period: float = 0.02, what: str = "condition"):
-    """Poll `cond()` on the loop until truthy (returned), or fail after `timeout`."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError("%s not met within %.1f s" % (what, timeout))
-        await asyncio.sleep(period)
 
 
 class Events:

@@ -13,7 +13,8 @@ from launcher.config import NodePolicy
 from launcher.process import state
 from launcher.process.hang import HangDetector
 
-from tests.process.health import Events, console_err, supervisor_with_master, talker, until
+from helpers import until_async
+from tests.process.health import Events, console_err, supervisor_with_master, talker
 
 pytestmark = pytest.mark.usefixtures("ros_env")
 
@@ -30,16 +31,16 @@ def run_hang_scenario(tmp_path, required: bool = False):
             proc = sup.start(talker(tmp_path, "talker", "/chatter", master.uri, respawn=not required,
                                     required=required, policy=NodePolicy(hang_timeout=HANG_TIMEOUT)))
             sup.registrations_complete()
-            await until(lambda: proc in hang.registered, 30, what="the probe found the registered node")
+            await until_async(lambda: proc in hang.registered, 30, what="the probe found the registered node")
             first_pid = proc.pid
             os.kill(first_pid, signal.SIGSTOP)
             stopped_at = time.monotonic()
             if required:
                 await asyncio.wait_for(sup.done.wait(), HANG_TIMEOUT + 10)
                 return sup, events, stopped_at, first_pid
-            await until(lambda: events.of("/talker", state.HUNG), HANG_TIMEOUT + 10, what="hung")
-            await until(lambda: proc.alive and proc.pid != first_pid, 10, what="respawned")
-            await until(lambda: proc in hang.registered, 30, what="the new run registered and probed")
+            await until_async(lambda: events.of("/talker", state.HUNG), HANG_TIMEOUT + 10, what="hung")
+            await until_async(lambda: proc.alive and proc.pid != first_pid, 10, what="respawned")
+            await until_async(lambda: proc in hang.registered, 30, what="the new run registered and probed")
             return sup, events, stopped_at, first_pid
         finally:
             hang.close()
@@ -77,10 +78,10 @@ def test_a_healthy_node_is_not_hung(tmp_path):
         sup.watchers.append(hang)
         try:
             proc = sup.start(talker(tmp_path, "talker", "/chatter", master.uri, policy=NodePolicy(hang_timeout=0.6)))
-            await until(lambda: proc in hang.registered, 30)
+            await until_async(lambda: proc in hang.registered, 30)
             since = time.monotonic()
             # ten timeouts' worth of probes, all answered
-            await until(lambda: time.monotonic() - since > 3.0 or not proc.alive, 10)
+            await until_async(lambda: time.monotonic() - since > 3.0 or not proc.alive, 10)
             assert proc.alive and sup.fleet.nodes["/talker"].state == state.RUNNING
         finally:
             hang.close()

@@ -11,7 +11,8 @@ from launcher.config import NodePolicy
 from launcher.process import state
 from launcher.process.readiness import Readiness
 
-from tests.process.health import Events, console_err, python_node, supervisor_with_master, talker, until
+from helpers import until_async
+from tests.process.health import Events, console_err, python_node, supervisor_with_master, talker
 
 pytestmark = pytest.mark.usefixtures("ros_env")
 
@@ -34,7 +35,7 @@ def test_wait_for_holds_a_node_until_a_rospy_publisher_appears(tmp_path):
             await asyncio.sleep(2.0)  # the publisher really appears 2 s later (the scenario of the issue)
             assert not waiter.alive and sup.fleet.nodes["/waiter"].state == state.WAITING
             sup.start(talker(tmp_path, "talker", "/scan", master.uri))
-            await until(lambda: waiter.alive, 30, what="the waiting node started")
+            await until_async(lambda: waiter.alive, 30, what="the waiting node started")
             return events
         finally:
             sup.readiness.close()
@@ -85,7 +86,7 @@ def test_a_waiting_node_keeps_an_external_master_launch_going_and_is_stopped_at_
             sup.start(python_node(tmp_path, "quick", "pass"))
             sup.start(python_node(tmp_path, "held", SLEEPER, policy=NodePolicy(wait_for=(("node", "/never"),))))
             sup.registrations_complete()
-            await until(lambda: sup.fleet.nodes["/quick"].state == state.EXITED, 10)
+            await until_async(lambda: sup.fleet.nodes["/quick"].state == state.EXITED, 10)
             await asyncio.sleep(0.5)
             assert not sup.done.is_set()
         finally:

@@ -11,7 +11,8 @@ from launcher.process import console, state
 from launcher.process.resources import ResourceMonitor, read_groups
 from launcher.process.supervisor import Supervisor
 
-from tests.process.health import Events, console_err, python_node, until
+from helpers import until_async
+from tests.process.health import Events, console_err, python_node
 
 MB = 1 << 20
 # allocates (and touches) 80 MB in a child of its own process group: the limit is on the group
@@ -32,7 +33,7 @@ def run(tmp_path, specs, until_cond, timeout=20.0, period=0.1):
         task = asyncio.ensure_future(monitor.run())
         try:
             procs = [sup.start(s) for s in specs]
-            seen = await until(lambda: until_cond(sup, events), timeout)
+            seen = await until_async(lambda: until_cond(sup, events), timeout)
             return sup, events, procs, seen
         finally:
             task.cancel()
@@ -60,7 +61,7 @@ def test_memory_limit_warns_once_per_crossing(tmp_path, capsys):
                                 lambda sup, events: len(sup.fleet.nodes["/grower"].history) >= 8)
     err = console_err(capsys)
     assert err.count("[grower-1] WARNING: uses ") == 1
-    assert " of memory, over its limit of 40.0 MB" in err
+    assert " of memory, over its limit of 40MiB" in err
     assert procs[0].spawn_count == 1  # warned, not restarted
 
 
@@ -71,7 +72,7 @@ def test_memory_limit_restart_restarts_the_node(tmp_path, capsys):
     err = console_err(capsys)
     assert "[grower-1] restarting: uses " in err
     respawning = events.of("/grower", state.RESPAWNING)
-    assert respawning and "over its limit of 40.0 MB" in respawning[0][3]
+    assert respawning and "over its limit of 40MiB" in respawning[0][3]
     assert sup.fleet.nodes["/grower"].restarts >= 1  # though the node does not respawn
 
 
@@ -87,7 +88,7 @@ def test_read_groups_sums_a_group_and_ignores_others(tmp_path):
         p = sup.start(python_node(tmp_path, "grower", GROWER))
         q = sup.start(python_node(tmp_path, "idle", IDLE))
         try:
-            await until(lambda: read_groups({p.pgid}).get(p.pgid, (0, 0))[1] * os.sysconf("SC_PAGE_SIZE") > 80 * MB)
+            await until_async(lambda: read_groups({p.pgid}).get(p.pgid, (0, 0))[1] * os.sysconf("SC_PAGE_SIZE") > 80 * MB, 20)
             totals = read_groups({p.pgid, q.pgid})
             assert set(totals) == {p.pgid, q.pgid}
             assert totals[q.pgid][1] * os.sysconf("SC_PAGE_SIZE") < 40 * MB
@@ -143,14 +144,14 @@ def test_over_a_limit_is_in_the_state_model_set_and_cleared(tmp_path, capsys):
         try:
             proc = sup.start(spec)
             status = sup.fleet.nodes["/holder"]
-            await until(lambda: status.over_limit, 30, what="over memory_limit")
+            await until_async(lambda: status.over_limit, 30, what="over memory_limit")
             assert status.state == state.RUNNING and status.over_limit == {"memory_limit": 40 * MB}
             assert status.restarts == 0 and status.pid == proc.pid  # the same run, not a restart
             os.killpg(proc.pgid, 9)  # a new run starts under its limits
-            await until(lambda: status.restarts == 1 and status.state == state.RUNNING, 30, what="respawned")
-            await until(lambda: status.over_limit, 30, what="the new run over memory_limit")
+            await until_async(lambda: status.restarts == 1 and status.state == state.RUNNING, 30, what="respawned")
+            await until_async(lambda: status.over_limit, 30, what="the new run over memory_limit")
             release.touch()
-            await until(lambda: not status.over_limit, 30, what="back under memory_limit")
+            await until_async(lambda: not status.over_limit, 30, what="back under memory_limit")
             return status.over_limit, status.restarts
         finally:
             task.cancel()
@@ -165,7 +166,7 @@ def test_over_a_limit_is_in_the_state_model_set_and_cleared(tmp_path, capsys):
     assert seen[:6] == [("running", 0, {}, ""), ("running", 0, over, "over memory_limit"),
                         ("respawning", 0, {}, ""), ("running", 1, {}, ""), ("running", 1, over, "over memory_limit"),
                         ("running", 1, {}, "back under memory_limit")], seen
-    assert " of memory, over its limit of 40.0 MB" in lines[1]["reason"]
+    assert " of memory, over its limit of 40MiB" in lines[1]["reason"]
     console.flush()
     said = capsys.readouterr()
     assert said.err.count("[holder-1] WARNING: uses ") == 2

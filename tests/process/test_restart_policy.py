@@ -10,7 +10,8 @@ from launcher.config import NodePolicy
 from launcher.process import console, state
 from launcher.process.supervisor import Supervisor
 
-from test_supervisor import spec, wait_for
+from helpers import until_async
+from test_supervisor import spec
 
 CRASH = ["/bin/sh", "-c", "exit 1"]
 
@@ -25,7 +26,7 @@ def run_until(tmp_path, specs, cond, timeout=30.0):
         for s in specs:
             sup.start(s)
         sup.registrations_complete()
-        await wait_for(lambda: cond(fleet), timeout)
+        await until_async(lambda: cond(fleet), timeout)
         await sup.shutdown()
         sup.close()
         fleet.close()

@@ -13,6 +13,8 @@ import pytest
 from launcher.command import NodeCommand
 from launcher.process.supervisor import MIN_RESPAWN_INTERVAL_S, ProcessSpec, Supervisor
 
+from helpers import pid_alive, until_async
+
 PY = sys.executable
 
 
@@ -22,22 +24,6 @@ def py_node(code: str) -> list[str]:
 
 def spec(name: str, argv: list[str], tmp_path, **kw) -> ProcessSpec:
     return ProcessSpec(name, NodeCommand(argv, dict(os.environ), cwd=str(tmp_path)), **kw)
-
-
-async def wait_for(cond, timeout=10.0, period=0.005):
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met within %.1fs" % timeout)
-        await asyncio.sleep(period)
-
-
-def pid_exists(pid: int) -> bool:
-    try:
-        with open("/proc/%d/stat" % pid) as f:
-            return f.read().split(") ")[1][0] != "Z"
-    except OSError:
-        return False
 
 
 IGNORE_INT = "import signal,time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('ready', flush=True)\ntime.sleep(100)"
@@ -83,7 +69,7 @@ def test_no_exit_while_core_runs(tmp_path):
         sup = Supervisor(exit_when_all_dead=False)
         p = sup.start(spec("ok-1", ["/bin/true"], tmp_path))
         sup.registrations_complete()
-        await wait_for(lambda: not p.alive)  # (the exit is handled in one callback: done would be set now)
+        await until_async(lambda: not p.alive, 10)  # (the exit is handled in one callback: done would be set now)
         return sup.done.is_set()
     assert asyncio.run(main()) is False
 
@@ -94,7 +80,7 @@ def test_missing_executable_reported_and_rest_carry_on(tmp_path, capsys):
         bad = sup.start(spec("ghost-1", [str(tmp_path / "nope")], tmp_path))
         good = sup.start(spec("alive-2", ["sleep", "100"], tmp_path))
         sup.registrations_complete()
-        alive = good.alive and pid_exists(good.pid)
+        alive = good.alive and pid_alive(good.pid)
         await sup.shutdown()
         return bad, good, alive, sup
     bad, good, alive, sup = asyncio.run(main())
@@ -103,7 +89,7 @@ def test_missing_executable_reported_and_rest_carry_on(tmp_path, capsys):
     assert "[ghost-1] got a 'No such file or directory' error while attempting to run" in err
     assert "bad launch-prefix" in err
     assert not sup.required_failed
-    assert not pid_exists(good.pid)
+    assert not pid_alive(good.pid)
 
 
 def test_required_missing_executable_ends_launch_with_failure(tmp_path, capsys):
@@ -130,7 +116,7 @@ def test_required_exit_ends_launch(tmp_path, capsys, code, failed):
     err = capsys.readouterr().err
     assert "REQUIRED process [req-2] has died!" in err and "Initiating shutdown!" in err
     assert sup.required_failed is failed
-    assert not pid_exists(other.pid)
+    assert not pid_alive(other.pid)
 
 
 def test_respawn_immediately_and_with_delay(tmp_path, capsys):
@@ -142,17 +128,17 @@ def test_respawn_immediately_and_with_delay(tmp_path, capsys):
         lat = []
         for _ in range(5):
             # a node that ran a while (a crash loop is paced: see below)
-            await wait_for(lambda: asyncio.get_running_loop().time() - sup.fleet.records[fast.spec.node_name].started
-                           > MIN_RESPAWN_INTERVAL_S)
+            await until_async(lambda: asyncio.get_running_loop().time() - sup.fleet.records[fast.spec.node_name].started
+                              > MIN_RESPAWN_INTERVAL_S, 10)
             old = fast.pid
             t0 = time.monotonic()
             os.kill(old, signal.SIGKILL)
-            await wait_for(lambda: fast.pid != old and fast.alive, period=0.0005)
+            await until_async(lambda: fast.pid != old and fast.alive, 10, period=0.0005)
             lat.append(time.monotonic() - t0)
         old = slow.pid
         t0 = time.monotonic()
         os.kill(old, signal.SIGKILL)
-        await wait_for(lambda: slow.pid != old and slow.alive)
+        await until_async(lambda: slow.pid != old and slow.alive, 10)
         slow_delay = time.monotonic() - t0
         fast_pid, slow_pid = fast.pid, slow.pid
         await sup.shutdown()
@@ -165,7 +151,7 @@ def test_respawn_immediately_and_with_delay(tmp_path, capsys):
     out = capsys.readouterr().out
     assert out.count("[fast-1] restarting process") == 5
     assert out.count("process[fast-1]: started with pid [") == 6
-    assert not pid_exists(fast_pid) and not pid_exists(slow_pid)
+    assert not pid_alive(fast_pid) and not pid_alive(slow_pid)
 
 
 def test_log_output_file_truncated_or_appended(tmp_path):
@@ -176,9 +162,9 @@ def test_log_output_file_truncated_or_appended(tmp_path):
         sup = Supervisor()
         p = sup.start(spec("n-1", ["/bin/sh", "-c", "echo run $$"], tmp_path, stdout_path=str(log), respawn=respawn))
         if respawn:
-            await wait_for(lambda: p.spawn_count >= 4)
+            await until_async(lambda: p.spawn_count >= 4, 10)
         else:
-            await wait_for(lambda: not p.alive)
+            await until_async(lambda: not p.alive, 10)
         await sup.shutdown()
     asyncio.run(main(False))
     assert log.read_text().startswith("run ") and log.read_text().count("run ") == 1
@@ -195,7 +181,7 @@ def test_cwd_and_env(tmp_path):
         env = {"PATH": os.environ["PATH"], "MY_VAR": "hello"}
         p = sup.start(ProcessSpec("e-1", NodeCommand(["/bin/sh", "-c", "pwd > %s; echo $MY_VAR >> %s" % (out, out)],
                                                      env, cwd=str(work))))
-        await wait_for(lambda: not p.alive)
+        await until_async(lambda: not p.alive, 10)
         await sup.shutdown()
     asyncio.run(main())
     assert out.read_text().split() == [str(work), "hello"]
@@ -207,7 +193,7 @@ def test_stop_escalation_sigint_sigterm_sigkill(tmp_path, capsys):
         polite = sup.start(spec("polite-1", ["sleep", "100"], tmp_path))
         int_only = sup.start(spec("noint-2", py_node(IGNORE_INT), tmp_path, stdout_path=str(tmp_path / "a")))
         neither = sup.start(spec("stubborn-3", py_node(IGNORE_BOTH), tmp_path, stdout_path=str(tmp_path / "b")))
-        await wait_for(lambda: all((tmp_path / f).exists() and (tmp_path / f).read_text() for f in "ab"))
+        await until_async(lambda: all((tmp_path / f).exists() and (tmp_path / f).read_text() for f in "ab"), 10)
         deaths = {}
         for p in (polite, int_only, neither):
             p.popen  # noqa: B018
@@ -248,13 +234,13 @@ def test_stop_reaches_whole_process_group(tmp_path):
                 "c = subprocess.Popen([sys.executable, '-c', %r])\n"
                 "time.sleep(100)" % grandchild)
         p = sup.start(spec("parent-1", py_node(code), tmp_path))
-        await wait_for(lambda: pidfile.exists() and pidfile.read_text())
+        await until_async(lambda: pidfile.exists() and pidfile.read_text(), 10)
         child = int(pidfile.read_text())
         t0 = time.monotonic()
         await sup.shutdown()
         return p, child, time.monotonic() - t0
     p, child, took = asyncio.run(main())
-    assert not pid_exists(child)
+    assert not pid_alive(child)
     assert 0.5 <= took < 1.5  # waited for the SIGINT-ignoring grandchild, escalated to SIGTERM
 
 
@@ -265,7 +251,7 @@ def test_pacing_keeps_every_node_on_its_own_clock(tmp_path):
         files = [tmp_path / ("r%d" % i) for i in range(8)]
         procs = [sup.start(spec("s%d-%d" % (i, i + 1), py_node(IGNORE_INT), tmp_path, stdout_path=str(f)))
                  for i, f in enumerate(files)]
-        await wait_for(lambda: all(f.read_text() for f in files))
+        await until_async(lambda: all(f.read_text() for f in files), 10)
         t0 = time.monotonic()
         await sup.shutdown()
         return procs, time.monotonic() - t0
@@ -283,7 +269,7 @@ def test_inherited_ignored_sigint_is_not_passed_on(tmp_path):
             sup = Supervisor()
             code = "import signal; open(%r,'w').write(str(signal.getsignal(signal.SIGINT) == signal.SIG_IGN))" % str(out)
             p = sup.start(spec("sig-1", [PY, "-c", code], tmp_path))
-            await wait_for(lambda: not p.alive)
+            await until_async(lambda: not p.alive, 10)
             await sup.shutdown()
         asyncio.run(main())
     finally:
@@ -299,7 +285,7 @@ def test_crash_loop_is_paced(tmp_path):
         starts = []
         sup = Supervisor(on_spawn=lambda proc: starts.append(loop.time()))
         sup.start(spec("crash-1", ["/bin/false"], tmp_path, respawn=True))
-        await wait_for(lambda: len(starts) >= 6)
+        await until_async(lambda: len(starts) >= 6, 10)
         await sup.shutdown()
         return [b - a for a, b in zip(starts, starts[1:])]
     intervals = asyncio.run(main())
@@ -315,11 +301,11 @@ def test_children_left_by_earlier_runs_are_stopped_at_shutdown(tmp_path):
         sup = Supervisor(sigint_timeout=0.5, sigterm_timeout=0.5)
         code = "sleep 100 & echo $! >> %s; sleep 0.2; exit 1" % pids
         p = sup.start(spec("leaver-1", ["/bin/sh", "-c", code], tmp_path, respawn=True))
-        await wait_for(lambda: p.spawn_count >= 3 and pids.exists() and len(pids.read_text().split()) >= 3)
+        await until_async(lambda: p.spawn_count >= 3 and pids.exists() and len(pids.read_text().split()) >= 3, 10)
         left = [int(x) for x in pids.read_text().split()]
-        alive_before = [q for q in left if pid_exists(q)]
+        alive_before = [q for q in left if pid_alive(q)]
         await sup.shutdown()
         return left, alive_before
     left, alive_before = asyncio.run(main())
     assert len(alive_before) >= 2  # the earlier runs' children outlived their parents
-    assert not [q for q in left if pid_exists(q)]
+    assert not [q for q in left if pid_alive(q)]

@@ -14,6 +14,8 @@ import textwrap
 
 from launcher.process.watchdog import Watchdog
 
+from helpers import descendants, pid_alive, until
+
 # A stand-in launcher: the real guard and supervisor, nodes with grandchildren
 # (one that ignores SIGTERM, one that moved to its own process group).
 LAUNCHER = textwrap.dedent(r"""
@@ -42,49 +44,21 @@ LAUNCHER = textwrap.dedent(r"""
 """)
 
 
-def alive(pid: int) -> bool:
-    try:
-        with open("/proc/%d/stat" % pid) as f:
-            return f.read().split(") ")[1][0] != "Z"
-    except OSError:
-        return False
-
-
-def descendants(root: int) -> set[int]:
-    kids: dict[int, list[int]] = {}
-    for e in os.listdir("/proc"):
-        if e.isdigit():
-            try:
-                with open("/proc/%s/stat" % e) as f:
-                    ppid = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            kids.setdefault(ppid, []).append(int(e))
-    out, todo = set(), [root]
-    while todo:
-        for c in kids.get(todo.pop(), []):
-            out.add(c)
-            todo.append(c)
-    return out
-
-
 def test_sigkill_of_launcher_leaves_no_process(tmp_path):
     p = subprocess.Popen([sys.executable, "-c", LAUNCHER, str(tmp_path)], stdout=subprocess.PIPE, text=True)
     try:
         while p.stdout.readline().strip() != "up":
             assert p.poll() is None
-        deadline = time.monotonic() + 15
-        while len([f for f in os.listdir(tmp_path) if f.startswith("g")]) < 3:
-            assert time.monotonic() < deadline, "grandchildren did not start"
-            time.sleep(0.01)
+        until(lambda: len([f for f in os.listdir(tmp_path) if f.startswith("g")]) >= 3, 15, 0.01,
+              what="grandchildren started")
         grandchildren = {int(f[1:]) for f in os.listdir(tmp_path) if f.startswith("g")}
         procs = descendants(p.pid) | grandchildren
         assert len(procs) >= 3 + 3 + 1  # nodes, grandchildren, guard
         os.kill(p.pid, signal.SIGKILL)
         p.wait()
         t0 = time.monotonic()
-        while any(alive(q) for q in procs):
-            assert time.monotonic() - t0 < 1.0, "left running: %s" % [q for q in procs if alive(q)]
+        while any(pid_alive(q) for q in procs):
+            assert time.monotonic() - t0 < 1.0, "left running: %s" % [q for q in procs if pid_alive(q)]
             time.sleep(0.01)
     finally:
         p.kill()
@@ -99,7 +73,7 @@ def test_sigkill_of_launcher_leaves_no_process(tmp_path):
 
 def test_normal_exit_releases_guard_quickly():
     wd = Watchdog.start()
-    assert wd is not None and alive(wd.pid)
+    assert wd is not None and pid_alive(wd.pid)
     child = subprocess.Popen(["sleep", "100"], start_new_session=True)
     wd.watch(child.pid)
     wd.forget(child.pid)
@@ -142,7 +116,7 @@ def test_exit_does_not_wait_for_an_idle_guard():
     t0 = time.monotonic()
     wd.close()  # nothing left on the guard's list: it is ended and reaped at once
     assert time.monotonic() - t0 < 0.02
-    assert not alive(wd.pid)
+    assert not pid_alive(wd.pid)
     assert child.poll() is None  # and the forgotten group is left alone
     child.kill()
     child.wait()

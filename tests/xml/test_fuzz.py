@@ -20,7 +20,8 @@ from lxml import etree
 
 from launcher.errors import LaunchError
 
-COMPAT = "/work/shared/compat"
+from helpers import COMPAT
+
 CORPUS = sorted(p for ext in ("launch", "xml", "test")
                 for p in glob.glob(COMPAT + "/pkgs/**/*." + ext, recursive=True)
                 if not p.endswith("package.xml"))

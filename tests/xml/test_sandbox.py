@@ -22,7 +22,7 @@ def scope(args=None, env=None):
         if name != "pkg":
             raise LaunchError("Resource not found: %s" % name)
         return "/pkgs/pkg"
-    return SubstitutionScope(dict(ARGS if args is None else args), {}, "/work/launch/a.launch",
+    return SubstitutionScope(dict(ARGS if args is None else args), {}, "/ws/launch/a.launch",
                              dict(env or {"E": "x"}), find_package, lambda p, rel: "/pkgs/pkg/" + rel)
 
 
@@ -155,7 +155,7 @@ def test_size_error_names_the_file_and_line(tmp_path):
     ("optenv('NOPE', 'd') + env('E')", "dx"),
     ("optenv('NOPE', default='d')", "d"),
     ("find('pkg') + '/x'", "/pkgs/pkg/x"),
-    ("dirname()", "/work/launch"),
+    ("dirname()", "/ws/launch"),
     ("7 // 2", "3"),
     ("7 % 3", "1"),
     ("'%s_%d' % (name, a)", "bot_3"),
@@ -217,7 +217,7 @@ import json, sys
 from roslaunch.substitution_args import resolve_args
 args = json.loads(sys.argv[1]); out = []
 for expr in json.loads(sys.argv[2]):
-    ctx = {"arg": dict(args), "filename": "/work/launch/a.launch"}
+    ctx = {"arg": dict(args), "filename": "/ws/launch/a.launch"}
     try:
         out.append(resolve_args("$(eval %s)" % expr, context=ctx))
     except Exception as e:

@@ -11,7 +11,7 @@ from launcher.xml.substitution import (ArgNotSet, SubstitutionError, Substitutio
                                        collect_commands, resolve)
 
 
-def scope(args=None, env=None, filename="/work/launch/a.launch", packages=None):
+def scope(args=None, env=None, filename="/ws/launch/a.launch", packages=None):
     packages = packages or {"pkg": "/pkgs/pkg"}
 
     def find_package(name):
@@ -49,7 +49,7 @@ def test_arg_env_optenv_dirname():
     assert resolve("$(optenv NOPE)", s) == ""
     assert resolve("$(optenv NOPE fall  back words)", s) == "fall back words"
     assert resolve("$(optenv E ignored)", s) == "env value"
-    assert resolve("$(dirname)/x", s) == "/work/launch/x"
+    assert resolve("$(dirname)/x", s) == "/ws/launch/x"
     assert resolve("$( arg  a )", s) == "A"
 
 
