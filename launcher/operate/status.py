@@ -63,21 +63,28 @@ def last_exit(node: dict[str, Any]) -> str:
 
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
-    if not info["nodes"]:
-        return title + "\nno nodes"  # (`launch --core`, or a launch of no node)
+    return title + "\n" + node_table(info["nodes"])
+
+
+def node_table(nodes: list[dict[str, Any]]) -> str:
+    """One line per node (fields as in launcher_status or the events file), under a header."""
+    if not nodes:
+        return "no nodes"  # (`launch --core`, or a launch of no node)
     rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
-    for n in info["nodes"]:
-        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
+    for n in nodes:
+        # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
+        # keeps the last sample of a run that ended)
+        running = n["state"] == "running"
+        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
                      duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
-                     "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]), size(n.get("rss")),
-                     n.get("host", "")))
-    if any(n.get("over_limit") for n in info["nodes"]):  # (a column only while some node is over a limit)
+                     "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
+                     size(n.get("rss") if running else None), n.get("host", "")))
+    if any(n.get("over_limit") for n in nodes):  # (a column only while some node is over a limit)
         rows = [rows[0] + ("OVER LIMIT",)] + [
             row + (over_limit_text(n["over_limit"], n.get("cpu"), n.get("rss")) if n.get("over_limit") else "-",)
-            for row, n in zip(rows[1:], info["nodes"])]
+            for row, n in zip(rows[1:], nodes)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return title + "\n" + "\n".join(lines)
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
 
 
 def _main(argv: list[str]) -> int:

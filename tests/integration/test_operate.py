@@ -599,3 +599,74 @@ def test_completion_offers_the_running_launchs_node_names(tmp_path, pkgs):
             assert r.returncode == 0 and r.stdout.split() == expected, (line, r.stdout, r.stderr)
     finally:
         lp.close()
+
+
+def _registered_count(port: int) -> int:
+    return len(((master_up(port) and get_param(port, "/roslaunch")) or {}).get("uris", {}))
+
+
+def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
+    """Debian's roscore registers under /roslaunch/uris too (it is a roslaunch run), and a launch killed with
+    kill -9 leaves its key behind: neither is a candidate, and `launcher` uses the one launch of ours that runs,
+    without asking. A name almost right gets the close one."""
+    port = free_port()
+    env = ros_env(str(tmp_path), port, pkgs)
+    env["READY_DIR"] = str(tmp_path / "ready")
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    core = subprocess.Popen(["roscore", "-p", str(port)], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    killed = lp = None
+    try:
+        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roscore registered")
+        killed = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="gone"/>',
+                                        "gone.launch")], env, str(tmp_path))
+        killed.wait_output(r"process\[gone-1\]: started", 60)
+        poll(lambda: _registered_count(port) == 2, 30, 0.2, what="the launch to kill registered")
+        os.kill(killed.pid, signal.SIGKILL)
+        killed.wait(10)
+        lp = Launcher([write_launch(str(tmp_path), '<group ns="r2"><node pkg="op_tests" type="spinner" name="talker"/>'
+                                    '</group>', "r2.launch")], env, str(tmp_path))
+        poll(lambda: _registered_count(port) == 3, 60, 0.2, what="the launch registered beside roscore")
+        st = running_ready(tmp_path, env, ["/r2/talker"])  # (`launcher status --json`, exit status 0)
+        assert list(st) == ["/r2/talker"]
+        r = tool(env, "status")
+        assert r.returncode == 0 and "launch http://" in r.stdout and "(pid %d," % lp.pid in r.stdout, r.stderr
+
+        r = tool(env, "stop", "talker")
+        assert r.returncode == 1 and r.stderr == "launcher: no node matches [talker]; did you mean /r2/talker?\n"
+        r = tool(env, "logs", "talkr")
+        assert r.returncode == 1 and r.stderr.endswith("; did you mean /r2/talker?\n"), r.stderr
+        assert status(env)["/r2/talker"]["state"] == "running"
+        r = tool(env, "stop", "/r2/talker")
+        assert r.returncode == 0 and r.stdout == "stopped /r2/talker\n", r.stderr
+    finally:
+        for launch in (lp, killed):
+            if launch is not None:
+                launch.close()
+        _stop(core)
+
+
+# a roscpp node (rosconsole colours every line, into a file too) and a rospy one
+TICKING = """
+  <node pkg="op_tests" type="info_cpp" name="cpp" output="log">
+    <env name="ROSCONSOLE_STDOUT_LINE_BUFFERED" value="1"/>
+  </node>
+  <node pkg="op_tests" type="spinner" name="py" respawn="true"/>
+"""
+
+
+def test_logs_keep_colours_only_for_a_terminal_or_with_color(tmp_path, pkgs):
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "op_tests", "info_cpp"))
+    lp, env = start_launch(tmp_path, pkgs, TICKING)
+    try:
+        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+        r = tool(env, "logs", "cpp", "-n", "2")
+        assert r.returncode == 0 and "tick" in r.stdout and "\x1b" not in r.stdout, repr(r.stdout)
+        with open(status(env)["/cpp"]["stdout_log"]) as f:
+            assert "\x1b[0m[ INFO]" in f.read()  # (what the node wrote)
+        r = tool(env, "logs", "cpp", "-n", "2", "--color")
+        assert r.returncode == 0 and r.stdout.count("\x1b[0m[ INFO]") == 2, repr(r.stdout)
+        r = tool(env, "logs", "cpp", "-n", "2", "--color=never")
+        assert r.returncode == 0 and r.stdout.count("[ INFO]") == 2 and "\x1b" not in r.stdout, repr(r.stdout)
+    finally:
+        lp.close()
