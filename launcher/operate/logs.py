@@ -7,6 +7,9 @@ stderr reach the terminal through the launcher, which keeps the same bytes
 there (process/screen.py). `-f` follows the file as it grows, across the
 node's restarts and the file's rotations, until Ctrl-C. Colours (the escape
 sequences rosconsole writes) are kept only on a terminal, or with `--color`.
+When no launch answers, the output the node left in the last run, after a line
+on stderr saying how that run ended (operate/lastrun.py); `--run RUN_ID` reads
+that run's.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import time
 from collections import deque
 from typing import Callable
 
-from launcher.operate import client
+from launcher.operate import client, lastrun
 
 FOLLOW_PERIOD_S = 0.2
 
@@ -34,6 +37,7 @@ def parser() -> argparse.ArgumentParser:
                    metavar="WHEN", help="keep the output's colours (escape sequences): auto (the default: when "
                    "writing to a terminal), always (--color alone) or never")
     client.add_launch_options(p)
+    lastrun.add_run_option(p)
     return p
 
 
@@ -105,12 +109,19 @@ def _write(data: bytes) -> None:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info = client.status(client.find_launch(opts))
-    node = client.find_node(info, opts.node)
-    path, name = node.get("stdout_log"), node["name"]
-    if not path:
-        raise client.ToolError("node [%s] has no output file on this machine (it runs elsewhere, or the launch "
-                               "has no log directory)" % name)
+    info, last = lastrun.live_or_last(opts, client.status)
+    if last is not None:
+        path = last.stdout_log(opts.node)
+        name = opts.node
+        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.flush()
+        opts.follow = False  # (nothing more will come)
+    else:
+        node = client.find_node(info, opts.node)
+        path, name = node.get("stdout_log"), node["name"]
+        if not path:
+            raise client.ToolError("node [%s] has no output file on this machine (it runs elsewhere, or the "
+                                   "launch has no log directory)" % name)
     colour = opts.color == "always" or opts.color == "auto" and sys.stdout.isatty()
     write = _write if colour else Uncoloured(_write)
     offset = 0

@@ -4,18 +4,21 @@ Columns: node, state, pid, uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
 (memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
 its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
-redraws every second.
+redraws every second. When no launch answers, the last run's end and each
+node's state then (operate/lastrun.py; exit status 3: nothing runs); `--run
+RUN_ID` shows that run's.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import time
 from typing import Any
 
-from launcher.operate import client
+from launcher.operate import client, lastrun
 from launcher.process.state import over_limit_text
 
 
@@ -24,6 +27,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the status as JSON")
     p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
     client.add_launch_options(p)
+    lastrun.add_run_option(p)
     return p
 
 
@@ -89,18 +93,26 @@ def node_table(nodes: list[dict[str, Any]]) -> str:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    uri = client.find_launch(opts)
-    if not opts.watch:
-        # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
-        sys.stdout.write((client.status_text(uri) if opts.json else table(client.status(uri))) + "\n")
-        return client.EXIT_OK
+    # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
+    first, last = lastrun.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
+                                                          else table(client.status(uri))))
+    if last is not None:
+        if opts.json:
+            sys.stdout.write(json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
+        else:
+            sys.stdout.write("%s\n%s\n" % (last.headline(), node_table(last.nodes())))
+        # (the run's end was asked for by --run; otherwise the launch asked about does not run)
+        return client.EXIT_OK if opts.run else client.EXIT_NO_LAUNCH
+    uri, text = first
     while True:
-        text = client.status_text(uri) if opts.json else table(client.status(uri))
         # clear and redraw from the top; a pipe gets one snapshot after another
-        prefix = "\x1b[H\x1b[2J" if sys.stdout.isatty() else ""
+        prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
         sys.stdout.write(prefix + text + "\n")
+        if not opts.watch:
+            return client.EXIT_OK
         sys.stdout.flush()
         time.sleep(1.0)
+        text = client.status_text(uri) if opts.json else table(client.status(uri))
 
 
 def main(argv: list[str]) -> int:

@@ -608,7 +608,8 @@ def _registered_count(port: int) -> int:
 def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
     """Debian's roscore registers under /roslaunch/uris too (it is a roslaunch run), and a launch killed with
     kill -9 leaves its key behind: neither is a candidate, and `launcher` uses the one launch of ours that runs,
-    without asking. A name almost right gets the close one."""
+    without asking. A name almost right gets the close one; once the launch has ended (roscore still up),
+    status reads the run's end from its log directory."""
     port = free_port()
     env = ros_env(str(tmp_path), port, pkgs)
     env["READY_DIR"] = str(tmp_path / "ready")
@@ -639,6 +640,15 @@ def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
         assert status(env)["/r2/talker"]["state"] == "running"
         r = tool(env, "stop", "/r2/talker")
         assert r.returncode == 0 and r.stdout == "stopped /r2/talker\n", r.stderr
+        run_id = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+
+        lp.close()  # roscore goes on: the launch's end is read from the run's log directory
+        r = tool(env, "status")
+        assert r.returncode == 3, r.stdout + r.stderr
+        assert r.stderr.startswith("launcher: no launch of `launch` is running on the master at"), r.stderr
+        assert re.match(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d\n" % run_id, r.stdout), r.stdout
+        rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
+        assert rows["/r2/talker"][1:3] == ["stopped", "-"] and rows["/gone"][1] == "running", r.stdout
     finally:
         for launch in (lp, killed):
             if launch is not None:
@@ -670,3 +680,59 @@ def test_logs_keep_colours_only_for_a_terminal_or_with_color(tmp_path, pkgs):
         assert r.returncode == 0 and r.stdout.count("[ INFO]") == 2 and "\x1b" not in r.stdout, repr(r.stdout)
     finally:
         lp.close()
+
+
+def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_path, pkgs):
+    """A finished run: `launcher status`, `events` and `logs` say it is the last run and when it ended (or that
+    it ended without a word, killed), each node's state at the end, and its output; `--run` reads an earlier
+    run; a roslaunch run as the latest is said to be one."""
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "op_tests", "info_cpp"))
+    lp, env = start_launch(tmp_path, pkgs, TICKING)
+    try:
+        running_ready(tmp_path, env, ["/py"])
+        first = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+    finally:
+        lp.close()  # Ctrl-C: the launch stops by itself, with its master
+
+    r = tool(env, "status")
+    assert r.returncode == 3 and r.stderr.startswith("launcher: cannot reach the master at"), r.stderr
+    headline, logs_line = r.stdout.splitlines()[:2]
+    assert re.fullmatch(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d" % first, headline), headline
+    assert logs_line == "its logs: %s" % (tmp_path / "log" / first)
+    rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
+    assert rows["/py"][1:3] == rows["/cpp"][1:3] == ["stopped", "-"], r.stdout
+    r = tool(env, "events")
+    assert r.returncode == 0 and r.stderr.startswith("launcher: cannot reach the master") and headline in r.stderr
+    assert re.search(r"/py stopped pid \d+", r.stdout) and re.search(r"/cpp running pid \d+", r.stdout), r.stdout
+    r = tool(env, "logs", "cpp", "-n", "-1")
+    assert r.returncode == 0 and "tick 3" in r.stdout and "\x1b" not in r.stdout and headline in r.stderr
+
+    lp = Launcher(lp.proc.args[3:], env, str(tmp_path))  # the same launch again, then killed
+    try:
+        st = running_ready(tmp_path, env, ["/py"])
+        second = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+        os.kill(lp.pid, signal.SIGKILL)
+        assert lp.wait(10) == -signal.SIGKILL
+    finally:
+        lp.close()
+    r = tool(env, "status")
+    assert r.returncode == 3
+    assert re.match(r"the last run, %s, ended without a word after its last event at [-\d: ]+: its launch "
+                    r"\(pid %d\) was killed\n" % (second, lp.pid), r.stdout), r.stdout
+    row = [line.split() for line in r.stdout.splitlines() if line.startswith("/py ")][0]
+    assert row[1:3] == ["running", str(st["/py"]["pid"])]  # (its state when the launch was killed)
+    r = tool(env, "status", "--run", first)
+    assert r.returncode == 0 and r.stdout.startswith("the run, %s, ended at " % first) and r.stderr == ""
+
+    # Debian's roslaunch, with its own master, is the latest run
+    port = int(env["ROS_MASTER_URI"].rsplit(":", 1)[1].strip("/"))
+    proc = subprocess.Popen(["roslaunch", lp.proc.args[-1]], env=dict(env, PATH=ROS_PATH),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roslaunch registered")
+    finally:
+        _stop(proc)
+    r = tool(env, "status")
+    assert r.returncode == 3 and re.search(r"\nthe last run, [-\w]+, is roslaunch's \(or roscore's\), not a run of "
+                                           r"`launch`: it has no launcher-events.jsonl", r.stderr), r.stderr

@@ -1,11 +1,13 @@
 """What the operator's commands show, as functions of what the launch sends: no resources for a node that does
-not run, no colour codes for a reader that is no terminal, and which registered launches an operator can mean."""
+not run, no colour codes for a reader that is no terminal, a run's own events, and which registered launches
+an operator can mean."""
 
 from __future__ import annotations
 
 import pytest
 
 from launcher.operate import client, logs
+from launcher.operate.events import describe
 from launcher.operate.status import table
 
 
@@ -36,6 +38,10 @@ def test_colour_codes_are_taken_out_even_when_cut_between_two_reads():
     unended = b"text \x1b]" + b"x" * 300  # (no escape is that long: written as it is, not held for ever)
     logs.Uncoloured(out.append)(unended)
     assert b"".join(out) == unended
+
+
+def test_a_launch_ended_event_reads_as_the_runs_end():
+    assert describe({"event": "launch_ended", "time": 0.5, "reason": "Ctrl-C"}).endswith(".500 launch ended (Ctrl-C)")
 
 
 def test_the_launches_an_operator_can_mean():
