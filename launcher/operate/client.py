@@ -24,7 +24,7 @@ import os
 import sys
 import threading
 import time
-from typing import Any, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.suggest import did_you_mean
@@ -234,6 +234,39 @@ def find_node(info: dict[str, Any], name: str) -> dict[str, Any]:
     hint = did_you_mean(wanted, [node["name"] for node in info["nodes"]])
     raise ToolError("unknown node [%s]: not part of the launch at %s%s"
                     % (name, info.get("uri", "?"), "; " + hint if hint else ""))
+
+
+def add_run_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", metavar="RUN_ID", help="read this finished run from its log directory (default: "
+                        "the running launch; when none answers, the last run, $ROS_HOME/log/latest)")
+
+
+def live_or_last(opts: argparse.Namespace, fetch: Callable[[str], Any],
+                 environ: Mapping[str, str] | None = None) -> tuple[Any, Any]:
+    """(fetch(the running launch's URI), None); or, when no launch of ours answers and --uri or --launch
+    named none, (None, the last run: a lastrun.LastRun), once stderr says why the launch was not read.
+    `--run` reads that run."""
+    env = os.environ if environ is None else environ
+    why = None
+    if not opts.run:
+        try:
+            return fetch(find_launch(opts, dict(env))), None
+        except ToolError as e:
+            if e.status != EXIT_NO_LAUNCH or opts.uri or opts.launch:
+                raise
+            why = e
+    # (lastrun costs ~1 ms to import, measured with -X importtime: only a run that has ended needs it)
+    from launcher.operate import lastrun
+    try:
+        last = lastrun.read(lastrun.find_run(env, opts.run), latest=not opts.run)
+    except ToolError as e:
+        if why is None:
+            raise
+        raise ToolError("%s\n%s" % (why, e), why.status) from None
+    if why is not None:
+        sys.stderr.write("launcher: %s\n" % why)
+        sys.stderr.flush()
+    return None, last
 
 
 def run_tool(main_body: Any, argv: list[str]) -> int:

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
-from launcher.operate import client, lastrun
+from launcher.operate import client
 from launcher.operate.logs import follow, tail
 from launcher.process.state import LOCAL_HOST
 
@@ -26,7 +25,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--lines", type=int, default=-1, metavar="N", help="only the last N events first")
     p.add_argument("--json", action="store_true", help="print the events as JSON lines")
     client.add_launch_options(p)
-    lastrun.add_run_option(p)
+    client.add_run_option(p)
     return p
 
 
@@ -55,12 +54,12 @@ def describe(event: dict) -> str:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info, last = lastrun.live_or_last(opts, client.status)
+    info, last = client.live_or_last(opts, client.status)
     if last is not None:
         sys.stderr.write(last.headline() + "\n")
         sys.stderr.flush()
         opts.follow = False  # (nothing more will come)
-        path = os.path.join(last.run_dir, lastrun.EVENTS_FILE)
+        path = last.events_file()
     else:
         path = info.get("events_file")
     if not path:

@@ -2,7 +2,7 @@
 
 `launcher status`, `events` and `logs` read the running launch; when none
 answers (the master is gone, or no launch of ours is on it) they read the last
-run instead: `$ROS_LOG_DIR/latest` (default `$ROS_HOME/log/latest`), or the
+run instead (client.live_or_last): `$ROS_LOG_DIR/latest` (default `$ROS_HOME/log/latest`), or the
 run `--run RUN_ID` names. Each node's state at the end is its last event in
 `launcher-events.jsonl` (process.state.Fleet writes one line per change).
 How the launch ended is told by an event `{"event": "launch_ended", "time":
@@ -15,14 +15,12 @@ events file and a launch log of roslaunch's own lines: it is said to be one.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
 import socket
-import sys
 import time
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Mapping, NamedTuple
 
 from launcher.operate import client
 from launcher.roshome import log_root
@@ -74,10 +72,13 @@ class LastRun(NamedTuple):
                 when(last if last is not None else self.last_line_at), "" if self.pid is None else " (pid %d)" % self.pid)
         return "%s\nits logs: %s" % (text, self.run_dir)
 
+    def events_file(self) -> str:
+        return os.path.join(self.run_dir, EVENTS_FILE)
+
     def as_dict(self) -> dict[str, Any]:
         return {"run_id": self.run_id, "log_dir": self.run_dir, "pid": self.pid, "running": self.still_running,
                 "ended_at": self.ended_at, "end_reason": self.end_reason, "last_event_at": self.last_event_at(),
-                "events_file": os.path.join(self.run_dir, EVENTS_FILE), "nodes": self.nodes()}
+                "events_file": self.events_file(), "nodes": self.nodes()}
 
     def stdout_log(self, name: str) -> str:
         """The output file of node `name` (node name, leading / optional, or process name ns/name-2)."""
@@ -231,32 +232,3 @@ def _is_launch(pid: int) -> bool:
             return b"launch" in f.read()
     except OSError:
         return False
-
-
-# ---- what `launcher status`, `events` and `logs` share ---------------------------------------------------
-
-def add_run_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--run", metavar="RUN_ID", help="read this finished run from its log directory (default: "
-                        "the running launch; when none answers, the last run, $ROS_HOME/log/latest)")
-
-
-def live_or_last(opts: argparse.Namespace, fetch: Callable[[str], Any],
-                 environ: Mapping[str, str] | None = None) -> tuple[Any, LastRun | None]:
-    """(fetch(the running launch's URI), None); or, when no launch of ours answers and --uri or --launch
-    named none, (None, the last run), once stderr says why the launch was not read. `--run` reads that run."""
-    env = os.environ if environ is None else environ
-    if opts.run:
-        return None, read(find_run(env, opts.run), latest=False)
-    try:
-        return fetch(client.find_launch(opts, dict(env))), None
-    except client.ToolError as e:
-        if e.status != client.EXIT_NO_LAUNCH or opts.uri or opts.launch:
-            raise
-        why = e
-    try:
-        last = read(find_run(env))
-    except client.ToolError as e:
-        raise client.ToolError("%s\n%s" % (why, e), why.status) from None
-    sys.stderr.write("launcher: %s\n" % why)
-    sys.stderr.flush()
-    return None, last

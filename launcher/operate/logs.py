@@ -22,7 +22,7 @@ import time
 from collections import deque
 from typing import Callable
 
-from launcher.operate import client, lastrun
+from launcher.operate import client
 
 FOLLOW_PERIOD_S = 0.2
 
@@ -37,7 +37,7 @@ def parser() -> argparse.ArgumentParser:
                    metavar="WHEN", help="keep the output's colours (escape sequences): auto (the default: when "
                    "writing to a terminal), always (--color alone) or never")
     client.add_launch_options(p)
-    lastrun.add_run_option(p)
+    client.add_run_option(p)
     return p
 
 
@@ -109,7 +109,7 @@ def _write(data: bytes) -> None:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info, last = lastrun.live_or_last(opts, client.status)
+    info, last = client.live_or_last(opts, client.status)
     if last is not None:
         path = last.stdout_log(opts.node)
         name = opts.node

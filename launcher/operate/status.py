@@ -18,7 +18,7 @@ import sys
 import time
 from typing import Any
 
-from launcher.operate import client, lastrun
+from launcher.operate import client
 from launcher.process.state import over_limit_text
 
 
@@ -27,7 +27,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the status as JSON")
     p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
     client.add_launch_options(p)
-    lastrun.add_run_option(p)
+    client.add_run_option(p)
     return p
 
 
@@ -94,7 +94,7 @@ def node_table(nodes: list[dict[str, Any]]) -> str:
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
-    first, last = lastrun.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
+    first, last = client.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
                                                           else table(client.status(uri))))
     if last is not None:
         if opts.json:
