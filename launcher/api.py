@@ -16,7 +16,6 @@ caller's process and leaks a busy thread after shutdown (ros_comm#2238).
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import socket
@@ -28,7 +27,7 @@ import uuid
 import xmlrpc.client
 from typing import Any, Mapping
 
-from launcher.process.state import EVENTS_FILE
+from launcher.operate import lastrun
 from launcher.roshome import log_root
 
 CALLER_ID = "/launcher_api"
@@ -197,19 +196,12 @@ class Launch:
 
     def status(self) -> dict[str, str]:
         """Each node's state as the supervisor last recorded it (`running`, `stopped`, `respawning`, ...: process.state)."""
-        path = os.path.join(log_root(self.env), self.run_id, EVENTS_FILE)
-        states: dict[str, str] = {}
+        path = os.path.join(log_root(self.env), self.run_id, lastrun.EVENTS_FILE)
         try:
-            with open(path) as f:
-                for line in f:
-                    try:
-                        event = json.loads(line)
-                    except ValueError:
-                        continue  # (a line being written)
-                    states[event["node"]] = event["state"]
+            events = lastrun.read_events(path)
         except OSError:
-            pass
-        return states
+            events = []
+        return {name: event["state"] for name, event in lastrun.final_states(events).items()}
 
     # ---- waiting -----------------------------------------------------------------------------------------
 

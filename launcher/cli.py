@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     import argparse
 
 from launcher import __version__
-from launcher.errors import LaunchError
+from launcher.errors import LaunchError, UsageError
 from launcher.process import console
 
 USAGE = ("launch [options] [package] <filename> [arg_name:=value...]\n"
@@ -177,6 +177,10 @@ def main(argv: list[str] | None = None) -> int:
         from launcher import runtime
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped
         return runtime.run(opts, exit_process=argv is None)
+    except UsageError as e:
+        console.flush()  # (the warnings already queued there come first)
+        build_parser().error(str(e))  # roslaunch's parser.error: the usage, the message, exit status 2
+        raise  # (not reached: error() exits)
     except LaunchError as e:
         console.printfatal(str(e))  # (through the console: after the warnings already queued there)
         return 1

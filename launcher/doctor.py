@@ -13,6 +13,7 @@ that exists ("cannot launch node of type"). Exit status 1 when there is a proble
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import socket
 import sys
@@ -155,9 +156,13 @@ def check_launch(report: Report, argv: list[str], environ: Mapping[str, str], pa
         try:
             path = packages.find_node(node.package, node.type)
         except ExecutableNotFound as e:
-            fix = ("chmod +x %s" % e.not_executable if e.not_executable
-                   else "build the package, or correct type=\"%s\" (no such executable in [%s])" % (node.type, node.package))
-            report.say(PROBLEM, "%s: %s" % (where, str(e).splitlines()[0]), fix)
+            if e.not_executable:  # (roslaunch's "Make sure file exists" misleads: it does)
+                report.say(PROBLEM, "%s: the file [%s] is there but not executable" % (where, e.not_executable),
+                           "chmod +x %s" % shlex.quote(e.not_executable))
+            else:
+                report.say(PROBLEM, "%s: %s" % (where, str(e).splitlines()[0]),
+                           "build the package, or correct type=\"%s\" (no such executable in [%s]%s)"
+                           % (node.type, node.package, ": " + e.hint if e.hint else ""))
             continue
         except LaunchError as e:
             report.say(PROBLEM, "%s: %s" % (where, e))

@@ -28,3 +28,7 @@ class LaunchError(Exception):
         for fname, line in self.include_chain:
             text += "\n  included from %s:%d" % (fname, line)
         return text
+
+
+class UsageError(LaunchError):
+    """A command line roslaunch's option parser refuses: said with the usage, exit status 2."""

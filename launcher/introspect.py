@@ -19,6 +19,7 @@ from launcher.errors import LaunchError
 from launcher.names import SEP, make_global_ns, ns_join
 from launcher.packages import PackageIndex
 from launcher.params.dump import dump_yaml
+from launcher.suggest import did_you_mean
 from launcher.xml import load, load_arg_docs, resolve_launch_arguments
 from launcher.xml.arguments import root_namespace
 
@@ -80,8 +81,10 @@ def _main(opts: Any) -> int:
         node = _find(config, name, files)
         if node is None:
             names = [n for n in (_full_name(x) for x in config.nodes + config.tests) if n]
-            raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s"
-                              % (name, ", ".join(files), "\n".join(" * %s" % n for n in names)))
+            hint = did_you_mean(name, names)
+            raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s%s"
+                              % (name, ", ".join(files), "\n".join(" * %s" % n for n in names),
+                                 "\n" + hint if hint else ""))
         cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
         out.write(cmd.format_args() + "\n")
         return 0
@@ -91,8 +94,9 @@ def _main(opts: Any) -> int:
         name = resolve_node_name(opts.find_node, argv, environ)
         node = _find(config, name, files)
         if node is None:
+            hint = did_you_mean(name, (n for n in (_full_name(x) for x in config.nodes + config.tests) if n))
             raise LaunchError("ERROR: cannot find node named [%s]. Run \n\tlaunch --nodes <files>\nto see list "
-                              "of node names." % name)
+                              "of node names.%s" % (name, "\n" + hint if hint else ""))
         out.write(node.filename + "\n")
         return 0
 

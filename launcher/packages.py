@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterator, Mapping
 from launcher.crawlcache import Crawl, CrawlCache
 from launcher.errors import LaunchError
 from launcher.roshome import ros_home
+from launcher.suggest import did_you_mean
 
 PACKAGE_FILE = "package.xml"
 MANIFEST_FILE = "manifest.xml"  # rosbuild packages: the directory name is the package name
@@ -34,11 +35,12 @@ _USER_RX = stat.S_IRUSR | stat.S_IXUSR
 class PackageNotFound(LaunchError):
     """A package name that is on neither ROS_PACKAGE_PATH nor /usr/share."""
 
-    def __init__(self, package: str, ros_paths: list[str] | tuple[str, ...] = ()):
+    def __init__(self, package: str, ros_paths: list[str] | tuple[str, ...] = (), hint: str = ""):
         self.package = package
         self.ros_paths = tuple(ros_paths)
-        # rospkg's ResourceNotFound wording, which roslaunch shows as is.
-        text = "Resource not found: %s" % package
+        self.hint = hint  # "did you mean ...?" among the packages there are, or ""
+        # rospkg's ResourceNotFound wording, which roslaunch shows as is (and a hint on its first line)
+        text = "Resource not found: %s" % package + (" (%s)" % hint if hint else "")
         for i, p in enumerate(self.ros_paths):
             text += "\nROS path [%d]=%s" % (i, p)
         super().__init__(text)
@@ -47,17 +49,20 @@ class PackageNotFound(LaunchError):
 class ExecutableNotFound(LaunchError):
     """A `<node type=...>` with no executable file of that name in its package."""
 
-    def __init__(self, package: str, node_type: str, not_executable: str | None = None):
+    def __init__(self, package: str, node_type: str, not_executable: str | None = None, hint: str = ""):
         self.package = package
         self.node_type = node_type
         self.not_executable = not_executable
+        self.hint = hint
         text = ("Cannot locate node of type [%s] in package [%s]. Make sure file exists in package path "
                 "and permission is set to executable (chmod +x)" % (node_type, package))
         if not_executable:
             # roslaunch stops at the sentence above; the usual cause is a script committed without its
             # exec bit, and the file is right there
-            text += "\nThe file [%s] exists but is not executable: run  chmod +x %s" % (
+            text += "\nThe file [%s] exists but is not executable: run chmod +x %s" % (
                 not_executable, shlex.quote(not_executable))
+        elif hint:  # (a typo in type=: "did you mean ...?" among the package's executables)
+            text += "\nThere is no executable [%s] in package [%s]: %s" % (node_type, package, hint)
         super().__init__(text)
 
 
@@ -316,7 +321,8 @@ class PackageIndex:
         if d is None or (crawl is not None and not crawl.package_unchanged(d)):
             if self._recrawl():
                 return self.get_path(pkg)
-            raise PackageNotFound(pkg, self.ros_paths)
+            # (every path entry is crawled by now: the hint costs no walk)
+            raise PackageNotFound(pkg, self.ros_paths, did_you_mean(pkg, self._located))
         return d
 
     def packages(self) -> dict[str, str]:
@@ -410,9 +416,9 @@ class PackageIndex:
 
     # -- files inside packages ------------------------------------------------------------
 
-    def _named(self, directory: str, name: str) -> list[str]:
-        """Paths of the non-directory entries called `name` under `directory`, in os.walk order
-        with hidden dirs pruned (roslib's _find_resource walk). One walk per directory per run."""
+    def _index(self, directory: str) -> dict[str, list[str]]:
+        """File name -> the paths of the non-directory entries of that name under `directory`, in os.walk
+        order with hidden dirs pruned (roslib's _find_resource walk). One walk per directory per run."""
         index = self._files.get(directory)
         if index is None:
             index = {}
@@ -421,7 +427,14 @@ class PackageIndex:
                     index.setdefault(f, []).append(os.path.join(d, f))
                 dirs[:] = [x for x in dirs if not x.startswith(".")]
             self._files[directory] = index
-        return index.get(name, [])
+        return index
+
+    def _named(self, directory: str, name: str) -> list[str]:
+        return self._index(directory).get(name, [])
+
+    def file_names(self, pkg: str) -> list[str]:
+        """The names of the files where `launch PKG FILE` and `<node pkg= type=>` look (for hints)."""
+        return [name for d in self._resource_dirs(pkg) for name in self._index(d)]
 
     def _resource_dirs(self, pkg: str) -> list[str]:
         """Where roslib's find_resource looks, in order: catkin lib/libexec/share dirs, then the package."""
@@ -447,7 +460,10 @@ class PackageIndex:
                     return found
                 if not_executable is None and stat.S_ISREG(mode):
                     not_executable = os.path.abspath(candidate)
-        raise ExecutableNotFound(pkg, node_type, not_executable)
+        hint = "" if not_executable else did_you_mean(node_type, (
+            name for d in self._resource_dirs(pkg) for name, paths in self._index(d).items()
+            if any(os.path.isfile(p) and os.access(p, os.X_OK) for p in paths)))
+        raise ExecutableNotFound(pkg, node_type, not_executable, hint)
 
     def find_launch_file(self, pkg: str, filename: str) -> str | None:
         """`launch PKG FILE`: the one file called FILE in the package (or its catkin dirs).

@@ -18,12 +18,13 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "completion": ("launcher.completion", "print the bash or zsh completion script for launch and launcher"),
     "doctor": ("launcher.doctor", "find set-up mistakes (host names, ROS_IP, master, package path, node executables)"),
     "__complete": ("launcher.completion:complete_main", "(the completion script's helper)"),
-    "status": ("launcher.operate.status", "every node's state, pid, uptime, restarts, last exit, CPU, RSS, host"),
+    "status": ("launcher.operate.status", "every node's state, pid, uptime, restarts, last exit, CPU, RSS, host (after the "
+               "end: the last run's)"),
     "start": ("launcher.operate.control:start", "start the nodes a name, glob or regex selects"),
     "stop": ("launcher.operate.control:stop", "stop the nodes a name, glob or regex selects (not respawned)"),
     "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
-    "logs": ("launcher.operate.logs", "a node's output (-f follows it)"),
-    "events": ("launcher.operate.events", "the run's state changes (-f follows them)"),
+    "logs": ("launcher.operate.logs", "a node's output (-f follows it; after the end: the last run's)"),
+    "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }

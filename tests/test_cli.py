@@ -76,3 +76,16 @@ def test_the_fatal_error_is_the_most_visible_line_on_a_terminal(tmp_path):
     warning = text.index("unknown <node> attribute 'bogus'")
     fatal = text.index("\x1b[1;31m%s:3: included file" % f)
     assert warning < fatal
+
+
+def test_an_input_file_that_does_not_exist_is_a_usage_error_as_in_roslaunch(tmp_path):
+    """`launch robot.launch robot=r3` (a colon left out): roslaunch's parser.error, exit status 2, with the usage,
+    and the argument it probably was."""
+    f = tmp_path / "robot.launch"
+    f.write_text('<launch><arg name="robot" default="r1"/></launch>')
+    for argv in ([str(f), "robot=r3"], ["--nodes", str(f), "robot=r3"]):
+        out = subprocess.run([sys.executable, "-m", "launcher"] + argv, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2, out.stderr
+        assert out.stderr.startswith("usage: launch [options]")
+        assert out.stderr.endswith("launch: error: The following input files do not exist: robot=r3 (did you mean "
+                                   "robot:=r3?)\n")

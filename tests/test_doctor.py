@@ -74,6 +74,9 @@ def test_each_broken_node_executable(env, tmp_path):
     problems = [line for line in out.splitlines() if line.startswith("problem")]
     assert len(problems) == 5, out
     assert "robot.launch:3: node [/no_x]" in out and "chmod +x %s" % (tmp_path / "ws/doc_pkg/no_x") in out
+    # the file is there: roslaunch's "Make sure file exists" would send the user looking for it
+    no_x = [line for line in problems if "[/no_x]" in line][0]
+    assert no_x.endswith("node [/no_x]: the file [%s] is there but not executable" % (tmp_path / "ws/doc_pkg/no_x"))
     assert "[/nonexistent/python9], which does not exist" in out
     assert "no [no-such-python] is on PATH" in out
     assert "Windows line endings" in out

@@ -91,6 +91,12 @@ def test_args_unknown_node_is_an_error_listing_the_nodes(tree, capsys):
     assert rc == 1 and out == "" and "/nope" in err and " * /drv" in err
 
 
+def test_args_and_find_node_of_an_unknown_node_suggest_the_close_one(tree, capsys):
+    for option in ("--args", "--find-node"):
+        rc, out, err = run(capsys, option, "sub", tree["main"], "robot:=r")
+        assert rc == 1 and err.endswith("\ndid you mean /g/sub?\n"), err
+
+
 def test_find_node(tree, capsys):
     assert run(capsys, "--find-node", "drv", tree["main"], "robot:=r") == (0, tree["main"] + "\n", "")
     rc, out, err = run(capsys, "--find-node", "/missing", tree["main"], "robot:=r")

@@ -214,7 +214,7 @@ def test_a_script_without_its_exec_bit_is_named_with_the_fix(tmp_path):
         index(tmp_path).find_node("zz_pkg", "zz node")
     text = str(err.value)
     assert text.startswith("Cannot locate node of type [zz node] in package [zz_pkg].")
-    assert "The file [%s] exists but is not executable: run  chmod +x '%s'" % (script, script) in text
+    assert "The file [%s] exists but is not executable: run chmod +x '%s'" % (script, script) in text
 
 
 def test_find_node_requires_the_package_even_if_a_workspace_has_the_executable(tmp_path):

@@ -9,14 +9,17 @@ and so is each node that could not be changed (exit status 1).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from launcher.net.xmlrpc import Fault
 from launcher.operate import client
 from launcher.operate import token as run_token
+from launcher.suggest import did_you_mean
 
 # a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation (15 s + 2 s by default)
 CONTROL_TIMEOUT_S = 600.0
+PLAIN_NAME = re.compile(r"[\w/~]+")  # a node name as a user writes it, neither glob nor regular expression
 
 
 def _parser(verb: str) -> argparse.ArgumentParser:
@@ -48,7 +51,11 @@ def _control(verb: str, argv: list[str]) -> int:
         status = client.EXIT_REFUSED if e.faultCode == run_token.REFUSED else client.EXIT_FAILED
         raise client.ToolError(e.faultString, status) from None
     if code not in (0, 1):
-        raise client.ToolError(msg)
+        # a name that selects nothing is usually one almost right (`talker` for /r2/talker); a glob or a
+        # regular expression gets no guess
+        hint = did_you_mean(opts.pattern, [n["name"] for n in info["nodes"]]) if PLAIN_NAME.fullmatch(
+            opts.pattern) else ""
+        raise client.ToolError(msg + ("; " + hint if hint else ""))
     past = {"start": "started", "stop": "stopped", "restart": "restarted"}[verb]
     for name in names:
         sys.stdout.write("%s %s\n" % (past, name))

@@ -2,7 +2,9 @@
 
 One line per change: time, node (and its host, when not this machine), state,
 pid, exit, restarts, limits it is over, reason; `--json` prints the file's own
-JSON lines. `-f` follows new events until Ctrl-C.
+JSON lines. `-f` follows new events until Ctrl-C. When no launch answers, the
+last run's events, after a line on stderr saying how it ended
+(operate/lastrun.py); `--run RUN_ID` reads that run's.
 """
 
 from __future__ import annotations
@@ -23,11 +25,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--lines", type=int, default=-1, metavar="N", help="only the last N events first")
     p.add_argument("--json", action="store_true", help="print the events as JSON lines")
     client.add_launch_options(p)
+    client.add_run_option(p)
     return p
 
 
 def describe(event: dict) -> str:
     when = time.strftime("%H:%M:%S", time.localtime(event.get("time", 0))) + ".%03d" % (event.get("time", 0) % 1 * 1000)
+    if "node" not in event and event.get("event"):  # an event of the run, not a node's (launch_ended)
+        return " ".join([when, str(event["event"]).replace("_", " ")] + (
+            ["(%s)" % event["reason"]] if event.get("reason") else []))
     parts = [when, event.get("node", "?")]
     if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
         parts.append("on %s" % event["host"])
@@ -48,8 +54,14 @@ def describe(event: dict) -> str:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info = client.status(client.find_launch(opts))
-    path = info.get("events_file")
+    info, last = client.live_or_last(opts, client.status)
+    if last is not None:
+        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.flush()
+        opts.follow = False  # (nothing more will come)
+        path = last.events_file()
+    else:
+        path = info.get("events_file")
     if not path:
         raise client.ToolError("the launch has no log directory, hence no events file")
     pending = b""

@@ -5,13 +5,18 @@ output="log" node writes its stdout there itself (and the launcher adds its
 stderr, which also goes to the terminal); an output="screen" node's stdout and
 stderr reach the terminal through the launcher, which keeps the same bytes
 there (process/screen.py). `-f` follows the file as it grows, across the
-node's restarts and the file's rotations, until Ctrl-C.
+node's restarts and the file's rotations, until Ctrl-C. Colours (the escape
+sequences rosconsole writes) are kept only on a terminal, or with `--color`.
+When no launch answers, the output the node left in the last run, after a line
+on stderr saying how that run ended (operate/lastrun.py); `--run RUN_ID` reads
+that run's.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import time
 from collections import deque
@@ -28,7 +33,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-f", "--follow", action="store_true", help="keep printing what the node writes")
     p.add_argument("-n", "--lines", type=int, default=10, metavar="LINES", help="print the last LINES lines "
                    "first (default 10; 0: none, -1: all)")
+    p.add_argument("--color", "--colour", nargs="?", const="always", default="auto", choices=("auto", "always", "never"),
+                   metavar="WHEN", help="keep the output's colours (escape sequences): auto (the default: when "
+                   "writing to a terminal), always (--color alone) or never")
     client.add_launch_options(p)
+    client.add_run_option(p)
     return p
 
 
@@ -68,6 +77,31 @@ def follow(path: str, offset: int, write: Callable[[bytes], None], keep_going: C
         time.sleep(period)
 
 
+# Terminal escape sequences: CSI (colours: ESC [ 31 m), OSC (a title: ESC ] ... BEL or ST), the other two-byte ones.
+ESCAPE = re.compile(rb"\x1b(?:\[[0-?]*[ -/]*[@-~]|\][^\x07\x1b]*(?:\x07|\x1b\\)|[@-Z\\^_])")
+CUT_ESCAPE = re.compile(rb"\x1b(?:\[[0-?]*[ -/]*|\][^\x07\x1b]*)?\Z")  # one a chunk ends inside of
+MAX_CUT = 256  # a longer "escape" at a chunk's end is no escape: it is written as it is
+
+
+class Uncoloured:
+    """Writes node output without its escape sequences (rosconsole colours every line, rospy at a terminal),
+    for a reader that is no terminal; a sequence cut between two chunks is held until its end arrives."""
+
+    def __init__(self, write: Callable[[bytes], None]):
+        self._write = write
+        self._held = b""
+
+    def __call__(self, data: bytes) -> None:
+        data = self._held + data
+        cut = CUT_ESCAPE.search(data)
+        if cut is not None and len(data) - cut.start() <= MAX_CUT:
+            data, self._held = data[:cut.start()], data[cut.start():]
+        else:
+            self._held = b""
+        if data:
+            self._write(ESCAPE.sub(b"", data))
+
+
 def _write(data: bytes) -> None:
     sys.stdout.buffer.write(data)
     sys.stdout.buffer.flush()
@@ -75,21 +109,30 @@ def _write(data: bytes) -> None:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info = client.status(client.find_launch(opts))
-    node = client.find_node(info, opts.node)
-    path = node.get("stdout_log")
-    if not path:
-        raise client.ToolError("node [%s] has no output file on this machine (it runs elsewhere, or the launch "
-                               "has no log directory)" % node["name"])
+    info, last = client.live_or_last(opts, client.status)
+    if last is not None:
+        path = last.stdout_log(opts.node)
+        name = opts.node
+        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.flush()
+        opts.follow = False  # (nothing more will come)
+    else:
+        node = client.find_node(info, opts.node)
+        path, name = node.get("stdout_log"), node["name"]
+        if not path:
+            raise client.ToolError("node [%s] has no output file on this machine (it runs elsewhere, or the "
+                                   "launch has no log directory)" % name)
+    colour = opts.color == "always" or opts.color == "auto" and sys.stdout.isatty()
+    write = _write if colour else Uncoloured(_write)
     offset = 0
     try:
         data, offset = tail(path, opts.lines)
-        _write(data)
+        write(data)
     except FileNotFoundError:
         if not opts.follow:
-            raise client.ToolError("node [%s] has written no output yet (%s)" % (node["name"], path)) from None
+            raise client.ToolError("node [%s] has written no output yet (%s)" % (name, path)) from None
     if opts.follow:
-        follow(path, offset, _write)
+        follow(path, offset, write)
     return client.EXIT_OK
 
 

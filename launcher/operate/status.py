@@ -4,12 +4,15 @@ Columns: node, state, pid, uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
 (memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
 its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
-redraws every second.
+redraws every second. When no launch answers, the last run's end and each
+node's state then (operate/lastrun.py; exit status 3: nothing runs); `--run
+RUN_ID` shows that run's.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import time
@@ -25,6 +28,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the status as JSON")
     p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
     client.add_launch_options(p)
+    client.add_run_option(p)
     return p
 
 
@@ -54,38 +58,52 @@ def last_exit(node: dict[str, Any]) -> str:
 
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
-    if not info["nodes"]:
-        return title + "\nno nodes"  # (`launch --core`, or a launch of no node)
+    return title + "\n" + node_table(info["nodes"])
+
+
+def node_table(nodes: list[dict[str, Any]]) -> str:
+    """One line per node (fields as in launcher_status or the events file), under a header."""
+    if not nodes:
+        return "no nodes"  # (`launch --core`, or a launch of no node)
     rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
-    for n in info["nodes"]:
-        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and n["state"] == "running" else "-",
+    for n in nodes:
+        # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
+        # keeps the last sample of a run that ended)
+        running = n["state"] == "running"
+        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
                      duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
-                     "-" if n.get("cpu") is None else "%.0f%%" % (100 * n["cpu"]),
-                     "-" if n.get("rss") is None else format_size(n["rss"]),
-                     n.get("host", "")))
-    if any(n.get("over_limit") for n in info["nodes"]):  # (a column only while some node is over a limit)
+                     "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
+                     "-" if n.get("rss") is None or not running else format_size(n["rss"]), n.get("host", "")))
+    if any(n.get("over_limit") for n in nodes):  # (a column only while some node is over a limit)
         rows = [rows[0] + ("OVER LIMIT",)] + [
             row + (over_limit_text(n["over_limit"], n.get("cpu"), n.get("rss")) if n.get("over_limit") else "-",)
-            for row, n in zip(rows[1:], info["nodes"])]
+            for row, n in zip(rows[1:], nodes)]
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
-    return title + "\n" + "\n".join(lines)
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
 
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    uri = client.find_launch(opts)
-    if not opts.watch:
-        # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
-        sys.stdout.write((client.status_text(uri) if opts.json else table(client.status(uri))) + "\n")
-        return client.EXIT_OK
+    # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
+    first, last = client.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
+                                                          else table(client.status(uri))))
+    if last is not None:
+        if opts.json:
+            sys.stdout.write(json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
+        else:
+            sys.stdout.write("%s\n%s\n" % (last.headline(), node_table(last.nodes())))
+        # (the run's end was asked for by --run; otherwise the launch asked about does not run)
+        return client.EXIT_OK if opts.run else client.EXIT_NO_LAUNCH
+    uri, text = first
     while True:
-        text = client.status_text(uri) if opts.json else table(client.status(uri))
         # clear and redraw from the top; a pipe gets one snapshot after another
-        prefix = "\x1b[H\x1b[2J" if sys.stdout.isatty() else ""
+        prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
         sys.stdout.write(prefix + text + "\n")
+        if not opts.watch:
+            return client.EXIT_OK
         sys.stdout.flush()
         time.sleep(1.0)
+        text = client.status_text(uri) if opts.json else table(client.status(uri))
 
 
 def main(argv: list[str]) -> int:

@@ -5,9 +5,12 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.errors import LaunchError
+from launcher.errors import LaunchError, UsageError
 from launcher.names import REMAP, make_global_ns
 from launcher.packages import PackageNotFound
+from launcher.suggest import did_you_mean, near_file
+
+LAUNCH_FILE_ENDINGS = (".launch", ".xml", ".test")  # what a hint for `launch PKG FILE` may offer
 
 
 def is_mapping(token: str) -> bool:
@@ -65,18 +68,29 @@ def resolve_launch_arguments(positional: list[str], packages: Any) -> tuple[list
         found = None
         try:
             found = packages.find_launch_file(words[0], words[1])
-        except PackageNotFound:
-            pass
+            hint = "" if found else _file_hint(packages, words[0], words[1])
+        except PackageNotFound as e:
+            hint = "no package [%s]: %s" % (words[0], e.hint) if e.hint else near_file(words[0])
         if found:
             files = [found] + words[2:]
         else:
-            raise LaunchError("[%s] is neither a launch file in package [%s] nor is [%s] a launch file name"
-                              % (words[1], words[0], words[0]))
+            raise LaunchError("[%s] is neither a launch file in package [%s] nor is [%s] a launch file name%s"
+                              % (words[1], words[0], words[0], " (%s)" % hint if hint else ""))
     else:
         files = words
     missing = [f for f in files if f != "-" and not os.path.isfile(f)]
     if missing:
         if len(words) == 1:
-            raise LaunchError("[%s] is not a launch file name" % missing[0])
-        raise LaunchError("The following input files do not exist: %s" % ", ".join(missing))
+            hint = near_file(missing[0])
+            raise LaunchError("[%s] is not a launch file name%s" % (missing[0], " (%s)" % hint if hint else ""))
+        # roslaunch's parser.error: a usage error (exit status 2), as a mistyped `name:=value` usually is
+        args = [f.replace("=", ":=", 1) for f in missing if "=" in f and os.path.sep not in f]
+        raise UsageError("The following input files do not exist: %s%s" % (
+            ", ".join(missing), " (did you mean %s?)" % " ".join(args) if args else ""))
     return files, argv
+
+
+def _file_hint(packages: Any, pkg: str, filename: str) -> str:
+    """"package [P] has no [F]: did you mean ...?" among the package's launch files, or ""."""
+    hint = did_you_mean(filename, (f for f in packages.file_names(pkg) if f.endswith(LAUNCH_FILE_ENDINGS)))
+    return "package [%s] has no [%s]: %s" % (pkg, filename, hint) if hint else ""

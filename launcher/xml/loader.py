@@ -21,6 +21,7 @@ from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
 from launcher.roshome import ros_home
+from launcher.suggest import did_you_mean, near_file
 from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
@@ -123,8 +124,9 @@ class XmlLoader:
         for a, value in self.cli_args.items():
             # roslaunch lets $(arg x) read an undeclared command-line arg: that counts as used
             if not a.startswith("__") and a not in self._declared_args and a not in self._used_args:
+                hint = did_you_mean(a, self._declared_args)
                 self._warn_plain("command-line argument [%s:=%s] is not declared by an <arg> in the launch "
-                                 "file(s) and is ignored" % (a, value))
+                                 "file(s) and is ignored%s" % (a, value, " (%s)" % hint if hint else ""))
 
     # ------------------------------------------------------------------ errors
     def _warn_plain(self, msg: str) -> None:
@@ -160,8 +162,9 @@ class XmlLoader:
 
     def _arg_not_set(self, name: str, scope: Scope) -> str:
         if name not in scope.arg_names:
-            return ("arg '%s' is not defined: declare it with <arg name=\"%s\" default=\"...\"/> before using "
-                    "$(arg %s)" % (name, name, name))
+            hint = did_you_mean(name, scope.arg_names)
+            return ("arg '%s' is not defined%s: declare it with <arg name=\"%s\" default=\"...\"/> before using "
+                    "$(arg %s)" % (name, " (%s)" % hint if hint else "", name, name))
         if scope.include_chain:
             return ("arg '%s' is required by this included file: pass it with <arg name=\"%s\" value=\"...\"/> "
                     "inside the <include>" % (name, name))
@@ -572,7 +575,8 @@ class XmlLoader:
             raise self._fail(scope, el, "error loading <rosparam> tag: command must be 'load', 'dump', or 'delete'")
         if file_ is not None:
             if cmd == "load" and not os.path.isfile(file_):
-                raise self._fail(scope, el, "error loading <rosparam> tag: file does not exist [%s]" % file_)
+                raise self._fail(scope, el, "error loading <rosparam> tag: file does not exist [%s]%s"
+                                 % (file_, _near_files(file_)))
             if cmd == "delete":
                 raise self._fail(scope, el, "error loading <rosparam> tag: 'file' attribute is invalid with "
                                             "'delete' command.")
@@ -885,7 +889,7 @@ class XmlLoader:
         child.include_chain = chain
         doc = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
         if doc is None:
-            raise self._fail(scope, el, "included file [%s] does not exist" % inc_file)
+            raise self._fail(scope, el, "included file [%s] does not exist%s" % (inc_file, _near_files(inc_file)))
         launch = doc.launch
         self.files.append(inc_file)
         self._launch_tag(launch, child)
@@ -895,6 +899,12 @@ class XmlLoader:
             if unused:
                 raise self._fail(scope, el, "unused args [%s] for include of [%s]" % (", ".join(unused), inc_file))
         return default_machine
+
+
+def _near_files(path: str) -> str:
+    """" (did you mean NAME?)" for a missing file whose folder holds one of a close name, else ""."""
+    hint = near_file(path)
+    return " (%s)" % hint if hint else ""
 
 
 # tag -> handler, for the children of <launch>, <group> and an included file's <launch>

@@ -599,3 +599,140 @@ def test_completion_offers_the_running_launchs_node_names(tmp_path, pkgs):
             assert r.returncode == 0 and r.stdout.split() == expected, (line, r.stdout, r.stderr)
     finally:
         lp.close()
+
+
+def _registered_count(port: int) -> int:
+    return len(((master_up(port) and get_param(port, "/roslaunch")) or {}).get("uris", {}))
+
+
+def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
+    """Debian's roscore registers under /roslaunch/uris too (it is a roslaunch run), and a launch killed with
+    kill -9 leaves its key behind: neither is a candidate, and `launcher` uses the one launch of ours that runs,
+    without asking. A name almost right gets the close one; once the launch has ended (roscore still up),
+    status reads the run's end from its log directory."""
+    port = free_port()
+    env = ros_env(str(tmp_path), port, pkgs)
+    env["READY_DIR"] = str(tmp_path / "ready")
+    os.makedirs(tmp_path / "ready", exist_ok=True)
+    core = subprocess.Popen(["roscore", "-p", str(port)], env=dict(env, PATH=ROS_PATH), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    killed = lp = None
+    try:
+        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roscore registered")
+        killed = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="gone"/>',
+                                        "gone.launch")], env, str(tmp_path))
+        killed.wait_output(r"process\[gone-1\]: started", 60)
+        poll(lambda: _registered_count(port) == 2, 30, 0.2, what="the launch to kill registered")
+        os.kill(killed.pid, signal.SIGKILL)
+        killed.wait(10)
+        lp = Launcher([write_launch(str(tmp_path), '<group ns="r2"><node pkg="op_tests" type="spinner" name="talker"/>'
+                                    '</group>', "r2.launch")], env, str(tmp_path))
+        poll(lambda: _registered_count(port) == 3, 60, 0.2, what="the launch registered beside roscore")
+        st = running_ready(tmp_path, env, ["/r2/talker"])  # (`launcher status --json`, exit status 0)
+        assert list(st) == ["/r2/talker"]
+        r = tool(env, "status")
+        assert r.returncode == 0 and "launch http://" in r.stdout and "(pid %d," % lp.pid in r.stdout, r.stderr
+
+        r = tool(env, "stop", "talker")
+        assert r.returncode == 1 and r.stderr == "launcher: no node matches [talker]; did you mean /r2/talker?\n"
+        r = tool(env, "logs", "talkr")
+        assert r.returncode == 1 and r.stderr.endswith("; did you mean /r2/talker?\n"), r.stderr
+        assert status(env)["/r2/talker"]["state"] == "running"
+        r = tool(env, "stop", "/r2/talker")
+        assert r.returncode == 0 and r.stdout == "stopped /r2/talker\n", r.stderr
+        run_id = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+
+        lp.close()  # roscore goes on: the launch's end is read from the run's log directory
+        r = tool(env, "status")
+        assert r.returncode == 3, r.stdout + r.stderr
+        assert r.stderr.startswith("launcher: no launch of `launch` is running on the master at"), r.stderr
+        assert re.match(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d\n" % run_id, r.stdout), r.stdout
+        rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
+        assert rows["/r2/talker"][1:3] == ["stopped", "-"] and rows["/gone"][1] == "running", r.stdout
+    finally:
+        for launch in (lp, killed):
+            if launch is not None:
+                launch.close()
+        _stop(core)
+
+
+# a roscpp node (rosconsole colours every line, into a file too) and a rospy one
+TICKING = """
+  <node pkg="op_tests" type="info_cpp" name="cpp" output="log">
+    <env name="ROSCONSOLE_STDOUT_LINE_BUFFERED" value="1"/>
+  </node>
+  <node pkg="op_tests" type="spinner" name="py" respawn="true"/>
+"""
+
+
+def test_logs_keep_colours_only_for_a_terminal_or_with_color(tmp_path, pkgs):
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "op_tests", "info_cpp"))
+    lp, env = start_launch(tmp_path, pkgs, TICKING)
+    try:
+        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+        r = tool(env, "logs", "cpp", "-n", "2")
+        assert r.returncode == 0 and "tick" in r.stdout and "\x1b" not in r.stdout, repr(r.stdout)
+        with open(status(env)["/cpp"]["stdout_log"]) as f:
+            assert "\x1b[0m[ INFO]" in f.read()  # (what the node wrote)
+        r = tool(env, "logs", "cpp", "-n", "2", "--color")
+        assert r.returncode == 0 and r.stdout.count("\x1b[0m[ INFO]") == 2, repr(r.stdout)
+        r = tool(env, "logs", "cpp", "-n", "2", "--color=never")
+        assert r.returncode == 0 and r.stdout.count("[ INFO]") == 2 and "\x1b" not in r.stdout, repr(r.stdout)
+    finally:
+        lp.close()
+
+
+def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_path, pkgs):
+    """A finished run: `launcher status`, `events` and `logs` say it is the last run and when it ended (or that
+    it ended without a word, killed), each node's state at the end, and its output; `--run` reads an earlier
+    run; a roslaunch run as the latest is said to be one."""
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "op_tests", "info_cpp"))
+    lp, env = start_launch(tmp_path, pkgs, TICKING)
+    try:
+        running_ready(tmp_path, env, ["/py"])
+        first = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+    finally:
+        lp.close()  # Ctrl-C: the launch stops by itself, with its master
+
+    r = tool(env, "status")
+    assert r.returncode == 3 and r.stderr.startswith("launcher: cannot reach the master at"), r.stderr
+    headline, logs_line = r.stdout.splitlines()[:2]
+    assert re.fullmatch(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d" % first, headline), headline
+    assert logs_line == "its logs: %s" % (tmp_path / "log" / first)
+    rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
+    assert rows["/py"][1:3] == rows["/cpp"][1:3] == ["stopped", "-"], r.stdout
+    r = tool(env, "events")
+    assert r.returncode == 0 and r.stderr.startswith("launcher: cannot reach the master") and headline in r.stderr
+    assert re.search(r"/py stopped pid \d+", r.stdout) and re.search(r"/cpp running pid \d+", r.stdout), r.stdout
+    r = tool(env, "logs", "cpp", "-n", "-1")
+    assert r.returncode == 0 and "tick 3" in r.stdout and "\x1b" not in r.stdout and headline in r.stderr
+
+    lp = Launcher(lp.proc.args[3:], env, str(tmp_path))  # the same launch again, then killed
+    try:
+        st = running_ready(tmp_path, env, ["/py"])
+        second = json.loads(tool(env, "status", "--json").stdout)["run_id"]
+        os.kill(lp.pid, signal.SIGKILL)
+        assert lp.wait(10) == -signal.SIGKILL
+    finally:
+        lp.close()
+    r = tool(env, "status")
+    assert r.returncode == 3
+    assert re.match(r"the last run, %s, ended without a word after its last event at [-\d: ]+: its launch "
+                    r"\(pid %d\) was killed\n" % (second, lp.pid), r.stdout), r.stdout
+    row = [line.split() for line in r.stdout.splitlines() if line.startswith("/py ")][0]
+    assert row[1:3] == ["running", str(st["/py"]["pid"])]  # (its state when the launch was killed)
+    r = tool(env, "status", "--run", first)
+    assert r.returncode == 0 and r.stdout.startswith("the run, %s, ended at " % first) and r.stderr == ""
+
+    # Debian's roslaunch, with its own master, is the latest run
+    port = int(env["ROS_MASTER_URI"].rsplit(":", 1)[1].strip("/"))
+    proc = subprocess.Popen(["roslaunch", lp.proc.args[-1]], env=dict(env, PATH=ROS_PATH),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roslaunch registered")
+    finally:
+        _stop(proc)
+    r = tool(env, "status")
+    assert r.returncode == 3 and re.search(r"\nthe last run, [-\w]+, is roslaunch's \(or roscore's\), not a run of "
+                                           r"`launch`: it has no launcher-events.jsonl", r.stderr), r.stderr
