@@ -618,16 +618,16 @@ def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
                             stderr=subprocess.DEVNULL, start_new_session=True)
     killed = lp = None
     try:
-        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roscore registered")
+        until(lambda: _registered_count(port) == 1, 60, 0.2, what="roscore registered")
         killed = Launcher([write_launch(str(tmp_path), '<node pkg="op_tests" type="spinner" name="gone"/>',
                                         "gone.launch")], env, str(tmp_path))
         killed.wait_output(r"process\[gone-1\]: started", 60)
-        poll(lambda: _registered_count(port) == 2, 30, 0.2, what="the launch to kill registered")
+        until(lambda: _registered_count(port) == 2, 30, 0.2, what="the launch to kill registered")
         os.kill(killed.pid, signal.SIGKILL)
         killed.wait(10)
         lp = Launcher([write_launch(str(tmp_path), '<group ns="r2"><node pkg="op_tests" type="spinner" name="talker"/>'
                                     '</group>', "r2.launch")], env, str(tmp_path))
-        poll(lambda: _registered_count(port) == 3, 60, 0.2, what="the launch registered beside roscore")
+        until(lambda: _registered_count(port) == 3, 60, 0.2, what="the launch registered beside roscore")
         st = running_ready(tmp_path, env, ["/r2/talker"])  # (`launcher status --json`, exit status 0)
         assert list(st) == ["/r2/talker"]
         r = tool(env, "status")
@@ -669,7 +669,7 @@ def test_logs_keep_colours_only_for_a_terminal_or_with_color(tmp_path, pkgs):
     compile_roscpp("info_node.cpp", os.path.join(pkgs, "op_tests", "info_cpp"))
     lp, env = start_launch(tmp_path, pkgs, TICKING)
     try:
-        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+        until(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
         r = tool(env, "logs", "cpp", "-n", "2")
         assert r.returncode == 0 and "tick" in r.stdout and "\x1b" not in r.stdout, repr(r.stdout)
         with open(status(env)["/cpp"]["stdout_log"]) as f:
@@ -691,7 +691,7 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
     try:
         running_ready(tmp_path, env, ["/py"])
         first = json.loads(tool(env, "status", "--json").stdout)["run_id"]
-        poll(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
+        until(lambda: "tick 3" in tool(env, "logs", "cpp").stdout, 60, 0.2, what="the roscpp node's output")
     finally:
         lp.close()  # Ctrl-C: the launch stops by itself, with its master
 
@@ -730,7 +730,7 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
     proc = subprocess.Popen(["roslaunch", lp.proc.args[-1]], env=dict(env, PATH=ROS_PATH),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        poll(lambda: _registered_count(port) == 1, 60, 0.2, what="roslaunch registered")
+        until(lambda: _registered_count(port) == 1, 60, 0.2, what="roslaunch registered")
     finally:
         _stop(proc)
     r = tool(env, "status")
