@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import os
 import socket
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 from launcher.master.api import MasterApi, unsendable
 from launcher.master.masterlog import mlog
@@ -64,6 +64,17 @@ def _local_address(environ: Mapping[str, str]) -> str:
     return "::1" if environ.get("ROS_IPV6") == "on" else "127.0.0.1"
 
 
+class UnresponsiveNode(NamedTuple):
+    """A registered node whose last callback from the master failed (it is sent again after a back-off)."""
+
+    names: list[str]  # the node names registered with this API
+    api: str
+    failures: int  # consecutive failed calls
+    failing_s: float  # since the first of them
+    last_error: str
+    queued: int  # callbacks waiting for it
+
+
 class Master:
     """A ROS master on the running asyncio loop.
 
@@ -74,7 +85,7 @@ class Master:
 
     def __init__(self, host: str | None = None, port: int = DEFAULT_MASTER_PORT, *,
                  uri_host: str | None = None, environ: Mapping[str, str] | None = None,
-                 notify_timeout: float = 15.0, allow: Any = None):
+                 notify_timeout: float = 10.0, allow: Any = None):
         self._allow = allow  # a launcher.net.allow.AllowList: clients from elsewhere are refused
         self._environ = os.environ if environ is None else environ
         self.host = host if host is not None else bind_address(self._environ)
@@ -152,6 +163,17 @@ class Master:
         """Delete a parameter in-process (KeyError if not set); subscribers get `{}`."""
         self._require_started()
         self._api.delete_param(resolve_name(key, "/"))
+
+    def unresponsive_nodes(self) -> list[UnresponsiveNode]:
+        """The registered nodes the master cannot reach (timed out, refused), longest failing first."""
+        if self._api is None:
+            return []
+        now = asyncio.get_running_loop().time()
+        names: dict[str, list[str]] = {}
+        for node in self._api.registry.nodes.values():
+            names.setdefault(node.api, []).append(node.id)
+        return [UnresponsiveNode(names.get(u.api, []), u.api, u.failures, now - u.since, u.last_error, u.queued)
+                for u in self._notifier.unreachable()]
 
     def _require_started(self) -> None:
         if self._api is None:

@@ -175,7 +175,7 @@ class MasterApi:
         self.uri = uri
         self.notifier = notifier
         self.params = params if params is not None else ParamTree()
-        self.registry = reg.Registry(self._bumped)
+        self.registry = reg.Registry(self._bumped, notifier.forget)
         self.topic_types: dict[str, str] = {}
         self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None

@@ -1,141 +1,174 @@
-"""Master -> node callbacks (publisherUpdate, paramUpdate, shutdown): asynchronous and bounded.
+"""Master -> node callbacks (publisherUpdate, paramUpdate, shutdown) sent on the running loop.
 
-Each node API has its own ordered queue drained by one task, so a node sees
-its notifications in the order the master made them, while a node that hangs
-or has vanished only ever delays itself: every call has a time-out, the
-number of calls in flight is capped, and a queued publisherUpdate that a newer
-one for the same topic supersedes is replaced (the newer list is complete).
+What goes when is `launcher.master.outbox.Outbox`'s decision (per-node order,
+coalescing, slots, back-off for failing nodes); this is the loop around it.
+Every call has a deadline to connect and one to be answered, so a hung node
+holds its one slot until then and no longer; new calls start a few at a time,
+paced, so that a thousand at once never stall the master's own replies.
 """
 
 from __future__ import annotations
 
 import asyncio
-import collections
 import logging
 from typing import Any, Callable
 
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
+from launcher.master.outbox import Callback, Outbox, Unreachable
 from launcher.net import xmlrpc
+from launcher.net.open_files import callback_cap
 
 log = logging.getLogger("launcher.master")
 
 
 MASTER_CALLER_ID = "/master"
 
-
-class _Item:
-    __slots__ = ("method", "params", "on_result", "topic")
-
-    def __init__(self, method: str, params: list, on_result: Callable[[Any], None] | None, topic: str | None):
-        self.method = method
-        self.params = params
-        self.on_result = on_result
-        self.topic = topic
+CONNECT_TIMEOUT_S = 3.0  # a SYN and its first retransmissions: a host that is up answers well within it
+# A thousand calls at once cost the loop ~200 ms: they start BATCH at a time, a batch every PACE_S at most,
+# so that the master's own clients are answered in between and the process is not busy enough throughout
+# to wait for a CPU when one of them calls.
+BATCH = 8
+PACE_S = 0.002
 
 
 class Notifier:
-    """Queues callbacks per node API and sends them on the running loop."""
+    """Queues callbacks per node API and sends them on the running loop.
 
-    def __init__(self, *, timeout: float = 15.0, max_in_flight: int = 256, max_queued_per_api: int = 10000):
+    `timeout` bounds the answer to each call, `connect_timeout` the connection;
+    `max_in_flight` caps the calls in flight (by default from the open-file
+    limit), a sixteenth of them for nodes whose last call failed.
+    """
+
+    def __init__(self, *, timeout: float = 10.0, connect_timeout: float = CONNECT_TIMEOUT_S,
+                 max_in_flight: int | None = None, max_queued_per_api: int = 10000):
         self.timeout = timeout
-        self.max_queued_per_api = max_queued_per_api
-        self._queues: dict[str, collections.deque[_Item]] = {}
-        self._workers: dict[str, asyncio.Task] = {}
-        self._pending_pub: dict[tuple[str, str], _Item] = {}  # queued (not yet sent) publisherUpdates
-        self._slots = asyncio.Semaphore(max_in_flight)
+        self.connect_timeout = connect_timeout
+        cap = callback_cap() if max_in_flight is None else max_in_flight
+        self._outbox = Outbox(max_in_flight=cap, max_failing=max(4, cap // 16), max_queued=max_queued_per_api)
+        self._tasks: set[asyncio.Task] = set()
+        self._pump_handle: asyncio.Handle | None = None  # the next _pump, soon or at a back-off's end
+        self._pump_at: float | None = None  # when it runs (None: at the next loop turn)
+        self._paced_until = 0.0  # after a full batch, the next starts no sooner
         self._closed = False
 
     # -- what the master queues --------------------------------------------------
     def publisher_update(self, api: str, topic: str, pub_uris: list[str]) -> None:
-        item = self._pending_pub.get((api, topic))
-        if item is not None:
-            item.params[2] = pub_uris  # not sent yet: the newer, complete list replaces it
-            return
-        item = _Item("publisherUpdate", [MASTER_CALLER_ID, topic, pub_uris], None, topic)
-        if self._queue(api, item):
-            self._pending_pub[(api, topic)] = item
+        self._put(api, Callback("publisherUpdate", [MASTER_CALLER_ID, topic, pub_uris], None,
+                                ("publisherUpdate", topic)))
 
     def param_update(self, api: str, key: str, value: Any, on_result: Callable[[Any], None] | None = None) -> None:
-        self._queue(api, _Item("paramUpdate", [MASTER_CALLER_ID, key, value], on_result, None))
+        self._put(api, Callback("paramUpdate", [MASTER_CALLER_ID, key, value], on_result, ("paramUpdate", key)))
 
     def shutdown_node(self, api: str, caller_id: str, reason: str) -> None:
-        self._queue(api, _Item("shutdown", [MASTER_CALLER_ID, "[%s] Reason: %s" % (caller_id, reason)], None, None))
+        # the node at `api` has been replaced: it is told once, never retried
+        self._put(api, Callback("shutdown", [MASTER_CALLER_ID, "[%s] Reason: %s" % (caller_id, reason)],
+                                once=True))
+
+    def forget(self, api: str) -> None:
+        """`api` is no longer any registered node's: what it is still owed is dropped."""
+        self._outbox.forget(api)
+
+    def unreachable(self) -> list[Unreachable]:
+        """The nodes whose last callback failed (retried with back-off while they stay registered)."""
+        return self._outbox.unreachable()
 
     # -- machinery ----------------------------------------------------------------
-    def _queue(self, api: str, item: _Item) -> bool:
+    def _put(self, api: str, cb: Callback) -> None:
         if self._closed or not api.startswith("http://"):
-            return False  # rosrpc:// APIs cannot take XML-RPC calls
-        q = self._queues.get(api)
-        if q is None:
-            q = self._queues[api] = collections.deque()
-            self._workers[api] = asyncio.get_running_loop().create_task(self._drain(api, q))
-        elif len(q) >= self.max_queued_per_api:
-            dropped = q.popleft()
-            if dropped.topic is not None:
-                self._pending_pub.pop((api, dropped.topic), None)
-            log.warning("dropping a %s to %s: too many queued callbacks", dropped.method, api)
-        q.append(item)
-        return True
+            return  # rosrpc:// APIs cannot take XML-RPC calls
+        self._outbox.put(api, cb)
+        self._kick()
 
-    async def _drain(self, api: str, q: collections.deque[_Item]) -> None:
+    def _kick(self) -> None:
+        """Something may be sent: pump at the next loop turn, or when the pace allows."""
+        paced = self._paced_until
+        self._wake(paced if paced > asyncio.get_running_loop().time() else None)
+
+    def _wake(self, at: float | None) -> None:
+        """Have _pump run at the next loop turn (`at` None) or at loop time `at`, whichever is first."""
+        if self._pump_handle is not None:
+            if self._pump_at is None or (at is not None and self._pump_at <= at):
+                return
+            self._pump_handle.cancel()
+        loop = asyncio.get_running_loop()
+        self._pump_at = at
+        self._pump_handle = loop.call_soon(self._pump) if at is None else loop.call_at(at, self._pump)
+
+    def _pump(self) -> None:
+        self._pump_handle = None
+        if self._closed:
+            return
+        loop = asyncio.get_running_loop()
+        outbox = self._outbox
+        now = loop.time()
+        calls = outbox.take(now, BATCH)
+        for api, cb in calls:
+            task = loop.create_task(self._send(api, cb))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+        self._paced_until = now + PACE_S if len(calls) == BATCH else 0.0
+        if outbox.can_take():
+            self._wake(self._paced_until)
+        else:
+            at = outbox.next_wakeup()
+            if at is not None:
+                self._wake(at)
+
+    async def _send(self, api: str, cb: Callback) -> None:
+        loop = asyncio.get_running_loop()
+        if cb.method == "paramUpdate":
+            mlog.info("paramUpdate[%s]", cb.params[1])
+        logged = cb.method == "publisherUpdate" and mlog.enabled
+        if logged:
+            what = "publisherUpdate[%s] -> %s %s" % (cb.params[1], api, cb.params[2])
+            mlog.info(what)
+        started = loop.time()
+        error = None
+        hung = False
         try:
-            while q:
-                item = q.popleft()
-                if item.topic is not None:
-                    self._pending_pub.pop((api, item.topic), None)
-                async with self._slots:
-                    if item.method == "paramUpdate":
-                        mlog.info("paramUpdate[%s]", item.params[1])
-                    logged = item.method == "publisherUpdate" and mlog.enabled
-                    if logged:
-                        what = "publisherUpdate[%s] -> %s %s" % (item.topic, api, item.params[2])
-                        mlog.info(what)
-                        started = asyncio.get_running_loop().time()
-                    try:
-                        result = await xmlrpc.call(api, item.method, *item.params, timeout=self.timeout)
-                        if logged:
-                            mlog.info("%s: sec=%0.2f, result=%s", what, asyncio.get_running_loop().time() - started,
-                                      result)
-                    except asyncio.CancelledError:
-                        raise
-                    except asyncio.TimeoutError:
-                        log.warning("%s to %s timed out", item.method, api)
-                        if logged:
-                            mlog.info("%s: sec=%0.2f, exception=timed out", what, self.timeout)
-                        continue
-                    except Exception as e:  # noqa: BLE001 - a node that is gone or answers garbage
-                        log.info("%s to %s failed: %s", item.method, api, e)
-                        if logged:
-                            mlog.info("%s: sec=%0.2f, exception=%s", what,
-                                      asyncio.get_running_loop().time() - started, e)
-                        continue
-                if item.on_result is not None:
-                    try:
-                        item.on_result(result)
-                    except Exception:  # noqa: BLE001
-                        log.exception("handling the reply of %s from %s", item.method, api)
-        finally:
-            if self._queues.get(api) is q:
-                del self._queues[api]
-                del self._workers[api]
-            if q:  # cancelled with callbacks still queued: forget them
-                for item in q:
-                    if item.topic is not None:
-                        self._pending_pub.pop((api, item.topic), None)
-                q.clear()
+            result = await xmlrpc.call(api, cb.method, *cb.params, timeout=self.timeout,
+                                       connect_timeout=self.connect_timeout)
+            if logged:
+                mlog.info("%s: sec=%0.2f, result=%s", what, loop.time() - started, result)
+        except asyncio.CancelledError:
+            raise
+        except (OSError, asyncio.TimeoutError) as e:  # the node is not there, or does not answer
+            error = str(e) or "no answer within %g s" % self.timeout
+            hung = isinstance(e, (TimeoutError, asyncio.TimeoutError))
+            log.info("%s to %s failed: %s", cb.method, api, error)
+            if logged:
+                mlog.info("%s: sec=%0.2f, exception=%s", what, loop.time() - started, error)
+        except Exception as e:  # noqa: BLE001 - it answered, with garbage or a fault: sending again won't help
+            log.info("%s to %s: %s", cb.method, api, e)
+            if logged:
+                mlog.info("%s: sec=%0.2f, exception=%s", what, loop.time() - started, e)
+        else:
+            if cb.on_result is not None:
+                try:
+                    cb.on_result(result)
+                except Exception:  # noqa: BLE001
+                    log.exception("handling the reply of %s from %s", cb.method, api)
+        if self._closed:
+            return
+        if self._outbox.done(api, cb, loop.time(), error, hung) == 1 and hung:
+            # (a refused one is a node gone without unregistering: common; master.log has its publisherUpdates)
+            log.warning("the node at %s does not answer the master (%s): its callbacks are kept and sent "
+                        "again with back-off", api, error)
+        self._kick()
 
     def pending(self) -> int:
         """Callbacks queued or in flight (for tests and shutdown)."""
-        return sum(len(q) for q in self._queues.values()) + len(self._workers)
+        return self._outbox.queued()
 
     async def close(self) -> None:
         """Cancel everything still queued or in flight."""
         self._closed = True
-        workers = list(self._workers.values())
-        for t in workers:
+        if self._pump_handle is not None:
+            self._pump_handle.cancel()
+            self._pump_handle = None
+        tasks = list(self._tasks)
+        for t in tasks:
             t.cancel()
-        if workers:
-            await asyncio.gather(*workers, return_exceptions=True)
-        self._queues.clear()
-        self._workers.clear()
-        self._pending_pub.clear()
+        if tasks:
+            await asyncio.gather(*tasks, return_exceptions=True)
+        self._outbox.clear()

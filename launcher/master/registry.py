@@ -138,11 +138,13 @@ class Registry:
     """All registrations plus the node table.
 
     `on_bump(old_api, caller_id)` is called when a node name registers with a
-    new API: the master tells the old process to shut down.
+    new API: the master tells the old process to shut down. `on_gone(api)` is
+    called when no node is known by `api` any more: nothing is owed to it.
     """
 
-    def __init__(self, on_bump):
+    def __init__(self, on_bump, on_gone=None):
         self.nodes: dict[str, NodeRef] = {}
+        self._api_users: dict[str, int] = {}  # api -> known nodes with it (a client may reuse one for many)
         self.publishers = Registrations(PUBLICATIONS)
         self.subscribers = Registrations(SUBSCRIPTIONS)
         self.services = Registrations(SERVICES)
@@ -150,6 +152,7 @@ class Registry:
         self._by_kind = {PUBLICATIONS: self.publishers, SUBSCRIPTIONS: self.subscribers,
                          SERVICES: self.services, PARAM_SUBSCRIPTIONS: self.param_subscribers}
         self._on_bump = on_bump
+        self._on_gone = on_gone
 
     def get_node(self, caller_id: str) -> NodeRef | None:
         return self.nodes.get(caller_id)
@@ -160,12 +163,23 @@ class Registry:
             return node
         fresh = NodeRef(caller_id, caller_api)
         self.nodes[caller_id] = fresh
+        self._api_users[caller_api] = self._api_users.get(caller_api, 0) + 1
         if node is not None:
             # same name, new process: the old one is told to go and forgotten entirely
             self._on_bump(node.api, caller_id)
             for r in self._by_kind.values():
                 r.unregister_all(caller_id)
+            self._released(node.api)
         return fresh
+
+    def _released(self, api: str) -> None:
+        left = self._api_users[api] - 1
+        if left:
+            self._api_users[api] = left
+            return
+        del self._api_users[api]
+        if self._on_gone is not None:
+            self._on_gone(api)
 
     def register(self, kind: int, key: str, caller_id: str, caller_api: str,
                  service_api: str | None = None) -> None:
@@ -183,4 +197,5 @@ class Registry:
             node.keys[kind].discard(key)
         if node.is_empty():
             del self.nodes[caller_id]
+            self._released(node.api)
         return ret

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import resource
 
-__all__ = ["raise_open_file_limit", "open_file_limit", "connection_cap"]
+__all__ = ["raise_open_file_limit", "open_file_limit", "connection_cap", "callback_cap"]
 
 MAX_CONNECTIONS = 32768  # above this, memory (buffers, objects) is the limit, not files
+MAX_CALLBACKS = 4096  # the master's calls to nodes in flight: far more nodes than a graph has
 
 
 def raise_open_file_limit() -> int:
@@ -50,3 +51,15 @@ def connection_cap(limit: int | None = None) -> int:
     if limit is None:
         limit = open_file_limit()
     return max(16, min(MAX_CONNECTIONS, limit // 2 - 64))
+
+
+def callback_cap(limit: int | None = None) -> int:
+    """The master's calls to nodes that may be in flight at once: a quarter of the open-file limit.
+
+    Each holds a socket until it is answered or its deadline passes; a node
+    that hangs holds one at a time, so this is how many may hang before the
+    others' callbacks wait for a deadline.
+    """
+    if limit is None:
+        limit = open_file_limit()
+    return max(16, min(MAX_CALLBACKS, limit // 4))

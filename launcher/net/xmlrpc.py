@@ -480,33 +480,96 @@ def _bad_response(uri: str, e: http.HttpError) -> XmlRpcError:
     return XmlRpcError("bad HTTP response from %s: %s" % (uri, e.reason))
 
 
-async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0) -> Any:
+async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0,
+               connect_timeout: float | None = None) -> Any:
     """Call `method(*params)` at an XML-RPC `uri` (one connection per call), on the running loop.
 
-    Returns the value; raises Fault, XmlRpcError (bad HTTP/XML), OSError or
-    asyncio.TimeoutError.
+    `timeout` bounds the whole call, `connect_timeout` the connection alone.
+    Returns the value; raises Fault, XmlRpcError (bad HTTP/XML), OSError
+    (TimeoutError when there is no connection in time) or asyncio.TimeoutError.
     """
     import asyncio
-    if timeout is None:
-        return await _call(uri, method, params)
-    return await asyncio.wait_for(_call(uri, method, params), timeout)
-
-
-async def _call(uri: str, method: str, params: tuple) -> Any:
-    import asyncio
+    loop = asyncio.get_running_loop()
     host, port, request = _http_request(uri, method, params)
-    stream, writer = await asyncio.open_connection(host, port)
-    try:
-        writer.write(request)
-        reader = http.ResponseReader(MAX_RESPONSE_SIZE)
+    reply = loop.create_future()
+    deadline = None if timeout is None else loop.time() + timeout
+    connecting = loop.create_connection(lambda: _Exchange(uri, request, reply), host, port)
+    limit = timeout if connect_timeout is None else connect_timeout if timeout is None else min(timeout,
+                                                                                                 connect_timeout)
+    if limit is None:
+        transport, _ = await connecting
+    else:
         try:
-            while reader.next_event() is http.NEED_DATA:
-                reader.receive_data(await stream.read(65536))
-        except http.HttpError as e:
-            raise _bad_response(uri, e) from None
-        return _reply(uri, reader)
+            transport, _ = await asyncio.wait_for(connecting, limit)
+        except asyncio.TimeoutError:
+            if limit == timeout:
+                raise
+            raise TimeoutError("no connection to %s within %g s" % (uri, limit)) from None
+    timer = None
+    if deadline is not None:
+        timer = loop.call_at(deadline, _expire, reply)
+    try:
+        return await reply
     finally:
-        writer.close()
+        transport.close()
+        if timer is not None:
+            timer.cancel()
+
+
+def _expire(reply: Any) -> None:
+    if not reply.done():
+        import asyncio
+        reply.set_exception(asyncio.TimeoutError())
+
+
+class _Exchange:
+    """One call's connection (an asyncio protocol): the request written once connected, the reply framed.
+
+    Plain callbacks, no stream objects or tasks: the master makes a thousand of
+    these at once to nodes, on the loop that answers its own clients.
+    """
+
+    def __init__(self, uri: str, request: bytes, reply: Any):
+        self.uri = uri
+        self.request = request
+        self.reply = reply
+        self.reader = http.ResponseReader(MAX_RESPONSE_SIZE)
+        self.transport: Any = None
+
+    def connection_made(self, transport: Any) -> None:
+        self.transport = transport
+        transport.write(self.request)
+
+    def data_received(self, data: bytes) -> None:
+        self._feed(data)
+
+    def eof_received(self) -> None:
+        self._feed(b"")
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.reply.done():
+            self.reply.set_exception(exc or XmlRpcError("bad HTTP response from %s: connection closed" % self.uri))
+
+    def pause_writing(self) -> None:
+        pass  # one request, written once: the transport buffers it
+
+    def resume_writing(self) -> None:
+        pass
+
+    def _feed(self, data: bytes) -> None:
+        if self.reply.done():
+            return
+        reader = self.reader
+        try:
+            reader.receive_data(data)
+            if reader.next_event() is http.NEED_DATA:
+                return
+            self.reply.set_result(_reply(self.uri, reader))
+        except http.HttpError as e:
+            self.reply.set_exception(_bad_response(self.uri, e))
+        except (Fault, XmlRpcError) as e:
+            self.reply.set_exception(e)
+        self.transport.close()
 
 
 def call_blocking(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:

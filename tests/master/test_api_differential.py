@@ -73,6 +73,9 @@ class RecordingNotifier:
     def shutdown_node(self, api, caller_id, reason):
         self.calls.append(["shutdown", api, "[%s] Reason: %s" % (caller_id, reason)])
 
+    def forget(self, api):
+        pass  # ours alone: queued callbacks to a node no longer registered are dropped (no rosmaster call)
+
 
 CALLERS = ["/n1", "/ns/n2", "/ns/sub/n3", "/n4", "", "rel", 7]
 APIS = ["http://h:1/", "http://h:2/", "rosrpc://h:3", "bad", ""]

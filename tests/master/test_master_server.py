@@ -217,6 +217,18 @@ def test_hanging_and_vanished_subscribers_delay_nobody(master):
         assert time.monotonic() - t0 < 2.5
         want = ["http://127.0.0.1:%d/" % (9000 + i) for i in range(5)]
         assert good.wait(lambda m, a: m == "publisherUpdate" and a[2] == want)
+        # the hanging node times out (1 s) and the vanished one is refused: both reported, with their names
+        deadline = time.monotonic() + 5
+        while len(master.call_soon(master.master.unresponsive_nodes)) < 2:
+            assert time.monotonic() < deadline, master.call_soon(master.master.unresponsive_nodes)
+            time.sleep(0.05)
+        report = {u.api: u for u in master.call_soon(master.master.unresponsive_nodes)}
+        assert report[hang.uri].names == ["/hang"] and report[gone_uri].names == ["/gone"]
+        assert "connect" in report[gone_uri].last_error.lower()  # "Connect call failed": refused
+        assert report[hang.uri].queued >= 1  # the latest publisher list, kept for when it answers
+        assert good.uri not in report
+        p.unregisterSubscriber("/gone", "/t", gone_uri)  # no longer registered: no longer owed anything
+        assert gone_uri not in {u.api for u in master.call_soon(master.master.unresponsive_nodes)}
     finally:
         hang.close()
         good.close()

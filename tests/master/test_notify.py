@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from launcher.net import xmlrpc_server
+from launcher.master.api import MasterApi
 from launcher.master.notify import Notifier
 
 from helpers import until_async
@@ -94,12 +95,51 @@ def test_results_reach_the_callback_and_close_cancels_everything():
     asyncio.run(scenario())
 
 
-def test_unreachable_and_non_http_apis_are_skipped():
+def test_non_http_apis_are_skipped_and_unreachable_ones_reported_until_forgotten():
     async def scenario():
         n = Notifier(timeout=1)
         n.publisher_update("rosrpc://127.0.0.1:1", "/t", [])
         assert n.pending() == 0
-        n.publisher_update("http://127.0.0.1:1/", "/t", [])  # nothing listens: fails fast, logged
-        await until_async(lambda: n.pending() == 0, 5)
+        api = "http://127.0.0.1:1/"
+        n.publisher_update(api, "/t", ["a"])  # nothing listens: refused at once, and dropped (as rosmaster)
+        await until_async(lambda: n.unreachable(), 5)
+        (u,) = n.unreachable()
+        assert (u.api, u.failures, u.queued) == (api, 1, 0)
+        n.forget(api)  # no longer registered: no longer reported
+        assert n.pending() == 0 and n.unreachable() == []
         await n.close()
     asyncio.run(scenario())
+
+
+class _Recorder:
+    def __init__(self):
+        self.calls = []
+
+    def publisher_update(self, api, topic, pub_uris):
+        self.calls.append(("publisherUpdate", api))
+
+    def param_update(self, api, key, value, on_result=None):
+        self.calls.append(("paramUpdate", api))
+
+    def shutdown_node(self, api, caller_id, reason):
+        self.calls.append(("shutdown", api))
+
+    def forget(self, api):
+        self.calls.append(("forget", api))
+
+
+def test_the_master_forgets_an_api_when_no_registered_node_has_it():
+    rec = _Recorder()
+    api = MasterApi(rec)
+    x, y = "http://h:1/", "http://h:2/"
+    api.dispatch("registerSubscriber", ["/a", "/t", "std_msgs/String", x])
+    api.dispatch("subscribeParam", ["/a", x, "/p"])
+    api.dispatch("registerSubscriber", ["/b", "/t", "std_msgs/String", x])  # another node, the same API
+    api.dispatch("unregisterSubscriber", ["/a", "/t", x])
+    api.dispatch("unsubscribeParam", ["/a", x, "/p"])
+    api.dispatch("unregisterSubscriber", ["/b", "/t", x])
+    assert rec.calls == [("forget", x)]  # once, when the last node with it went
+    rec.calls = []
+    api.dispatch("registerSubscriber", ["/c", "/t", "std_msgs/String", x])
+    api.dispatch("registerSubscriber", ["/c", "/t", "std_msgs/String", y])  # /c again, a new process
+    assert rec.calls == [("shutdown", x), ("forget", x)]  # told to go first: a shutdown is kept by forget

@@ -333,6 +333,32 @@ def test_async_client_call_and_errors():
     asyncio.run(scenario())
 
 
+def test_async_client_connect_deadline_is_its_own():
+    """A server whose accept queue is full takes no more connections: the connection's own deadline ends the
+    wait (what a node on a machine gone from the network looks like), well before the call's."""
+    async def scenario():
+        with socket.socket() as full:
+            full.bind(("127.0.0.1", 0))
+            full.listen(0)
+            port = full.getsockname()[1]
+            queued = []
+            try:
+                for _ in range(8):  # fill the accept queue; later SYNs get no answer
+                    c = socket.socket()
+                    c.setblocking(False)
+                    c.connect_ex(("127.0.0.1", port))
+                    queued.append(c)
+                loop = asyncio.get_running_loop()
+                t0 = loop.time()
+                with pytest.raises(TimeoutError, match="no connection"):
+                    await X.call("http://127.0.0.1:%d/" % port, "getPid", "/x", timeout=10, connect_timeout=0.3)
+                assert loop.time() - t0 < 2
+            finally:
+                for c in queued:
+                    c.close()
+    asyncio.run(scenario())
+
+
 def test_port_taken_raises_oserror():
     async def scenario():
         a = S.XmlRpcServer(_dispatch, "127.0.0.1", 0)
