@@ -49,6 +49,7 @@ ONLY = {
     "launcher.errors": set(),
     "launcher.roshome": set(),
     "launcher.config": {"launcher.names"},
+    "launcher.nodepython": set(),
 }
 # part -> parts it must not import
 NEVER = {
