@@ -7,7 +7,10 @@ contact my own server"); ROS_MASTER_URI (its host resolves; a master answers, or
 one can be started here); ROS_PACKAGE_PATH (each entry holds packages: an empty
 one is usually an unsourced workspace); and, with a launch file, that it loads
 and that every node's executable exists, is executable and has an interpreter
-that exists ("cannot launch node of type"). Exit status 1 when there is a problem.
+that exists ("cannot launch node of type"); and that a node script's
+`#!/usr/bin/env python3` does not find, first on PATH, an interpreter that
+cannot import what the system's python can (a venv's `bin` or a pyenv shim on
+PATH: "No module named 'rospy'"). Exit status 1 when there is a problem.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from typing import Mapping
 
 import psutil
 
+from launcher import nodepython
 from launcher.command import master_uri
 from launcher.errors import LaunchError
 from launcher.net.xmlrpc import call_blocking
@@ -54,6 +58,7 @@ def main(argv: list[str]) -> int:
     check_master(report, environ, local)
     packages = PackageIndex(environ)
     check_package_path(report, environ, packages)
+    check_python_on_path(report, environ)
     if argv:
         check_launch(report, argv, environ, packages)
     print("%d problem%s found" % (report.problems, "" if report.problems == 1 else "s"))
@@ -151,6 +156,7 @@ def check_launch(report: Report, argv: list[str], environ: Mapping[str, str], pa
         report.say(PROBLEM, "the launch does not load: %s" % e)
         return
     report.say(OK, "the launch loads (%d node%s)" % (len(config.nodes), "" if len(config.nodes) == 1 else "s"))
+    findable: dict[tuple[str, str], bool] = {}  # (interpreter, module) -> it finds it: once for all the nodes
     for node in config.nodes + config.tests:
         where = "%s:%d: node [%s]" % (node.filename, node.line, node.full_name)
         try:
@@ -171,6 +177,37 @@ def check_launch(report: Report, argv: list[str], environ: Mapping[str, str], pa
         if problem:
             report.say(PROBLEM, "%s: %s" % (where, problem),
                        "correct the first line of %s, or install the interpreter it names" % path)
+        else:
+            check_node_python(report, where, path, environ, findable)
+
+
+# What to do when a venv's or a version manager's python comes first on PATH (nodepython.py).
+PATH_TRAP_FIX = ("take %s off PATH: put only `launch` and `launcher` on it (README: 'Installing for everyday use'), "
+                 "or deactivate the venv / `pyenv shell system`")
+
+
+def check_node_python(report: Report, where: str, script: str, environ: Mapping[str, str],
+                      findable: dict[tuple[str, str], bool]) -> None:
+    """A script whose `#!/usr/bin/env python3` finds an interpreter that lacks modules it imports which the
+    system's python has: it would die with "No module named ..." at once."""
+    trap = nodepython.trap(script, environ, findable)
+    if trap is not None:
+        interpreter, system, missing = trap
+        report.say(PROBLEM, "%s: %s starts with '#!/usr/bin/env %s', which finds %s first on PATH; that cannot "
+                   "import %s (%s can)" % (where, script, os.path.basename(system), interpreter,
+                                           ", ".join(missing), system), PATH_TRAP_FIX % os.path.dirname(interpreter))
+
+
+def check_python_on_path(report: Report, environ: Mapping[str, str]) -> None:
+    """The same trap for any rospy node: `python3` on PATH is not the system's and cannot import rospy."""
+    interpreter = nodepython.on_path("python3", environ)
+    system = nodepython.system_python("python3")
+    if interpreter is None or system is None or nodepython.is_system(interpreter):
+        return
+    if nodepython.lacking(interpreter, system, ["rospy"], environ, {}):
+        report.say(NOTE, "python3 on PATH is %s, which cannot import rospy (%s can): a node starting with "
+                   "'#!/usr/bin/env python3' dies at once" % (interpreter, system),
+                   PATH_TRAP_FIX % os.path.dirname(interpreter))
 
 
 def _shebang_problem(path: str, environ: Mapping[str, str]) -> str | None:

@@ -51,6 +51,7 @@ ONLY = {
     "launcher.units": set(),
     "launcher.suggest": set(),
     "launcher.config": {"launcher.names"},
+    "launcher.nodepython": set(),
 }
 # part -> parts it must not import
 NEVER = {

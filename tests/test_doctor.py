@@ -82,3 +82,40 @@ def test_each_broken_node_executable(env, tmp_path):
     assert "Windows line endings" in out
     assert "robot.launch:7: node [/missing]: Cannot locate node of type [missing]" in out
     assert "node [/good]" not in out
+
+
+ROSPY_NODE = "#!/usr/bin/env python3\nimport rospy\nfrom std_msgs.msg import String\nrospy.init_node('talker')\n"
+
+
+@pytest.mark.parametrize("first_on_path", ["venv", "shim"])
+def test_env_python3_that_cannot_import_rospy(env, tmp_path, ros_env, first_on_path):
+    """A rospy node script starting with `#!/usr/bin/env python3` while a real venv's bin (or a version manager's
+    shim, here a pyenv-like script in front of another real interpreter) comes first on PATH: that python3 cannot
+    import rospy, the system's can. Doctor names the node, the interpreter, the modules and the fix."""
+    script = tmp_path / "ws" / "doc_pkg" / "talker"
+    script.write_text(ROSPY_NODE)
+    script.chmod(0o755)
+    launch = tmp_path / "robot.launch"
+    launch.write_text('<launch>\n<node pkg="doc_pkg" type="talker" name="talker"/>\n'
+                      '<node pkg="doc_pkg" type="good" name="plain"/>\n</launch>\n')
+    if first_on_path == "venv":
+        subprocess.run([ros_env["python"], "-m", "venv", "--without-pip", str(tmp_path / "venv")], check=True)
+        bin_dir = tmp_path / "venv" / "bin"
+    else:
+        bin_dir = tmp_path / "shims"
+        bin_dir.mkdir()
+        (bin_dir / "python3").write_text('#!/bin/sh\nexec %s "$@"\n' % sys.executable)
+        (bin_dir / "python3").chmod(0o755)
+    rc, out = doctor(dict(env, PATH="%s:%s" % (bin_dir, ros_env["path"])), str(launch))
+    assert rc == 1, out
+    problems = [line for line in out.splitlines() if line.startswith("problem")]
+    assert problems == [
+        "problem  %s:2: node [/talker]: %s starts with '#!/usr/bin/env python3', which finds %s/python3 first on "
+        "PATH; that cannot import rospy, std_msgs (%s can)" % (launch, script, bin_dir, ros_env["python"])], out
+    assert "fix: take %s off PATH: put only `launch` and `launcher` on it" % bin_dir in out
+    # without a launch file: a note, as any rospy node would meet it
+    assert "note     python3 on PATH is %s/python3, which cannot import rospy" % bin_dir in doctor(
+        dict(env, PATH="%s:%s" % (bin_dir, ros_env["path"])))[1]
+    # the system's python3 first: the same node is sound
+    rc, out = doctor(dict(env, PATH=ros_env["path"]), str(launch))
+    assert rc == 0 and "python3 on PATH" not in out, out

@@ -26,6 +26,9 @@ node) write straight to its own terminal, so nothing keeps that output and
   supervisor prints the exit line, so the console shows it in roslaunch's order.
   A descriptor still held by a process the node left behind stays watched until
   its end of file.
+- A node that dies at once of `ModuleNotFoundError` for a module the system's
+  python has (rospy, run by a venv's or pyenv's `python3` first on PATH) gets
+  one line saying so at its exit, once per interpreter (launcher/nodepython.py).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import termios
 import weakref
 from typing import TextIO
 
+from launcher import nodepython
 from launcher.process import console
 
 CHUNK = 65536  # one read per readable event: a pipe's default capacity
@@ -105,6 +109,10 @@ def _follow_resizes(loop: asyncio.AbstractEventLoop, pty_fd: int, terminal_fd: i
         _resize_loops.add(loop)
 
 
+# The interpreters an import hint was given for: once per launch is enough (every node of a package fails alike).
+_hinted: set[str] = set()
+
+
 def _open_pipe() -> tuple[int, int]:
     read_end, write_end = os.pipe2(os.O_CLOEXEC)
     return read_end, write_end
@@ -166,6 +174,8 @@ class ScreenOutput:
         self.name = name
         self.sources = dict(sources)  # launcher's end -> console stream, while open
         self.paused = False
+        self.started = loop.time()
+        self.missing_module: str | None = None  # what an import error at the start named (nodepython.py)
         self.log_fd: int | None = None
         if log_path:
             flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (os.O_TRUNC if truncate else 0)
@@ -206,6 +216,9 @@ class ScreenOutput:
                 self.log_fd = None
         if not console.relay(self.sources[fd], data) and not self.paused:
             self._pause()
+        if (b"No module named" in data and self.missing_module is None
+                and self.loop.time() - self.started < nodepython.AT_ONCE_S):
+            self.missing_module = nodepython.missing_module(data)
         return len(data)
 
     def _readable(self, fd: int) -> None:
@@ -241,6 +254,16 @@ class ScreenOutput:
                 if not n:
                     break
                 relayed += n
+        if self.missing_module is not None:
+            self._import_hint(self.missing_module)
+            self.missing_module = None
+
+    def _import_hint(self, module: str) -> None:
+        """The node died of an import error at its start: say so if it is the PATH trap (once per interpreter)."""
+        hint = nodepython.import_hint(self.name, module, os.environ)
+        if hint is not None and hint[0] not in _hinted:
+            _hinted.add(hint[0])
+            console.printerrlog(hint[1])
 
     def _close(self, fd: int) -> None:
         self.sources.pop(fd, None)
