@@ -69,9 +69,14 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     # for the guard); one with none (Debian's, which would take ~0.3 s more to exit) is ended at once.
     # When the child has ended either way, the loop exits without stop_nodes: an ended child has no
     # children left for `pkill -P` to find, and each pgrep/pkill scans /proc on CPUs the nodes need.
-    script = ("stop_nodes() { kill -STOP $child 2>/dev/null; pkill -INT -P $child; i=0\n"
-              "while [ $i -lt %d ] && pgrep -P $child >/dev/null; do sleep 0.1; i=$((i+1)); done\n"
-              "pkill -KILL -P $child; kill -KILL $child 2>/dev/null; exit 0; }\n"
+    # Each node runs in a session (and process group) of its own, whose id is the pid of the child's
+    # child that leads it: the signals go to those groups, so what a node started (a shell script's
+    # background jobs, which ignore SIGINT) is SIGKILLed with it, as the local supervisor does.
+    script = ("alive() { for g in $groups; do kill -0 -$g 2>/dev/null && return 0; done; return 1; }\n"
+              "stop_nodes() { kill -STOP $child 2>/dev/null; groups=$(pgrep -P $child)\n"
+              "for g in $groups; do kill -INT -$g 2>/dev/null; done; i=0\n"
+              "while [ $i -lt %d ] && alive; do sleep 0.1; i=$((i+1)); done\n"
+              "for g in $groups; do kill -KILL -$g 2>/dev/null; done; kill -KILL $child 2>/dev/null; exit 0; }\n"
               "%s & child=$!\n"
               "trap stop_nodes HUP TERM\n"
               "while kill -0 $child 2>/dev/null && beat=$(timeout --foreground %s head -c 1 2>/dev/null); do\n"

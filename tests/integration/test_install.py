@@ -19,8 +19,8 @@ import pytest
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import readme  # noqa: E402
 
-from running import (ROS_PATH, Launcher, RospyTalker, free_port, make_package, master_proxy, poll,  # noqa: E402
-                     stop_group, write_launch)
+from helpers import ROS_PATH, free_port, until  # noqa: E402
+from running import Launcher, RospyTalker, make_package, master_proxy, stop_group, write_launch  # noqa: E402
 
 ROOT = readme.ROOT
 MISSING_EVERYWHERE = "#!/usr/bin/env python3\nimport no_such_module_anywhere\n"
@@ -51,7 +51,7 @@ def test_a_rospy_node_run_by_a_venvs_python3_is_explained_in_one_line(tmp_path, 
     env.pop("ROS_NAMESPACE", None)
     lp = Launcher([launch], env, str(tmp_path))
     try:
-        poll(lambda: lp.stderr.count("process has died") == 3, 60, what="the three nodes died")
+        until(lambda: lp.stderr.count("process has died") == 3, 60, what="the three nodes died")
         err = lp.stderr
         assert err.count("No module named 'rospy'") == 2 and "No module named 'no_such_module_anywhere'" in err
         hints = [line for line in err.splitlines() if "cannot import" in line]
@@ -95,7 +95,7 @@ def test_the_everyday_install_in_readme_runs_rospy_nodes(tmp_path, ros_env):
         return "/talker" in _publishers(port, "/chatter")
 
     try:
-        poll(published, 600, 0.5, what="the rospy talker publishing under README's install")
+        until(published, 600, 0.5, what="the rospy talker publishing under README's install")
         assert "No module named" not in (tmp_path / "err").read_text()
     finally:
         stop_group(proc, 20)

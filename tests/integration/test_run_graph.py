@@ -12,8 +12,8 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import readme  # noqa: E402
 
-from running import (ROS_PATH, Launcher, RospyTalker, free_port, make_package, master_proxy, poll,  # noqa: E402
-                     stop_group, write_launch)
+from helpers import ROS_PATH, free_port, until  # noqa: E402
+from running import Launcher, RospyTalker, make_package, master_proxy, stop_group, write_launch  # noqa: E402
 from running import ros_env as run_env  # noqa: E402
 
 BODY = """
@@ -64,7 +64,7 @@ def test_the_graph_is_roslaunchs_but_for_what_readme_names(tmp_path, ros_env):
             lp = Launcher([launch, "-p", str(port)] + extra_args, env, str(tmp_path))
             stop = lp.close
         try:
-            graphs[which] = poll(lambda: _settled(port, extra), 60, 0.2, what="%s's graph registered" % which)
+            graphs[which] = until(lambda: _settled(port, extra), 60, 0.2, what="%s's graph registered" % which)
         finally:
             stop()
     theirs, ours, default = graphs["roslaunch"], graphs["ours"], graphs["ours-default"]
