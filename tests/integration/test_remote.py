@@ -239,6 +239,34 @@ def test_sigkill_of_the_launcher_leaves_no_process_on_the_hosts(hosts, launched,
         raise AssertionError("%s: %s" % (e, h1.process_lines() + h2.process_lines())) from None
 
 
+# a node whose launch-prefix is a shell that leaves a background job in the node's session: a shell's
+# background jobs ignore SIGINT, so only a signal to the node's whole group stops it
+BACKGROUNDER = ('<node machine="one" pkg="rostopic" type="rostopic" name="talker" args="pub /chatter std_msgs/String '
+                'hello -r 10" launch-prefix="sh -c \'sleep 1234 &amp; exec &quot;$0&quot; &quot;$@&quot;\'"/>\n')
+
+
+@pytest.mark.parametrize("child", ["debian", "ours"])
+@pytest.mark.parametrize("how", ["sigkill", "cut"])
+def test_a_remote_nodes_whole_process_tree_is_stopped_when_the_launcher_or_the_link_goes(hosts, launched, child,
+                                                                                         how):
+    la, env = launched(BACKGROUNDER, child=child)
+    h1 = hosts.hosts[0]
+    until(lambda: on_host(h1, "sleep 1234") and on_host(h1, "__name:=talker"), 60, what="the node and its job")
+    if how == "sigkill":
+        la.proc.kill()
+        la.proc.wait()
+    else:
+        h1.cut()
+    try:
+        until(lambda: not on_host(h1, "sleep 1234") and not on_host(h1, "__name:=talker"), NO_ORPHAN_S,
+              period=0.1, what="the node and its background job gone from host one")
+    except AssertionError as e:
+        raise AssertionError("%s: %s" % (e, h1.process_lines())) from None
+    finally:
+        if how == "cut":
+            h1.restore()
+
+
 @pytest.mark.parametrize("child", ["debian", "ours"])
 def test_a_cut_link_stops_that_hosts_nodes_and_they_start_again_when_it_returns(hosts, launched, child):
     la, env = launched(TALKER % "" + LISTENER % "", child=child)
