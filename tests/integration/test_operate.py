@@ -245,6 +245,30 @@ def test_no_start_then_launcher_start(tmp_path, pkgs):
         lp.close()
 
 
+def test_launcher_start_of_a_fatal_node_gives_it_all_its_retries_again(tmp_path, pkgs):
+    """As supervisorctl's start of a FATAL program: the failure count starts afresh, so the node gets
+    respawn_max_retries restarts again before it is FATAL once more (not one try)."""
+    make_package(pkgs, "crash_tests", {"crash": "#!/bin/sh\necho crashing\nexit 3\n"})
+    lp, env = start_launch(tmp_path, pkgs, """
+      <node pkg="crash_tests" type="crash" name="crash" respawn="true" respawn_delay="0.1" respawn_max_retries="2"/>
+      <node pkg="op_tests" type="spinner" name="keep"/>
+    """)
+    try:
+        fatal = lambda: (lambda s: s if s.get("/crash", {}).get("state") == "fatal" else None)(  # noqa: E731
+            status(env, starting=True))
+        st = until(fatal, 60, 0.2, what="crash FATAL")
+        assert st["/crash"]["failures"] == 3 and st["/crash"]["restarts"] == 2, st["/crash"]
+        r = tool(env, "start", "crash")
+        assert r.returncode == 0, r.stderr
+        st = until(lambda: (lambda s: s if s["/crash"]["restarts"] > 2 and s["/crash"]["state"] == "fatal" else None)(
+            status(env)), 60, 0.2, what="crash FATAL again")
+        # three more runs (the start and two respawns), the count again from 0 to 3
+        assert st["/crash"]["restarts"] == 5 and st["/crash"]["failures"] == 3, st["/crash"]
+        assert lp.stderr.count("FATAL: failed 3 starts in a row (respawn_max_retries=2)") == 2, lp.stderr
+    finally:
+        lp.close()
+
+
 def test_second_ctrl_c_kills_the_nodes_still_stopping(tmp_path, pkgs):
     lp, env = start_launch(tmp_path, pkgs, """
       <node pkg="op_tests" type="ignore_int_term" name="stubborn"/>
