@@ -487,7 +487,7 @@ class Run:
     async def _start_diagnostics(self) -> None:
         try:
             from launcher.operate.diagnostics import Diagnostics
-            diagnostics = Diagnostics(self.master_uri, self.fleet, environ=self.plan.environ)
+            diagnostics = Diagnostics(self.master_uri, self.fleet, environ=self.plan.environ, master=self.master)
             await diagnostics.start()
         except Exception as e:  # noqa: BLE001 - the launch goes on without /diagnostics
             console.printerrlog("could not publish /diagnostics: %s" % e)

@@ -1,6 +1,8 @@
 """`/diagnostics`: every node's state as a diagnostic_msgs/DiagnosticArray, once a second (`--no-diagnostics`: off).
 
-One DiagnosticStatus per node, named after the node: OK while it runs,
+One DiagnosticStatus per node, named after the node (and, with our master, one
+named MASTER_STATUS while some registered node does not answer its callbacks:
+WARN, a value per node saying for how long and why): OK while it runs,
 WARN while it is over a limit (memory_limit, cpu_limit), respawns or is
 stopped, ERROR when it is fatal, hung, or exited with a failure. rqt_robot_monitor and `rostopic echo /diagnostics`
 show the fleet. The message definition and md5sum are rosbags' (kept as
@@ -22,6 +24,7 @@ TOPIC = "/diagnostics"
 TYPE = "diagnostic_msgs/DiagnosticArray"
 PERIOD_S = 1.0
 NODE_NAME = "/launcher_diagnostics"
+MASTER_STATUS = "/launcher/master"
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
@@ -75,18 +78,33 @@ def _values(status: Any, now: float) -> list[tuple[str, str]]:
     return values
 
 
-def serialize(nodes: Iterable[Any], seq: int, now: float) -> bytes:
-    """A DiagnosticArray of the nodes' states, in ROS 1 wire format."""
-    nodes = list(nodes)
+def unresponsive_text(u: Any) -> str:
+    """One node the master cannot reach, in words (status and /diagnostics)."""
+    return "%s: %d failed callback%s over %.0f s (%s), %d waiting" % (
+        " ".join(u.names) or u.api, u.failures, "" if u.failures == 1 else "s", u.failing_s, u.last_error, u.queued)
+
+
+def master_status(unresponsive: list[Any]) -> tuple[int, str, str, str, list[tuple[str, str]]] | None:
+    """The master's status entry: None while every registered node answers its callbacks."""
+    if not unresponsive:
+        return None
+    return (WARN, MASTER_STATUS, "%d node(s) do not answer the master's callbacks" % len(unresponsive), "localhost",
+            [(u.api, unresponsive_text(u)) for u in unresponsive])
+
+
+def serialize(nodes: Iterable[Any], seq: int, now: float, extra: Iterable[tuple] = ()) -> bytes:
+    """A DiagnosticArray of the nodes' states (and `extra` entries: level, name, message, hardware id,
+    values), in ROS 1 wire format."""
+    entries = [(*level_of(s), s.name, s.host, _values(s, now)) for s in nodes]
+    entries = [(level, name, message, host, values) for level, message, name, host, values in entries]
+    entries += list(extra)
     secs = int(now)
-    out = [struct.pack("<III", seq, secs, int((now - secs) * 1e9)), _U32.pack(0), _U32.pack(len(nodes))]
-    for status in nodes:
-        level, message = level_of(status)
+    out = [struct.pack("<III", seq, secs, int((now - secs) * 1e9)), _U32.pack(0), _U32.pack(len(entries))]
+    for level, name, message, host, values in entries:
         out.append(struct.pack("<b", level))
-        _string(out, status.name)
+        _string(out, name)
         _string(out, message)
-        _string(out, status.host)
-        values = _values(status, now)
+        _string(out, host)
         out.append(_U32.pack(len(values)))
         for key, value in values:
             _string(out, key)
@@ -115,9 +133,10 @@ class Diagnostics:
     """A node of the launcher that publishes the fleet's states on /diagnostics."""
 
     def __init__(self, master_uri: str, fleet: Any, *, environ: Mapping[str, str] | None = None,
-                 period: float = PERIOD_S):
+                 period: float = PERIOD_S, master: Any = None):
         self.master_uri = master_uri
         self.fleet = fleet
+        self.master = master  # our master (None: a master found running), for the nodes it cannot reach
         self.environ = environ
         self.period = period
         self.node: Any = None
@@ -147,7 +166,8 @@ class Diagnostics:
         self.seq += 1
         if pub is None or not pub.links or self.fleet is None:
             return  # nobody listens: build nothing
-        pub.publish(serialize(self.fleet, self.seq, time.time()))
+        entry = master_status(self.master.unresponsive_nodes()) if self.master is not None else None
+        pub.publish(serialize(self.fleet, self.seq, time.time(), [entry] if entry else []))
 
     async def stop(self) -> None:
         if self._task is not None:

@@ -199,7 +199,9 @@ class LaunchServer:
         info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
                 "log_dir": log_dir, "token_file": self.token_path,
                 "events_file": os.path.join(log_dir, EVENTS_FILE) if log_dir else "",
-                "launch_files": list(run.plan.config.files), "nodes": nodes}
+                "launch_files": list(run.plan.config.files), "nodes": nodes,
+                # the nodes our master cannot reach (its callbacks time out or are refused)
+                "unresponsive": [u._asdict() for u in run.master.unresponsive_nodes()] if run.master else []}
         # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
         return json.dumps(info, separators=(",", ":"), default=str)
 

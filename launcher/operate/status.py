@@ -58,7 +58,12 @@ def last_exit(node: dict[str, Any]) -> str:
 
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
-    return title + "\n" + node_table(info["nodes"])
+    text = title + "\n" + node_table(info["nodes"])
+    for u in info.get("unresponsive") or ():  # (the master's own view: callbacks to these go unanswered)
+        text += ("\nWARNING: the master cannot reach %s (%s): %d failed callback(s) over %.0f s, the last: %s; "
+                 "%d waiting" % (" ".join(u["names"]) or "?", u["api"], u["failures"], u["failing_s"],
+                                 u["last_error"], u["queued"]))
+    return text
 
 
 def node_table(nodes: list[dict[str, Any]]) -> str:

@@ -41,3 +41,17 @@ def test_type_is_rosbags_diagnostic_array():
     definition, md5 = get_typestore(Stores.ROS1_NOETIC).generate_msgdef("diagnostic_msgs/msg/DiagnosticArray")
     mtype = diagnostics.topic_type()
     assert (mtype.name, mtype.md5sum, mtype.definition) == ("diagnostic_msgs/DiagnosticArray", md5, definition)
+
+
+def test_nodes_the_master_cannot_reach_are_one_warn_status():
+    from launcher.master import UnresponsiveNode
+    fleet = Fleet()
+    assert diagnostics.master_status([]) is None  # every node answers: no entry at all
+    u = UnresponsiveNode(["/wedged"], "http://10.0.0.9:4242/", 3, 12.0, "timed out", 2)
+    raw = diagnostics.serialize(fleet, 1, 5.0, [diagnostics.master_status([u])])
+    msg = get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(raw, "diagnostic_msgs/msg/DiagnosticArray")
+    (status,) = msg.status
+    assert (status.level, status.name) == (diagnostics.WARN, "/launcher/master")
+    assert "1 node(s) do not answer" in status.message
+    (kv,) = status.values
+    assert kv.key == "http://10.0.0.9:4242/" and kv.value == "/wedged: 3 failed callbacks over 12 s (timed out), 2 waiting"

@@ -53,3 +53,14 @@ def test_the_launches_an_operator_can_mean():
     assert candidates([roscore, core]) == [core]  # a bare `launch --core` when it is the only one of ours
     assert candidates([roscore, stale]) == []
     assert candidates([ours, r("5", "ours", 1)]) == [ours, r("5", "ours", 1)]  # two of ours: ask
+
+
+def test_status_names_the_nodes_the_master_cannot_reach():
+    from launcher.operate.status import table as status_table
+    info = {"nodes": [node("/a", "running")], "unresponsive": [
+        {"names": ["/wedged"], "api": "http://h:1/", "failures": 4, "failing_s": 31.5, "last_error": "timed out",
+         "queued": 1}]}
+    last = status_table(info).splitlines()[-1]
+    assert last == ("WARNING: the master cannot reach /wedged (http://h:1/): 4 failed callback(s) over 32 s, "
+                    "the last: timed out; 1 waiting")
+    assert "WARNING" not in status_table({"nodes": [node("/a", "running")], "unresponsive": []})
