@@ -202,10 +202,13 @@ class StopSignals:
         self.event = asyncio.Event()
         # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
         self.while_stopping: Callable[[], None] | None = None
+        self.received = ""  # the first stop signal's name
         for sig in STOP_SIGNALS:
-            loop.add_signal_handler(sig, self._on_signal)
+            loop.add_signal_handler(sig, self._on_signal, sig)
 
-    def _on_signal(self) -> None:
+    def _on_signal(self, sig: int = 0) -> None:
+        if not self.received and sig:
+            self.received = signal.Signals(sig).name
         if self.while_stopping is not None:
             self.while_stopping()
         self.event.set()
@@ -640,6 +643,17 @@ class Run:
                 pass
         await self.server.stop()
 
+    def _end_reason(self) -> str:
+        """Why the run ends, in words (the events file's last line, which `launcher status` reads after it)."""
+        if self.signals.received:
+            return "stopped by %s" % self.signals.received
+        if self.master is not None and self.master.shutdown_requested.is_set():
+            return "shutdown request: %s" % self.master.shutdown_reason
+        if self.supervisor is not None and self.supervisor.done.is_set():
+            status = self.supervisor.exit_status
+            return "its nodes ended it (exit status %d)" % status
+        return "ended"
+
     async def _teardown(self) -> None:
         for t in self._tasks:
             t.cancel()
@@ -658,6 +672,7 @@ class Run:
             self.signals.while_stopping = None
             self.supervisor.close()
         if self.fleet is not None:
+            self.fleet.launch_ended(self._end_reason(), self.supervisor.exit_status if self.supervisor else 0)
             self.fleet.close()
         if self.server is not None:
             await self._stop_server()

@@ -23,11 +23,10 @@ import time
 from typing import Any, Mapping, NamedTuple
 
 from launcher.operate import client
-from launcher.process.state import EVENTS_FILE
+from launcher.process.state import EVENTS_FILE, LAUNCH_ENDED
 from launcher.roshome import log_root
 from launcher.suggest import did_you_mean
 
-LAUNCH_ENDED = "launch_ended"
 LAUNCH_LOG = re.compile(r"roslaunch-(?P<host>.+)-(?P<pid>\d+)\.log")
 # a line of our launch log: "[2024-05-01 12:00:03.123] text" (roslaunch's read "[roslaunch][INFO] 2024-...")
 OUR_LINE = re.compile(r"\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\] ?(.*)")

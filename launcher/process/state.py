@@ -50,7 +50,8 @@ HUNG = "hung"
 STOPPED = "stopped"
 STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STOPPED)
 
-EVENTS_FILE = "launcher-events.jsonl"  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+EVENTS_FILE = "launcher-events.jsonl"
+LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
 CHANGES_KEPT = 10000  # changes a long-polling reader can ask for again
@@ -296,6 +297,17 @@ class Fleet:
             self.done.set()
 
     # ---- the events file -----------------------------------------------------------------------------------
+
+    def launch_ended(self, reason: str, exit_status: int) -> None:
+        """The launch's last line in the events file: a reader after it knows it ended, when and why (one
+        that was killed has none)."""
+        line = {"event": LAUNCH_ENDED, "time": round(time.time(), 6), "reason": reason, "exit_status": exit_status}
+        if self._events is not None:
+            try:
+                self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
+            except OSError as e:
+                self._warning("cannot write the events file: %s" % e.strerror)
+                self._close()
 
     @staticmethod
     def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:

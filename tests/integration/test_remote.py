@@ -400,7 +400,7 @@ def events(tmp_path, node: str) -> list[dict]:
             lines = f.read().splitlines()
     except OSError:
         return []
-    return [e for e in (json.loads(line) for line in lines if line.endswith("}")) if e["node"] == node]
+    return [e for e in (json.loads(line) for line in lines if line.endswith("}")) if e.get("node") == node]
 
 
 POLICY_TALKER = ('<node machine="one" pkg="rostopic" type="rostopic" name="talker" respawn="true" '

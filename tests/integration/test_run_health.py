@@ -39,7 +39,7 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
     assert len(plain.history) >= 5  # sampled every 0.1 s during the second of waiting
     assert all(rss > 0 for _t, _cpu, rss in plain.history)
     with open(os.path.join(run.log.run_dir, EVENTS_FILE)) as f:
-        held = [e for e in map(json.loads, f) if e["node"] == "/held"]
+        held = [e for e in map(json.loads, f) if e.get("node") == "/held"]
     assert [e["state"] for e in held] == ["waiting", "exited"]
     assert held[1]["reason"] == "still waiting after 1 s for param:/never, node:/nobody"
 

@@ -54,7 +54,7 @@ def events(tmp_path) -> list[dict]:
 
 
 def node_events(tmp_path, node: str) -> list[dict]:
-    return [e for e in events(tmp_path) if e["node"] == node]
+    return [e for e in events(tmp_path) if e.get("node") == node]
 
 
 def restart_delays(evs: list[dict]) -> list[float]:

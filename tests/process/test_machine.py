@@ -232,3 +232,22 @@ def test_the_change_stream_serves_a_long_poll():
         fleet.changes.popleft()  # (the oldest dropped, as past CHANGES_KEPT)
         assert fleet.changes_since(0)[1] is False
     asyncio.run(main())
+
+
+def test_the_events_file_ends_with_the_launchs_end(tmp_path):
+    """Visible changes are written, internal steps are not, and the launch's end is the last line."""
+    import json
+
+    from launcher.process import state
+    path = tmp_path / "events.jsonl"
+    fleet = state.Fleet(str(path), clock=lambda: 1.0)
+    fleet.add("/a", process="a-1")
+    fleet.apply("/a", Event(m.START))  # new -> starting: not written
+    fleet.apply("/a", Event(m.SPAWNED, pid=5))
+    fleet.apply("/a", Event(m.SHUTDOWN))  # running -> stopping: not written
+    fleet.apply("/a", Event(m.DOWN, exit_signal=2))
+    fleet.launch_ended("stopped by SIGINT", 0)
+    fleet.close()
+    lines = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [(e.get("state"), e.get("phase")) for e in lines[:-1]] == [("running", "running"), ("stopped", "stopped")]
+    assert lines[-1]["event"] == state.LAUNCH_ENDED and lines[-1]["reason"] == "stopped by SIGINT"
