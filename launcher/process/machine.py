@@ -389,6 +389,7 @@ TABLE = {
     (RESPAWNING, SPAWNED): _spawned,  # (a remote node its child respawns)
     (RUNNING, EXITED_): _exited,
     (HUNG, EXITED_): _exited,
+    (LAUNCHING, EXITED_): _exited,  # (its child told of its death before it answered the call)
     (STOPPING, EXITED_): _exit_while_stopping,
     (RUNNING, HANG): _hang,
     (RUNNING, RESTART): _restart,

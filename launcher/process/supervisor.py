@@ -368,8 +368,9 @@ class Supervisor:
         proc.exit_code = rc
         proc.alive = False
         self._check_group(proc)
-        code, sig = _exit_code_and_signal(rc)
-        self._tell(proc, Event(machine.EXITED_, exit_code=code, exit_signal=sig, detail=proc.exit_description()))
+        if not proc.leftover:  # (a record given over to a newer one speaks for the node no more)
+            code, sig = _exit_code_and_signal(rc)
+            self._tell(proc, Event(machine.EXITED_, exit_code=code, exit_signal=sig, detail=proc.exit_description()))
         if proc.stopping:
             self._stopping_progress(proc)
 

@@ -26,7 +26,7 @@ wai      !     !    sta  !     !    !     !     !    !    !     -     stp  stp  
 hel      !     !    !    sta   exi  !     !     !    !    !     -     stp  stp   !    !    sta   !     !    !    -     exi
 sta      !     !    !    !     !    run   res   !    !    -     -     !    !     !    !    -     !     !    !    !     !
 pen      !     !    !    !     !    !     -     -    !    !     -     stp  stp   !    !    -     lau   -    -    -     exi
-lau      !     !    !    !     !    run   res   !    !    !     -     sto  stp   !    !    -     !     lau  pen  los   exi
+lau      !     !    !    !     !    run   res   res  !    !     -     sto  stp   !    !    -     !     lau  pen  los   exi
 run      !     !    !    !     !    run   !     res  hun  run   run   sto  sto   !    !    -     !     run  -    los   exi
 hun      !     !    !    !     !    !     !     res  -    -     -     sto  sto   !    !    -     !     !    !    !     !
 sto      !     !    !    !     !    -     !     sto  -    -     -     -    -     stp  run  -     !     -    !    stp   -
