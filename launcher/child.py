@@ -33,6 +33,7 @@ from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.packages import PackageIndex
 from launcher.runlog import RunLog
+from launcher.runopts import RunOptions
 from launcher.runtime import Plan, node_specs
 from launcher.xml import load
 
@@ -60,7 +61,7 @@ def run_child(opts: Any) -> int:
 
 class Child:
     def __init__(self, opts: Any, watchdog: Any):
-        self.opts = opts
+        self.opts = RunOptions.from_args(opts)  # (the node options: --screen, --log, --required, timeouts)
         self.name = opts.child_name
         self.parent_uri = opts.server_uri
         self.run_id = opts.run_id

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 from launcher import __version__
 from launcher.errors import LaunchError, UsageError
 from launcher.process import console
+from launcher.runopts import RunOptions
 
 USAGE = ("launch [options] [package] <filename> [arg_name:=value...]\n"
          "       launch [options] <filename> [<filename>...] [arg_name:=value...]\n"
@@ -48,6 +49,8 @@ exit status:
 
 shell completion:  eval "$(launcher completion bash)"   (or zsh); the operator's command is `launcher`."""
 
+_RUN = RunOptions._field_defaults  # (one set of defaults for the command line and every other front-end)
+
 
 def build_parser() -> argparse.ArgumentParser:
     import argparse
@@ -72,17 +75,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--local", action="store_true", help="do not launch nodes on other machines")
     p.add_argument("--no-summary", dest="no_summary", action="store_true", help="do not print the summary")
     p.add_argument("--skip-log-check", dest="skip_log_check", action="store_true", help="do not check the log directory's size")
-    p.add_argument("--log-check-threshold", dest="log_check_threshold", default="1GiB", metavar="SIZE",
+    p.add_argument("--log-check-threshold", dest="log_check_threshold", default=_RUN["log_check_threshold"], metavar="SIZE",
                    help="warn when the log directory is larger than this (default 1GiB, roslaunch's)")
-    p.add_argument("--log-max-size", dest="log_max_size", default="100MB", metavar="SIZE",
+    p.add_argument("--log-max-size", dest="log_max_size", default=_RUN["log_max_size"], metavar="SIZE",
                    help="rotate a node's output log past this size (default 100MB; 0: never)")
-    p.add_argument("--log-backups", dest="log_backups", type=int, default=4, metavar="N",
+    p.add_argument("--log-backups", dest="log_backups", type=int, default=_RUN["log_backups"], metavar="N",
                    help="rotated copies of a node's output log to keep (default 4)")
-    p.add_argument("--sigint-timeout", dest="sigint_timeout", type=float, default=15.0, metavar="SECONDS",
+    p.add_argument("--sigint-timeout", dest="sigint_timeout", type=float, default=_RUN["sigint_timeout"], metavar="SECONDS",
                    help="seconds from SIGINT to SIGTERM when stopping a node (default 15)")
-    p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=2.0, metavar="SECONDS",
+    p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=_RUN["sigterm_timeout"], metavar="SECONDS",
                    help="seconds from SIGTERM to SIGKILL when stopping a node (default 2)")
-    p.add_argument("--monitor-period", dest="monitor_period", type=float, default=1.0, metavar="SECONDS",
+    p.add_argument("--monitor-period", dest="monitor_period", type=float, default=_RUN["monitor_period"], metavar="SECONDS",
                    help="seconds between two samples of the nodes' CPU and memory (default 1)")
     # operating a running launch (the `launcher` command)
     p.add_argument("--no-start", dest="no_start", action="store_true",
@@ -115,11 +118,11 @@ _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params"
           "--local": "local", "--no-summary": "no_summary", "--skip-log-check": "skip_log_check",
           "-v": "verbose", "--disable-title": "disable_title", "--no-start": "no_start",
           "--no-diagnostics": "no_diagnostics"}
+# what build_parser() gives for an argv of flags and positionals: a run's defaults are RunOptions' own
 _DEFAULTS: dict[str, object] = dict(
-    {dest: False for dest in _FLAGS.values()}, node_args=None, find_node=None, port=None,
-    log_check_threshold="1GiB", log_max_size="100MB", log_backups=4, sigint_timeout=15.0, sigterm_timeout=2.0,
-    monitor_period=1.0, pid_fn=None, run_id=None,
-    num_workers=None, timeout=None, master_logger_level=None, child_name=None, server_uri=None, master_allow=None)
+    {dest: False for dest in _FLAGS.values()}, **{k: v for k, v in _RUN.items() if k not in ("positional", "master_allow")},
+    node_args=None, find_node=None, num_workers=None, timeout=None, master_logger_level=None, child_name=None,
+    server_uri=None, master_allow=None)
 
 
 def parse_simple_args(args: list[str]) -> SimpleNamespace | None:
@@ -176,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             build_parser().error("you must specify at least one input file")
         from launcher import runtime
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped
-        return runtime.run(opts, exit_process=argv is None)
+        return runtime.run(RunOptions.from_args(opts), exit_process=argv is None)
     except UsageError as e:
         console.flush()  # (the warnings already queued there come first)
         build_parser().error(str(e))  # roslaunch's parser.error: the usage, the message, exit status 2

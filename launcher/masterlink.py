@@ -18,6 +18,7 @@ from typing import Any, Mapping
 from launcher.errors import LaunchError
 from launcher.master import Master
 from launcher.net.xmlrpc import Fault, call
+from launcher.runopts import RunOptions
 
 CALLER_ID = "/roslaunch"
 DEFAULT_MASTER_PORT = 11311
@@ -28,9 +29,9 @@ PROBE_TIMEOUT_S = 3.0
 PARAM_TIMEOUT_S = 30.0
 
 
-def master_port(opts: Any, environ: Mapping[str, str]) -> int:
+def master_port(opts: RunOptions, environ: Mapping[str, str]) -> int:
     """-p, else the port of ROS_MASTER_URI, else 11311 (as roscore picks it)."""
-    if getattr(opts, "port", None):
+    if opts.port:
         return int(opts.port)
     uri = environ.get("ROS_MASTER_URI")
     if uri:

@@ -49,6 +49,7 @@ from launcher.process.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
+from launcher.runopts import RunOptions
 from launcher.xml import load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -68,7 +69,7 @@ class Stopped(Exception):
     """A stop signal arrived while the run was starting."""
 
 
-def run(opts: Any, *, exit_process: bool = False) -> int:
+def run(opts: RunOptions, *, exit_process: bool = False) -> int:
     """`launch [pkg] file.launch ...` or `launch --core`: run until a stop signal, a `shutdown` call, a
     required node's exit, or (with a master already running) every node's exit; the exit status.
 
@@ -76,10 +77,10 @@ def run(opts: Any, *, exit_process: bool = False) -> int:
     once everything is stopped and flushed, skipping the interpreter's
     tear-down (tens of ms that a user waiting for the prompt would notice).
     """
-    core = bool(getattr(opts, "core", False))
+    core = opts.core
     # The guard is started first, so that no node can ever run unwatched (a core runs none).
     watchdog = None if core else Watchdog.start()
-    pid_fn = getattr(opts, "pid_fn", None)
+    pid_fn = opts.pid_fn
     try:
         if pid_fn:
             try:
@@ -124,7 +125,7 @@ class Plan:
         self.core_port = core_port
 
     @classmethod
-    def core(cls, opts: Any) -> Plan:
+    def core(cls, opts: RunOptions) -> Plan:
         """roscore: an empty launch, our master on -p or ROS_MASTER_URI's port."""
         environ = dict(os.environ)
         port = masterlink.master_port(opts, environ)
@@ -135,12 +136,12 @@ class Plan:
         return cls(LaunchConfig(), "", environ, core=True, core_port=port)
 
     @classmethod
-    def load(cls, opts: Any) -> Plan:
+    def load(cls, opts: RunOptions) -> Plan:
         """Read the launch files; LaunchError (file and line) for bad input."""
         environ = dict(os.environ)
         warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
         packages = PackageIndex(environ, warn=warn)
-        files, argv = resolve_launch_arguments(list(opts.positional or []), packages)
+        files, argv = resolve_launch_arguments(list(opts.positional), packages)
         if not files:
             raise LaunchError("you must specify at least one input file")
         config = load(files, argv, environ=environ, packages=packages, warn=warn)
@@ -150,14 +151,14 @@ class Plan:
                 raise LaunchError("invalid port assignment: %s" % opts.port)
             uri = "http://%s:%d/" % (advertised_host(environ), opts.port)
         threshold = DEFAULT_THRESHOLD
-        if getattr(opts, "log_check_threshold", None):
+        if opts.log_check_threshold:
             try:
                 threshold = parse_size(opts.log_check_threshold)
             except ValueError as e:
                 raise LaunchError("--log-check-threshold: %s" % e) from None
         plan = cls(config, uri, environ, packages=packages, log_threshold=threshold)
         try:
-            plan.log_max_size = parse_size(getattr(opts, "log_max_size", "0") or "0")
+            plan.log_max_size = parse_size(opts.log_max_size or "0")
         except ValueError as e:
             raise LaunchError("--log-max-size: %s" % e) from None
         plan.check_nodes(opts)
@@ -170,7 +171,7 @@ class Plan:
         machine = self.config.machines.get(node.machine_name)
         return machine is not None and not (machine.is_local or is_local_host(machine.address, self.environ))
 
-    def check_nodes(self, opts: Any) -> None:
+    def check_nodes(self, opts: RunOptions) -> None:
         for node in self.config.nodes:
             if opts.required and node.respawn:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"
@@ -178,7 +179,7 @@ class Plan:
             if node.respawn and node.required:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
                                   node.filename or None, node.line or None)
-        if not getattr(opts, "local", False):
+        if not opts.local:
             machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
             for machine in sorted(machines, key=lambda m: m.name):
                 ssh.check_machine(machine)
@@ -238,7 +239,7 @@ class StopSignals:
             self.loop.remove_signal_handler(sig)
 
 
-def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
+def node_specs(plan: Plan, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
     """What to run for each local node (numbered as roslaunch's processes), and the (name, required) of
     nodes that cannot be prepared (each reported by name here)."""
     config = plan.config
@@ -266,7 +267,7 @@ def node_specs(plan: Plan, opts: Any, run_dir: str, first_number: int) -> tuple[
         output = node.output or "log"
         if opts.screen:
             output = "screen"
-        elif getattr(opts, "log", False):
+        elif opts.log:
             output = "log"
         specs.append(ProcessSpec(
             name, command,
@@ -289,7 +290,7 @@ class Run:
     # "[master] killing on exit"); rostest's runs inside it, started and stopped without a word
     MASTER_IS_A_PROCESS = True
 
-    def __init__(self, opts: Any, plan: Plan, watchdog: Any = None):
+    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None):
         self.opts = opts
         self.plan = plan
         self.watchdog = watchdog
@@ -368,14 +369,14 @@ class Run:
         await self.signals.guard(self._set_parameters())
         self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
         self._launch_nodes()
-        if not self.core and not getattr(self.opts, "no_diagnostics", False):
+        if not self.core and not self.opts.no_diagnostics:
             await self.signals.guard(self._start_diagnostics())
         self.log.timing(self._started, "every node started")
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
         answers, reply = await masterlink.probe(self.master_uri)
-        if answers and getattr(self.opts, "master_allow", None):
+        if answers and self.opts.master_allow:
             console.printerrlog("WARNING: --master-allow has no effect: the master at %s is not started "
                                 "by this launch" % self.master_uri)
         if not answers and self.opts.wait:
@@ -406,7 +407,7 @@ class Run:
 
     def _master_allow(self) -> Any:
         """`--master-allow` / `--core --allow`: the AllowList of our master, or None (open, as rosmaster)."""
-        cidrs = [c for arg in getattr(self.opts, "master_allow", None) or () for c in arg.split(",") if c.strip()]
+        cidrs = [c for arg in self.opts.master_allow for c in arg.split(",") if c.strip()]
         if not cidrs:
             return None
         try:
@@ -515,7 +516,7 @@ class Run:
 
     async def _set_parameters(self) -> None:
         """`<rosparam command="delete|dump">` in document order, then clear_params, then every parameter."""
-        for command, key, filename in getattr(self.plan.config, "rosparam_commands", ()):
+        for command, key, filename in self.plan.config.rosparam_commands:
             try:
                 if command == "delete":
                     await self.params.delete(key)
@@ -551,7 +552,7 @@ class Run:
         if self.remote is not None:
             self.remote.attach(self.fleet)
         stop = self.signals.event
-        no_start = getattr(self.opts, "no_start", False)
+        no_start = self.opts.no_start
         for spec in specs:
             if stop.is_set():
                 break
@@ -562,7 +563,7 @@ class Run:
         for name, required in failed:
             self.supervisor.not_started(name, required)
         self.supervisor.registrations_complete()
-        self.rotator = LogRotator(self.plan.log_max_size, getattr(self.opts, "log_backups", 4), self.log.note)
+        self.rotator = LogRotator(self.plan.log_max_size, self.opts.log_backups, self.log.note)
         for spec in specs:
             if spec.stdout_path:
                 self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
@@ -591,12 +592,12 @@ class Run:
         hang = HangDetector(self.master_uri, sup)
         sup.watchers += [hang, CoreDumpReporter()]
         self._health += [sup.readiness, hang]
-        monitor = ResourceMonitor(sup, getattr(self.opts, "monitor_period", None) or DEFAULT_PERIOD_S)
+        monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
         self._tasks.append(asyncio.ensure_future(monitor.run()))
 
     async def _start_remote(self) -> None:
         """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
-        if getattr(self.opts, "local", False):
+        if self.opts.local:
             # roslaunch's words (ROSLaunchParent._init_remote), whether or not a node is remote
             console.printlog_bold("LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n")
             return

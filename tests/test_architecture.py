@@ -49,6 +49,7 @@ ONLY = {
     "launcher.errors": set(),
     "launcher.roshome": set(),
     "launcher.units": set(),
+    "launcher.runopts": set(),
     "launcher.suggest": set(),
     "launcher.config": {"launcher.names"},
     "launcher.nodepython": set(),

@@ -89,3 +89,15 @@ def test_an_input_file_that_does_not_exist_is_a_usage_error_as_in_roslaunch(tmp_
         assert out.stderr.startswith("usage: launch [options]")
         assert out.stderr.endswith("launch: error: The following input files do not exist: robot=r3 (did you mean "
                                    "robot:=r3?)\n")
+
+
+def test_the_run_options_are_the_command_lines_with_its_defaults():
+    """A run reads typed options: every field comes from `launch`'s parsed command line, and a command line
+    that says nothing gives RunOptions' own defaults (one set of defaults, not two)."""
+    from launcher.runopts import RunOptions
+    assert RunOptions.from_args(cli.build_parser().parse_args(["a.launch"])) == RunOptions(positional=("a.launch",))
+    assert RunOptions.from_args(cli.parse_simple_args(["a.launch"])) == RunOptions(positional=("a.launch",))
+    given = RunOptions.from_args(cli.build_parser().parse_args(
+        ["--screen", "-p", "11400", "--sigint-timeout", "3", "--master-allow", "10.0.0.0/8", "a.launch", "x:=1"]))
+    assert (given.screen, given.port, given.sigint_timeout, given.master_allow, given.positional) == (
+        True, 11400, 3.0, ("10.0.0.0/8",), ("a.launch", "x:=1"))

@@ -101,14 +101,13 @@ def test_unbalanced_quotes_are_a_clean_error(pkgs):
 
 def test_what_runs_is_the_command_args_prints(pkgs, tmp_path):
     """The supervisor runs the very NodeCommand that `--args` prints (plus only the __log:= it adds)."""
-    from types import SimpleNamespace
-
     from launcher.config import LaunchConfig
+    from launcher.runopts import RunOptions
     from launcher.runtime import Plan, node_specs
     index, env, exe = pkgs
     node = Node("tpkg", "talker", "t", namespace="/ns/", args="-x 'a b'", remap_args=(("in", "out"),))
     plan = Plan(LaunchConfig(nodes=(node,)), "http://localhost:11311/", env, packages=index)
-    opts = SimpleNamespace(required=False, screen=False, log=False)
+    opts = RunOptions()
     (spec,), failed = node_specs(plan, opts, str(tmp_path / "log"), 1)
     printed = cmd(node, pkgs).format_args()
     assert not failed and spec.name == "ns/t-2"

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from launcher import cli
 from launcher.process import logdir
+from launcher.runopts import RunOptions
 from launcher.runtime import Plan
 from launcher.units import format_size, parse_size
 
@@ -53,7 +54,7 @@ def _plan(tmp_path, argv, node_attrs=""):
     launch = tmp_path / "a.launch"
     launch.write_text('<launch><node name="n" pkg="p" type="t" %s/></launch>' % node_attrs)
     opts = cli.build_parser().parse_args(argv + [str(launch)])
-    return Plan.load(opts)
+    return Plan.load(RunOptions.from_args(opts))
 
 
 def test_log_max_size_option_and_attribute_mean_the_same_bytes(tmp_path, monkeypatch):

@@ -28,11 +28,10 @@ import signal
 import sys
 import tempfile
 import time
-from types import SimpleNamespace
 from typing import Any
 
 from launcher import masterlink
-from launcher.cli import _DEFAULTS as LAUNCH_DEFAULTS
+from launcher.runopts import RunOptions
 from launcher.command import node_command
 from launcher.config import Node
 from launcher.errors import LaunchError
@@ -230,8 +229,7 @@ class TestFile:
             self._name_results(self.test_file, opts.package, opts.pkg_dir)
         else:
             self._name_results(self.test_file, *package_of(self.test_file))
-        self.launch_opts = SimpleNamespace(**dict(LAUNCH_DEFAULTS, positional=[self.test_file] + self.argv,
-                                                  screen=bool(opts.text)))
+        self.launch_opts = RunOptions(positional=(self.test_file, *self.argv), screen=bool(opts.text))
 
     def _name_results(self, test_file: str, pkg: str, pkg_dir: str) -> None:
         """Where the results go: rostest's `<results dir>/<pkg>/rostest-<name>.xml` (or --junit-xml)."""
