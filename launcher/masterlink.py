@@ -18,7 +18,6 @@ from typing import Any, Mapping
 from launcher.errors import LaunchError
 from launcher.master import Master
 from launcher.net.xmlrpc import Fault, call
-from launcher.runopts import RunOptions
 
 CALLER_ID = "/roslaunch"
 DEFAULT_MASTER_PORT = 11311
@@ -29,10 +28,10 @@ PROBE_TIMEOUT_S = 3.0
 PARAM_TIMEOUT_S = 30.0
 
 
-def master_port(opts: RunOptions, environ: Mapping[str, str]) -> int:
-    """-p, else the port of ROS_MASTER_URI, else 11311 (as roscore picks it)."""
-    if opts.port:
-        return int(opts.port)
+def master_port(port: int | None, environ: Mapping[str, str]) -> int:
+    """-p (`port`), else the port of ROS_MASTER_URI, else 11311 (as roscore picks it)."""
+    if port:
+        return int(port)
     uri = environ.get("ROS_MASTER_URI")
     if uri:
         try:

@@ -128,7 +128,7 @@ class Plan:
     def core(cls, opts: RunOptions) -> Plan:
         """roscore: an empty launch, our master on -p or ROS_MASTER_URI's port."""
         environ = dict(os.environ)
-        port = masterlink.master_port(opts, environ)
+        port = masterlink.master_port(opts.port, environ)
         uri_port = masterlink.master_port(None, environ)
         if environ.get("ROS_MASTER_URI") and uri_port != port:
             print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),

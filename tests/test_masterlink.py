@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import os
 import socket
 import subprocess
@@ -14,17 +13,13 @@ from launcher import masterlink
 from launcher.errors import LaunchError
 
 
-def _opts(**kw):
-    return argparse.Namespace(**kw)
-
-
 def test_port_from_option_then_ros_master_uri_then_default():
-    assert masterlink.master_port(_opts(port=11500), {"ROS_MASTER_URI": "http://h:11400/"}) == 11500
-    assert masterlink.master_port(_opts(port=None), {"ROS_MASTER_URI": "http://h:11400/"}) == 11400
-    assert masterlink.master_port(_opts(port=None), {"ROS_MASTER_URI": "http://h/"}) == 11311
-    assert masterlink.master_port(_opts(port=None), {}) == 11311
+    assert masterlink.master_port(11500, {"ROS_MASTER_URI": "http://h:11400/"}) == 11500
+    assert masterlink.master_port(None, {"ROS_MASTER_URI": "http://h:11400/"}) == 11400
+    assert masterlink.master_port(None, {"ROS_MASTER_URI": "http://h/"}) == 11311
+    assert masterlink.master_port(None, {}) == 11311
     with pytest.raises(LaunchError):
-        masterlink.master_port(_opts(port=None), {"ROS_MASTER_URI": "http://h:notaport/"})
+        masterlink.master_port(None, {"ROS_MASTER_URI": "http://h:notaport/"})
 
 
 def test_version_parameters_come_from_roslaunch_package_xml(tmp_path):

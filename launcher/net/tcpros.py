@@ -1,4 +1,5 @@
-"""TCPROS: connection headers and message framing (sans-I/O), plus thin asyncio links for topics and services."""
+"""TCPROS: connection headers, message framing and both ends' handshakes (sans-I/O: `PublisherLinkState`,
+`InboundState`, fed bytes and a clock), plus thin asyncio links for topics and services around them."""
 
 from __future__ import annotations
 
@@ -141,12 +142,140 @@ class TopicType:
     definition: str
 
 
+# --------------------------------------------------------------------------- sans-I/O links
+
+HEADER, MESSAGES, FAILED = "header", "messages", "failed"  # the phases of a topic connection
+
+
+class PublisherLinkState:
+    """Our end, as a subscriber, of one connection to a publisher: fed bytes and a clock, it says what came.
+
+    Phases: `header` (our header sent, theirs awaited: checked for an error field and the md5sum) ->
+    `messages` -> `failed` (a broken frame, a refusal, a type mismatch: the connection is to be closed).
+    It counts bytes and messages and keeps the time of the last message, which is what a watch of a
+    stalled topic reads (`silence`)."""
+
+    def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str, now: float):
+        self.topic = topic
+        self.mtype = mtype
+        self.callerid = callerid
+        self.publisher_uri = publisher_uri
+        self.phase = HEADER
+        self.header: dict[str, str] | None = None
+        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.bytes_received = 0
+        self.messages_received = 0
+        self.opened_at = now
+        self.last_message_at: float | None = None
+
+    def request(self) -> bytes:
+        """The connection header we send first."""
+        return encode_header({"callerid": self.callerid, "topic": self.topic, "type": self.mtype.name,
+                              "md5sum": self.mtype.md5sum, "message_definition": self.mtype.definition,
+                              "tcp_nodelay": "1"})
+
+    def receive(self, data: bytes, now: float) -> list[tuple[str, Any]]:
+        """What `data` brings, in order: ("header", dict), ("message", payload), or ("failed", why), after
+        which nothing more is read."""
+        if self.phase == FAILED:
+            return []
+        self.bytes_received += len(data)
+        try:
+            frames = self.decoder.feed(data)
+        except TcprosError as exc:
+            return [self._failed("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))]
+        out: list[tuple[str, Any]] = []
+        for payload in frames:
+            if self.phase == HEADER:
+                out.append(self._header(payload))
+                if self.phase == FAILED:
+                    break
+            else:
+                self.messages_received += 1
+                self.last_message_at = now
+                out.append(("message", payload))
+        return out
+
+    def silence(self, now: float) -> float:
+        """Seconds since the last message (since the connection opened, before the first)."""
+        return now - (self.last_message_at if self.last_message_at is not None else self.opened_at)
+
+    def _header(self, payload: bytes) -> tuple[str, Any]:
+        try:
+            header = decode_header(payload)
+        except TcprosError as exc:
+            return self._failed("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
+        if "error" in header:
+            return self._failed("publisher %s refused %s: %s" % (self.publisher_uri, self.topic, header["error"]))
+        theirs = header.get("md5sum", "")
+        if self.mtype.md5sum != ANY_MD5 and theirs not in (self.mtype.md5sum, ANY_MD5):
+            return self._failed("publisher %s on %s sends %s [%s], we expect %s [%s]" % (
+                self.publisher_uri, self.topic, header.get("type", "?"), theirs, self.mtype.name, self.mtype.md5sum))
+        self.header = header
+        self.phase = MESSAGES
+        self.decoder.limit = MAX_MESSAGE_SIZE
+        return ("header", header)
+
+    def _failed(self, why: str) -> tuple[str, Any]:
+        self.phase = FAILED
+        return ("failed", why)
+
+
+class InboundState:
+    """A connection a peer opened to our TCPROS server, before it is a subscriber or a service client: its
+    header decides which (or a refusal). `offer(header)` answers with ("subscriber", publication, reply
+    header), ("service", service, reply header, probe), or ("refuse", why); the lookups are the caller's."""
+
+    def __init__(self, callerid: str, publications: Mapping[str, Any], services: Mapping[str, Any]):
+        self.callerid = callerid
+        self.publications = publications
+        self.services = services
+
+    def offer(self, header: dict[str, str]) -> tuple:
+        if "service" in header:
+            return self._service(header)
+        for required in ("topic", "md5sum", "callerid"):
+            if required not in header:
+                return ("refuse", "Missing required '%s' field" % required)
+        pub = self.publications.get(header["topic"])
+        if pub is None:
+            return ("refuse", "[%s] is not a publisher of [%s]. Topics are %s" % (
+                self.callerid, header["topic"], [[p.topic, p.mtype.name] for p in self.publications.values()]))
+        md5 = header["md5sum"]
+        if md5 != ANY_MD5 and md5 != pub.mtype.md5sum:
+            wanted = header.get("type", pub.mtype.name)
+            if wanted != pub.mtype.name:
+                return ("refuse", "topic types do not match: [%s] vs. [%s]" % (wanted, pub.mtype.name))
+            return ("refuse", "Client [%s] wants topic [%s] to have datatype/md5sum [%s/%s], but our version has "
+                    "[%s/%s]. Dropping connection." % (header["callerid"], pub.topic, wanted, md5, pub.mtype.name,
+                                                       pub.mtype.md5sum))
+        return ("subscriber", pub, {"callerid": pub.callerid, "md5sum": pub.mtype.md5sum,
+                                    "message_definition": pub.mtype.definition,
+                                    "latching": "1" if pub.latch else "0", "topic": pub.topic,
+                                    "type": pub.mtype.name})
+
+    def _service(self, header: dict[str, str]) -> tuple:
+        srv = self.services.get(header["service"])
+        if srv is None:
+            return ("refuse", "request from [%s]: service [%s] is not provided by this node" % (
+                header.get("callerid", "?"), header["service"]))
+        md5 = header.get("md5sum", "")
+        if md5 not in (ANY_MD5, srv.md5sum):
+            return ("refuse", "request from [%s]: md5sums do not match: [%s] vs. [%s]" % (
+                header.get("callerid", "?"), md5, srv.md5sum))
+        return ("service", srv, {"callerid": srv.callerid, "md5sum": srv.md5sum, "request_type": srv.request_type,
+                                 "response_type": srv.response_type, "type": srv.type_name},
+                header.get("probe") == "1")
+
+
 class PublisherLink(asyncio.Protocol):
-    """Our connection, as a subscriber, to one publisher of a topic."""
+    """Our connection, as a subscriber, to one publisher of a topic: the asyncio side of a PublisherLinkState."""
 
     def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str,
                  on_message: Callable[[bytes, PublisherLink], None],
                  on_close: Callable[[PublisherLink], None]):
+        self.loop = asyncio.get_running_loop()
+        self.state = PublisherLinkState(topic, mtype, callerid, publisher_uri, self.loop.time())
         self.topic = topic
         self.mtype = mtype
         self.callerid = callerid
@@ -155,63 +284,40 @@ class PublisherLink(asyncio.Protocol):
         self.on_close = on_close
         self.id = _new_connection_id()
         self.transport: asyncio.Transport | None = None
-        self.header: dict[str, str] | None = None
-        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
-        self.bytes_received = 0
-        self.messages_received = 0
         self.closed = False
         self.info = "TCPROS connection"
-        self.handshake = asyncio.get_running_loop().create_future()
+        self.handshake = self.loop.create_future()
+
+    @property
+    def header(self) -> dict[str, str] | None:
+        return self.state.header
+
+    @property
+    def bytes_received(self) -> int:
+        return self.state.bytes_received
+
+    @property
+    def messages_received(self) -> int:
+        return self.state.messages_received
 
     # asyncio.Protocol
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
-        sock = transport.get_extra_info("socket")
-        self.info = transport_info(sock)
-        transport.write(encode_header({  # type: ignore[attr-defined]
-            "callerid": self.callerid, "topic": self.topic, "type": self.mtype.name,
-            "md5sum": self.mtype.md5sum, "message_definition": self.mtype.definition,
-            "tcp_nodelay": "1",
-        }))
+        self.info = transport_info(transport.get_extra_info("socket"))
+        transport.write(self.state.request())  # type: ignore[attr-defined]
 
     def data_received(self, data: bytes) -> None:
-        self.bytes_received += len(data)
-        try:
-            frames = self.decoder.feed(data)
-        except TcprosError as exc:
-            self._fail("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
-            return
-        for payload in frames:
-            if self.header is None:
-                if not self._accept_header(payload):
-                    return
-                continue
-            self.messages_received += 1
-            try:
-                self.on_message(payload, self)
-            except Exception:  # a bad message must not end the connection or the launcher
-                log.exception("handling a message on %s from %s", self.topic, self.publisher_uri)
-
-    def _accept_header(self, payload: bytes) -> bool:
-        try:
-            header = decode_header(payload)
-        except TcprosError as exc:
-            self._fail("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
-            return False
-        if "error" in header:
-            self._fail("publisher %s refused %s: %s" % (self.publisher_uri, self.topic, header["error"]))
-            return False
-        theirs = header.get("md5sum", "")
-        if self.mtype.md5sum != ANY_MD5 and theirs not in (self.mtype.md5sum, ANY_MD5):
-            self._fail("publisher %s on %s sends %s [%s], we expect %s [%s]" % (
-                self.publisher_uri, self.topic, header.get("type", "?"), theirs,
-                self.mtype.name, self.mtype.md5sum))
-            return False
-        self.header = header
-        self.decoder.limit = MAX_MESSAGE_SIZE
-        if not self.handshake.done():
-            self.handshake.set_result(header)
-        return True
+        for kind, value in self.state.receive(data, self.loop.time()):
+            if kind == "message":
+                try:
+                    self.on_message(value, self)
+                except Exception:  # a bad message must not end the connection or the launcher
+                    log.exception("handling a message on %s from %s", self.topic, self.publisher_uri)
+            elif kind == "header":
+                if not self.handshake.done():
+                    self.handshake.set_result(value)
+            else:
+                self._fail(value)
 
     def _fail(self, why: str) -> None:
         log.warning("%s; dropping the connection", why)
@@ -351,70 +457,31 @@ class InboundConnection(asyncio.Protocol):
             self.close()
             return
         self.header = header
-        if "service" in header:
-            self._accept_service(header)
-        else:
-            self._accept_subscriber(header)
-
-    def _accept_subscriber(self, header: dict[str, str]) -> None:
-        for required in ("topic", "md5sum", "callerid"):
-            if required not in header:
-                self._refuse("Missing required '%s' field" % required)
-                return
-        pub = self.server.publications.get(header["topic"])
-        if pub is None:
-            self._refuse("[%s] is not a publisher of [%s]. Topics are %s" % (
-                self.server.callerid, header["topic"],
-                [[p.topic, p.mtype.name] for p in self.server.publications.values()]))
-            return
-        md5 = header["md5sum"]
-        if md5 != ANY_MD5 and md5 != pub.mtype.md5sum:
-            wanted = header.get("type", pub.mtype.name)
-            if wanted != pub.mtype.name:
-                self._refuse("topic types do not match: [%s] vs. [%s]" % (wanted, pub.mtype.name))
-            else:
-                self._refuse("Client [%s] wants topic [%s] to have datatype/md5sum [%s/%s], but our "
-                             "version has [%s/%s]. Dropping connection." % (
-                                 header["callerid"], pub.topic, wanted, md5, pub.mtype.name,
-                                 pub.mtype.md5sum))
+        server = self.server
+        verdict = InboundState(server.callerid, server.publications, server.services).offer(header)
+        if verdict[0] == "refuse":
+            self._refuse(verdict[1])
             return
         assert self.transport is not None
+        if verdict[0] == "service":
+            _, srv, reply, probe = verdict
+            self.transport.write(encode_header(reply))
+            if probe:  # rosservice's type probe only wants our header
+                self.close()
+                return
+            self.service = srv
+            self.decoder.limit = MAX_MESSAGE_SIZE
+            return
+        _, pub, reply = verdict
         sock = self.transport.get_extra_info("socket")
         if sock is not None and header.get("tcp_nodelay") == "1":
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.transport.write(encode_header({
-            "callerid": pub.callerid, "md5sum": pub.mtype.md5sum,
-            "message_definition": pub.mtype.definition, "latching": "1" if pub.latch else "0",
-            "topic": pub.topic, "type": pub.mtype.name,
-        }))
+        self.transport.write(encode_header(reply))
         self.publication = pub
         link = SubscriberLink(self, header["callerid"])
         pub.links.append(link)
         if pub.latch and pub.last is not None:
             link.send(pub.last)
-
-    def _accept_service(self, header: dict[str, str]) -> None:
-        srv = self.server.services.get(header["service"])
-        if srv is None:
-            self._refuse("request from [%s]: service [%s] is not provided by this node" % (
-                header.get("callerid", "?"), header["service"]))
-            return
-        md5 = header.get("md5sum", "")
-        if md5 not in (ANY_MD5, srv.md5sum):
-            self._refuse("request from [%s]: md5sums do not match: [%s] vs. [%s]" % (
-                header.get("callerid", "?"), md5, srv.md5sum))
-            return
-        assert self.transport is not None
-        self.transport.write(encode_header({
-            "callerid": srv.callerid, "md5sum": srv.md5sum, "request_type": srv.request_type,
-            "response_type": srv.response_type, "type": srv.type_name,
-        }))
-        if header.get("probe") == "1":
-            # rosservice's type probe only wants our header.
-            self.close()
-            return
-        self.service = srv
-        self.decoder.limit = MAX_MESSAGE_SIZE
 
     def _serve(self, request: bytes) -> None:
         assert self.service is not None and self.transport is not None
