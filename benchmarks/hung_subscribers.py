@@ -163,8 +163,10 @@ def read_line(proc: subprocess.Popen, prefix: str, deadline: float) -> str | Non
         left = deadline - time.monotonic()
         if left <= 0:
             return None
-        ready, _, _ = select.select([proc.stdout], [], [], left)
-        if ready:
+        # (poll, not select: with a thousand sockets open, this pipe's descriptor is past select's 1024)
+        poller = select.poll()
+        poller.register(proc.stdout, select.POLLIN)
+        if poller.poll(left * 1000):
             line = proc.stdout.readline()
             if not line:
                 return None
