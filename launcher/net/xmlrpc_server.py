@@ -19,7 +19,7 @@ import inspect
 import logging
 import os
 import socket
-from typing import Any, Awaitable, Callable
+from typing import Any, Awaitable, Callable, NamedTuple
 
 from launcher.net.http import CONTINUE, NEED_DATA, HttpError, RequestLimits, RequestReader, format_response
 from launcher.net.open_files import connection_cap
@@ -117,6 +117,30 @@ RPC_PATHS = (b"/", b"/RPC2")
 ACCEPT_BATCH = 100  # connections accepted per turn of the event loop
 ACCEPT_BACKOFF = 0.5  # seconds without accepting after accept() failed (out of files)
 _OUT_OF_FILES = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
+
+
+class Deadlines(NamedTuple):
+    """A connection's deadline policy, pure: from what the connection is doing and a time, when its next
+    deadline is, and what passing it means. Seconds: a request head within `header`, its body within
+    `request`, an idle keep-alive connection lasts `idle`."""
+
+    header: float
+    request: float
+    idle: float
+
+    def next(self, *, now: float, busy: bool, partial_since: float | None, body_pending: bool,
+             last_activity: float) -> float:
+        if busy:
+            return now + self.request  # our own reply is pending: not the client's fault
+        if partial_since is not None:
+            return partial_since + (self.request if body_pending else self.header)
+        return last_activity + self.idle
+
+    def verdict(self, now: float, deadline: float, *, busy: bool, buffered: bool) -> str:
+        """"wait" (not yet), "408" (a request was arriving too slowly: Request Timeout), or "close"."""
+        if now < deadline:
+            return "wait"
+        return "408" if buffered and not busy else "close"
 
 
 class _Connection(asyncio.Protocol):
@@ -336,21 +360,17 @@ class _Connection(asyncio.Protocol):
         server = self.server
         now = server._loop.time()
         reader = self.reader
-        if self.busy:
-            deadline = now + server.request_timeout  # our own reply is pending: not the client's fault
-        elif self.partial_since is not None:
-            body_pending = reader.buffered and not reader.head_pending
-            deadline = self.partial_since + (server.request_timeout if body_pending else server.header_timeout)
+        deadline = server.deadlines.next(now=now, busy=self.busy, partial_since=self.partial_since,
+                                         body_pending=bool(reader.buffered) and not reader.head_pending,
+                                         last_activity=self.last_activity)
+        verdict = server.deadlines.verdict(now, deadline, busy=self.busy, buffered=bool(reader.buffered))
+        if verdict == "408":
+            self._http_error(408, "Request Timeout")
+        elif verdict == "close":
+            self.closing = True
+            self.transport.close()
         else:
-            deadline = self.last_activity + server.idle_timeout
-        if now >= deadline:
-            if reader.buffered and not self.busy:
-                self._http_error(408, "Request Timeout")
-            else:
-                self.closing = True
-                self.transport.close()
-            return
-        self.timer = server._loop.call_at(deadline, self._on_timer)
+            self.timer = server._loop.call_at(deadline, self._on_timer)
 
 
 class XmlRpcServer:
@@ -382,6 +402,7 @@ class XmlRpcServer:
         self.header_timeout = min(header_timeout, request_timeout)
         self.request_timeout = request_timeout
         self.idle_timeout = idle_timeout
+        self.deadlines = Deadlines(self.header_timeout, request_timeout, idle_timeout)
         self.max_connections = connection_cap() if max_connections is None else max_connections
         self._server: asyncio.base_events.Server | None = None
         self._listeners: list[socket.socket] = []

@@ -726,3 +726,21 @@ def test_accept_out_of_files_backs_off_with_one_warning():
         proc.terminate()
         _out, err = proc.communicate(timeout=10)
     assert err.decode(errors="replace").splitlines() == [], "one warning, not one per failed accept"
+
+
+def test_deadline_policy_on_a_fake_clock():
+    """A connection's deadlines as a pure policy: a head within `header` s, a body within `request` s of the
+    request's start, idle keep-alive for `idle` s; the client is not timed while our own reply is pending."""
+    from launcher.net.xmlrpc_server import Deadlines
+    d = Deadlines(header=10.0, request=30.0, idle=3600.0)
+    # a head trickling in since t=100 (slowloris): due at 110, then 408
+    assert d.next(now=105.0, busy=False, partial_since=100.0, body_pending=False, last_activity=0.0) == 110.0
+    assert d.verdict(109.9, 110.0, busy=False, buffered=True) == "wait"
+    assert d.verdict(110.0, 110.0, busy=False, buffered=True) == "408"
+    # its head is in, the body is not: the whole request is due at 130
+    assert d.next(now=111.0, busy=False, partial_since=100.0, body_pending=True, last_activity=0.0) == 130.0
+    # idle between requests: closed (no 408, nothing was being sent) an hour after the last one
+    assert d.next(now=200.0, busy=False, partial_since=None, body_pending=False, last_activity=150.0) == 3750.0
+    assert d.verdict(3750.0, 3750.0, busy=False, buffered=False) == "close"
+    # our reply pending: the deadline moves with the clock
+    assert d.next(now=500.0, busy=True, partial_since=100.0, body_pending=True, last_activity=0.0) == 530.0
