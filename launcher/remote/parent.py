@@ -50,7 +50,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import os
-import re
 import signal
 from typing import Any, Callable, Mapping, NamedTuple
 
@@ -62,20 +61,16 @@ from launcher.operate import processes
 from launcher.process import console, machine, state
 from launcher.process.machine import Event
 from launcher.process.readiness import Readiness
-from launcher.remote import ssh
+from launcher.remote import session, ssh
 from launcher.remote.launch_xml import remote_launch_xml
 
 # rosgraph_msgs/Log levels (the `level` of `log`)
 LOG_ERROR = 8
-# A dropped machine is tried again after 1, 2, 4 ... seconds, at most this long apart.
-RETRY_MAX_S = 30.0
-RETRY_FIRST_S = 1.0
 # How long `launch(XML)` may take on the child (it starts every node before answering).
 LAUNCH_CALL_TIMEOUT_S = 120.0
 # At shutdown: the child's `shutdown()` stops its nodes (SIGINT, SIGTERM escalation) before it answers.
 SSH_EXIT_GRACE_S = 2.0
 OUTPUT_LINES_KEPT = 40
-_STARTED = re.compile(r"process\[(?P<proc>[^\]]+)\]: started with pid \[(?P<pid>\d+)\]")
 # The NodePolicy fields a roslaunch child cannot be told (its launch XML is roslaunch's), with what they need.
 NOT_ON_OTHER_MACHINES = (("memory_limit", "resource limits"), ("cpu_limit", "resource limits"),
                          ("on_limit", "resource limits"), ("enable_coredumps", "core dumps"),
@@ -170,10 +165,14 @@ class RemoteChild:
         self.ssh: asyncio.subprocess.Process | None = None
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
         self.wanted = asyncio.Event()  # a node is queued (pending or lost): a session is needed
-        self.accepting = False  # this session's child takes `launch` calls
-        self.launched_ok = False  # a `launch` call of this session succeeded
+        self.session = session.Session()  # this machine's session with its child (remote.session)
         self.launching: asyncio.Task | None = None
         self.task: asyncio.Task | None = None
+
+    @property
+    def accepting(self) -> bool:
+        """This session's child takes `launch` calls."""
+        return self.session.phase == session.ACCEPTING
 
     def where(self) -> str:
         m = self.machine
@@ -181,7 +180,7 @@ class RemoteChild:
 
     def node_for_process(self, process_name: str) -> RemoteNode | None:
         """The node a child's process name (`ns/name-N`) stands for."""
-        base = re.sub(r"-\d+$", "", process_name)
+        base = session.node_of_process(process_name)
         for rn in self.nodes:
             if rn.spec.name == base:
                 return rn
@@ -294,38 +293,35 @@ class RemoteParent:
 
     async def _keep(self, child: RemoteChild) -> None:
         """Run the child while the launch runs: again after a drop (with a growing delay), and again
-        when a node is to start after the child ended with its last node."""
-        delay = RETRY_FIRST_S
-        reached = False  # a session registered once
+        when a node is to start after the child ended with its last node (remote.session decides)."""
         while not self.stopping:
             registered, lost = await self._session(child)
             if self.stopping:
                 return
-            reached = reached or registered
-            if not reached:
+            child.session, after = session.after_session(child.session, registered=registered, lost=lost,
+                                                         queued=bool(self._queued(child)))
+            if after.what == session.GIVE_UP:
                 await self.attached.wait()
                 self._machine_failed(child)
                 return
-            if lost or not registered or (self._queued(child) and not child.launched_ok):
-                if lost or not registered:
+            if after.what == session.RETRY:
+                if after.dropped:
                     console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
-                                        % (child.name, child.machine.name, delay))
-                await asyncio.sleep(delay)
-                delay = min(RETRY_MAX_S, delay * 2)
+                                        % (child.name, child.machine.name, after.delay))
+                await asyncio.sleep(after.delay)
                 continue
-            delay = RETRY_FIRST_S
             # the child ended with its last node (as roslaunch's children do): a new session when a
             # node is to start there again (a respawn the parent owns), else never
-            if not self._queued(child):
-                child.wanted.clear()
-                await child.wanted.wait()
+            child.wanted.clear()
+            await child.wanted.wait()
 
     async def _session(self, child: RemoteChild) -> tuple[bool, bool]:
         """One ssh session: start it, wait for `register`, hand over the nodes, run until it ends.
 
         (did the child register, were nodes lost with it)."""
         m = child.machine
-        child.uri, child.launched_ok = None, False
+        child.uri = None
+        child.session = session.started(child.session)
         child.registered.clear()
         child.output.clear()
         command = ssh.remote_command(m, self.program, child.name, self.uri, self.run_id, self.master_uri,
@@ -358,12 +354,12 @@ class RemoteParent:
                 return False, False
             await self.attached.wait()
             console.printlog("remote[%s]: ssh connection created" % child.name)
-            child.accepting = True
+            child.session = session.accepting(child.session)
             if self._queued(child):
                 child.launching = asyncio.ensure_future(self._launch_pending(child))
             await reader  # the session runs until ssh ends
         finally:
-            child.accepting = False
+            child.session = session.ending(child.session)
             if child.launching is not None:
                 # (the nodes of a call under way are lost with the session, below: the record says
                 # so, and they are queued once, whatever the cancelled call does next)
@@ -420,13 +416,13 @@ class RemoteParent:
                 console.printerrlog("error launching on [%s, uri %s]: %s" % (child.name, child.uri, msg))
                 console.printerrlog("Launch of the following nodes most likely failed: %s"
                                     % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
-                child.accepting = False
+                child.session = session.ending(child.session)
                 for rn in batch:
                     self._tell(rn, Event(machine.LAUNCH_REFUSED, reason="its machine's child refused it: %s" % msg))
                 if child.ssh is not None and child.ssh.returncode is None:
                     child.ssh.terminate()
                 return
-            child.launched_ok = True
+            child.session = session.launched(child.session)
             succeeded, failed = val
             for name in succeeded:
                 rn = child.node_for_process(name)
@@ -499,8 +495,8 @@ class RemoteParent:
         def on_child(rn: RemoteNode) -> bool:
             state_ = self._state(rn)
             return state_ in self._ON_CHILD or (state_ == machine.RESPAWNING and not rn.owned)
-        if child.launched_ok and not any(on_child(rn) for rn in child.nodes):
-            child.accepting = False
+        if child.session.launched and not any(on_child(rn) for rn in child.nodes):
+            child.session = session.ending(child.session)
 
     def _process_died(self, process_name: str, exit_code: Any) -> None:
         if self.fleet is None:
@@ -509,9 +505,8 @@ class RemoteParent:
             rn = child.node_for_process(process_name)
             if rn is None:
                 continue
-            code = exit_code if isinstance(exit_code, int) else None
-            code_, sig = (None, -code) if code is not None and code < 0 else (code, None)
-            self._tell(rn, Event(machine.EXITED_, exit_code=code_, exit_signal=sig, process=process_name))
+            code, sig = session.died(exit_code)
+            self._tell(rn, Event(machine.EXITED_, exit_code=code, exit_signal=sig, process=process_name))
             self._check_child_ending(child)
             return
 
@@ -561,9 +556,8 @@ class RemoteParent:
         if refusal:
             self._tell(rn, Event(machine.STOP_REFUSED, reason="stop refused: " + refusal))
             return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine_.name, machine_.address, refusal)
-        code_ = exit_code if isinstance(exit_code, int) else None
-        self._tell(rn, Event(machine.DOWN, exit_code=None if code_ is None or code_ < 0 else code_,
-                             exit_signal=-code_ if code_ is not None and code_ < 0 else None))
+        code, sig = session.died(exit_code)
+        self._tell(rn, Event(machine.DOWN, exit_code=code, exit_signal=sig))
         return ""
 
     def start_node(self, name: str) -> str:
@@ -616,11 +610,11 @@ class RemoteParent:
             console.printerrlog(text)
         elif "started with pid" in message:
             console.printlog_bold(text)
-            m = _STARTED.search(message)
+            started = session.started_line(message)
             child = self.children.get(client)
-            rn = child.node_for_process(m.group("proc")) if m and child else None
+            rn = child.node_for_process(started[0]) if started and child else None
             if rn is not None and self.fleet is not None:
-                self._tell(rn, Event(machine.SPAWNED, pid=int(m.group("pid")), process=m.group("proc")))
+                self._tell(rn, Event(machine.SPAWNED, pid=started[1], process=started[0]))
         else:
             console.printlog(text)
         return [1, "", 1]

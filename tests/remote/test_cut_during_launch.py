@@ -87,7 +87,6 @@ def test_a_session_cut_during_a_launch_call_queues_the_node_once(tmp_path, monke
     log = str(tmp_path / "child.log")
     monkeypatch.setenv("CHILD_LOG", log)
     environ = dict(os.environ, LAUNCHER_SSH_COMMAND=script(tmp_path / "ssh", FAKE_SSH))
-    monkeypatch.setattr(remote_parent, "RETRY_FIRST_S", 0.1)  # (the next session at once)
     machine = Machine("m1", "somewhere", env_loader="env")
     talker = Node("rostopic", "rostopic", "talker", machine_name="m1")
 
