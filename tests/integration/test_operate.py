@@ -670,7 +670,8 @@ def test_debian_roscore_beside_a_launch_and_a_killed_one(tmp_path, pkgs):
         r = tool(env, "status")
         assert r.returncode == 3, r.stdout + r.stderr
         assert r.stderr.startswith("launcher: no launch of `launch` is running on the master at"), r.stderr
-        assert re.match(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d\n" % run_id, r.stdout), r.stdout
+        assert re.match(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d \(stopped by SIGINT\)\n" % run_id,
+                        r.stdout), r.stdout
         rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
         assert rows["/r2/talker"][1:3] == ["stopped", "-"] and rows["/gone"][1] == "running", r.stdout
     finally:
@@ -722,7 +723,9 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
     r = tool(env, "status")
     assert r.returncode == 3 and r.stderr.startswith("launcher: cannot reach the master at"), r.stderr
     headline, logs_line = r.stdout.splitlines()[:2]
-    assert re.fullmatch(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d" % first, headline), headline
+    # (the reason is the events file's last line, launch_ended)
+    assert re.fullmatch(r"the last run, %s, ended at \d{4}-\d\d-\d\d \d\d:\d\d:\d\d \(stopped by SIGINT\)" % first,
+                        headline), headline
     assert logs_line == "its logs: %s" % (tmp_path / "log" / first)
     rows = {line.split()[0]: line.split() for line in r.stdout.splitlines()[3:]}
     assert rows["/py"][1:3] == rows["/cpp"][1:3] == ["stopped", "-"], r.stdout
