@@ -661,6 +661,7 @@ class Run:
         return "ended"
 
     async def _teardown(self) -> None:
+        gc.unfreeze()  # (a process that runs again, as `launcher test` does, collects this run's cycles)
         for t in self._tasks:
             t.cancel()
         if self.rotator is not None:
