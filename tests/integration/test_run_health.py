@@ -5,9 +5,8 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-from types import SimpleNamespace
 
-from launcher import cli
+from launcher.runopts import RunOptions
 from launcher.config import LaunchConfig, Node, NodePolicy
 from launcher.packages import PackageIndex
 from launcher.runtime import EVENTS_FILE, Plan, Run
@@ -28,8 +27,7 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
              policy=NodePolicy(wait_for=(("param", "/never"), ("node", "/nobody")), wait_timeout=1.0)),
     ))
     plan = Plan(config, environ["ROS_MASTER_URI"], environ, packages=PackageIndex(environ))
-    opts = SimpleNamespace(**dict(cli._DEFAULTS, positional=[], monitor_period=0.1, no_summary=True,
-                                  skip_log_check=True))
+    opts = RunOptions(monitor_period=0.1, no_summary=True, skip_log_check=True)
     run = Run(opts, plan)
     status = asyncio.run(asyncio.wait_for(run.main(), 60))
     assert status == 1
