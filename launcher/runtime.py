@@ -35,7 +35,7 @@ from launcher.names import ns_join
 from launcher.net.allow import AllowList
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
-from launcher.process import console
+from launcher.process import console, machine as node_machine
 from launcher.remote import ssh
 from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes, policy_warnings
 from launcher.process.coredumps import CoreDumpReporter
@@ -46,7 +46,7 @@ from launcher.process.readiness import Readiness
 from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
-from launcher.process.state import EVENTS_FILE, Fleet
+from launcher.process.state import EVENTS_FILE, Change, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
@@ -548,6 +548,8 @@ class Run:
         self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
                            warn=console.printerrlog)
         self.fleet.listeners.append(self.log.state_change)
+        if self.master is not None:
+            self.fleet.listeners.append(self._process_ended)
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
@@ -575,6 +577,12 @@ class Run:
         self.rotator.start()
         if self.rosout is not None:
             self.rosout.warm_up()
+
+    def _process_ended(self, change: Change) -> None:
+        """A fleet listener: a node's process ended (here, or on another machine as its child told), and what
+        it registered on our master goes (master.process_ended checks that no new run took its name)."""
+        if change.event.kind in (node_machine.EXITED_, node_machine.DOWN) and change.old.pid:
+            self.master.process_ended(change.new.name, change.old.pid)
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:
         """What this run is, for the launch log: files, args, environment, parameters, command lines."""

@@ -11,6 +11,7 @@ from launcher.master.api import MasterApi, unsendable
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
 from launcher.names import resolve_name
+from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.params.tree import ParamTree, copy_tree
 
@@ -64,6 +65,10 @@ def _local_address(environ: Mapping[str, str]) -> str:
     return "::1" if environ.get("ROS_IPV6") == "on" else "127.0.0.1"
 
 
+# How long a process that ended may take to answer getPid at its URI before it counts as gone (a dead
+# process's port refuses at once; one that answers is another process that took the port).
+PURGE_PROBE_S = 1.0
+
 class UnresponsiveNode(NamedTuple):
     """A registered node whose last callback from the master failed (it is sent again after a back-off)."""
 
@@ -99,6 +104,7 @@ class Master:
         self._notifier: Any = None
         self._api: Any = None
         self._tree = ParamTree()
+        self._purges: set[asyncio.Task] = set()  # (process_ended's checks under way)
 
     @property
     def params(self) -> ParamTree:
@@ -174,6 +180,29 @@ class Master:
             names.setdefault(node.api, []).append(node.id)
         return [UnresponsiveNode(names.get(u.api, []), u.api, u.failures, now - u.since, u.last_error, u.queued)
                 for u in self._notifier.unreachable()]
+
+    def process_ended(self, node_name: str, pid: int) -> None:
+        """A node's process (`pid`) ended, as its launcher saw: what that process registered goes at once,
+        so that subscribers stop dialing a dead address and `rosnode list` tells the truth (no `rosnode
+        cleanup`). Only if the URI registered under the name is that process's: a new run of the node
+        may have registered already, and it answers getPid with its own pid."""
+        if self._api is None:
+            return
+        node = self._api.registry.get_node(node_name)
+        if node is not None:
+            task = asyncio.get_running_loop().create_task(self._purge_if_gone(node_name, node.api, pid))
+            self._purges.add(task)
+            task.add_done_callback(self._purges.discard)
+
+    async def _purge_if_gone(self, node_name: str, api: str, pid: int) -> None:
+        try:
+            code, _msg, answer = await call(api, "getPid", "/master", timeout=PURGE_PROBE_S)
+            if code == 1 and answer != pid:
+                return  # another process answers there now: that is its registration
+        except Exception:  # noqa: BLE001 - refused, reset, timed out: nobody is the node there
+            pass
+        if self._api is not None and self._api.unregister_process(node_name, api):
+            mlog.info("%s (pid %d) ended: its registrations under %s removed", node_name, pid, api)
 
     def _require_started(self) -> None:
         if self._api is None:

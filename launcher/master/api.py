@@ -403,6 +403,24 @@ class MasterApi:
             self._notify_topic(topic)
         return ret
 
+    def unregister_process(self, caller_id: str, caller_api: str) -> int:
+        """Everything `caller_id` registered under `caller_api` (a process that ended) goes, as if it had
+        unregistered it all itself: subscribers of its topics are told. The number of registrations removed."""
+        node = self.registry.get_node(caller_id)
+        if node is None or node.api != caller_api:
+            return 0  # (gone already, or a new run of that name has registered since)
+        keys = {kind: sorted(node.keys[kind]) for kind in node.keys}
+        for topic in keys[reg.PUBLICATIONS]:
+            self.unregisterPublisher(caller_id, topic, caller_api)
+        for topic in keys[reg.SUBSCRIPTIONS]:
+            self.unregisterSubscriber(caller_id, topic, caller_api)
+        for service in keys[reg.SERVICES]:
+            api = self.registry.services.service_api_map.get(service, (None, None))[1]
+            self.unregisterService(caller_id, service, api)
+        for sub_key in keys[reg.PARAM_SUBSCRIPTIONS]:
+            self.registry.unregister(reg.PARAM_SUBSCRIPTIONS, sub_key, caller_id, caller_api)
+        return sum(len(v) for v in keys.values())
+
     def lookupNode(self, caller_id: str, node_name: str) -> tuple:  # noqa: N802
         node = self.registry.get_node(node_name)
         if node is not None:
