@@ -56,6 +56,13 @@ class NodePolicy(NamedTuple):
     wait_for: tuple[tuple[str, str], ...] = ()  # (kind, name): topic, service, param, node
     wait_timeout: float = 60.0
     hang_timeout: float | None = None  # no answer to getPid for this long = hung
+    # stalled topics: the node's own publications of these topics (resolved as the node resolves them) are
+    # watched; silent for watch_timeout s, or slower than watch_min_rate Hz over watch_window s = stalled
+    watch_topics: tuple[str, ...] = ()
+    watch_timeout: float | None = None
+    watch_min_rate: float | None = None
+    watch_window: float = 5.0
+    on_stall: str = "restart"  # "restart" | "warn"
     memory_limit: int | None = None  # bytes, RSS of the whole process group
     cpu_limit: float | None = None  # cores, over the last sample window
     on_limit: str = "warn"  # "warn" | "restart"

@@ -40,6 +40,7 @@ from launcher.remote import ssh
 from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes, policy_warnings
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.process.hang import HangDetector
+from launcher.process.stall import StallWatch
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
 from launcher.process.logrotate import LogRotator
 from launcher.process.readiness import Readiness
@@ -603,8 +604,9 @@ class Run:
         sup = self.supervisor
         sup.readiness = Readiness(self.master_uri, sup)
         hang = HangDetector(self.master_uri, sup)
-        sup.watchers += [hang, CoreDumpReporter()]
-        self._health += [sup.readiness, hang]
+        stall = StallWatch(self.master_uri, sup)
+        sup.watchers += [hang, stall, CoreDumpReporter()]
+        self._health += [sup.readiness, hang, stall]
         monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
         self._tasks.append(asyncio.ensure_future(monitor.run()))
 

@@ -42,6 +42,8 @@ def level_of(status: Any) -> tuple[int, str]:
         return WARN, "respawning"
     if s in (state.FATAL, state.HUNG):
         return ERROR, s
+    if s == state.STALLED:
+        return ERROR, "stalled: " + status.reason
     if s == state.EXITED:
         if status.exit_signal is not None:
             return ERROR, "exited by signal %d" % status.exit_signal

@@ -78,21 +78,7 @@ class HangDetector:
             await asyncio.sleep(max(0.0, started + period - self.loop.time()))
 
     async def _registered(self, proc: Any, popen: Any, period: float) -> str | None:
-        """The node's XML-RPC URI, once this run has registered it (None: the run ended first)."""
-        while True:
-            await asyncio.sleep(period)
-            if not self._current(proc, popen):
-                return None
-            try:
-                code, _msg, uri = await xmlrpc.call(self.master_uri, "lookupNode", CALLER_ID, proc.spec.node_name,
-                                                    timeout=period)
-            except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
-                continue
-            if code != 1 or not isinstance(uri, str):
-                continue
-            pid = await self._get_pid(uri, period)
-            if pid is not None and _in_group(pid, proc.pgid):
-                return uri
+        return await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), period)
 
     async def _get_pid(self, uri: str, timeout: float) -> int | None:
         try:
@@ -105,6 +91,29 @@ class HangDetector:
         self.tasks.pop(proc, None)
         self.registered.pop(proc, None)
         self.supervisor.hung(proc, "no answer to getPid for %g s" % timeout)  # (reported, and killed)
+
+
+async def registered_uri(master_uri: str, proc: Any, current: Any, period: float) -> str | None:
+    """The node's XML-RPC URI, once this run of it (a process of its group) has registered (None: the run
+    ended first, `current()` is false). An earlier run's registration, left by a killed process, does not
+    count: the URI must answer getPid with a pid of this run's group."""
+    while True:
+        await asyncio.sleep(period)
+        if not current():
+            return None
+        try:
+            code, _msg, uri = await xmlrpc.call(master_uri, "lookupNode", CALLER_ID, proc.spec.node_name,
+                                                timeout=period)
+        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
+            continue
+        if code != 1 or not isinstance(uri, str):
+            continue
+        try:
+            code, _msg, pid = await xmlrpc.call(uri, "getPid", CALLER_ID, timeout=period)
+        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
+            continue
+        if code == 1 and isinstance(pid, int) and _in_group(pid, proc.pgid):
+            return uri
 
 
 def _in_group(pid: int, pgid: int | None) -> bool:

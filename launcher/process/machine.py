@@ -22,6 +22,7 @@ Internal states, and the state the outside (README, events file, status,
     launching   in a `launch` call to its machine's child        waiting
     running     its process runs                                 running
     hung        no answer to getPid: being killed                hung
+    stalled     a watched topic went silent or slow              stalled
     stopping    the stop escalation (or the child's stop) runs   running
     respawning  ended; starts again at `next_start`              respawning
     lost        its machine dropped; launched again on return    exited
@@ -39,15 +40,16 @@ from launcher.process import restart
 
 NEW, WAITING, HELD, STARTING = "new", "waiting", "held", "starting"
 PENDING, LAUNCHING, LOST = "pending", "launching", "lost"
-RUNNING, HUNG, STOPPING = "running", "hung", "stopping"
+RUNNING, HUNG, STOPPING, STALLED = "running", "hung", "stopping", "stalled"
 RESPAWNING, EXITED, FATAL, STOPPED = "respawning", "exited", "fatal", "stopped"
-STATES = (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STOPPING, RESPAWNING, LOST, EXITED,
-          FATAL, STOPPED)
+STATES = (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, LOST,
+          EXITED, FATAL, STOPPED)
 PUBLIC = {NEW: "waiting", WAITING: "waiting", HELD: "waiting", STARTING: "waiting", PENDING: "waiting",
-          LAUNCHING: "waiting", RUNNING: "running", HUNG: "hung", STOPPING: "running", RESPAWNING: "respawning",
+          LAUNCHING: "waiting", RUNNING: "running", HUNG: "hung", STALLED: "stalled", STOPPING: "running", RESPAWNING: "respawning",
           LOST: "exited", EXITED: "exited", FATAL: "fatal", STOPPED: "stopped"}
 # a node in one of these may still run (or run again without an operator): the launch is not "all dead"
-ALIVE = frozenset((NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STOPPING, RESPAWNING, LOST))
+ALIVE = frozenset((NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
+                   LOST))
 # on the way to running: what comes next (running, or why not) is what a reader outside is told
 ON_THE_WAY = frozenset((STARTING, PENDING, LAUNCHING))
 # ... and in one of these it ended by itself (what "all processes on machine have died" counts)
@@ -63,6 +65,8 @@ SPAWNED = "spawned"  # its process runs (pid); for a remote node, the child said
 SPAWN_FAILED = "spawn failed"  # its process could not be started
 EXITED_ = "process exited"  # its process ended (exit_code or exit_signal)
 HANG = "hang"  # no answer to getPid for hang_timeout (reason)
+STALL = "stall"  # a watched topic of its own went silent or too slow (reason)
+UNSTALL = "unstall"  # it publishes as it should again (on_stall="warn": the process ran on)
 RESTART = "restart"  # a limit with on_limit="restart" was crossed: kill this run, start again (reason)
 LIMIT = "limit"  # the run's set of limits crossed changed (over_limit)
 STOP = "stop"  # an operator's stop
@@ -75,7 +79,8 @@ LAUNCHED = "launched"  # the child took it (process: the child's process name)
 LAUNCH_REFUSED = "launch refused"  # the call failed as a whole: it waits for the machine's next session
 LINK_LOST = "link lost"  # its machine's session ended (reason)
 MACHINE_FAILED = "machine failed"  # its machine could never be reached (reason)
-EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, RESTART, LIMIT, STOP,
+EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, STALL, UNSTALL, RESTART,
+          LIMIT, STOP,
           SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
           MACHINE_FAILED)
 
@@ -294,6 +299,16 @@ def _hang(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     return r._replace(state=HUNG, reason=e.reason, over_limit=()), [Action(KILL)]
 
 
+def _stall(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    """Stalled: reported; killed unless on_stall="warn" (its end then goes the way of any run's end)."""
+    warn_only = r.rules.policy.on_stall == "warn"
+    return r._replace(state=STALLED, reason=e.reason), [] if warn_only else [Action(KILL)]
+
+
+def _unstall(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    return r._replace(state=RUNNING, reason=e.reason), []
+
+
 def _restart(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     if r.restart_reason:
         return r, []  # (already being killed for that)
@@ -392,6 +407,12 @@ TABLE = {
     (LAUNCHING, EXITED_): _exited,  # (its child told of its death before it answered the call)
     (STOPPING, EXITED_): _exit_while_stopping,
     (RUNNING, HANG): _hang,
+    (STALLED, HANG): _hang,  # (hung says more)
+    (RUNNING, STALL): _stall,
+    (STALLED, UNSTALL): _unstall,
+    (STALLED, EXITED_): _exited,
+    (STALLED, STOP): _stop_run,
+    (STALLED, SHUTDOWN): _stop_run,
     (RUNNING, RESTART): _restart,
     (RUNNING, LIMIT): _limit,
     (RUNNING, STOP): _stop_run,
@@ -426,7 +447,7 @@ TABLE[(RESPAWNING, LINK_LOST)] = _link_lost_respawning
 IGNORED = frozenset(
     [(s, STOP) for s in (STOPPING,) + _DOWN_FOR_GOOD]  # already stopped, being stopped, or down for good
     + [(s, SHUTDOWN) for s in (STOPPING,) + _DOWN_FOR_GOOD]  # (an operator's stop in progress goes on)
-    + [(s, OPERATOR_START) for s in (STARTING, RUNNING, HUNG, STOPPING, PENDING, LAUNCHING, LOST)]
+    + [(s, OPERATOR_START) for s in (STARTING, RUNNING, HUNG, STALLED, STOPPING, PENDING, LAUNCHING, LOST)]
     + [(s, EXITED_) for s in (STOPPED, EXITED, FATAL, LOST, PENDING)]  # a child's late report
     + [(s, SPAWNED) for s in (STOPPED, STOPPING, LOST)]  # a child's late "started with pid"
     + [(s, LAUNCHED) for s in (STOPPED, STOPPING, LOST, PENDING, EXITED, FATAL)]  # its call answered late
@@ -435,7 +456,9 @@ IGNORED = frozenset(
     + [(s, LINK_LOST) for s in (NEW, WAITING, HELD, PENDING, LOST) + _DOWN_FOR_GOOD]
     + [(s, MACHINE_FAILED) for s in (STOPPING,) + _DOWN_FOR_GOOD]
     + [(s, HANG) for s in (HUNG, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING)]  # a probe's late verdict
-    + [(s, RESTART) for s in (HUNG, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING, STARTING)]
+    + [(s, STALL) for s in (STALLED, HUNG, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING)]  # a watch's late verdict
+    + [(s, UNSTALL) for s in STATES if s != STALLED]
+    + [(s, RESTART) for s in (HUNG, STALLED, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING, STARTING)]
     + [(s, LIMIT) for s in STATES if s != RUNNING]  # (hung, or being stopped: that state says more)
     + [(s, DUE) for s in (STOPPED, EXITED, FATAL)]  # a timer that fired as it was cancelled
     + [(s, READY) for s in (STOPPED, EXITED, FATAL)]

@@ -79,6 +79,11 @@ def lines(change: Change) -> list[tuple[str, str]]:
         out.append((INFO, "[%s] killing on exit" % proc))
     elif kind == m.HANG:
         out.append((ERROR, "[%s] is hung (%s): killing process group %s" % (proc, event.reason, new.pid)))
+    elif kind == m.STALL:
+        kill = "" if rules.policy.on_stall == "warn" else ": killing process group %s" % new.pid
+        out.append((ERROR, "[%s] is stalled (%s)%s" % (proc, event.reason, kill)))
+    elif kind == m.UNSTALL:
+        out.append((INFO, "[%s] is no longer stalled: %s" % (proc, event.reason)))
     elif kind == m.RESTART:
         out.append((ERROR, "[%s] restarting: %s" % (proc, event.reason)))
     elif kind == m.LIMIT:

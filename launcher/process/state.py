@@ -15,7 +15,7 @@ to carry out. The launch's outcome is the fleet's too: `done` is set when a
 node ends the launch (required, on_fatal="shutdown") or, with
 `exit_when_all_dead`, when every node has ended.
 
-The outside sees seven states (README), each internal state mapping onto one
+The outside sees eight states (README), each internal state mapping onto one
 (`machine.PUBLIC`):
 
     waiting     its start is held (spawn_delay, wait_for, or on its way to its machine)
@@ -24,6 +24,7 @@ The outside sees seven states (README), each internal state mapping onto one
     exited      its process ended and will not be started again (or its machine dropped)
     fatal       it failed `respawn_max_retries` runs in a row: not restarted, kept here
     hung        it stopped answering its own XML-RPC API (then killed; respawning or exited follows)
+    stalled     a watched topic of its own went silent or too slow (killed, unless on_stall="warn")
     stopped     the launch (or an operator) stopped it
 
 A running node may also be over one of its limits (`memory_limit`, `cpu_limit`
@@ -47,8 +48,9 @@ RESPAWNING = "respawning"
 EXITED = "exited"
 FATAL = "fatal"
 HUNG = "hung"
+STALLED = "stalled"
 STOPPED = "stopped"
-STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STOPPED)
+STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 
 EVENTS_FILE = "launcher-events.jsonl"
 LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
@@ -133,7 +135,7 @@ def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | 
 
 def visible(change: Change) -> bool:
     """Is this a change a reader of the events file sees? (Internal steps, e.g. running -> stopping, or
-    pending -> launching, are not written: the seven states and their fields are the file's.)"""
+    pending -> launching, are not written: the outside's states and their fields are the file's.)"""
     old, new = change.old, change.new
     if new.state in machine.ON_THE_WAY or new.state == machine.STOPPING:
         return False  # (what follows says more: running, stopped, or why not)

@@ -398,6 +398,16 @@ class Supervisor:
         if proc.alive and not self.shutting_down:
             self._tell(proc, Event(machine.HANG, reason=reason))
 
+    def stalled(self, proc: NodeProcess, reason: str) -> None:
+        """The stall watch's verdict on the current run (process/stall.py): reported, and killed unless
+        its on_stall is "warn"."""
+        if proc.alive and not self.shutting_down:
+            self._tell(proc, Event(machine.STALL, reason=reason))
+
+    def unstalled(self, proc: NodeProcess, reason: str) -> None:
+        if proc.alive and not self.shutting_down:
+            self._tell(proc, Event(machine.UNSTALL, reason=reason))
+
     def restart(self, proc: NodeProcess, reason: str) -> None:
         """Kill the node's current run and start it again, respawn or not (`on_limit="restart"`): at once
         rather than by the stop escalation, as a node past its memory limit may be taking the machine down."""

@@ -25,7 +25,8 @@ from launcher.suggest import did_you_mean, near_file
 from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
-from launcher.xml.policy import POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names
+from launcher.xml.policy import (POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names,
+                                 resolve_watch_topics)
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
 
@@ -774,7 +775,8 @@ class XmlLoader:
         node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
                      required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
                      el.sourceline or 0, test_name, (time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None,
-                     retry, None if is_test else self._node_policy(scope.policy, own_policy, namespace, name or ""))
+                     retry, None if is_test else self._node_policy(scope.policy, own_policy, namespace, name or "",
+                                                                   remaps))
         if is_test:
             self.tests.append(node)
             return
@@ -789,7 +791,7 @@ class XmlLoader:
 
     @staticmethod
     def _node_policy(defaults: dict[str, Any] | None, own: dict[str, Any], namespace: str,
-                     name: str) -> NodePolicy | None:
+                     name: str, remaps: tuple[tuple[str, str], ...] = ()) -> NodePolicy | None:
         """The node's NodePolicy: its scope's defaults under its own attributes; None if neither sets any."""
         if not defaults and not own:
             return None
@@ -797,6 +799,9 @@ class XmlLoader:
         if "wait_for" in fields:
             fields = dict(fields, wait_for=resolve_wait_names(fields["wait_for"], namespace,
                                                               ns_join(namespace, name)))
+        if "watch_topics" in fields:
+            fields = dict(fields, watch_topics=resolve_watch_topics(fields["watch_topics"], namespace,
+                                                                    ns_join(namespace, name), remaps))
         return NodePolicy(**fields)
 
     # ------------------------------------------------------------------ <machine>

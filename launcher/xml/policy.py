@@ -130,6 +130,22 @@ def parse_wait_for(text: str) -> tuple[tuple[str, str], ...]:
     return tuple(out)
 
 
+def _topics(text: str) -> tuple[str, ...]:
+    """`/camera/image camera_info` -> the names as written (resolved later, as the node resolves them)."""
+    names = tuple(text.split())
+    for name in names:
+        if not is_legal_name(name):
+            raise PolicyError("topic names separated by spaces (got '%s')" % name)
+    return names
+
+
+def _rate(text: str) -> float:
+    value = _number(text, "a rate in Hz greater than zero")
+    if value <= 0:
+        raise PolicyError("a rate in Hz greater than zero")
+    return value
+
+
 # attribute -> (NodePolicy field, parser of its substituted text)
 POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "respawn_on": ("respawn_on", _choice("always", "failure")),
@@ -152,6 +168,11 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "enable_coredumps": ("enable_coredumps", _bool),
     "log_max_size": ("log_max_size", _size),
     "log_backups": ("log_backups", _count),
+    "watch_topic": ("watch_topics", _topics),
+    "watch_timeout": ("watch_timeout", _seconds(positive=True)),
+    "watch_min_rate": ("watch_min_rate", _rate),
+    "watch_window": ("watch_window", _seconds(positive=True)),
+    "on_stall": ("on_stall", _choice("restart", "warn")),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),
@@ -205,3 +226,15 @@ def resolve_wait_names(wait_for: tuple[tuple[str, str], ...], namespace: str,
             name = namespace.rstrip("/") + "/" + name
         out.append((kind, name))
     return tuple(out)
+
+
+def resolve_watch_topics(topics: tuple[str, ...], namespace: str, node_name: str,
+                         remaps: tuple[tuple[str, str], ...]) -> tuple[str, ...]:
+    """The watched topics as the node publishes them: resolved in its namespace (`~x` under its name), then
+    through its own remaps (`from:=to`, both resolved the same way), as the node's client library does."""
+    def resolve(name: str) -> str:
+        if name.startswith("~"):
+            return node_name.rstrip("/") + "/" + name[1:].lstrip("/")
+        return name if name.startswith("/") else namespace.rstrip("/") + "/" + name
+    mapping = {resolve(a): resolve(b) for a, b in remaps}
+    return tuple(mapping.get(resolve(t), resolve(t)) for t in topics)

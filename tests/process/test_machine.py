@@ -12,36 +12,37 @@ from launcher.process.machine import Action, Event, Record, Rules
 
 # Columns: the events, in this order.
 EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
-          m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
+          m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
           m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED]
 SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
-         "run": m.RUNNING, "hun": m.HUNG, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
+         "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
          "fat": m.FATAL, "stp": m.STOPPED}
 # For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
 # "!": a runner's bug (InvalidTransition); else the state after the event.
-#        START KEEP DUE  READY NRDY SPAWN SFAIL EXIT HANG RSTRT LIMIT STOP SHUTD DOWN SREF OSTRT LSENT LCHD LREF LLOST MFAIL
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL
 MATRIX = """
-new      sta   stp  !    !     !    !     !     !    !    !     -     stp  stp   !    !    sta   !     !    !    -     exi
-wai      !     !    sta  !     !    !     !     !    !    !     -     stp  stp   !    !    sta   !     !    !    -     exi
-hel      !     !    !    sta   exi  !     !     !    !    !     -     stp  stp   !    !    sta   !     !    !    -     exi
-sta      !     !    !    !     !    run   res   !    !    -     -     !    !     !    !    -     !     !    !    !     !
-pen      !     !    !    !     !    !     -     -    !    !     -     stp  stp   !    !    -     lau   -    -    -     exi
-lau      !     !    !    !     !    run   res   res  !    !     -     sto  stp   !    !    -     !     lau  pen  los   exi
-run      !     !    !    !     !    run   !     res  hun  run   run   sto  sto   !    !    -     !     run  -    los   exi
-hun      !     !    !    !     !    !     !     res  -    -     -     sto  sto   !    !    -     !     !    !    !     !
-sto      !     !    !    !     !    -     !     sto  -    -     -     -    -     stp  run  -     !     -    !    stp   -
-res      !     !    sta  !     !    run   !     !    -    -     -     stp  stp   !    !    sta   !     !    -    -     exi
-los      !     !    !    !     !    -     -     -    !    !     -     stp  stp   !    !    -     lau   -    -    -     exi
-exi      sta   !    -    -     -    !     !     -    -    -     -     -    -     !    !    sta   !     -    -    -     -
-fat      sta   !    -    -     -    !     !     -    -    -     -     -    -     !    !    sta   !     -    -    -     -
-stp      sta   !    -    -     -    -     -     -    -    -     -     -    -     !    !    sta   !     -    -    -     -
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
 """
 RULES = Rules(respawn=True)
 
 
 def record_in(state: str, rules: Rules = RULES) -> Record:
     started = state not in (m.NEW, m.WAITING, m.HELD, m.STARTING, m.PENDING, m.LAUNCHING)
-    return Record("/n", "n-1", "localhost", rules, state=state, pid=1 if state in (m.RUNNING, m.HUNG, m.STOPPING)
+    return Record("/n", "n-1", "localhost", rules, state=state, pid=1 if state in (m.RUNNING, m.HUNG, m.STALLED, m.STOPPING)
                   else None, spawn_count=1 if started else 0, started=0.0 if started else None)
 
 
