@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import os
-import socket
 import urllib.parse
 from typing import Any, Mapping
 
 from launcher.errors import LaunchError
 from launcher.master import Master
 from launcher.net.xmlrpc import Fault, call
+from launcher.plan.machines import is_local_host  # noqa: F401 (where a run asks whether its master is here)
 from launcher.runopts import RunOptions
 
 CALLER_ID = "/roslaunch"
@@ -74,25 +74,6 @@ def ros_version_params(environ: Mapping[str, str]) -> tuple[str, str]:
             version = None
     distro = environ.get("ROS_DISTRO") or ("Debian" if package_xml is not None else DEFAULT_ROSDISTRO)
     return (version or DEFAULT_ROSVERSION).strip() + "\n", distro + "\n"
-
-
-def is_local_host(host: str, environ: Mapping[str, str]) -> bool:
-    """Is `host` this machine (so that a master for it may be started here)?"""
-    if host in ("localhost", "::1") or host.startswith("127."):
-        return True
-    names = {socket.gethostname()}
-    for key in ("ROS_HOSTNAME", "ROS_IP"):
-        if environ.get(key):
-            names.add(environ[key])
-    if host in names:
-        return True
-    try:
-        import psutil
-        local = {a.address.split("%")[0] for addrs in psutil.net_if_addrs().values() for a in addrs}
-        resolved = {ai[4][0] for ai in socket.getaddrinfo(host, None)}
-    except (OSError, ImportError, UnicodeError):  # (a malformed host name: idna refuses it)
-        return False
-    return bool(local & resolved)
 
 
 async def probe(uri: str) -> tuple[bool, tuple[Any, Any] | None]:

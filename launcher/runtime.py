@@ -16,6 +16,7 @@ collaborators, one per phase:
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
 import signal
 import sys
@@ -24,13 +25,12 @@ import urllib.parse
 from typing import Any, Awaitable, Callable
 
 from launcher import masterlink
-from launcher.command import master_uri, node_command
+from launcher.command import master_uri
 from launcher.config import LaunchConfig
 from launcher.errors import LaunchError
 from launcher.packages import PackageIndex
-from launcher.masterlink import LocalParams, RemoteParams, is_local_host
+from launcher.masterlink import LocalParams, RemoteParams
 from launcher.master import advertised_host
-from launcher.names import ns_join
 from launcher.net.allow import AllowList
 from launcher.net.rosout import Rosout
 from launcher.net.open_files import raise_open_file_limit
@@ -46,6 +46,8 @@ from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import EVENTS_FILE, Fleet
+from launcher.plan.machines import is_local_host, remote_machines
+from launcher.plan.specs import node_specs, packages_of
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
@@ -164,12 +166,19 @@ class Plan:
         plan.check_nodes(opts)
         return plan
 
+    @functools.cached_property
+    def remote_machines(self) -> frozenset[str]:
+        """The machines of the launch's nodes that are other hosts, looked up once (plan.machines)."""
+        return remote_machines(self.config, self.environ)
+
     def remote(self, node: Any) -> bool:
         """Is the node assigned to another machine?"""
-        if not node.machine_name:
-            return False
-        machine = self.config.machines.get(node.machine_name)
-        return machine is not None and not (machine.is_local or is_local_host(machine.address, self.environ))
+        return bool(node.machine_name) and node.machine_name in self.remote_machines
+
+    def specs(self, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
+        """What runs for each local node (plan.specs.node_specs)."""
+        return node_specs(self.config, self.master_uri, self.environ, self.packages, self.remote,
+                          opts=opts, run_dir=run_dir, first_number=first_number)
 
     def check_nodes(self, opts: RunOptions) -> None:
         for node in self.config.nodes:
@@ -237,50 +246,6 @@ class StopSignals:
     def close(self) -> None:
         for sig in STOP_SIGNALS:
             self.loop.remove_signal_handler(sig)
-
-
-def node_specs(plan: Plan, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
-    """What to run for each local node (numbered as roslaunch's processes), and the (name, required) of
-    nodes that cannot be prepared (each reported by name here)."""
-    config = plan.config
-    if config.tests:
-        # roslaunch skips <test> tags without a word; say so, they are the user's
-        console.printlog("ignoring %d <test> node(s) (%s): run them with `launcher test` (or rostest)"
-                         % (len(config.tests), ", ".join(t.test_name or t.name for t in config.tests)))
-    specs: list[ProcessSpec] = []
-    failed: list[tuple[str, bool]] = []
-    number = first_number
-    for node in config.nodes:
-        if plan.remote(node):
-            continue  # its machine's child runs it (launcher.remote), or --local leaves it out
-        number += 1
-        name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
-        log_name = name.replace("/", "-")
-        required = node.required or opts.required
-        try:
-            command = node_command(node, master_uri=plan.master_uri, environ=plan.environ, packages=plan.packages,
-                                   log_file=os.path.join(run_dir, log_name + ".log"))
-        except LaunchError as e:
-            console.printerrlog("ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e))
-            failed.append((name, required))
-            continue
-        output = node.output or "log"
-        if opts.screen:
-            output = "screen"
-        elif opts.log:
-            output = "log"
-        specs.append(ProcessSpec(
-            name, command,
-            output=output, stdout_path=os.path.join(run_dir, log_name + "-stdout.log"),
-            log_dir=run_dir, respawn=node.respawn, respawn_delay=node.respawn_delay, required=required,
-            node_name=ns_join(node.namespace, node.name), policy=node.policy))
-    return specs, failed
-
-
-def packages_of(plan: Plan, specs: list[ProcessSpec]) -> dict[str, str]:
-    """process name -> the node's package (roslaunch's process_info reports it)."""
-    by_node = {ns_join(n.namespace, n.name): n.package for n in plan.config.nodes}
-    return {spec.name: by_node.get(spec.node_name, "") for spec in specs}
 
 
 class Run:
@@ -538,7 +503,7 @@ class Run:
         so the loop that spawns them does as little as possible.
         """
         self.signals.check()
-        specs, failed = node_specs(self.plan, self.opts, self.log.run_dir, self._process_count)
+        specs, failed = self.plan.specs(self.opts, self.log.run_dir, self._process_count)
         self._note_launch(specs)
         self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
                            warn=console.printerrlog)
@@ -548,7 +513,7 @@ class Run:
                                      exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
         self._watch_health()
         if self.server is not None:
-            self.server.set_packages(packages_of(self.plan, specs))
+            self.server.set_packages(packages_of(self.plan.config, specs))
         if self.remote is not None:
             self.remote.attach(self.fleet)
         stop = self.signals.event

@@ -63,6 +63,9 @@ NEVER = {
     "launcher.master": {"launcher.xml", "launcher.process", "launcher.runtime", "launcher.config"},
     "launcher.process": {"launcher.xml", "launcher.runtime", "launcher.introspect"},
     "launcher.runtime": {"launcher.introspect", "launcher.cli"},
+    "launcher.plan": {"launcher.xml", "launcher.net", "launcher.master", "launcher.remote", "launcher.operate",
+                      "launcher.runtime", "launcher.cli", "launcher.child", "launcher.masterlink"},
+    "launcher.child": {"launcher.cli", "launcher.runtime"},
 }
 
 
