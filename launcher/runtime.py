@@ -239,10 +239,11 @@ class Run:
 
     The services: the master session (`masterlink.MasterSession`), roslaunch's
     API server, rosout, the nodes (`nodeservice.NodeService`), /diagnostics and
-    the log-disk check (`servers`). Two have a step before their turn, as
-    roslaunch orders its lines: the master is found (its run id names the log)
-    before anything else, and the other machines' children start connecting
-    right after the API server (they call it). A front-end that runs differently
+    the log-disk check (`servers`). Start-up keeps roslaunch's order of lines,
+    so two of them start in steps: the master session is found first (its run
+    id names the log), started after the summary and given the parameters once
+    rosout is up; the node service's `prepare` starts the other machines'
+    children right after the API server (they call it). A front-end that runs differently
     (rostest) gives its own master session (a class), False for a server it does
     not run, and its own `body` (what the run does between its start and stop).
     """

@@ -5,12 +5,12 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-from types import SimpleNamespace
 
-from launcher import cli
 from launcher.config import LaunchConfig, Node, NodePolicy
 from launcher.packages import PackageIndex
-from launcher.runtime import EVENTS_FILE, Plan, Run
+from launcher.process.state import EVENTS_FILE
+from launcher.runopts import RunOptions
+from launcher.runtime import Plan, Run
 
 from helpers import free_port
 from tests.integration.running import make_package
@@ -28,14 +28,13 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
              policy=NodePolicy(wait_for=(("param", "/never"), ("node", "/nobody")), wait_timeout=1.0)),
     ))
     plan = Plan(config, environ["ROS_MASTER_URI"], environ, packages=PackageIndex(environ))
-    opts = SimpleNamespace(**dict(cli._DEFAULTS, positional=[], monitor_period=0.1, no_summary=True,
-                                  skip_log_check=True))
+    opts = RunOptions(monitor_period=0.1, no_summary=True, skip_log_check=True)
     run = Run(opts, plan)
     status = asyncio.run(asyncio.wait_for(run.main(), 60))
     assert status == 1
     err = console_err(capsys)
     assert "REQUIRED process [held-3] failed to start: still waiting after 1 s for param:/never, node:/nobody" in err
-    plain = run.fleet.nodes["/plain"]
+    plain = run.nodes.fleet.nodes["/plain"]
     assert len(plain.history) >= 5  # sampled every 0.1 s during the second of waiting
     assert all(rss > 0 for _t, _cpu, rss in plain.history)
     with open(os.path.join(run.log.run_dir, EVENTS_FILE)) as f:
