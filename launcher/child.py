@@ -34,7 +34,7 @@ from launcher.process.watchdog import Watchdog
 from launcher.packages import PackageIndex
 from launcher.runlog import RunLog
 from launcher.runopts import RunOptions
-from launcher.runtime import Plan, node_specs
+from launcher.plan.specs import node_specs
 from launcher.xml import load
 
 LOG_INFO, LOG_ERROR = 2, 8  # rosgraph_msgs/Log levels
@@ -233,8 +233,9 @@ class Child:
                 return [-1, "ERROR: %s" % e, [[], []]]
         console.printlog("launching nodes...")
         master_uri = self.environ.get("ROS_MASTER_URI", "http://localhost:11311/")
-        plan = Plan(config, master_uri, self.environ, packages=packages)
-        specs, failed = node_specs(plan, self.opts, self.log.run_dir, self._number)
+        # (the parent sends a child only its own machine's nodes, without `machine`: every one runs here)
+        specs, failed = node_specs(config, master_uri, self.environ, packages, lambda node: False,
+                                   opts=self.opts, run_dir=self.log.run_dir, first_number=self._number)
         self._number += len(specs) + len(failed)
         succeeded = []
         for spec in specs:

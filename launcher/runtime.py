@@ -2,69 +2,52 @@
 
 There is one path. `launch --core` is a run of an empty launch whose master
 must be ours (roscore's words and output); `launch file.launch` uses a
-master that already answers at the master URI, else starts ours. The
-collaborators, one per phase:
+master that already answers at the master URI, else starts ours. Here:
 
-- `masterlink`: finding or starting the master, and `Params`, the one
-  parameter interface (in-process for ours, XML-RPC for a running one);
-- `runlog.RunLog`: the run's log directory and launch log, the summary;
+- `Plan`: the loaded launch and its checks (no socket, no process), with
+  what `launcher.plan` works out from it (which machines are other hosts,
+  each node's process spec);
 - `StopSignals`: SIGINT/SIGTERM/SIGHUP for the whole run, installed on the
   loop before anything starts;
-- `node_specs` and `process.Supervisor`: what runs for each node, and running it.
+- `Run`: the ordered list of the run's services (`masterlink.MasterSession`,
+  `servers`, `nodeservice.NodeService`), started in order, stopped in reverse.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import gc
 import os
 import signal
 import sys
 import time
-import urllib.parse
 from typing import Any, Awaitable, Callable
 
 from launcher import masterlink
-from launcher.command import master_uri, node_command
+from launcher.command import master_uri
 from launcher.config import LaunchConfig
 from launcher.errors import LaunchError
-from launcher.packages import PackageIndex
-from launcher.masterlink import LocalParams, RemoteParams, is_local_host
 from launcher.master import advertised_host
-from launcher.names import ns_join
-from launcher.net.allow import AllowList
-from launcher.net.rosout import Rosout
+from launcher.masterlink import MasterSession
 from launcher.net.open_files import raise_open_file_limit
+from launcher.nodeservice import NodeService
+from launcher.packages import PackageIndex
+from launcher.plan.machines import remote_machines
+from launcher.plan.specs import node_specs
 from launcher.process import console, machine as node_machine
-from launcher.remote import ssh
-from launcher.remote.parent import RemoteParent, check_addresses, machine_nodes, policy_warnings
-from launcher.process.coredumps import CoreDumpReporter
-from launcher.process.hang import HangDetector
-from launcher.process.stall import StallWatch
-from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
-from launcher.process.logrotate import LogRotator
-from launcher.process.readiness import Readiness
-from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
-from launcher.roshome import log_root
+from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size
 from launcher.process.spawn import ProcessSpec
-from launcher.process.state import EVENTS_FILE, Change, Fleet
-from launcher.process.supervisor import Supervisor
+from launcher.process.state import Change
 from launcher.process.watchdog import Watchdog
+from launcher.remote import ssh
+from launcher.remote.parent import check_addresses, machine_nodes, policy_warnings
 from launcher.runlog import RunLog, summary
 from launcher.runopts import RunOptions
+from launcher.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
 from launcher.xml import load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-# Every node's state changes, one JSON object a line, in the run's log directory.
-# `--wait`: how often a master that is not up yet is asked again.
-WAIT_POLL_S = 0.1
-# How long a launch leaves a roscore that has just started its master to set /run_id itself.
-ROSCORE_RUN_ID_WAIT_S = 20.0
-
-
-def _short_repr(value: Any, limit: int = 200) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit] + "... (%d characters)" % len(text)
 
 
 class Stopped(Exception):
@@ -166,12 +149,19 @@ class Plan:
         plan.check_nodes(opts)
         return plan
 
+    @functools.cached_property
+    def remote_machines(self) -> frozenset[str]:
+        """The machines of the launch's nodes that are other hosts, looked up once (plan.machines)."""
+        return remote_machines(self.config, self.environ)
+
     def remote(self, node: Any) -> bool:
         """Is the node assigned to another machine?"""
-        if not node.machine_name:
-            return False
-        machine = self.config.machines.get(node.machine_name)
-        return machine is not None and not (machine.is_local or is_local_host(machine.address, self.environ))
+        return bool(node.machine_name) and node.machine_name in self.remote_machines
+
+    def specs(self, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
+        """What runs for each local node (plan.specs.node_specs)."""
+        return node_specs(self.config, self.master_uri, self.environ, self.packages, self.remote,
+                          opts=opts, run_dir=run_dir, first_number=first_number)
 
     def check_nodes(self, opts: RunOptions) -> None:
         for node in self.config.nodes:
@@ -200,12 +190,16 @@ class Plan:
 class StopSignals:
     """SIGINT, SIGTERM and SIGHUP for the whole run: each sets `event`, which ends the run."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop):
-        self.loop = loop
-        self.event = asyncio.Event()
+    def __init__(self) -> None:
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.event = asyncio.Event()  # (bound to the loop that first waits on it)
         # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
         self.while_stopping: Callable[[], None] | None = None
         self.received = ""  # the first stop signal's name
+
+    def install(self, loop: asyncio.AbstractEventLoop) -> None:
+        """On the run's loop, before anything starts."""
+        self.loop = loop
         for sig in STOP_SIGNALS:
             loop.add_signal_handler(sig, self._on_signal, sig)
 
@@ -237,475 +231,156 @@ class StopSignals:
         raise Stopped()
 
     def close(self) -> None:
-        for sig in STOP_SIGNALS:
-            self.loop.remove_signal_handler(sig)
-
-
-def node_specs(plan: Plan, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
-    """What to run for each local node (numbered as roslaunch's processes), and the (name, required) of
-    nodes that cannot be prepared (each reported by name here)."""
-    config = plan.config
-    if config.tests:
-        # roslaunch skips <test> tags without a word; say so, they are the user's
-        console.printlog("ignoring %d <test> node(s) (%s): run them with `launcher test` (or rostest)"
-                         % (len(config.tests), ", ".join(t.test_name or t.name for t in config.tests)))
-    specs: list[ProcessSpec] = []
-    failed: list[tuple[str, bool]] = []
-    number = first_number
-    for node in config.nodes:
-        if plan.remote(node):
-            continue  # its machine's child runs it (launcher.remote), or --local leaves it out
-        number += 1
-        name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
-        log_name = name.replace("/", "-")
-        required = node.required or opts.required
-        try:
-            command = node_command(node, master_uri=plan.master_uri, environ=plan.environ, packages=plan.packages,
-                                   log_file=os.path.join(run_dir, log_name + ".log"))
-        except LaunchError as e:
-            console.printerrlog("ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e))
-            failed.append((name, required))
-            continue
-        output = node.output or "log"
-        if opts.screen:
-            output = "screen"
-        elif opts.log:
-            output = "log"
-        specs.append(ProcessSpec(
-            name, command,
-            output=output, stdout_path=os.path.join(run_dir, log_name + "-stdout.log"),
-            log_dir=run_dir, respawn=node.respawn, respawn_delay=node.respawn_delay, required=required,
-            node_name=ns_join(node.namespace, node.name), policy=node.policy))
-    return specs, failed
-
-
-def packages_of(plan: Plan, specs: list[ProcessSpec]) -> dict[str, str]:
-    """process name -> the node's package (roslaunch's process_info reports it)."""
-    by_node = {ns_join(n.namespace, n.name): n.package for n in plan.config.nodes}
-    return {spec.name: by_node.get(spec.node_name, "") for spec in specs}
+        if self.loop is not None:
+            for sig in STOP_SIGNALS:
+                self.loop.remove_signal_handler(sig)
 
 
 class Run:
-    """One run on the running loop; the steps are methods so that the order reads like roslaunch's."""
+    """One run on the running loop: an ordered list of services, started in order and stopped in reverse.
 
-    # roslaunch starts the master as a process of the launch, and says so ("auto-starting new master",
-    # "[master] killing on exit"); rostest's runs inside it, started and stopped without a word
-    MASTER_IS_A_PROCESS = True
+    The services: the master session (`masterlink.MasterSession`), roslaunch's
+    API server, rosout, the nodes (`nodeservice.NodeService`), /diagnostics and
+    the log-disk check (`servers`). Start-up keeps roslaunch's order of lines,
+    so two of them start in steps: the master session is found first (its run
+    id names the log), started after the summary and given the parameters once
+    rosout is up; the node service's `prepare` starts the other machines'
+    children right after the API server (they call it). A front-end that runs differently
+    (rostest) gives its own master session (a class), False for a server it does
+    not run, and its own `body` (what the run does between its start and stop).
+    """
 
-    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None):
+    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None, *,
+                 master: Callable[..., MasterSession] = MasterSession, rosout: bool = True,
+                 diagnostics: bool = True, log_disk: bool = True, body: Callable[[Run], Awaitable[None]] | None = None, first_number: int = 0):
         self.opts = opts
         self.plan = plan
         self.watchdog = watchdog
         self.core = plan.core
-        self.master_uri = plan.master_uri
-        self.signals: StopSignals | None = None
+        self.signals = StopSignals()
         self.log = RunLog(plan.environ)
-        self.master: Any = None  # ours, when we run it
-        self.params: Any = None  # LocalParams or RemoteParams
-        self.external = False  # a master was already running
-        self.rosout: Any = None
-        self.remote: Any = None  # launcher.remote.parent.RemoteParent, when nodes run on other machines
-        self.supervisor: Supervisor | None = None
-        self.fleet: Fleet | None = None  # every node's state (process/state.py)
-        self.rotator: LogRotator | None = None  # node output logs under --log-max-size
-        self.run_id = ""
-        self.server: Any = None  # roslaunch's XML-RPC API of this run (launcher.operate.server)
-        self.diagnostics: Any = None  # the /diagnostics publisher (launcher.operate.diagnostics)
-        self._process_count = 0  # roslaunch numbers processes (rosout-1, then the nodes)
+        env = plan.environ
+        self.master = master(opts, plan, self.signals)
+        self.nodes = NodeService(opts, plan, self.log, self.signals, watchdog, self._end_reason)
+        self.rosout = RosoutService(self.master, self.log, env) if rosout else None
+        self.view = RunView(self.master, self.nodes, self.log, self.rosout, plan.config.files)
+        self.api = ApiServer(self.view, self.master, env)
+        self.diagnostics = (DiagnosticsService(self.master, self.nodes, env)
+                            if diagnostics and not self.core and not opts.no_diagnostics else None)
+        self.log_disk = (LogDiskCheck(env, plan.log_threshold)
+                         if log_disk and not self.core and not opts.skip_log_check else None)
+        self.body = body if body is not None else Run.wait_for_the_end
+        self.first_number = first_number  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
-        self._tasks: list[asyncio.Future] = []
-        self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
+        self._up: list[Any] = []  # the services started (or starting)
+
+    @property
+    def services(self) -> list[Any]:
+        """In start order; each has `start()` and `stop()` (the stop undoes what a start did, if anything)."""
+        return [s for s in (self.master, self.api, self.rosout, self.nodes, self.diagnostics, self.log_disk)
+                if s is not None]  # (rosout outlives the nodes: their last words reach its log)
+
+    @property
+    def process_count(self) -> int:
+        """The processes numbered so far: rosout's, then the nodes'."""
+        return self.first_number + (self.rosout.processes if self.rosout is not None else 0) + self.nodes.processes
 
     async def main(self) -> int:
-        self.signals = StopSignals(asyncio.get_running_loop())
-        status = 0
+        self.signals.install(asyncio.get_running_loop())
         try:
             await self._start()
-            await self._wait_for_the_end()
+            await self.body(self)
         except Stopped:
             pass
         finally:
-            await self._teardown()
+            gc.unfreeze()  # (a process that runs again, as `launcher test` does, collects this run's cycles)
+            for service in reversed(self.services):
+                if service in self._up:
+                    await service.stop()
+            self._done()
             self.signals.close()
-        if self.supervisor is not None:
-            status = self.supervisor.exit_status
-        return status
-
-    # ---- start -----------------------------------------------------------------------------------------
+        return self.nodes.exit_status
 
     async def _start(self) -> None:
-        env = self.plan.environ
-        run_id_known = None  # is /run_id set on a running master? (None: not known)
+        guard, up = self.signals.guard, self._up.append
+        master, plan = self.master, self.plan
+        up(master)
+        await guard(master.find())  # (a core starts its master here: a busy port is all it has to say)
+        self.log.open(master.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
         if self.core:
-            await self._start_master(self.plan.core_port)  # first: a busy port is all a core has to say
-            self.run_id = self._decide_run_id(None)
-            self.log.open(self.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
-            self._open_master_log()  # (clients may call the master already)
-            await self.signals.guard(self._start_server())
-            console.printlog("ros_comm version %s" % masterlink.ros_version_params(env)[0].strip())
+            master.open_log(self.log.run_dir)  # (clients may call the master already)
+        up(self.api)
+        await guard(self.api.start())
+        if self.core:
+            console.printlog("ros_comm version %s" % masterlink.ros_version_params(plan.environ)[0].strip())
         else:
-            self.external, reply = await self.signals.guard(self._find_master())
-            self.run_id = self._decide_run_id(reply)
-            if reply is not None:
-                run_id_known = True if reply[0] == 1 else False if reply[0] == -1 else None
-            self.log.open(self.run_id)
-            await self.signals.guard(self._start_server())
-            await self._start_remote()  # the other machines' children start while this one sets up
+            up(self.nodes)
+            await self.nodes.prepare(master.run_id, master.uri, self.api.uri)
         if not self.opts.no_summary:
-            console.printlog(summary(self.plan.config, self._summary_params(), remote=self.plan.remote,
-                                     machines=self.remote is not None))
-        if not self.external:
-            if self.MASTER_IS_A_PROCESS:
-                console.printlog("auto-starting new master")
-            if self.master is None:
-                await self._start_master(urllib.parse.urlsplit(self.master_uri).port or masterlink.DEFAULT_MASTER_PORT)
-        if not self.core:
-            self._open_master_log()
-        self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.master_uri)
-        console.printlog_bold("ROS_MASTER_URI=%s" % self.master_uri)
-        await self.signals.guard(self._set_run_id(run_id_known))
-        await self.signals.guard(self._register_server())
-        if self.master is not None:
-            await self.signals.guard(self._start_rosout())
-        self.log.timing(self._started, "master %s at %s" % ("found" if self.external else "started", self.master_uri))
-        await self.signals.guard(self._set_parameters())
-        self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
-        self._launch_nodes()
-        if not self.core and not self.opts.no_diagnostics:
-            await self.signals.guard(self._start_diagnostics())
+            console.printlog(summary(plan.config, master.summary_params(), remote=plan.remote,
+                                     machines=self.nodes.remote is not None))
+        await master.start(self.log.run_dir)
+        await guard(self.api.register())
+        if self.rosout is not None:
+            up(self.rosout)
+            await guard(self.rosout.start())
+        self.log.timing(self._started, "master %s at %s" % ("found" if master.external else "started", master.uri))
+        await guard(master.set_parameters())
+        self.log.timing(self._started, "%d parameters set" % len(plan.config.params))
+        if self.nodes not in self._up:
+            up(self.nodes)
+        first = self.first_number + (self.rosout.processes if self.rosout is not None else 0)
+        self.nodes.start(master.uri, first, exit_when_all_dead=master.external)
+        if master.master is not None:  # (ours: what a node that ended registered goes with it)
+            self.nodes.fleet.listeners.append(self._process_ended)
+        if self.rosout is not None:
+            self.rosout.warm_up()
+        for service in (self.diagnostics, self.log_disk):
+            if service is not None:
+                up(service)
+                await guard(service.start())
         self.log.timing(self._started, "every node started")
         # What start-up made (the loaded launch, the modules, the master's tables) lives as long as the run:
         # out of the cyclic collector's way, a full collection no longer scans it. With 1,000 callbacks in
         # flight, the master's slowest other call went from 20-38 ms to 6-14 ms (benchmarks/hung_subscribers.py).
         gc.freeze()
 
-    async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
-        """(a master already answers at the master URI, its getParam('/run_id') reply); roslaunch uses it."""
-        answers, reply = await masterlink.probe(self.master_uri)
-        if answers and self.opts.master_allow:
-            console.printerrlog("WARNING: --master-allow has no effect: the master at %s is not started "
-                                "by this launch" % self.master_uri)
-        if not answers and self.opts.wait:
-            console.printlog("master has not been started, waiting for it at %s ..." % self.master_uri)
-            while not answers:
-                await asyncio.sleep(WAIT_POLL_S)
-                answers, reply = await masterlink.probe(self.master_uri)
-        if answers:
-            if (reply is not None and reply[0] != 1 and not self.opts.run_id
-                    and await masterlink.started_by_roscore(self.master_uri)):
-                reply = await self._wait_for_roscore_run_id(reply)
-            return True, reply
-        host = urllib.parse.urlsplit(self.master_uri).hostname or ""
-        if not is_local_host(host, self.plan.environ):
-            raise LaunchError("unable to contact ROS master at [%s]; it is not on this machine, so it cannot be "
-                              "started here" % self.master_uri)
-        return False, None
-
-    async def _wait_for_roscore_run_id(self, reply: tuple[Any, Any]) -> tuple[Any, Any]:
-        """A roscore's master answers before the roscore has set /run_id: let it (roscore dies if we set it
-        first); after ROSCORE_RUN_ID_WAIT_S without one, go on and set our own."""
-        deadline = asyncio.get_running_loop().time() + ROSCORE_RUN_ID_WAIT_S
-        while reply[0] != 1 and asyncio.get_running_loop().time() < deadline:
-            await asyncio.sleep(WAIT_POLL_S)
-            answers, new = await masterlink.probe(self.master_uri)
-            reply = new if answers and new is not None else reply
-        return reply
-
-    def _master_allow(self) -> Any:
-        """`--master-allow` / `--core --allow`: the AllowList of our master, or None (open, as rosmaster)."""
-        cidrs = [c for arg in self.opts.master_allow for c in arg.split(",") if c.strip()]
-        if not cidrs:
-            return None
-        try:
-            return AllowList(cidrs)
-        except ValueError as e:
-            raise LaunchError("--master-allow: %s" % e) from None
-
-    async def _start_master(self, port: int) -> None:
-        allow = self._master_allow()
-        try:
-            self.master = await masterlink.start_master(port, self.plan.environ, allow=allow)
-        except OSError as e:
-            if self.core:
-                raise LaunchError(
-                    "RLException: roscore cannot run as another roscore/master is already running. \n"
-                    "Please kill other roscore/master processes before relaunching.\n"
-                    "The ROS_MASTER_URI is http://%s:%d/ (%s)" % (advertised_host(self.plan.environ), port,
-                                                                 e.strerror or e)) from None
-            raise LaunchError("unable to start the master on port %d: %s" % (port, e.strerror or e)) from None
-        if self.core:
-            self.master_uri = self.master.uri
-        if allow is not None:
-            console.printlog("master answers only clients from loopback, this machine and: %s" % allow)
-
-    def _open_master_log(self) -> None:
-        if self.master is not None and self.log.run_dir:
-            self.master.open_log(os.path.join(self.log.run_dir, "master.log"))
-
-    def _summary_params(self) -> dict[str, Any]:
-        params = {k: p.value for k, p in self.plan.config.params.items()}
-        rosversion, rosdistro = masterlink.ros_version_params(self.plan.environ)
-        params.setdefault("/rosversion", rosversion)
-        params.setdefault("/rosdistro", rosdistro)
-        return params
-
-    def _decide_run_id(self, reply: tuple[Any, Any] | None) -> str:
-        code, value = reply or (0, None)
-        if code == 1 and value:
-            if self.opts.run_id and self.opts.run_id != value:
-                raise LaunchError("run_id on parameter server does not match declared run_id: %s vs %s"
-                                  % (value, self.opts.run_id))
-            return str(value)
-        if self.opts.run_id:
-            return self.opts.run_id
-        import uuid  # imports platform & co.: only when a run id must be made up
-        return str(uuid.uuid1())
-
-    async def _set_run_id(self, known: bool | None) -> None:
-        """Set /run_id unless a running master has one (ours never has)."""
-        if self.master is None:
-            if known is None:
-                known = await self.params.has("/run_id")
-            if known:
-                return
-        console.printlog_bold("setting /run_id to %s" % self.run_id)
-        await self.params.set("/run_id", self.run_id)
-
-    async def _start_server(self) -> None:
-        """roslaunch's XML-RPC API (roscore's too), started first as roslaunch's, registered later."""
-        from launcher.operate.server import LaunchServer
-        server = LaunchServer(self, self.plan.environ)
-        try:
-            await server.start()
-        except OSError as e:  # the launch runs on, without its operator's side
-            console.printerrlog("could not start the roslaunch server: %s" % e)
-            await server.stop()
-            return
-        server.set_packages({})
-        self.server = server
-        console.printlog_bold("started roslaunch server %s" % server.uri)
-
-    async def _register_server(self) -> None:
-        """`/roslaunch/uris/host_<host>__<port>` on the master, as roslaunch sets it once /run_id is."""
-        if self.server is None:
-            return
-        try:
-            await self.params.set(self.server.param_key, self.server.uri)
-        except LaunchError as e:  # not findable through the master; --uri still reaches it
-            console.printerrlog("could not register the roslaunch server on the master: %s" % e)
-
-    async def _start_diagnostics(self) -> None:
-        try:
-            from launcher.operate.diagnostics import Diagnostics
-            diagnostics = Diagnostics(self.master_uri, self.fleet, environ=self.plan.environ, master=self.master)
-            await diagnostics.start()
-        except Exception as e:  # noqa: BLE001 - the launch goes on without /diagnostics
-            console.printerrlog("could not publish /diagnostics: %s" % e)
-            return
-        self.diagnostics = diagnostics
-
-    async def _start_rosout(self) -> None:
-        rosout = Rosout(self.master_uri, self.log.run_dir, environ=self.plan.environ)
-        try:
-            await rosout.start(warm_up=False)  # warmed up once the nodes are spawned (Rosout.warm_up)
-        except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector
-            console.printerrlog("could not start the built-in rosout: %s" % e)
-            try:
-                await rosout.stop()
-            except Exception:  # noqa: BLE001
-                pass
-            return
-        self.rosout = rosout
-        # roslaunch runs rosout as process "rosout-1"; keep node numbering (and log file names) the same
-        self._process_count += 1
-        console.printlog("started core service [/rosout]")
-
-    async def _set_parameters(self) -> None:
-        """`<rosparam command="delete|dump">` in document order, then clear_params, then every parameter."""
-        for command, key, filename in self.plan.config.rosparam_commands:
-            try:
-                if command == "delete":
-                    await self.params.delete(key)
-                elif command == "dump" and filename:
-                    from launcher.params.rosyaml import dump_yaml  # (PyYAML: 12-27 ms a run would pay for a rare tag)
-                    value = await self.params.get(key)
-                    with open(filename, "w") as f:
-                        f.write(dump_yaml(value))
-            except (KeyError, OSError, LaunchError) as e:
-                console.printerrlog("rosparam %s %s failed: %s" % (command, key, e))
-        config = self.plan.config
-        await self.params.upload(list(config.clear_params), [(p.key, p.value) for p in config.params.values()])
-
-    def _launch_nodes(self) -> None:
-        """Spawn every node in order, each supervised from its start.
-
-        Every command line is worked out first: once nodes run, each competes with the
-        launcher for the CPU (on 2 cores, 100 starting roscpp nodes leave it a few percent),
-        so the loop that spawns them does as little as possible.
-        """
-        self.signals.check()
-        specs, failed = node_specs(self.plan, self.opts, self.log.run_dir, self._process_count)
-        self._note_launch(specs)
-        self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
-                           warn=console.printerrlog)
-        self.fleet.listeners.append(self.log.state_change)
-        if self.master is not None:
-            self.fleet.listeners.append(self._process_ended)
-        self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
-                                     sigterm_timeout=self.opts.sigterm_timeout,
-                                     exit_when_all_dead=self.external, watchdog=self.watchdog, fleet=self.fleet)
-        self._watch_health()
-        if self.server is not None:
-            self.server.set_packages(packages_of(self.plan, specs))
-        if self.remote is not None:
-            self.remote.attach(self.fleet)
-        stop = self.signals.event
-        no_start = self.opts.no_start
-        for spec in specs:
-            if stop.is_set():
-                break
-            if no_start:
-                self.supervisor.add(spec)  # started later by `launcher start`
-            else:
-                self.supervisor.start(spec)
-        for name, required in failed:
-            self.supervisor.not_started(name, required)
-        self.supervisor.registrations_complete()
-        self.rotator = LogRotator(self.plan.log_max_size, self.opts.log_backups, self.log.note)
-        for spec in specs:
-            if spec.stdout_path:
-                self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
-        self.rotator.start()
-        if self.rosout is not None:
-            self.rosout.warm_up()
-
     def _process_ended(self, change: Change) -> None:
         """A fleet listener: a node's process ended (here, or on another machine as its child told), and what
         it registered on our master goes (master.process_ended checks that no new run took its name)."""
         if change.event.kind in (node_machine.EXITED_, node_machine.DOWN) and change.old.pid:
-            self.master.process_ended(change.new.name, change.old.pid)
+            self.master.master.process_ended(change.new.name, change.old.pid)
 
-    def _note_launch(self, specs: list[ProcessSpec]) -> None:
-        """What this run is, for the launch log: files, args, environment, parameters, command lines."""
-        note = self.log.note
-        note("launch files: %s" % " ".join(self.plan.config.files or ("(none)",)))
-        note("command line: %s" % " ".join(sys.argv))
-        note("ROS environment: %s" % ", ".join("%s=%s" % (k, v) for k, v in sorted(self.plan.environ.items())
-                                              if k.startswith("ROS_") or k == "CMAKE_PREFIX_PATH"))
-        for key, param in sorted(self.plan.config.params.items()):
-            note("param %s = %s" % (key, _short_repr(param.value)))
-        for spec in specs:
-            cmd = spec.command
-            note("node [%s] (process %s): %s%s" % (spec.node_name, spec.name, cmd.format_args(),
-                                                   " (cwd %s)" % cmd.cwd if cmd.cwd else ""))
-
-    def _watch_health(self) -> None:
-        """wait_for holds, hang probes, core dump reports, and the resource sampling of every node."""
-        sup = self.supervisor
-        sup.readiness = Readiness(self.master_uri, sup)
-        hang = HangDetector(self.master_uri, sup)
-        stall = StallWatch(self.master_uri, sup)
-        sup.watchers += [hang, stall, CoreDumpReporter()]
-        self._health += [sup.readiness, hang, stall]
-        monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
-        self._tasks.append(asyncio.ensure_future(monitor.run()))
-
-    async def _start_remote(self) -> None:
-        """The other machines' children, started on their own tasks; they get their nodes at `_launch_nodes`."""
-        if self.opts.local:
-            # roslaunch's words (ROSLaunchParent._init_remote), whether or not a node is remote
-            console.printlog_bold("LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n")
-            return
-        by_machine = self.plan.remote_nodes()
-        if not by_machine:
-            return
-        self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=self.run_id,
-                                   master_uri=self.master_uri, host=advertised_host(self.plan.environ),
-                                   environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
-                                   sigterm_timeout=self.opts.sigterm_timeout)
-        await self.remote.start(self.server.uri if self.server is not None else "")
-
-    # ---- running ---------------------------------------------------------------------------------------
-
-    async def _wait_for_the_end(self) -> None:
+    async def wait_for_the_end(self) -> None:
+        """A launch's body: until a stop signal, the nodes' end (a required node...) or a `shutdown` call."""
         self.signals.check()
-        if not self.core and not self.opts.skip_log_check:
-            self._tasks.append(asyncio.ensure_future(watch_log_disk(log_root(self.plan.environ),
-                                                                    self.plan.log_threshold)))
         waiters = [asyncio.ensure_future(self.signals.event.wait()),
-                   asyncio.ensure_future(self.supervisor.done.wait())]
-        if self.master is not None:
-            waiters.append(asyncio.ensure_future(self.master.shutdown_requested.wait()))
+                   asyncio.ensure_future(self.nodes.done.wait())]
+        shutdown = self.master.shutdown_requested
+        if shutdown is not None:
+            waiters.append(asyncio.ensure_future(shutdown.wait()))
         await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
         for w in waiters:
             w.cancel()
-        if self.master is not None and self.master.shutdown_requested.is_set():
-            console.printlog("shutdown request: %s" % self.master.shutdown_reason)
-
-    # ---- shutdown --------------------------------------------------------------------------------------
-
-    def _kill_now(self) -> None:
-        """A stop signal while nodes are being stopped: kill what is left, and say so."""
-        killed = self.supervisor.kill_now() if self.supervisor is not None else []
-        if killed:
-            console.printerrlog("second stop signal: killing %d node(s) still stopping with SIGKILL: %s"
-                                % (len(killed), ", ".join(killed)))
-
-    async def _stop_server(self) -> None:
-        if self.external:  # a master that outlives us must not list a launch that is gone
-            try:
-                await asyncio.wait_for(self.params.delete(self.server.param_key), 3.0)
-            except (Exception, asyncio.TimeoutError):  # noqa: BLE001 - the master may be gone already
-                pass
-        await self.server.stop()
+        if shutdown is not None and shutdown.is_set():
+            console.printlog("shutdown request: %s" % self.master.master.shutdown_reason)
 
     def _end_reason(self) -> str:
         """Why the run ends, in words (the events file's last line, which `launcher status` reads after it)."""
         if self.signals.received:
             return "stopped by %s" % self.signals.received
-        if self.master is not None and self.master.shutdown_requested.is_set():
-            return "shutdown request: %s" % self.master.shutdown_reason
-        if self.supervisor is not None and self.supervisor.done.is_set():
-            status = self.supervisor.exit_status
-            return "its nodes ended it (exit status %d)" % status
+        shutdown = self.master.shutdown_requested
+        if shutdown is not None and shutdown.is_set():
+            return "shutdown request: %s" % self.master.master.shutdown_reason
+        done = self.nodes.done
+        if done is not None and done.is_set():
+            return "its nodes ended it (exit status %d)" % self.nodes.exit_status
         return "ended"
 
-    async def _teardown(self) -> None:
-        gc.unfreeze()  # (a process that runs again, as `launcher test` does, collects this run's cycles)
-        for t in self._tasks:
-            t.cancel()
-        if self.rotator is not None:
-            self.rotator.close()
-        for h in self._health:
-            h.close()
-        if self.diagnostics is not None:
-            await self.diagnostics.stop()
-        stops = [self.remote.shutdown()] if self.remote is not None else []
-        if self.supervisor is not None:
-            self.signals.while_stopping = self._kill_now
-            stops.append(self.supervisor.shutdown())
-        await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
-        if self.supervisor is not None:
-            self.signals.while_stopping = None
-            self.supervisor.close()
-        if self.fleet is not None:
-            self.fleet.launch_ended(self._end_reason(), self.supervisor.exit_status if self.supervisor else 0)
-            self.fleet.close()
-        if self.server is not None:
-            await self._stop_server()
-        if self.rosout is not None:
-            if not self.core:
-                console.printlog("[rosout-1] killing on exit")
-            try:
-                await self.rosout.stop()
-            except Exception as e:  # noqa: BLE001 - the master must still stop
-                console.printerrlog("error stopping rosout: %s" % e)
-        if self.master is not None:
-            if not self.core and self.MASTER_IS_A_PROCESS:
-                console.printlog("[master] killing on exit")
-            await self.master.stop()
+    def _done(self) -> None:
+        """roslaunch's last lines, then the launch log closed."""
         if self.core:
-            if self.master is not None:
+            if self.master.master is not None:
                 console.printlog("done")
         else:
             console.printlog("shutting down processing monitor...")
@@ -713,4 +388,3 @@ class Run:
             console.printlog_bold("done")
         self.log.close()
         sys.stdout.flush()
-

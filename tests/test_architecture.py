@@ -63,6 +63,19 @@ NEVER = {
     "launcher.master": {"launcher.xml", "launcher.process", "launcher.runtime", "launcher.config"},
     "launcher.process": {"launcher.xml", "launcher.runtime", "launcher.introspect"},
     "launcher.runtime": {"launcher.introspect", "launcher.cli"},
+    "launcher.plan": {"launcher.xml", "launcher.net", "launcher.master", "launcher.remote", "launcher.operate",
+                      "launcher.runtime", "launcher.cli", "launcher.child", "launcher.masterlink"},
+    "launcher.child": {"launcher.cli", "launcher.runtime"},
+    # a run's services: each knows its own collaborators, none the run that orders them
+    "launcher.masterlink": {"launcher.runtime", "launcher.nodeservice", "launcher.servers", "launcher.remote",
+                            "launcher.operate", "launcher.cli"},
+    "launcher.nodeservice": {"launcher.runtime", "launcher.servers", "launcher.masterlink", "launcher.operate",
+                             "launcher.xml", "launcher.cli"},
+    "launcher.servers": {"launcher.runtime", "launcher.nodeservice", "launcher.masterlink", "launcher.remote",
+                         "launcher.cli"},
+    # the API server sees a narrow view of the run (servers.RunView), never the run or its services
+    "launcher.operate": {"launcher.runtime", "launcher.servers", "launcher.nodeservice", "launcher.masterlink",
+                         "launcher.cli"},
 }
 
 

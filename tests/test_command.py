@@ -103,12 +103,11 @@ def test_what_runs_is_the_command_args_prints(pkgs, tmp_path):
     """The supervisor runs the very NodeCommand that `--args` prints (plus only the __log:= it adds)."""
     from launcher.config import LaunchConfig
     from launcher.runopts import RunOptions
-    from launcher.runtime import Plan, node_specs
+    from launcher.plan.specs import node_specs
     index, env, exe = pkgs
     node = Node("tpkg", "talker", "t", namespace="/ns/", args="-x 'a b'", remap_args=(("in", "out"),))
-    plan = Plan(LaunchConfig(nodes=(node,)), "http://localhost:11311/", env, packages=index)
-    opts = RunOptions()
-    (spec,), failed = node_specs(plan, opts, str(tmp_path / "log"), 1)
+    (spec,), failed = node_specs(LaunchConfig(nodes=(node,)), "http://localhost:11311/", env, index,
+                                 lambda n: False, opts=RunOptions(), run_dir=str(tmp_path / "log"), first_number=1)
     printed = cmd(node, pkgs).format_args()
     assert not failed and spec.name == "ns/t-2"
     assert spec.command.format_args() == printed + " __log:=%s" % (tmp_path / "log" / "ns-t-2.log")

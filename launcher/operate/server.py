@@ -24,7 +24,7 @@ import json
 import os
 import sys
 import time
-from typing import Any
+from typing import Any, Protocol
 
 from launcher.master import advertised_host
 from launcher.net.slave import bind_address
@@ -43,10 +43,25 @@ def rosname_of_host(host: str) -> str:
     return "host_" + "".join(c if "a" <= c <= "z" or "0" <= c <= "9" else "_" for c in host.lower())
 
 
-class LaunchServer:
-    """The API of one run. `run` is the runtime's Run: its supervisor, fleet, master, rosout, log dir."""
+class RunView(Protocol):
+    """What the server sees of its run (`launcher.servers.RunView`): its nodes, its identity, its core."""
 
-    def __init__(self, run: Any, environ: dict[str, str]):
+    nodes: Any  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
+    fleet: Any  # every node's state (process/state.Fleet), None before the nodes are started
+    run_id: str
+    master_uri: str
+    log_dir: str
+    launch_files: list[str]
+
+    def core_processes(self) -> list[list]: ...
+
+    def unresponsive(self) -> list[dict]: ...
+
+
+class LaunchServer:
+    """The API of one run, read from its `RunView` (never the run itself)."""
+
+    def __init__(self, run: RunView, environ: dict[str, str]):
         self.run = run
         self.host = advertised_host(environ)  # (rosgraph's choice for roslaunch's server, as for the master)
         self.uri = ""
@@ -54,14 +69,13 @@ class LaunchServer:
         self.token = ""
         self.token_path = ""
         self._server: Any = None
-        self._packages: dict[str, str] = {}  # process name -> package, for process_info
         self._status: Any = None  # the last launcher_status text, XML-encoded
         self._status_at = 0.0
         self._listening = False
 
     async def start(self) -> None:
         from launcher.net.xmlrpc_server import XmlRpcServer
-        run_dir = self.run.log.run_dir
+        run_dir = self.run.log_dir
         if run_dir:
             try:
                 self.token, self.token_path = run_token.create(run_dir)
@@ -81,16 +95,13 @@ class LaunchServer:
             await self._server.stop()
             self._server = None
 
-    def set_packages(self, packages: dict[str, str]) -> None:
-        self._packages = packages
-
     # ---- dispatch ----------------------------------------------------------------------------------
 
     def _dispatch(self, method: str, params: list) -> Any:
         handler = self._API.get(method)
-        remote = self.run.remote
-        if handler is None and remote is not None and method in remote.PARENT_CALLS:
-            return remote.parent_call(method, params)  # a child on another machine calling its parent
+        nodes = self.run.nodes
+        if handler is None and method in nodes.parent_calls():
+            return nodes.parent_call(method, params)  # a child on another machine calling its parent
         if handler is None:
             # the words of roslaunch's server (Python's SimpleXMLRPCServer)
             raise Fault(1, "<class 'Exception'>:method \"%s\" is not supported" % method)
@@ -107,19 +118,10 @@ class LaunchServer:
         return [s for s in fleet if s.host == LOCAL_HOST] if fleet is not None else []
 
     def _spec(self, node_name: str) -> Any:
-        supervisor = self.run.supervisor
-        proc = supervisor.node(node_name) if supervisor is not None else None
-        return proc.spec if proc is not None else None
+        return self.run.nodes.spec(node_name)
 
     def _core(self) -> list[list]:
-        """roslaunch (and roscore) lists the master it started and its rosout as processes; a launch that
-        found a master running lists neither (it started neither)."""
-        core = []
-        if self.run.master is not None:
-            core.append(["master", 1])
-        if self.run.rosout is not None:
-            core.append(["rosout-1", 1])
-        return core
+        return self.run.core_processes()
 
     def _core_info(self, process_name: str) -> dict[str, Any]:
         """process_info of the master or rosout, with the fields Debian's roslaunch gives its rosout-1.
@@ -151,7 +153,7 @@ class LaunchServer:
         if spec is None:
             return {}
         env = spec.command.env if spec.command.env is not None else os.environ
-        info = {"args": list(spec.argv), "env": dict(env), "package": self._packages.get(spec.name, ""),
+        info = {"args": list(spec.argv), "env": dict(env), "package": self.run.nodes.package_of(spec.name),
                 "respawn": spec.respawn, "respawn_delay": float(spec.respawn_delay), "required": spec.required,
                 "run_id": self.run.run_id, "log_output": spec.output == "log"}
         return info
@@ -195,13 +197,13 @@ class LaunchServer:
                     d["stdout_log"] = spec.stdout_path or ""
                     d["node_log"] = os.path.join(spec.log_dir, spec.log_name + ".log")
                 nodes.append(d)
-        log_dir = run.log.run_dir or ""
+        log_dir = run.log_dir
         info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
                 "log_dir": log_dir, "token_file": self.token_path,
                 "events_file": os.path.join(log_dir, EVENTS_FILE) if log_dir else "",
-                "launch_files": list(run.plan.config.files), "nodes": nodes,
+                "launch_files": list(run.launch_files), "nodes": nodes,
                 # the nodes our master cannot reach (its callbacks time out or are refused)
-                "unresponsive": [u._asdict() for u in run.master.unresponsive_nodes()] if run.master else []}
+                "unresponsive": run.unresponsive()}
         # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
         return json.dumps(info, separators=(",", ":"), default=str)
 
@@ -229,10 +231,10 @@ class LaunchServer:
                                                  "directory", verb))
         if not isinstance(pattern, str):
             raise Fault(1, "%s: the pattern must be a string" % verb)
-        supervisor, remote = self.run.supervisor, self.run.remote
-        local = [s.name for s in self._local()] if supervisor else []
+        nodes = self.run.nodes
+        local = [s.name for s in self._local()]
         # the nodes of other machines too (launcher.remote.parent steers them): one pattern, one answer
-        remote_names = remote.node_names() if remote is not None and supervisor else []
+        remote_names = nodes.remote_names()
         names = patterns.match(pattern, local + remote_names)
         if not names:
             return [-1, "no node matches [%s]" % pattern, []]
@@ -240,24 +242,8 @@ class LaunchServer:
 
     async def _apply(self, verb: str, names: list[str], remote_names: set[str]) -> list:
         """Each node steered at once; [1, what, names], or [0, the refusals, the names that were steered]."""
-        supervisor, remote = self.run.supervisor, self.run.remote
-
-        async def one(name: str) -> str:  # '' or why not
-            if name in remote_names:
-                if verb == "start":
-                    return remote.start_node(name)
-                return await (remote.stop_node(name) if verb == "stop" else remote.restart_node(name))
-            if verb == "start":
-                supervisor.start_node(name)
-            elif verb == "stop":
-                stopping = supervisor.stop_node(name)
-                if stopping is not None:
-                    await stopping
-            else:
-                await supervisor.restart_node(name)
-            return ""
-
-        refusals = await asyncio.gather(*(one(n) for n in names))
+        nodes = self.run.nodes
+        refusals = await asyncio.gather(*(nodes.control(verb, n, n in remote_names) for n in names))
         done = [n for n, why in zip(names, refusals) if not why]
         if any(refusals):
             return [0, "\n".join(why for why in refusals if why), done]

@@ -5,8 +5,8 @@ file: a master (ours, on a free port, so that several runs go in parallel;
 the one at ROS_MASTER_URI with `--reuse-master`), the file's parameters and
 `<node>`s, then the test node with `--gtest_output=xml:RESULT` appended to its
 args, until it exits or its `time-limit` passes. A run is `runtime.Run` with
-three steps changed: where the master comes from, and, instead of waiting for
-a stop signal, running the test node.
+its services chosen for rostest (where the master comes from, no rosout,
+no /diagnostics) and, instead of waiting for a stop signal, the test node.
 
 Where rostest is wrong, this runner is not: a test that exits non-zero, dies by
 a signal, times out or writes no results fails with that reason (rostest passes
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import os
 import shlex
 import shutil
@@ -35,7 +36,7 @@ from launcher.runopts import RunOptions
 from launcher.command import node_command
 from launcher.config import Node
 from launcher.errors import LaunchError
-from launcher.masterlink import RemoteParams
+from launcher.masterlink import MasterSession, RemoteParams
 from launcher.names import ns_join
 from launcher.packages import PackageIndex, package_of
 from launcher.process import console
@@ -57,79 +58,97 @@ def printlog(msg: str) -> None:
     console.printlog("[ROSTEST]" + msg)
 
 
-class TestAttempt(Run):
-    """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
+class RostestMaster(MasterSession):
+    """rostest's master session: ours on a free port of the kernel's choosing (parallel runs never meet), or
+    with `--reuse-master` the one at ROS_MASTER_URI (`--clear`: its parameters cleared first); started and
+    stopped without a word (rostest's master is a rosmaster.Master in its own process)."""
 
-    MASTER_IS_A_PROCESS = False  # (rostest's master is a rosmaster.Master in its own process)
+    is_a_process = False
 
-    def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
-                 reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
-        super().__init__(opts, plan, watchdog)
-        self.processes_before = processes_before
-        self.test = test
-        self.result_file = result_file
+    def __init__(self, opts: Any, plan: Plan, signals: Any, *, reuse_master: bool, clear: bool):
+        super().__init__(opts, plan, signals)
         self.reuse_master = reuse_master
         self.clear = clear
-        self.text = text
-        self.returncode: int | None = None
-        self.timed_out = False
-        self.start_problem: str | None = None
-        self.interrupted = False
 
     async def _find_master(self) -> tuple[bool, tuple[Any, Any] | None]:
         if not self.reuse_master:
             return False, None  # always our own master
-        answers, reply = await masterlink.probe(self.master_uri)
+        answers, reply = await masterlink.probe(self.uri)
         if not answers:
-            raise LaunchError("--reuse-master: no ROS master answers at [%s]" % self.master_uri)
+            raise LaunchError("--reuse-master: no ROS master answers at [%s]" % self.uri)
         if self.clear:
-            params = RemoteParams(self.master_uri)
+            params = RemoteParams(self.uri)
             for key in await params._call("getParamNames"):
                 if key not in CLEAR_KEEP and not key.startswith("/roslaunch/"):
                     await params.delete(key)
         return True, reply
 
     async def _start_master(self, port: int) -> None:
-        # a free port of the kernel's choosing: parallel runs never meet
         await super()._start_master(0)
-        self.master_uri = self.plan.master_uri = self.master.uri
+        self.uri = self.plan.master_uri = self.master.uri
 
-    async def _start_rosout(self) -> None:
-        """None: rostest's master is up before its runner launches, and roslaunch starts its core nodes
-        (rosout) only with a master it started itself. A test sees only the file's nodes."""
 
-    async def _start_diagnostics(self) -> None:
-        """None either: /diagnostics of the nodes' health is the launcher's, not rostest's (the test's graph
-        would have a node more)."""
+class TestAttempt:
+    """One attempt of one `<test>`: a run of the file's fixture, then the test node, then tear-down.
 
-    def _launch_nodes(self) -> None:
+    The run is `runtime.Run` with its services chosen for rostest: `RostestMaster`;
+    no rosout (rostest's master is up before its runner launches, and roslaunch
+    starts its core nodes only with a master it started itself: a test sees only
+    the file's nodes), no /diagnostics (the launcher's, not rostest's: the test's
+    graph would have a node more), no log-disk check; and, as its body, the test
+    node instead of waiting for a stop signal.
+    """
+
+    def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
+                 reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
+        self.opts = opts
+        self.plan = plan
+        self.watchdog = watchdog
+        self.reuse_master = reuse_master
+        self.clear = clear
         # rostest numbers its processes with one counter for the whole file (roslaunch's, global in its
         # process: fixture nodes, then the test, across tests and retries) and runs no rosout process:
         # talk-1, test-2, then talk-3, test-4 for a second <test>
-        self._process_count = self.processes_before
-        super()._launch_nodes()
-        self._process_count += sum(1 for node in self.plan.config.nodes if not self.plan.remote(node))
+        self.processes_before = processes_before
+        self.process_count = processes_before
+        self.test = test
+        self.result_file = result_file
+        self.text = text
+        self.returncode: int | None = None
+        self.timed_out = False
+        self.start_problem: str | None = None
+        self.interrupted = False
 
-    async def _wait_for_the_end(self) -> None:
-        self.signals.check()
+    async def main(self) -> int:
+        master = functools.partial(RostestMaster, reuse_master=self.reuse_master, clear=self.clear)
+        run = Run(self.opts, self.plan, self.watchdog, master=master, rosout=False, diagnostics=False,
+                  log_disk=False, body=self._body, first_number=self.processes_before)
         try:
-            await self.signals.guard(self._run_test())
+            return await run.main()
+        finally:
+            self.process_count = max(self.process_count, run.process_count)
+
+    async def _body(self, run: Run) -> None:
+        run.signals.check()
+        self.process_count = run.process_count
+        try:
+            await run.signals.guard(self._run_test(run))
         except Stopped:
             self.interrupted = True
             raise
 
-    async def _run_test(self) -> None:
+    async def _run_test(self, run: Run) -> None:
         test = self.test
         extra = "--gtest_output=xml:" + shlex.quote(self.result_file)
         if self.text:
             extra += " --text"
         node = test._replace(args=(test.args + " " + extra) if test.args else extra)
-        self._process_count += 1
-        name = ("%s-%d" % (ns_join(node.namespace, node.name), self._process_count)).lstrip("/")
-        run_dir = self.log.run_dir
+        self.process_count += 1
+        name = ("%s-%d" % (ns_join(node.namespace, node.name), self.process_count)).lstrip("/")
+        run_dir = run.log.run_dir
         log_name = name.replace("/", "-")
         try:
-            command = node_command(node, master_uri=self.master_uri, environ=self.plan.environ,
+            command = node_command(node, master_uri=run.master.uri, environ=self.plan.environ,
                                    packages=self.plan.packages,
                                    log_file=os.path.join(run_dir, log_name + ".log") if run_dir else None)
         except LaunchError as e:
@@ -344,7 +363,7 @@ class TestFile:
                               watchdog, test, private, reuse_master=self.opts.reuse_master, clear=self.opts.clear,
                               text=self.opts.text, processes_before=self.processes)
             asyncio.run(run.main())
-            self.processes = max(self.processes, run._process_count)
+            self.processes = max(self.processes, run.process_count)
             if run.interrupted:
                 return None
             elapsed = time.monotonic() - started

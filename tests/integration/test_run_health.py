@@ -6,10 +6,11 @@ import asyncio
 import json
 import os
 
-from launcher.runopts import RunOptions
 from launcher.config import LaunchConfig, Node, NodePolicy
 from launcher.packages import PackageIndex
-from launcher.runtime import EVENTS_FILE, Plan, Run
+from launcher.process.state import EVENTS_FILE
+from launcher.runopts import RunOptions
+from launcher.runtime import Plan, Run
 
 from helpers import free_port
 from tests.integration.running import make_package
@@ -33,7 +34,7 @@ def test_run_holds_a_waiting_node_samples_the_others_and_a_required_timeout_ends
     assert status == 1
     err = console_err(capsys)
     assert "REQUIRED process [held-3] failed to start: still waiting after 1 s for param:/never, node:/nobody" in err
-    plain = run.fleet.nodes["/plain"]
+    plain = run.nodes.fleet.nodes["/plain"]
     assert len(plain.history) >= 5  # sampled every 0.1 s during the second of waiting
     assert all(rss > 0 for _t, _cpu, rss in plain.history)
     with open(os.path.join(run.log.run_dir, EVENTS_FILE)) as f:
