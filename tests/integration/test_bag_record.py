@@ -1,0 +1,104 @@
+"""`launcher bag record` against Debian's rosbag: real rospy and roscpp publishers, Debian's rosbag reads what we wrote."""
+
+from __future__ import annotations
+
+import glob
+import os
+import signal
+import subprocess
+
+import pytest
+
+from bagparts import bag_argv, debian_env, debian_read, our_env, talkers
+from helpers import ROS_PATH, Procs, until
+from running import RosMaster, ros_env
+
+COUNT = 40
+
+
+@pytest.fixture
+def graph(tmp_path, ros_env):
+    master = RosMaster(str(tmp_path))
+    env = ros_env_for(str(tmp_path), master.port)
+    procs = Procs(env)
+    yield env, procs, talkers(str(tmp_path))
+    procs.stop_all()
+    master.stop()
+
+
+def ros_env_for(tmp: str, port: int) -> dict[str, str]:
+    return debian_env(ros_env(tmp, port, ""))
+
+
+def test_recorded_bag_is_what_debian_rosbag_reads(tmp_path, graph):
+    env, procs, talk = graph
+    bag = str(tmp_path / "run.bag")
+    # -l: the recorder ends by itself once it has COUNT messages of each topic (no timing in the test)
+    rec = procs.start(bag_argv("record", "-O", bag, "-l", str(COUNT), "/py_chatter", "/cpp_chatter"),
+                      env=our_env(env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["rospy"] + ["/py_chatter", "py", str(COUNT), "200", "1"])
+    procs.start(talk["roscpp"] + ["/cpp_chatter", "cpp", str(COUNT), "200", "1"])
+    out, _ = rec.communicate(timeout=60)
+    assert rec.returncode == 0, out
+    assert not os.path.exists(bag + ".active")
+    info = subprocess.run(["rosbag", "info", bag], env=env, capture_output=True, text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    assert "/py_chatter    %d msgs" % COUNT in info.stdout and "/cpp_chatter   %d msgs" % COUNT in info.stdout, info.stdout
+    assert "std_msgs/String [992ce8a1687cec8c8bd883ec73ca41d1]" in info.stdout
+    read = debian_read(bag, env)
+    assert read["topics"] == {"/py_chatter": ["std_msgs/String", COUNT], "/cpp_chatter": ["std_msgs/String", COUNT]}
+    for topic, prefix in (("/py_chatter", "py"), ("/cpp_chatter", "cpp")):
+        assert [d for t, d in read["messages"] if t == topic] == ["%s %d" % (prefix, n) for n in range(COUNT)]
+
+
+def test_sigint_mid_recording_leaves_an_indexed_bag(tmp_path, graph):
+    env, procs, talk = graph
+    bag = str(tmp_path / "cut.bag")
+    # --chunksize 1: chunks reach the disk as the messages come, so the test can see the recording grow
+    rec = procs.start(bag_argv("record", "-O", bag, "--chunksize", "1", "/chatter"), env=our_env(env),
+                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["roscpp"] + ["/chatter", "m", "0", "100", "1"])
+    until(lambda: os.path.getsize(bag + ".active") > 16384, 60, what="the recording growing",
+          errors=(OSError,))
+    assert not os.path.exists(bag)  # rosbag's name while writing
+    os.killpg(rec.pid, signal.SIGINT)
+    out, _ = rec.communicate(timeout=30)
+    assert rec.returncode == 0, out
+    assert os.path.exists(bag) and not os.path.exists(bag + ".active")
+    read = debian_read(bag, env)
+    data = [d for _, d in read["messages"]]
+    first = int(data[0].split()[1])
+    assert len(data) > 50 and data == ["m %d" % n for n in range(first, first + len(data))]
+    assert read["topics"]["/chatter"] == ["std_msgs/String", len(data)]
+
+
+def test_split_by_duration_and_max_splits(tmp_path, graph):
+    env, procs, talk = graph
+    prefix = str(tmp_path / "part")
+    rec = procs.start(bag_argv("record", "-O", prefix, "--split", "--duration", "1", "--max-splits", "2", "-a",
+                               "-x", "/rosout.*"),
+                      env=our_env(env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["rospy"] + ["/chatter", "m", "0", "50", "1"])
+    until(lambda: os.path.exists(prefix + "_3.bag.active"), 60, what="a fourth split")
+    os.killpg(rec.pid, signal.SIGINT)
+    out, _ = rec.communicate(timeout=30)
+    assert rec.returncode == 0, out
+    bags = sorted(glob.glob(prefix + "_*"))
+    # --max-splits 2: as rosbag, at most two files, the one being written included
+    assert [os.path.basename(b) for b in bags] == ["part_2.bag", "part_3.bag"], bags
+    data: list[str] = []
+    for b in bags:
+        read = debian_read(b, env)
+        assert set(read["topics"]) == {"/chatter"}, read["topics"]
+        data += [d for _, d in read["messages"]]
+    first = int(data[0].split()[1])
+    assert data == ["m %d" % n for n in range(first, first + len(data))]
+
+
+def test_bad_options_are_usage_errors(tmp_path, graph):
+    env, procs, _ = graph
+    for args in (["-e", "(unclosed", "-O", "x"], ["--no-such-option", "/a"], ["-x", "[", "-a"], []):
+        out = subprocess.run(bag_argv("record", *args), env=our_env(env), capture_output=True, text=True,
+                             timeout=30, cwd=str(tmp_path))
+        assert out.returncode == 2, (args, out.stderr)
+        assert "Traceback" not in out.stderr and "usage:" in out.stderr, out.stderr
