@@ -6,9 +6,10 @@ import json
 import os
 import subprocess
 import sys
+import xmlrpc.client
 
 from helpers import ROOT, ROS_PATH, ROS_PYTHON
-from running import compile_roscpp
+from running import compile_roscpp, ros_env
 
 # A rospy publisher: once SUBS subscribers are connected, "PREFIX N" for N < COUNT (0: forever) at RATE Hz.
 RospyTalker = """#!%s
@@ -56,6 +57,17 @@ print(json.dumps(out))
 
 def debian_env(env: dict[str, str]) -> dict[str, str]:
     return dict(env, PATH=ROS_PATH + ":" + env.get("PATH", ""), PYTHONPATH="")
+
+
+def graph_env(tmp: str, port: int) -> dict[str, str]:
+    """The environment of the test's ROS graph on the master at `port`, Debian's tools first on PATH."""
+    return debian_env(ros_env(tmp, port, ""))
+
+
+def subscribers(env: dict[str, str], topic: str) -> list[str]:
+    """The nodes the master lists as subscribers of `topic`."""
+    _, _, (_, subs, _) = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"]).getSystemState("/test")
+    return next((nodes for t, nodes in subs if t == topic), [])
 
 
 def debian_read(bag: str, env: dict[str, str]) -> dict:

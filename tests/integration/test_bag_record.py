@@ -9,9 +9,9 @@ import subprocess
 
 import pytest
 
-from bagparts import bag_argv, debian_env, debian_read, our_env, talkers
+from bagparts import graph_env, bag_argv, debian_env, debian_read, our_env, talkers
 from helpers import ROS_PATH, Procs, until
-from running import RosMaster, ros_env
+from running import RosMaster
 
 COUNT = 40
 
@@ -19,15 +19,11 @@ COUNT = 40
 @pytest.fixture
 def graph(tmp_path, ros_env):
     master = RosMaster(str(tmp_path))
-    env = ros_env_for(str(tmp_path), master.port)
+    env = graph_env(str(tmp_path), master.port)
     procs = Procs(env)
     yield env, procs, talkers(str(tmp_path))
     procs.stop_all()
     master.stop()
-
-
-def ros_env_for(tmp: str, port: int) -> dict[str, str]:
-    return debian_env(ros_env(tmp, port, ""))
 
 
 def test_recorded_bag_is_what_debian_rosbag_reads(tmp_path, graph):
