@@ -98,3 +98,17 @@ def test_bad_options_are_usage_errors(tmp_path, graph):
                              timeout=30, cwd=str(tmp_path))
         assert out.returncode == 2, (args, out.stderr)
         assert "Traceback" not in out.stderr and "usage:" in out.stderr, out.stderr
+
+
+def test_rosnode_kill_closes_the_recording(tmp_path, graph):
+    env, procs, talk = graph
+    bag = str(tmp_path / "killed.bag")
+    rec = procs.start(bag_argv("record", "-O", bag, "--chunksize", "1", "/chatter", "__name:=rec"), env=our_env(env),
+                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["rospy"] + ["/chatter", "m", "0", "100", "1"])
+    until(lambda: os.path.getsize(bag + ".active") > 8192, 60, what="the recording growing", errors=(OSError,))
+    subprocess.run(["rosnode", "kill", "/rec"], env=env, check=True, capture_output=True, timeout=30)
+    out, _ = rec.communicate(timeout=30)
+    assert rec.returncode == 0, out
+    read = debian_read(bag, env)
+    assert read["topics"]["/chatter"][1] == len(read["messages"]) > 10
