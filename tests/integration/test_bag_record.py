@@ -112,3 +112,26 @@ def test_rosnode_kill_closes_the_recording(tmp_path, graph):
     assert rec.returncode == 0, out
     read = debian_read(bag, env)
     assert read["topics"]["/chatter"][1] == len(read["messages"]) > 10
+
+
+def test_killed_recording_is_recovered_by_reindex(tmp_path, graph):
+    env, procs, talk = graph
+    bag = str(tmp_path / "crash.bag")
+    rec = procs.start(bag_argv("record", "-O", bag, "--chunksize", "1", "--lz4", "/chatter"), env=our_env(env),
+                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    procs.start(talk["roscpp"] + ["/chatter", "m", "0", "200", "1"])
+    until(lambda: os.path.getsize(bag + ".active") > 20000, 60, what="the recording growing", errors=(OSError,))
+    os.killpg(rec.pid, signal.SIGKILL)  # no index written: the bag stays .active
+    rec.wait(10)
+    with open(bag + ".active", "r+b") as f:  # and its last record cut short
+        f.truncate(os.path.getsize(bag + ".active") - 7)
+    info = subprocess.run(bag_argv("info", bag + ".active"), env=our_env(env), capture_output=True, text=True,
+                          timeout=30)
+    assert info.returncode == 1 and "Traceback" not in info.stderr, info.stderr
+    assert bag + ".active" in info.stderr and "launcher bag reindex" in info.stderr, info.stderr
+    fixed = subprocess.run(bag_argv("reindex", bag + ".active"), env=our_env(env), capture_output=True, text=True,
+                           timeout=60)
+    assert fixed.returncode == 0, fixed.stderr
+    read = debian_read(bag, env)
+    data = [d for _, d in read["messages"]]
+    assert len(data) > 20 and data == ["m %d" % n for n in range(len(data))]
