@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import errno
 import logging
 import os
 import re
 import signal
 import time
+from collections import defaultdict
 from collections.abc import Callable
+from io import BytesIO
 from typing import Any, NamedTuple
 
 from rosbags.rosbag1 import Writer
+from rosbags.rosbag1.writer import MAXSIZE, WriteChunk
 
 from launcher import names
 from launcher.bag.info import rosbags_type
@@ -68,6 +72,55 @@ def bag_names(opts: RecordOptions, split_index: int | None, now: float) -> tuple
     return target, target + ".active"
 
 
+class DiskFile:
+    """The bag's file under rosbags' writer: writes gathered in memory and put to the disk a chunk at a time,
+    so that after a failed write (a full disk) `synced` is the end of the last chunk wholly on the disk."""
+
+    def __init__(self, fd: int, pos: int):
+        self.fd = fd
+        self.buf = bytearray()
+        self.pos = pos
+        self.synced = pos
+
+    def write(self, data: bytes | memoryview) -> int:
+        self.buf += data
+        self.pos += len(data)
+        return len(data)
+
+    def tell(self) -> int:
+        return self.pos
+
+    def flush(self) -> None:
+        view = memoryview(self.buf)
+        try:
+            while view:
+                done = os.write(self.fd, view)
+                if not done:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                view = view[done:]
+        finally:
+            view.release()
+        self.buf.clear()
+        self.synced = self.pos
+
+    def seek(self, pos: int, whence: int = os.SEEK_SET) -> int:
+        self.flush()
+        self.pos = self.synced = os.lseek(self.fd, pos, whence)
+        return self.pos
+
+    def cut(self) -> None:
+        """Drop what did not reach the disk, and any part of it that did: back to `synced`."""
+        self.buf.clear()
+        os.ftruncate(self.fd, self.synced)
+        self.pos = os.lseek(self.fd, self.synced, os.SEEK_SET)
+
+    def close(self) -> None:
+        try:
+            self.flush()
+        finally:
+            os.close(self.fd)
+
+
 class BagFile:
     """One bag being written: its connections (one per topic and publisher header) and its size."""
 
@@ -79,6 +132,11 @@ class BagFile:
             self.writer.set_compression(Writer.CompressionFormat[compression.upper()])
         self.writer.chunk_threshold = chunk_size
         self.writer.open()
+        bio = self.writer.bio
+        bio.flush()
+        self.disk = DiskFile(os.dup(bio.fileno()), bio.tell())
+        bio.close()
+        self.writer.bio = self.disk
         self.connections: dict[tuple, Any] = {}
         self.started = time.monotonic()
         self.messages = 0
@@ -96,8 +154,11 @@ class BagFile:
         return conn
 
     def write(self, conn: Any, stamp_ns: int, payload: bytes) -> None:
+        chunks = len(self.writer.chunks)
         self.writer.write(conn, stamp_ns, payload)
         self.messages += 1
+        if len(self.writer.chunks) != chunks:  # a chunk was completed: to the disk with it
+            self.disk.flush()
 
     @property
     def size(self) -> int:
@@ -109,12 +170,28 @@ class BagFile:
         self.writer.close()
         os.rename(self.active, self.path)
 
-    def abort(self) -> None:
-        """After a failed write: keep what reached the disk under the .active name (reindex reads it)."""
+    def salvage(self) -> bool:
+        """After a failed write: cut the bag back to its last whole chunk and index that (the index is small, and
+        the cut frees at least the chunk that did not fit). True if the bag was closed, readable."""
+        writer = self.writer
         try:
-            self.writer.abort()
+            self.disk.cut()
+            writer.chunks = [c for c in writer.chunks if c.pos != -1 and c.pos < self.disk.synced]
+            writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
+            writer.close()
+            os.rename(self.active, self.path)
+            return True
+        except OSError:
+            self.abort()
+            return False
+
+    def abort(self) -> None:
+        """Keep what reached the disk under the .active name (reindex reads it)."""
+        try:
+            self.disk.close()
         except OSError:
             pass
+        self.writer.bio = None
 
 
 class Recorder:
@@ -149,8 +226,7 @@ class Recorder:
         try:
             bag.close()
         except OSError as exc:
-            bag.abort()
-            self._fail("closing %s: %s" % (bag.active, exc))
+            self._failed_write(bag, exc)
             return
         self.written.append(bag.path)
         if not self.opts.quiet:
@@ -169,6 +245,15 @@ class Recorder:
             except OSError as exc:
                 log.warning("cannot remove %s (--max-splits): %s", oldest, exc)
         self._open()
+
+    def _failed_write(self, bag: BagFile, exc: OSError) -> None:
+        """A write failed (a full disk): the recording ends, the bag keeps what is whole on the disk."""
+        if bag.salvage():
+            self._fail("writing %s: %s; recording stopped, %s holds what was written before the last chunk"
+                       % (bag.active, exc, bag.path))
+        else:
+            self._fail("writing %s: %s; recording stopped (launcher bag reindex %s recovers what it holds)"
+                       % (bag.active, exc, bag.active))
 
     def _fail(self, why: str) -> None:
         if self.failed is None:
@@ -198,10 +283,8 @@ class Recorder:
         try:
             bag.write(bag.connection(topic, link.header or {}), time.time_ns(), payload)
         except OSError as exc:
-            bag.abort()
             self.bag = None
-            self._fail("writing %s: %s; the bag keeps what was written before (launcher bag reindex %s)"
-                       % (bag.active, exc, bag.active))
+            self._failed_write(bag, exc)
             return
         if self.opts.limit and self.counts[topic] >= self.opts.limit:
             self._topic_full(topic)

@@ -135,3 +135,26 @@ def test_killed_recording_is_recovered_by_reindex(tmp_path, graph):
     read = debian_read(bag, env)
     data = [d for _, d in read["messages"]]
     assert len(data) > 20 and data == ["m %d" % n for n in range(len(data))]
+
+
+def test_full_disk_ends_the_recording_with_a_readable_bag(tmp_path, graph):
+    env, procs, talk = graph
+    if subprocess.run(["unshare", "-m", "true"]).returncode != 0:
+        pytest.skip("no mount namespaces here (unshare -m)")  # a unit of the disk, not of ROS
+    disk, kept = tmp_path / "disk", tmp_path / "kept"
+    disk.mkdir()
+    kept.mkdir()
+    # a 600 kB disk of its own: the recording fills it; what was on it is copied out before the namespace ends
+    script = ('mount -t tmpfs -o size=600k none "$1" && shift && "$@"; echo $? > "%s/status"; cp "%s"/* "%s"/'
+              % (kept, disk, kept))
+    rec = procs.start(["unshare", "-m", "sh", "-c", script, "sh", str(disk)]
+                      + bag_argv("record", "-O", str(disk / "full.bag"), "--chunksize", "64", "/chatter"),
+                      env=our_env(env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["roscpp"] + ["/chatter", "m", "0", "500", "1", "1000"])
+    out, _ = rec.communicate(timeout=60)
+    assert (kept / "status").read_text().strip() == "1", out
+    assert "No space left on device" in out and "Traceback" not in out, out
+    assert not (kept / "full.bag.active").exists() and (kept / "full.bag").exists(), out
+    read = debian_read(str(kept / "full.bag"), env)
+    data = [d.split("x")[0] for _, d in read["messages"]]
+    assert len(data) > 100 and data == ["m %d" % n for n in range(len(data))]
