@@ -35,6 +35,8 @@ log = logging.getLogger("launcher.bag")
 ANY_TYPE = TopicType("*", ANY_MD5, "")
 # rosbag record looks for new topics (-a, -e, --node) once a second.
 MASTER_POLL_S = 1.0
+# Writes of this size or more go to the disk at once rather than through DiskFile's buffer.
+DIRECT_WRITE = 256 * 1024
 # rosbag's default chunk size (--chunksize 768 KB).
 CHUNK_SIZE = 768 * 1024
 
@@ -83,23 +85,34 @@ class DiskFile:
         self.synced = pos
 
     def write(self, data: bytes | memoryview) -> int:
-        self.buf += data
+        if len(self.buf) + len(data) >= DIRECT_WRITE:
+            # a chunk's body: straight to the disk, not copied into the buffer first (`synced` waits
+            # for the chunk's end, so a failure still cuts back to the last whole chunk)
+            self._put(self.buf)
+            self.buf.clear()
+            self._put(data)
+        else:
+            self.buf += data
         self.pos += len(data)
         return len(data)
+
+    def _put(self, data: bytes | bytearray | memoryview) -> None:
+        view = memoryview(data)
+        try:
+            pos = 0
+            while pos < len(view):
+                done = os.write(self.fd, view[pos:])
+                if not done:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                pos += done
+        finally:
+            view.release()  # (the buffer is cleared next: no view of it may be left)
 
     def tell(self) -> int:
         return self.pos
 
     def flush(self) -> None:
-        view = memoryview(self.buf)
-        try:
-            while view:
-                done = os.write(self.fd, view)
-                if not done:
-                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-                view = view[done:]
-        finally:
-            view.release()
+        self._put(self.buf)
         self.buf.clear()
         self.synced = self.pos
 

@@ -108,3 +108,26 @@ def test_record_node_runs_ours_where_no_rosbag_is_found(tmp_path, no_ros, ros_en
     first = int(data[0].split()[1])
     assert len(data) > 10 and data == ["hello %d" % n for n in range(first, first + len(data))]
     assert read["topics"] == {"/chatter": ["std_msgs/String", len(data)]}
+
+
+def test_demo_recorded_and_played_on_its_clock_without_ros(tmp_path, no_ros):
+    home = tmp_path / "home"
+    env = dict(os.environ, ROS_PACKAGE_PATH=os.path.join(ROOT, "examples"), ROS_HOME=str(home), PYTHONPATH=ROOT,
+               ROS_MASTER_URI="http://127.0.0.1:%d/" % free_port())
+    env.pop("ROS_LOG_DIR", None)
+    launch = no_ros + [sys.executable, "-m", "launcher"]
+    rec = subprocess.run(launch + [os.path.join(ROOT, "examples", "launch", "record_demo.launch"), "duration:=4"],
+                         env=env, capture_output=True, text=True, timeout=120)
+    assert rec.returncode == 0, rec.stderr
+    bag = home / "demo.bag"
+    assert bag.exists() and not (home / "demo.bag.active").exists(), rec.stdout
+    from rosbags.rosbag1 import Reader
+    with Reader(bag) as reader:
+        assert reader.topics["/diagnostics"].msgcount >= 3
+        start, end = reader.start_time / 1e9, reader.end_time / 1e9
+    play = subprocess.run(launch + [os.path.join(ROOT, "examples", "launch", "play_demo.launch")],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert play.returncode == 0, play.stderr
+    told = [float(t) for t in __import__("re").findall(r"sim time (\d+\.\d+)", play.stdout)]
+    # the watcher's clock is the recording's
+    assert told and all(start - 0.01 <= t <= end + 0.01 for t in told), (start, end, play.stdout)
