@@ -43,7 +43,8 @@ def record_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=0, metavar="SIZE", help="record a bag of maximum size SIZE MB")
     p.add_argument("--duration", type=_duration, default=0.0, help="record a bag of maximum duration (s, m or h)")
     p.add_argument("-b", "--buffsize", type=int, default=256, metavar="SIZE",
-                   help="the most that may wait for the disk, in MB (rosbag's input queue)")
+                   help="rosbag's input queue in MB: accepted, without effect here (messages are written as they "
+                        "arrive; a full disk ends the recording)")
     p.add_argument("--chunksize", type=int, default=768, metavar="SIZE", help="chunk size in KB")
     p.add_argument("-l", "--limit", type=int, default=0, metavar="NUM", help="only record NUM messages on each topic")
     p.add_argument("--node", help="record all topics subscribed to by a specific node")
