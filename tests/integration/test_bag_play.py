@@ -119,3 +119,43 @@ def test_bad_bag_is_a_clear_error(tmp_path, graph):
         out = subprocess.run(bag_argv(cmd, str(junk)), env=our_env(env), capture_output=True, text=True,
                              timeout=30)
         assert out.returncode == 1 and str(junk) in out.stderr and "Traceback" not in out.stderr, out.stderr
+
+
+def test_latched_topic_stays_latched_and_start_duration_select(tmp_path, graph):
+    env, procs = graph
+    bag = str(tmp_path / "latched.bag")
+    rec = procs.start(bag_argv("record", "-O", bag, "-l", "1", "/latched"), env=our_env(env),
+                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pub = procs.start(["rostopic", "pub", "-l", "/latched", "std_msgs/String", "data: kept"],
+                      stdout=subprocess.DEVNULL)
+    assert rec.wait(60) == 0
+    os.killpg(pub.pid, signal.SIGINT)  # from here on only our player has the message
+    pub.wait(30)
+    # the recording keeps the publisher's latching (Debian's rosbag reads the connection record)
+    latching = subprocess.run([ROS_PYTHON, "-c", "import rosbag, sys; "
+                               "print(rosbag.Bag(sys.argv[1])._connections[0].header['latching'].decode())", bag],
+                              env=env, capture_output=True, text=True, timeout=30)
+    assert latching.stdout.strip() == "1", latching
+    player = procs.start(bag_argv("play", "-q", "-k", bag), env=our_env(env), stdout=subprocess.DEVNULL)
+    out = str(tmp_path / "late.out")
+    # subscribed after the message was played: only a latched topic gives it
+    until(lambda: subprocess.run(["rostopic", "info", "/latched"], env=env, capture_output=True,
+                                 text=True).stdout.count("* /play") >= 1, 30, what="our player publishing")
+    procs.start(listeners(str(tmp_path))["rospy"] + ["/latched"], stdout=open(out, "w"))
+    until(lambda: lines(out) == ["kept"], 30, what="the latched message")
+    os.killpg(player.pid, signal.SIGINT)
+    assert player.wait(30) == 0
+
+
+def test_start_and_duration_play_a_slice(tmp_path, graph):
+    env, procs = graph
+    bag = debian_recording(tmp_path, env, procs)  # COUNT messages 10 ms apart
+    out = str(tmp_path / "slice.out")
+    procs.start(listeners(str(tmp_path))["roscpp"] + ["/chatter"], stdout=open(out, "w"))
+    player = subprocess.run(bag_argv("play", "-q", "--wait-for-subscribers", "-s", "0.1", "-u", "0.2", bag),
+                            env=our_env(env), capture_output=True, text=True, timeout=60)
+    assert player.returncode == 0, player.stderr
+    until(lambda: len(lines(out)) >= 10, 30, what="the slice")
+    got = [int(line.split()[1]) for line in lines(out)]
+    # about 20 of the 50, from about the 10th: contiguous, none of the bag's first or last ones
+    assert got == list(range(got[0], got[0] + len(got))) and 5 <= got[0] <= 15 and 12 <= len(got) <= 28, got
