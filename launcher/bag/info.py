@@ -10,21 +10,12 @@ from typing import Any
 from rosbags.rosbag1 import Reader, ReaderError
 from rosbags.rosbag1.reader import decompressors
 
+from launcher.bag import reindex
+from launcher.bag.msgtypes import ros1_type
+
 
 class BagError(Exception):
     """A bag that cannot be read: its file name and why."""
-
-
-def ros1_type(msgtype: str) -> str:
-    """rosbags names types the ROS 2 way (`std_msgs/msg/String`); bags and ROS 1 say `std_msgs/String`."""
-    pkg, _, rest = msgtype.partition("/msg/")
-    return "%s/%s" % (pkg, rest) if rest else msgtype
-
-
-def rosbags_type(mtype: str) -> str:
-    """The type rosbags' writer takes (`std_msgs/msg/String`) for a ROS 1 name."""
-    pkg, sep, name = mtype.partition("/")
-    return "%s/msg/%s" % (pkg, name) if sep and "/" not in name else mtype
 
 
 def open_bag(path: str) -> Reader:
@@ -36,11 +27,19 @@ def open_bag(path: str) -> Reader:
         raise BagError("%s: no such file" % path) from None
     except (ReaderError, OSError, ValueError, KeyError) as exc:
         why = str(exc) or type(exc).__name__
-        hint = ""
-        if "reindex" in why or "index" in why or path.endswith(".active"):
-            hint = " (an unfinished or truncated bag: 'launcher bag reindex %s' recovers its messages)" % path
-        raise BagError("%s: not a readable bag: %s%s" % (path, why, hint)) from None
+        raise BagError("%s: not a readable bag: %s%s" % (path, why, _recoverable(path))) from None
     return reader
+
+
+def _recoverable(path: str) -> str:
+    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag)."""
+    try:
+        conns, msgs, stop = reindex.scan(path)
+    except (reindex.ReindexError, OSError):
+        return ""
+    known = sum(1 for m in msgs if m[2] in conns)
+    return (" (%d messages on %d connections can still be read, up to %s: 'launcher bag reindex %s' "
+            "writes them into an indexed bag)" % (known, len(conns), stop, path))
 
 
 def human_size(size: float) -> str:

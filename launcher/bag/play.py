@@ -10,16 +10,20 @@ from __future__ import annotations
 import argparse
 import asyncio
 import heapq
+import os
 import signal
 import struct
 import sys
+import termios
 import time
+import tty
 from collections.abc import Iterator
 from typing import Any
 
 from launcher import names
 from launcher.bag import rosargs
-from launcher.bag.info import BagError, open_bag, ros1_type
+from launcher.bag.info import BagError, open_bag
+from launcher.bag.msgtypes import ros1_type
 from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import Publication, TopicType
 
@@ -194,7 +198,7 @@ class Player:
         sys.stdout.flush()
 
     def on_key(self) -> None:
-        key = sys.stdin.read(1)
+        key = os.read(sys.stdin.fileno(), 1).decode("ascii", "replace")
         if key == " ":
             self.paused = not self.paused
             self.resumed.set()
@@ -234,6 +238,7 @@ class Player:
 
 
 async def play(opts: argparse.Namespace, readers: list[Any], ros: rosargs.RosArgs) -> int:
+    await rosargs.wait_for_master(ros.master_uri, ros.name)
     node = SlaveNode(ros.name, ros.master_uri, host=ros.host or default_host())
     await node.start()
     player = Player(opts, readers, node, ros.remaps)
@@ -243,13 +248,20 @@ async def play(opts: argparse.Namespace, readers: list[Any], ros: rosargs.RosArg
     shutdown = loop.create_task(node.shutdown_requested.wait())
     shutdown.add_done_callback(lambda _: player.stop.set())
     keys = not opts.quiet and sys.stdin is not None and sys.stdin.isatty()
+    saved = None
     if keys:
+        # as rosbag play: keys act when pressed (no Enter), and the terminal is given back as it was
+        saved = termios.tcgetattr(sys.stdin.fileno())
+        tty.setcbreak(sys.stdin.fileno())
         loop.add_reader(sys.stdin.fileno(), player.on_key)
+        if not opts.quiet:
+            print("Hit space to toggle paused, or 's' to step.", flush=True)
     try:
         return await player.run()
     finally:
         if keys:
             loop.remove_reader(sys.stdin.fileno())
+            termios.tcsetattr(sys.stdin.fileno(), termios.TCSADRAIN, saved)
         shutdown.cancel()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)

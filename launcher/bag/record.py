@@ -25,7 +25,8 @@ from rosbags.rosbag1 import Writer
 from rosbags.rosbag1.writer import MAXSIZE, WriteChunk
 
 from launcher import names
-from launcher.bag.info import rosbags_type
+from launcher.bag import rosargs
+from launcher.bag.msgtypes import rosbags_type
 from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import ANY_MD5, PublisherLink, TopicType
 from launcher.net.xmlrpc import call
@@ -378,6 +379,7 @@ class Recorder:
 
 async def record(opts: RecordOptions, name: str, master_uri: str, host: str | None = None) -> int:
     """Run a recording until SIGINT/SIGTERM, a shutdown call, -l, or a write error."""
+    await rosargs.wait_for_master(master_uri, name)
     node = SlaveNode(name, master_uri, host=host or default_host())
     await node.start()
     recorder = Recorder(opts, node)

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 
 from rosbags.rosbag1 import Writer
 
-from launcher.bag.info import rosbags_type
+from launcher.bag.msgtypes import rosbags_type
 
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7

@@ -1,12 +1,16 @@
-"""A bag node's ROS arguments (`__name:=`, `__ns:=`, `from:=to`), split from its own options as roscpp does."""
+"""A bag node's ROS arguments (`__name:=`, `__ns:=`, `from:=to`), split from its own options as roscpp does, and its
+wait for the master."""
 
 from __future__ import annotations
 
+import asyncio
 import os
+import sys
 from collections.abc import Mapping
 from typing import NamedTuple
 
 from launcher import names
+from launcher.net.xmlrpc import call
 
 # roscpp's special keys: each read here or, for the log file and addresses, harmless to a bag node.
 _SPECIAL = ("__name", "__ns", "__master", "__log", "__ip", "__hostname")
@@ -44,3 +48,17 @@ def split(argv: list[str], default_name: str, environ: Mapping[str, str] | None 
     master = special.get("__master") or env.get("ROS_MASTER_URI") or "http://localhost:11311/"
     host = special.get("__hostname") or special.get("__ip")
     return RosArgs(args, name, ns, master, remaps, host)
+
+
+async def wait_for_master(uri: str, caller_id: str, period: float = 0.5) -> None:
+    """Return once the master at `uri` answers; as roscpp nodes do, wait for it (saying so once)."""
+    said = False
+    while True:
+        try:
+            await call(uri, "getPid", caller_id, timeout=5.0)
+            return
+        except (OSError, asyncio.TimeoutError, ValueError) as exc:
+            if not said:
+                print("[ WARN] waiting for the ROS master at %s (%s)" % (uri, exc), file=sys.stderr, flush=True)
+                said = True
+        await asyncio.sleep(period)

@@ -59,6 +59,20 @@ def debian_env(env: dict[str, str]) -> dict[str, str]:
     return dict(env, PATH=ROS_PATH + ":" + env.get("PATH", ""), PYTHONPATH="")
 
 
+# A mount namespace of our own (as root, or as root of a user namespace otherwise).
+MOUNT_NS = ["unshare", "-m"] if os.geteuid() == 0 else ["unshare", "-r", "-m"]
+
+
+def mount_ns_missing() -> str | None:
+    """Why no mount namespace can be made here, or None."""
+    try:
+        if subprocess.run(MOUNT_NS + ["true"], capture_output=True, timeout=30).returncode == 0:
+            return None
+    except OSError:
+        pass
+    return "no mount namespaces here (%s)" % " ".join(MOUNT_NS)
+
+
 def graph_env(tmp: str, port: int) -> dict[str, str]:
     """The environment of the test's ROS graph on the master at `port`, Debian's tools first on PATH."""
     return debian_env(ros_env(tmp, port, ""))

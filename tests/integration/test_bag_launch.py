@@ -11,14 +11,15 @@ namespace, then reads what was recorded.
 from __future__ import annotations
 
 import os
-import shutil
+import re
 import signal
 import subprocess
 import sys
 
 import pytest
+from rosbags.rosbag1 import Reader
 
-from bagparts import debian_read
+from bagparts import MOUNT_NS, debian_read, mount_ns_missing
 from helpers import ROOT, free_port, until
 from running import make_package, ros_env as graph_environ
 
@@ -69,9 +70,9 @@ def hide_ros_script() -> str:
 
 @pytest.fixture
 def no_ros(ros_part_missing):
-    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode != 0:
-        ros_part_missing("no mount namespaces here (unshare -m)")
-    return ["unshare", "-m", "sh", "-c", hide_ros_script(), "sh"]
+    if mount_ns_missing():
+        ros_part_missing(mount_ns_missing())
+    return MOUNT_NS + ["sh", "-c", hide_ros_script(), "sh"]
 
 
 def test_record_node_runs_ours_where_no_rosbag_is_found(tmp_path, no_ros, ros_env):
@@ -121,13 +122,12 @@ def test_demo_recorded_and_played_on_its_clock_without_ros(tmp_path, no_ros):
     assert rec.returncode == 0, rec.stderr
     bag = home / "demo.bag"
     assert bag.exists() and not (home / "demo.bag.active").exists(), rec.stdout
-    from rosbags.rosbag1 import Reader
     with Reader(bag) as reader:
         assert reader.topics["/diagnostics"].msgcount >= 3
         start, end = reader.start_time / 1e9, reader.end_time / 1e9
     play = subprocess.run(launch + [os.path.join(ROOT, "examples", "launch", "play_demo.launch")],
                           env=env, capture_output=True, text=True, timeout=120)
     assert play.returncode == 0, play.stderr
-    told = [float(t) for t in __import__("re").findall(r"sim time (\d+\.\d+)", play.stdout)]
+    told = [float(t) for t in re.findall(r"sim time (\d+\.\d+)", play.stdout)]
     # the watcher's clock is the recording's
     assert told and all(start - 0.01 <= t <= end + 0.01 for t in told), (start, end, play.stdout)

@@ -9,7 +9,7 @@ import subprocess
 
 import pytest
 
-from bagparts import graph_env, bag_argv, debian_env, debian_read, our_env, talkers
+from bagparts import MOUNT_NS, mount_ns_missing, graph_env, bag_argv, debian_env, debian_read, our_env, talkers
 from helpers import ROS_PATH, Procs, until
 from running import RosMaster
 
@@ -137,17 +137,17 @@ def test_killed_recording_is_recovered_by_reindex(tmp_path, graph):
     assert len(data) > 20 and data == ["m %d" % n for n in range(len(data))]
 
 
-def test_full_disk_ends_the_recording_with_a_readable_bag(tmp_path, graph):
+def test_full_disk_ends_the_recording_with_a_readable_bag(tmp_path, graph, ros_part_missing):
     env, procs, talk = graph
-    if subprocess.run(["unshare", "-m", "true"]).returncode != 0:
-        pytest.skip("no mount namespaces here (unshare -m)")  # a unit of the disk, not of ROS
+    if mount_ns_missing():
+        ros_part_missing(mount_ns_missing())
     disk, kept = tmp_path / "disk", tmp_path / "kept"
     disk.mkdir()
     kept.mkdir()
     # a 600 kB disk of its own: the recording fills it; what was on it is copied out before the namespace ends
     script = ('mount -t tmpfs -o size=600k none "$1" && shift && "$@"; echo $? > "%s/status"; cp "%s"/* "%s"/'
               % (kept, disk, kept))
-    rec = procs.start(["unshare", "-m", "sh", "-c", script, "sh", str(disk)]
+    rec = procs.start(MOUNT_NS + ["sh", "-c", script, "sh", str(disk)]
                       + bag_argv("record", "-O", str(disk / "full.bag"), "--chunksize", "64", "/chatter"),
                       env=our_env(env), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     procs.start(talk["roscpp"] + ["/chatter", "m", "0", "500", "1", "1000"])
