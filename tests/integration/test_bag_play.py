@@ -8,7 +8,7 @@ import subprocess
 
 import pytest
 
-from bagparts import graph_env, ROS_PYTHON, bag_argv, debian_env, debian_read, listeners, our_env, talkers
+from bagparts import graph_env, ROS_PYTHON, bag_argv, debian_read, listeners, our_env, talkers
 from helpers import Procs, until
 from running import RosMaster
 

@@ -9,8 +9,8 @@ import subprocess
 
 import pytest
 
-from bagparts import MOUNT_NS, mount_ns_missing, graph_env, bag_argv, debian_env, debian_read, our_env, talkers
-from helpers import ROS_PATH, Procs, until
+from bagparts import MOUNT_NS, bag_argv, debian_read, graph_env, listeners, mount_ns_missing, our_env, talkers
+from helpers import Procs, until
 from running import RosMaster
 
 COUNT = 40
@@ -158,3 +158,18 @@ def test_full_disk_ends_the_recording_with_a_readable_bag(tmp_path, graph, ros_p
     read = debian_read(str(kept / "full.bag"), env)
     data = [d.split("x")[0] for _, d in read["messages"]]
     assert len(data) > 100 and data == ["m %d" % n for n in range(len(data))]
+
+
+def test_node_records_what_a_node_subscribes_to(tmp_path, graph):
+    env, procs, talk = graph
+    bag = str(tmp_path / "node.bag")
+    procs.start(listeners(str(tmp_path))["rospy"] + ["/wanted", "__name:=watched"], stdout=subprocess.DEVNULL)
+    rec = procs.start(bag_argv("record", "-O", bag, "-l", "20", "--node", "/watched"), env=our_env(env),
+                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    procs.start(talk["roscpp"] + ["/unwanted", "u", "0", "100", "1"])
+    procs.start(talk["rospy"] + ["/wanted", "w", "0", "100", "2"])  # the watched node and the recorder
+    out, _ = rec.communicate(timeout=60)
+    assert rec.returncode == 0, out
+    read = debian_read(bag, env)
+    assert set(read["topics"]) == {"/wanted"}, read["topics"]
+    assert [d for _, d in read["messages"]] == ["w %d" % n for n in range(20)]
