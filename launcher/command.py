@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import os
 import shlex
+import sys
 from typing import Any, Iterable, Mapping
 
 from launcher.config import Node
 from launcher.errors import LaunchError
+from launcher.packages import BAG_MAIN
 from launcher.roshome import ros_home
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
@@ -81,7 +83,9 @@ def node_command(node: Node, *, master_uri: str, environ: Mapping[str, str], pac
                           node.filename or None, node.line or None) from None
     prefix = _split(node.launch_prefix, "launch-prefix", node) if node.launch_prefix else []
     args = _split(node.args, "args", node) if node.args else []
-    argv = prefix + [exe] + args + ["%s:=%s" % r for r in node.remap_args] + ["__name:=%s" % node.name]
+    # a built-in node (rosbag's record or play without rosbag): our module, on the python that runs us
+    exe_argv = [sys.executable, "-m", "launcher.bag", node.type] if exe == BAG_MAIN else [exe]
+    argv = prefix + exe_argv + args + ["%s:=%s" % r for r in node.remap_args] + ["__name:=%s" % node.name]
     if log_file:
         argv.append("__log:=%s" % log_file)
     env = node_env(node, master_uri, environ)

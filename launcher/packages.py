@@ -32,6 +32,12 @@ _CATKIN_IGNORE_MARKERS = frozenset(("AMENT_IGNORE", "CATKIN_IGNORE", "COLCON_IGN
 _USER_RX = stat.S_IRUSR | stat.S_IXUSR
 
 
+# Nodes built in (launcher/bag), run where their package is not found: on a ROS machine the installed
+# rosbag runs, as with roslaunch. `BAG_MAIN` stands for them; command.node_command runs it with our python.
+BUILTIN_NODES = frozenset({("rosbag", "record"), ("rosbag", "play")})
+BAG_MAIN = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bag", "__main__.py")
+
+
 class PackageNotFound(LaunchError):
     """A package name that is on neither ROS_PACKAGE_PATH nor /usr/share."""
 
@@ -442,13 +448,21 @@ class PackageIndex:
         return self.catkin_dirs(pkg, ("libexec", "share")) + [pkg_path]
 
     def find_node(self, pkg: str, node_type: str) -> str:
-        """The executable for `<node pkg= type=>`: first file named `type` with user r+x bits."""
+        """The executable for `<node pkg= type=>`: first file named `type` with user r+x bits.
+
+        Where no package `rosbag` is found, rosbag's record and play are ours (`BAG_MAIN`)."""
         key = (pkg, node_type)
         cached = self._nodes.get(key)
         if cached is not None:
             return cached
+        try:
+            dirs = self._resource_dirs(pkg)
+        except PackageNotFound:
+            if (pkg, node_type) in BUILTIN_NODES:
+                return BAG_MAIN
+            raise
         not_executable = None  # the first file of that name without the x bit, for the error
-        for d in self._resource_dirs(pkg):
+        for d in dirs:
             for candidate in self._named(d, node_type):
                 try:
                     mode = os.stat(candidate).st_mode

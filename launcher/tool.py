@@ -26,6 +26,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "logs": ("launcher.operate.logs", "a node's output (-f follows it; after the end: the last run's)"),
     "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
+    "bag": ("launcher.bag.main", "record, play, inspect and reindex ROS 1 bags (rosbag's options; no ROS needed)"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
 

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 
 from launcher.command import node_command
 from launcher.config import Node
 from launcher.errors import LaunchError
-from launcher.packages import PackageIndex
+from launcher.packages import PackageIndex, PackageNotFound
 
 PACKAGE_XML = ('<?xml version="1.0"?><package format="2"><name>%s</name><version>0.0.1</version>'
                '<description>t</description><maintainer email="t@example.com">t</maintainer>'
@@ -112,3 +113,32 @@ def test_what_runs_is_the_command_args_prints(pkgs, tmp_path):
     assert not failed and spec.name == "ns/t-2"
     assert spec.command.format_args() == printed + " __log:=%s" % (tmp_path / "log" / "ns-t-2.log")
     assert spec.argv is spec.command.argv
+
+
+def test_rosbag_record_and_play_are_ours_where_no_rosbag_is_found(pkgs, monkeypatch):
+    index, env, _ = pkgs
+    real = index._resource_dirs
+
+    def without_rosbag(pkg):  # (this machine may have Debian's rosbag, which package lookup always sees)
+        if pkg == "rosbag":
+            raise PackageNotFound(pkg)
+        return real(pkg)
+    monkeypatch.setattr(index, "_resource_dirs", without_rosbag)
+    for kind in ("record", "play"):
+        c = cmd(Node("rosbag", kind, "bagger", args="-O x.bag /a"), pkgs)
+        assert c.argv == [sys.executable, "-m", "launcher.bag", kind, "-O", "x.bag", "/a", "__name:=bagger"]
+    with pytest.raises(LaunchError):  # nothing else of rosbag's is built in
+        cmd(Node("rosbag", "reindex", "r"), pkgs)
+
+
+def test_an_installed_rosbag_runs_as_with_roslaunch(tmp_path, pkgs):
+    index, env, _ = pkgs
+    d = tmp_path / "pkgs" / "rosbag"
+    d.mkdir()
+    (d / "package.xml").write_text(PACKAGE_XML % "rosbag")
+    exe = d / "record"
+    exe.write_text("#!/bin/sh\n")
+    exe.chmod(0o755)
+    c = cmd(Node("rosbag", "record", "bagger"), (PackageIndex(env), env, ""))
+    # ours, or Debian's where it is installed (catkin's lib dir comes first, as with roslaunch)
+    assert c.argv[0] in (str(exe), "/usr/lib/rosbag/record") and c.argv[1:] == ["__name:=bagger"]
