@@ -27,6 +27,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
     "ui": ("launcher.operate.ui", "a live view of a running launch: states, CPU, RSS, output; start/stop/restart "
            "keys (q leaves it running)"),
+    "web": ("launcher.operate.web", "the live view of a running launch as a web page ([ADDR:]PORT, loopback unless "
+            "an address is given)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
