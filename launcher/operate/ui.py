@@ -37,6 +37,27 @@ RECENT_OUTPUT_BYTES = 16 * 1024  # of the selected node's log, for `o`
 CONTROL_TIMEOUT_S = 600.0  # a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation
 
 
+def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
+    """A read call of the launch's server: its value (a failed answer is an XmlRpcError)."""
+    code, msg, value = call_blocking(uri, method, *params, timeout=timeout)
+    if code != 1:
+        raise XmlRpcError("%s: %s" % (method, msg))
+    return value
+
+
+def new_output(uri: str, offsets: dict[str, int]) -> dict[str, str]:
+    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: node -> text."""
+    answer = json.loads(call(uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
+    offsets.update(answer["offsets"])
+    return answer["output"]
+
+
+def recent_output(uri: str, node: str) -> str:
+    """The end of a node's output (its -stdout.log), as the launch's server reads it."""
+    answer = json.loads(call(uri, "launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
+    return answer["output"].get(node, "")
+
+
 def terminal_ok() -> bool:
     return sys.stdin.isatty() and sys.stdout.isatty() and os.environ.get("TERM", "dumb") not in ("dumb", "")
 
@@ -57,10 +78,7 @@ class Feed:
             threading.Thread(target=target, daemon=True).start()
 
     def _call(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
-        code, msg, value = call_blocking(self.uri, method, *params, timeout=timeout)
-        if code != 1:
-            raise XmlRpcError("%s: %s" % (method, msg))
-        return value
+        return call(self.uri, method, *params, timeout=timeout)
 
     def _loop(self, body: Callable[[], None]) -> None:
         while not self.ended.is_set():
@@ -97,17 +115,10 @@ class Feed:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            answer = json.loads(self._call("launcher_output", json.dumps(offsets), POLL_WAIT_S,
-                                           timeout=POLL_WAIT_S + 10))
-            offsets.update(answer["offsets"])
-            output = answer["output"]
+            output = new_output(self.uri, offsets)
             if output:
                 self.post(lambda: [self.state.output(node, text) for node, text in output.items()])
         self._loop(body)
-
-    def recent_output(self, node: str) -> str:
-        answer = json.loads(self._call("launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
-        return answer["output"].get(node, "")
 
 
 def read_token(info: dict[str, Any]) -> str:
@@ -261,7 +272,7 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
 
         def work() -> None:
             try:
-                text = feed.recent_output(node)
+                text = recent_output(uri, node)
             except (OSError, XmlRpcError, Fault, ValueError) as e:
                 text = "cannot read the output of %s: %s" % (node, e)
             post(lambda: state.show_node_output(text or "(%s has written nothing)" % node))

@@ -32,7 +32,8 @@ from typing import Any
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
 from launcher.operate import token as run_token
-from launcher.operate.ui import POLL_WAIT_S, RECENT_OUTPUT_BYTES
+from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
+from launcher.operate.ui import POLL_WAIT_S
 from launcher.operate.view import ViewState
 
 PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "webpage")
@@ -68,10 +69,7 @@ class Hub:
             threading.Thread(target=target, daemon=True).start()
 
     def _call(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
-        code, msg, value = call_blocking(self.uri, method, *params, timeout=timeout)
-        if code != 1:
-            raise XmlRpcError("%s: %s" % (method, msg))
-        return value
+        return reader.call(self.uri, method, *params, timeout=timeout)
 
     def _loop(self, body: Any) -> None:
         failures = 0
@@ -140,16 +138,13 @@ class Hub:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            answer = json.loads(self._call("launcher_output", json.dumps(offsets), POLL_WAIT_S,
-                                           timeout=POLL_WAIT_S + 10))
-            offsets.update(answer["offsets"])
-            if answer["output"]:
-                self.broadcast({"type": "output", "output": answer["output"]})
+            output = reader.new_output(self.uri, offsets)
+            if output:
+                self.broadcast({"type": "output", "output": output})
         self._loop(body)
 
     def recent_output(self, node: str) -> str:
-        answer = json.loads(self._call("launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
-        return answer["output"].get(node, "")
+        return reader.recent_output(self.uri, node)
 
     def topics(self) -> list[dict]:
         """Each topic of the master's registry: its type, publishers and subscribers."""
