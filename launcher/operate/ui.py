@@ -121,8 +121,9 @@ class Feed:
         self._loop(body)
 
 
-def read_token(info: dict[str, Any]) -> str:
-    path = info.get("token_file") or ""
+def read_token(info: dict[str, Any], path: str | None = None) -> str:
+    """The run's token: from `path`, else from the file the launch names (on its own machine)."""
+    path = path or info.get("token_file") or ""
     if not path:
         raise client.ToolError("the launch has no token file: start/stop/restart are refused", client.EXIT_REFUSED)
     try:
@@ -133,7 +134,7 @@ def read_token(info: dict[str, Any]) -> str:
 
 
 def run_view(uri: str, on_quit: Callable[[], None] | None = None,
-             launch_proc: subprocess.Popen | None = None) -> None:
+             launch_proc: subprocess.Popen | None = None, token_file: str | None = None) -> None:
     """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends)."""
     try:
         from prompt_toolkit.application import Application
@@ -210,7 +211,7 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
 
         def work() -> None:
             try:
-                code, msg, _names = call_blocking(uri, "%s_nodes" % verb, read_token(info), pattern,
+                code, msg, _names = call_blocking(uri, "%s_nodes" % verb, read_token(info, token_file), pattern,
                                                   timeout=CONTROL_TIMEOUT_S)
                 text = msg
             except client.ToolError as e:
@@ -398,6 +399,8 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="launcher ui", description="a live view of a running launch: every node's "
                                 "state, CPU and RSS, their output; start, stop and restart nodes (q leaves the "
                                 "launch running)")
+    p.add_argument("--token-file", dest="token_file", help="the run's token file (default: the one the launch "
+                   "wrote in its log directory; from another machine, a copy of it)")
     client.add_launch_options(p)
     return p
 
@@ -408,7 +411,7 @@ def _main(argv: list[str]) -> int:
     if not terminal_ok():
         sys.stderr.write("launcher ui: no terminal (or TERM=dumb): plain lines follow\n")
         return plain(uri)
-    run_view(uri)
+    run_view(uri, token_file=opts.token_file)
     return client.EXIT_OK
 
 
