@@ -48,6 +48,30 @@ def import_cost(python: str, reps: int = 5) -> float:
     return statistics.median(float(subprocess.check_output([python, "-c", code])) for _ in range(reps))
 
 
+def browser_window(launch_pid: int, web_pid: int, port: int, args: argparse.Namespace, alone: float) -> None:
+    """The same with Debian's headless Chromium showing the page (its own CPU is not the launcher's)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):
+        options.add_argument(arg)
+    driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+    try:
+        driver.get("http://127.0.0.1:%d/" % port)
+        deadline = time.monotonic() + 60
+        while len(driver.find_elements("css selector", "#nodes tbody tr")) < args.n:
+            if time.monotonic() > deadline:
+                raise SystemExit("the page did not show the %d nodes" % args.n)
+            time.sleep(0.5)
+        time.sleep(3)
+        with_browser, web_own = window([launch_pid, web_pid], args.seconds)
+        print("%d idle nodes, Chromium on the page: launcher %.2f %% (+%.2f), the page server %.2f %%"
+              % (args.n, with_browser, with_browser - alone, web_own))
+    finally:
+        driver.quit()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=500)
@@ -122,8 +146,11 @@ def main() -> None:
             with_web, web_own = window([p.pid, web.pid], args.seconds)
             rate = received[0] / args.seconds
             print("%d idle nodes, one page connected: launcher %.2f %% (+%.2f), the page server %.2f %%, the page "
-                  "receives %.0f B/s" % (args.n, with_web, with_web - alone, web_own, rate))
+                  "receives %.1f B/s (%d bytes in %g s)" % (args.n, with_web, with_web - alone, web_own, rate, received[0],
+                                                        args.seconds))
             conn.close()
+            if os.path.exists("/usr/bin/chromium") and os.path.exists("/usr/bin/chromedriver"):
+                browser_window(p.pid, web.pid, port, args, alone)
             web.send_signal(signal.SIGINT)
             web.wait(10)
         finally:

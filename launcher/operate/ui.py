@@ -435,7 +435,8 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
 
-    old_hup = signal.signal(signal.SIGHUP, lambda *_: stop_launch())  # (the terminal closed)
+    # the terminal closed, or the view was told to end: the launch stops as at Ctrl-C, and the view ends with it
+    old = {sig: signal.signal(sig, lambda *_: stop_launch()) for sig in (signal.SIGHUP, signal.SIGTERM)}
     uri = None
     try:
         uri = _wait_for_launch(proc, master_uri)
@@ -444,6 +445,8 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
                 run_view(uri, launch_proc=proc)
             except client.ToolError as e:
                 sys.stderr.write("launch --ui: %s\n" % e)
+            except KeyboardInterrupt:  # (a SIGINT from outside the terminal's keys: the same stop)
+                pass
             if proc.poll() is None:
                 sys.stderr.write("stopping the launch (its output: %s) ...\n" % console_path)
                 sys.stderr.flush()
@@ -455,7 +458,8 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
             except KeyboardInterrupt:  # a second Ctrl-C: the launch's own second-Ctrl-C rule
                 stop_launch()
     finally:
-        signal.signal(signal.SIGHUP, old_hup)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
     # the launch's last words (all of them when it ended before the view could attach: a load error)
     sys.stdout.write(_tail(console_path, 20 if uri is not None else None))
     sys.stdout.flush()

@@ -219,3 +219,13 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env):
         assert b"no terminal" in ui.stderr.read()
     finally:
         lp.close()
+
+
+def test_a_closed_terminal_stops_the_launch_as_ctrl_c_does(tmp_path, tmux, env):
+    launch = write_launch(str(tmp_path), '<node pkg="ui_tests" type="sleeper" name="s"/>')
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"))
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/s"), "/s running")
+    pid = running_pid(screen, "/s")
+    tmux.close()  # (the terminal's end: SIGHUP to the view; the launch runs in a session of its own)
+    until(lambda: not pid_alive(pid), 30, 0.1, what="the node stopped with the launch")
+    assert not status(env)
