@@ -18,6 +18,7 @@ gets 403. The page's files (operate/webpage/) ship in the package, no CDN.
 from __future__ import annotations
 
 import argparse
+import collections
 import http.server
 import ipaddress
 import json
@@ -40,6 +41,7 @@ PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "webpage")
 FILES = {"/": ("index.html", "text/html; charset=utf-8"), "/app.js": ("app.js", "text/javascript; charset=utf-8"),
          "/style.css": ("style.css", "text/css; charset=utf-8")}
 SAMPLE_PERIOD_S = 1.0
+HISTORY = 60  # samples a sparkline shows (a minute)
 KEEPALIVE_S = 15.0  # an event stream's comment line while nothing happens (proxies close silent connections)
 CONTROL_TIMEOUT_S = 600.0
 CLIENT_QUEUE = 1000  # events a slow browser may lag behind before it is dropped (it reconnects and starts over)
@@ -62,6 +64,8 @@ class Hub:
         self.lock = threading.Lock()
         self.clients: list[queue.Queue] = []
         self.sent: dict[str, list] = {}  # the samples the pages have
+        # each node's samples over the last minute, as a new page's sparklines start (then it keeps its own)
+        self.history: dict[str, collections.deque] = {}
         self.gone = threading.Event()
 
     def start(self) -> None:
@@ -90,9 +94,11 @@ class Hub:
             for q in list(self.clients):
                 try:
                     q.put_nowait(data)
-                except queue.Full:
+                except queue.Full:  # (a page that cannot keep up starts over: it is told to reconnect)
                     self.clients.remove(q)
-                    q.put(None) if q.empty() else None
+                    with q.mutex:
+                        q.queue.clear()
+                    q.put_nowait(None)
 
     def subscribe(self) -> tuple[queue.Queue, bytes]:
         """A page's queue, and its first event: the table as it is now."""
@@ -100,6 +106,7 @@ class Hub:
         with self.lock:
             nodes = [dict(n) for n in self.state.nodes.values()]
             snapshot = {"type": "snapshot", "nodes": nodes, "uri": self.state.info.get("uri"),
+                        "history": {name: list(h) for name, h in self.history.items()},
                         "run_id": self.state.info.get("run_id"), "seq": self.state.seq}
             self.clients.append(q)
         return q, ("data: %s\n\n" % json.dumps(snapshot, separators=(",", ":"), default=str)).encode()
@@ -129,6 +136,8 @@ class Hub:
                 now = {name: round_sample(*samples.get(name, (None, None))) for name in self.state.nodes}
                 moved = {name: s for name, s in now.items() if self.sent.get(name) != s}
                 self.sent = now
+                for name, sample in now.items():
+                    self.history.setdefault(name, collections.deque(maxlen=HISTORY)).append(sample)
             if moved:
                 self.broadcast({"type": "samples", "time": round(time.time(), 1), "samples": moved})
             self.gone.wait(SAMPLE_PERIOD_S)

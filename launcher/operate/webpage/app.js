@@ -1,7 +1,7 @@
 // The launch's live page: a table kept current from the server's event stream (a snapshot, then changes).
 "use strict";
 const nodes = new Map();      // name -> the node's fields (as launcher status --json)
-const history = new Map();    // name -> [[cpu, rss], ...], the last minute
+const sparks = new Map();     // name -> [[cpu, rss], ...], the last minute
 const HISTORY = 60;
 const SIGNALS = {1: "SIGHUP", 2: "SIGINT", 6: "SIGABRT", 9: "SIGKILL", 11: "SIGSEGV", 15: "SIGTERM"};
 const liveLines = [];
@@ -68,7 +68,7 @@ function draw(name) {
   cell("cpu").textContent = running && n.cpu !== null && n.cpu !== undefined ? Math.round(100 * n.cpu) + "%" : "-";
   cell("rss").textContent = running ? size(n.rss) : "-";
   cell("host").textContent = n.host || "";
-  const h = history.get(name) || [];
+  const h = sparks.get(name) || [];
   tr.querySelector("svg").innerHTML = spark(h.map((s) => s[0]), 0.05, "#c60") + spark(h.map((s) => s[1]), 0, "#06c");
 }
 
@@ -85,6 +85,7 @@ function addOutput(name, chunk) {
 function handle(ev) {
   if (ev.type === "snapshot") {
     $("title").textContent = "launch " + ev.uri + " (run " + ev.run_id + ")";
+    for (const [name, h] of Object.entries(ev.history || {})) sparks.set(name, h.slice(-HISTORY));
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
@@ -114,10 +115,10 @@ function handle(ev) {
 // every second: each node's sample goes into its history (a sample that did not move was not sent), uptimes tick
 setInterval(() => {
   for (const [name, n] of nodes) {
-    const h = history.get(name) || [];
+    const h = sparks.get(name) || [];
     h.push([n.state === "running" ? n.cpu : null, n.state === "running" ? n.rss : null]);
     if (h.length > HISTORY) h.shift();
-    history.set(name, h);
+    sparks.set(name, h);
     draw(name);
   }
 }, 1000);
