@@ -23,8 +23,10 @@ def make_server(tmp_path, names=("/a", "/b")):
     for name in names:
         fleet.add(name)
         specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])))
+    # (the run as the server reads it: through its supervisor here, through `nodes.spec` in the RunView that
+    # main's runservices brings; both are given so that this test holds on either side of that merge)
     supervisor = SimpleNamespace(node=lambda n: SimpleNamespace(spec=specs[n]) if n in specs else None)
-    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None)
+    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get))
     return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), fleet
 
 
