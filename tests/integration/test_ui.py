@@ -198,7 +198,7 @@ def test_thirty_nodes_scroll_in_80x24(tmp_path, tmux, env):
     tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
 
 
-def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env):
+def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmux):
     lp = Launcher(["--ui", write_launch(str(tmp_path), THREE)], env, str(tmp_path))
     try:
         lp.wait_output("no terminal", 30, stream="stderr")
@@ -217,6 +217,11 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env):
             ui.wait(10)
             out.close()
         assert b"no terminal" in ui.stderr.read()
+        # a terminal that cannot draw (TERM=dumb): the same plain lines
+        tmux.start([sys.executable, "-m", "launcher.tool", "ui"], dict(env, TERM="dumb"))
+        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] .*tick \d+", s),
+                                  "plain lines under TERM=dumb")
+        assert "\u2500\u2500 output" not in screen  # (no full-screen view)
     finally:
         lp.close()
 
