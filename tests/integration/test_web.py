@@ -108,13 +108,17 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
         # a page opened later gets the last samples at once (its sparklines are not empty)
         assert until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener'] svg polyline"), 10,
                      0.2, what="a sparkline")
-        with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-            s.sendall(b"GET /events HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n" % port)
-            data = b""
-            while b"\n\n" not in data.partition(b"\r\n\r\n")[2]:
-                data += s.recv(65536)
-        snapshot = json.loads(data.partition(b"\r\n\r\n")[2].split(b"\n\n")[0].partition(b"data: ")[2])
-        assert snapshot["type"] == "snapshot" and len(snapshot["history"]["/listener"]) >= 3
+        def snapshot() -> dict:
+            with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+                s.sendall(b"GET /events HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n" % port)
+                data = b""
+                while b"\n\n" not in data.partition(b"\r\n\r\n")[2]:
+                    data += s.recv(65536)
+            return json.loads(data.partition(b"\r\n\r\n")[2].split(b"\n\n")[0].partition(b"data: ")[2])
+        first = until(lambda: (lambda s: s if sum(1 for c, _ in s["history"].get("/listener", []) if c is not None)
+                               >= 3 else None)(snapshot()), 20, 0.5, what="3 samples of /listener in a new page's "
+                      "first event")
+        assert first["type"] == "snapshot"
         # the topics page: from the master's registry
         browser.get("http://127.0.0.1:%d/#topics" % port)
 
