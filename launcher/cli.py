@@ -92,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="load and set the parameters but start no node (start them with `launcher start`)")
     p.add_argument("--no-diagnostics", dest="no_diagnostics", action="store_true",
                    help="do not publish the nodes' states on /diagnostics")
+    p.add_argument("--ui", action="store_true", help="a live view of the launch in the terminal: every node's "
+                   "state, CPU, RSS and output; keys start, stop and restart nodes (q or Ctrl-C stops the launch)")
+    p.add_argument("--web", metavar="[ADDR:]PORT", help="the live view as a web page at this address (loopback "
+                   "unless an address is given; start/stop/restart need the run's token)")
     p.add_argument("--master-allow", "--allow", dest="master_allow", action="append", metavar="CIDR",
                    help="the master started here answers only clients from these networks (repeat the "
                         "option or separate with commas), loopback and this machine's addresses")
@@ -117,12 +121,12 @@ _FLAGS = {"--files": "files", "--nodes": "nodes", "--dump-params": "dump_params"
           "--core": "core", "--screen": "screen", "--log": "log", "--required": "required", "--wait": "wait",
           "--local": "local", "--no-summary": "no_summary", "--skip-log-check": "skip_log_check",
           "-v": "verbose", "--disable-title": "disable_title", "--no-start": "no_start",
-          "--no-diagnostics": "no_diagnostics"}
+          "--no-diagnostics": "no_diagnostics", "--ui": "ui"}
 # what build_parser() gives for an argv of flags and positionals: a run's defaults are RunOptions' own
 _DEFAULTS: dict[str, object] = dict(
     {dest: False for dest in _FLAGS.values()}, **{k: v for k, v in _RUN.items() if k not in ("positional", "master_allow")},
     node_args=None, find_node=None, num_workers=None, timeout=None, master_logger_level=None, child_name=None,
-    server_uri=None, master_allow=None)
+    server_uri=None, master_allow=None, web=None)
 
 
 def parse_simple_args(args: list[str]) -> SimpleNamespace | None:
@@ -147,6 +151,16 @@ def _end_process(status: int) -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)
+
+
+def _start_web(address: str, port: int | None) -> None:
+    """`launch --web`: the page's server, `launcher web`, a process apart that reads this launch through its
+    server once it is registered on the master, and ends with it."""
+    import subprocess
+    master_uri = "http://localhost:%d/" % port if port else os.environ.get("ROS_MASTER_URI") or "http://localhost:11311/"
+    pid = str(os.getpid())
+    subprocess.Popen([sys.executable, "-m", "launcher.tool", "web", address, "--parent", pid, "--launch", pid,
+                      "--master-uri", master_uri], stdin=subprocess.DEVNULL, start_new_session=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,6 +191,16 @@ def main(argv: list[str] | None = None) -> int:
             return status
         if not opts.positional and not opts.core:
             build_parser().error("you must specify at least one input file")
+        if opts.ui:
+            # (prompt_toolkit is imported only here: a launch without --ui does not pay for it)
+            from launcher.operate import ui
+            if ui.terminal_ok():
+                port_uri = "http://localhost:%d/" % opts.port if opts.port else None
+                return ui.launch_with_view([a for a in args if a != "--ui"], port_uri or os.environ.get(
+                    "ROS_MASTER_URI") or "http://localhost:11311/")
+            console.printerrlog("launch --ui: no terminal (or TERM=dumb): the launch runs with plain lines")
+        if opts.web:
+            _start_web(opts.web, opts.port)
         from launcher import runtime
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped
         return runtime.run(RunOptions.from_args(opts), exit_process=argv is None)

@@ -25,6 +25,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
     "logs": ("launcher.operate.logs", "a node's output (-f follows it; after the end: the last run's)"),
     "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
+    "ui": ("launcher.operate.ui", "a live view of a running launch: states, CPU, RSS, output; start/stop/restart "
+           "keys (q leaves it running)"),
+    "web": ("launcher.operate.web", "the live view of a running launch as a web page ([ADDR:]PORT, loopback unless "
+            "an address is given)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
     "bag": ("launcher.bag.main", "record, play, inspect and reindex ROS 1 bags (rosbag's options; no ROS needed)"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
@@ -40,7 +44,7 @@ def usage() -> str:
 
 
 # The third-party packages launcher depends on (pyproject.toml), by their import names.
-REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml")
+REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml", "prompt_toolkit")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,10 @@ master and rosout-1.
 Added calls: `launcher_status` (the run and every node's state as one JSON
 text: a 500-node status must cost the launcher little), `launcher_changes`
 (the fleet's changes after a sequence number, waiting for one: a long poll), and
+`launcher_samples` (each running node's CPU and RSS, what a live view redraws
+every second), `launcher_output` (the nodes' output from their
+`-stdout.log` files after the offsets a reader has: a long poll too, so a view
+on another machine shows output from files it cannot read), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
 refused with a fault unless `token` is the run's (`launcher.operate.token`).
 The pattern selects among local and remote nodes alike (a remote node is
@@ -32,6 +36,8 @@ from launcher.net.xmlrpc import Fault, encode_value
 from launcher.operate import patterns, processes, token as run_token
 from launcher.process.state import EVENTS_FILE, LOCAL_HOST
 
+OUTPUT_CHECK_S = 0.5  # how often a waiting launcher_output looks at the files' sizes (a node writes its own file)
+OUTPUT_MAX_BYTES = 64 * 1024  # of one node's output in one answer (a reader asks again for the rest)
 CHANGES_WAIT_MAX_S = 60.0  # a long poll's longest wait (the client's call timeout must be longer)
 STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
 REFUSED_TEXT = ("refused: %s needs this run's token (the file %s, readable only by the user who started "
@@ -225,6 +231,70 @@ class LaunchServer:
                                              separators=(",", ":"), default=str)]
         return changes()
 
+    def launcher_samples(self) -> list:
+        """[1, text, JSON {node: [cpu (cores), rss (bytes)]}] of the running nodes with a sample: the columns
+        that change without a state change, a few bytes a node rather than the whole status."""
+        fleet = self.run.fleet
+        samples = {s.name: [s.cpu, s.rss] for s in fleet if s.cpu is not None} if fleet is not None else {}
+        return [1, "samples", json.dumps(samples, separators=(",", ":"))]
+
+    def _output_paths(self) -> dict[str, str]:
+        paths = {}
+        for status in self._local():
+            spec = self._spec(status.name)
+            if spec is not None and spec.stdout_path:
+                paths[status.name] = spec.stdout_path
+        return paths
+
+    def launcher_output(self, offsets: Any, timeout: Any = 0.0) -> Any:
+        """The nodes' new output: `offsets` is JSON {node: offset in its -stdout.log}; a node left out is
+        read from its end (only what comes next), a negative offset -N gives its last N bytes first.
+        Waits up to `timeout` seconds (at most CHANGES_WAIT_MAX_S) while there is none. [1, text, JSON
+        {"offsets": {node: the next offset}, "output": {node: text}}] (every node's offset, the output of those
+        that wrote; a file shorter than its offset was rotated and is read from its start)."""
+        try:
+            asked = json.loads(offsets) if isinstance(offsets, str) else None
+        except ValueError:
+            asked = None
+        if not isinstance(asked, dict) or not isinstance(timeout, (int, float)) or timeout < 0:
+            raise Fault(1, "launcher_output(offsets: JSON {node: offset}, timeout: seconds)")
+
+        def read() -> tuple[dict, dict]:
+            nexts, output = {}, {}
+            for name, path in self._output_paths().items():
+                try:
+                    size = os.stat(path).st_size
+                except OSError:
+                    nexts[name] = 0
+                    continue
+                at = asked.get(name)
+                if not isinstance(at, int):
+                    at = size
+                elif at < 0:
+                    at = max(0, size + at)
+                elif at > size:  # (rotated: logrotate moved it away and a new file began)
+                    at = 0
+                if at < size:
+                    with open(path, "rb") as f:
+                        f.seek(at)
+                        data = f.read(min(size - at, OUTPUT_MAX_BYTES))
+                    at += len(data)
+                    output[name] = data.decode("utf-8", "replace")
+                nexts[name] = at
+            return nexts, output
+
+        async def wait() -> list:
+            # (the files are written by the nodes themselves: their sizes are looked at, a stat a node
+            # every OUTPUT_CHECK_S, only while a reader waits)
+            deadline = time.monotonic() + min(float(timeout), CHANGES_WAIT_MAX_S)
+            nexts, output = read()
+            while not output and time.monotonic() < deadline:
+                asked.update(nexts)  # (a node first read from its end is read on from there)
+                await asyncio.sleep(min(OUTPUT_CHECK_S, max(0.0, deadline - time.monotonic())))
+                nexts, output = read()
+            return [1, "output", json.dumps({"offsets": nexts, "output": output}, separators=(",", ":"))]
+        return wait()
+
     def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
         if not run_token.matches(self.token, given_token):
             raise Fault(run_token.REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
@@ -264,4 +334,4 @@ class LaunchServer:
 
 LaunchServer._API = {name: getattr(LaunchServer, name) for name in (
     "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status", "launcher_changes",
-    "start_nodes", "stop_nodes", "restart_nodes")}
+    "launcher_samples", "launcher_output", "start_nodes", "stop_nodes", "restart_nodes")}

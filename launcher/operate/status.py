@@ -66,19 +66,25 @@ def table(info: dict[str, Any]) -> str:
     return text
 
 
+HEADER = ("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
+
+
+def row(n: dict[str, Any]) -> tuple[str, ...]:
+    """A node's columns (HEADER), as text: `launcher status` and the live view (operate/view.py) show these."""
+    # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
+    # keeps the last sample of a run that ended)
+    running = n["state"] == "running"
+    return (n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
+            duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
+            "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
+            "-" if n.get("rss") is None or not running else format_size(n["rss"]), n.get("host", ""))
+
+
 def node_table(nodes: list[dict[str, Any]]) -> str:
     """One line per node (fields as in launcher_status or the events file), under a header."""
     if not nodes:
         return "no nodes"  # (`launch --core`, or a launch of no node)
-    rows = [("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")]
-    for n in nodes:
-        # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
-        # keeps the last sample of a run that ended)
-        running = n["state"] == "running"
-        rows.append((n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
-                     duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
-                     "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
-                     "-" if n.get("rss") is None or not running else format_size(n["rss"]), n.get("host", "")))
+    rows = [HEADER] + [row(n) for n in nodes]
     if any(n.get("over_limit") for n in nodes):  # (a column only while some node is over a limit)
         rows = [rows[0] + ("OVER LIMIT",)] + [
             row + (over_limit_text(n["over_limit"], n.get("cpu"), n.get("rss")) if n.get("over_limit") else "-",)

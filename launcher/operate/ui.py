@@ -1,0 +1,491 @@
+"""The live terminal view of a launch: `launcher ui` (attached to a running launch) and `launch --ui` (a launch
+run as a child process, with the view in front): the prompt_toolkit application around `operate/view.py`.
+
+prompt_toolkit, because it is well kept, pure Python, draws only what changed
+(usable over SSH), follows resizes and runs on asyncio; it costs ~0.12 s to
+import, paid only here (`launch` without --ui never imports this module). The
+view is its own process and reads the launch through the launch's server only:
+the change stream (`launcher_changes`), the resource samples, the nodes'
+output (`launcher_output`), and steers it with the run's token, as `launcher
+start/stop/restart` do. A slow or paused terminal therefore never delays the
+launch: the launch answers calls, it never waits on the view. Without a
+terminal (or with TERM=dumb) the view says so and prints plain lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from types import SimpleNamespace
+from typing import Any, Callable
+
+from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
+from launcher.operate import client
+from launcher.operate import token as run_token
+from launcher.operate.view import HELP, NODE_OUTPUT, ViewState
+
+POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)
+SAMPLE_PERIOD_S = 1.0  # the CPU/RSS columns' refresh
+RECENT_OUTPUT_BYTES = 16 * 1024  # of the selected node's log, for `o`
+CONTROL_TIMEOUT_S = 600.0  # a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation
+
+
+def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
+    """A read call of the launch's server: its value (a failed answer is an XmlRpcError)."""
+    code, msg, value = call_blocking(uri, method, *params, timeout=timeout)
+    if code != 1:
+        raise XmlRpcError("%s: %s" % (method, msg))
+    return value
+
+
+def new_output(uri: str, offsets: dict[str, int]) -> dict[str, str]:
+    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: node -> text."""
+    answer = json.loads(call(uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
+    offsets.update(answer["offsets"])
+    return answer["output"]
+
+
+def recent_output(uri: str, node: str) -> str:
+    """The end of a node's output (its -stdout.log), as the launch's server reads it."""
+    answer = json.loads(call(uri, "launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
+    return answer["output"].get(node, "")
+
+
+def terminal_ok() -> bool:
+    return sys.stdin.isatty() and sys.stdout.isatty() and os.environ.get("TERM", "dumb") not in ("dumb", "")
+
+
+class Feed:
+    """The launch's side of the view: threads doing blocking long polls (the view's loop never waits on the
+    network), each handing what it got to `post`, which runs it on the view's loop."""
+
+    def __init__(self, uri: str, state: ViewState, post: Callable[[Callable[[], None]], None]):
+        self.uri = uri
+        self.state = state
+        self.post = post
+        self.ended = threading.Event()
+        self.gone = ""  # why the launch stopped answering
+
+    def start(self) -> None:
+        for target in (self._changes, self._samples, self._output):
+            threading.Thread(target=target, daemon=True).start()
+
+    def _call(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
+        return call(self.uri, method, *params, timeout=timeout)
+
+    def _loop(self, body: Callable[[], None]) -> None:
+        while not self.ended.is_set():
+            try:
+                body()
+            except (OSError, XmlRpcError, Fault, ValueError) as e:
+                if not self.gone:
+                    self.gone = "the launch at %s does not answer: %s" % (self.uri, getattr(e, "strerror", None) or e)
+
+                    def say(why: str = self.gone) -> None:
+                        self.state.message = why
+                    self.post(say)
+                self.ended.wait(1.0)
+
+    def _changes(self) -> None:
+        def body() -> None:
+            answer = json.loads(self._call("launcher_changes", self.state.seq, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
+            if not answer["complete"]:  # (changes were dropped: the whole status again)
+                info = json.loads(self._call("launcher_status"))
+                self.post(lambda: self.state.load(info))
+            self.post(lambda: self.state.changes(answer["changes"]))
+            # (the next poll asks after the last change it got, whether or not the loop applied them yet)
+            self.state.seq = max(self.state.seq, answer["seq"])
+        self._loop(body)
+
+    def _samples(self) -> None:
+        def body() -> None:
+            samples = json.loads(self._call("launcher_samples"))
+            self.post(lambda: self.state.samples(samples))
+            self.ended.wait(SAMPLE_PERIOD_S)
+        self._loop(body)
+
+    def _output(self) -> None:
+        offsets: dict[str, int] = {}
+
+        def body() -> None:
+            output = new_output(self.uri, offsets)
+            if output:
+                self.post(lambda: [self.state.output(node, text) for node, text in output.items()])
+        self._loop(body)
+
+
+def read_token(info: dict[str, Any], path: str | None = None) -> str:
+    """The run's token: from `path`, else from the file the launch names (on its own machine)."""
+    path = path or info.get("token_file") or ""
+    if not path:
+        raise client.ToolError("the launch has no token file: start/stop/restart are refused", client.EXIT_REFUSED)
+    try:
+        return run_token.read(path)
+    except OSError as e:
+        raise client.ToolError("cannot read the run's token [%s]: %s" % (path, e.strerror), client.EXIT_REFUSED) \
+            from None
+
+
+def run_view(uri: str, on_quit: Callable[[], None] | None = None,
+             launch_proc: subprocess.Popen | None = None, token_file: str | None = None) -> None:
+    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends)."""
+    try:
+        from prompt_toolkit.application import Application
+    except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
+        raise client.ToolError("the live view needs prompt_toolkit, which this Python (%s) lacks: pip install "
+                               "prompt_toolkit, or run launcher with the Python it was installed for"
+                               % sys.executable) from None
+    from prompt_toolkit.key_binding import KeyBindings
+    from prompt_toolkit.layout import HSplit, Layout, Window
+    from prompt_toolkit.layout.controls import FormattedTextControl
+    from prompt_toolkit.layout.dimension import Dimension
+    from prompt_toolkit.styles import Style
+
+    state = ViewState()
+    info = client.status(uri)
+    state.load(info)
+    filtering = [False]
+
+    def size() -> tuple[int, int]:
+        s = app.output.get_size()
+        return s.rows, s.columns
+
+    def table_height() -> int:
+        rows, _ = size()
+        # the table takes what it needs up to half the screen; the output pane the rest (title, header,
+        # rule and help line take 4)
+        return max(1, min(len(state.visible()) or 1, (rows - 4) // 2))
+
+    def title() -> list:
+        return [("class:title", state.title().ljust(size()[1]))]
+
+    def header() -> list:
+        return [("class:header", state.table_header(time.time()))]
+
+    def table() -> list:
+        out: list = []
+        rows = state.table_rows(table_height(), time.time())
+        for i, (text, style, selected) in enumerate(rows):
+            cls = "class:state.%s" % style if style else ""
+            if selected:
+                cls += " reverse"
+            out.append((cls, text))
+            if i < len(rows) - 1:
+                out.append(("", "\n"))
+        if not rows:
+            out.append(("class:dim", "no node matches the filter [%s]" % state.filter if state.filter else "no nodes"))
+        return out
+
+    def rule() -> list:
+        what = ("recent output of %s (o: back)" % state.selected if state.mode == NODE_OUTPUT
+                else "output%s" % (" (%d muted)" % len(state.muted) if state.muted else ""))
+        if state.scroll:
+            what += "  [scrolled back %d lines; End follows]" % state.scroll
+        return [("class:rule", ("\u2500\u2500 %s " % what).ljust(size()[1], "\u2500"))]
+
+    def output() -> list:
+        rows, cols = size()
+        height = max(1, rows - 4 - table_height())
+        return [("", "\n".join(line[:cols] for line in state.output_rows(height)))]
+
+    def help_line() -> list:
+        if filtering[0]:
+            return [("class:title", "filter: %s\u2588  (Enter keeps it, Esc clears it)" % state.filter)]
+        if state.message:
+            return [("class:message", state.message[:size()[1]])]
+        return [("class:help", HELP[:size()[1]])]
+
+    kb = KeyBindings()
+    not_filtering = _Cond(lambda: not filtering[0])
+    in_filter = _Cond(lambda: filtering[0])
+
+    def control(verb: str, pattern: str) -> None:
+        state.message = "%s %s ..." % (verb, pattern)
+
+        def work() -> None:
+            try:
+                code, msg, _names = call_blocking(uri, "%s_nodes" % verb, read_token(info, token_file), pattern,
+                                                  timeout=CONTROL_TIMEOUT_S)
+                text = msg
+            except client.ToolError as e:
+                text = str(e)
+            except Fault as e:
+                text = e.faultString
+            except (OSError, XmlRpcError) as e:
+                text = "%s: the launch does not answer: %s" % (verb, e)
+            post(lambda: setattr(state, "message", text))
+        threading.Thread(target=work, daemon=True).start()
+
+    def selected_pattern() -> str | None:
+        return state.selected or None
+
+    @kb.add("up", filter=not_filtering)
+    @kb.add("k", filter=not_filtering)
+    def _up(event: Any) -> None:
+        state.move(-1)
+
+    @kb.add("down", filter=not_filtering)
+    @kb.add("j", filter=not_filtering)
+    def _down(event: Any) -> None:
+        state.move(1)
+
+    @kb.add("home", filter=not_filtering)
+    def _home(event: Any) -> None:
+        state.move(-len(state.nodes))
+
+    @kb.add("pageup", filter=not_filtering)
+    def _pgup(event: Any) -> None:
+        state.scroll_output(max(1, size()[0] // 2))
+
+    @kb.add("pagedown", filter=not_filtering)
+    def _pgdn(event: Any) -> None:
+        state.scroll_output(-max(1, size()[0] // 2))
+
+    @kb.add("end", filter=not_filtering)
+    def _end(event: Any) -> None:
+        state.scroll = 0
+
+    for key, verb, every in (("s", "stop", False), ("t", "start", False), ("r", "restart", False),
+                             ("S", "stop", True), ("T", "start", True)):
+        def act(event: Any, verb: str = verb, every: bool = every) -> None:
+            pattern = "*" if every else selected_pattern()
+            if pattern:
+                control(verb, pattern)
+        kb.add(key, filter=not_filtering)(act)
+
+    @kb.add("m", filter=not_filtering)
+    def _mute(event: Any) -> None:
+        state.toggle_mute()
+
+    @kb.add("o", filter=not_filtering)
+    def _node_output(event: Any) -> None:
+        if state.mode == NODE_OUTPUT or not state.selected:
+            state.show_node_output(None)
+            return
+        node = state.selected
+
+        def work() -> None:
+            try:
+                text = recent_output(uri, node)
+            except (OSError, XmlRpcError, Fault, ValueError) as e:
+                text = "cannot read the output of %s: %s" % (node, e)
+            post(lambda: state.show_node_output(text or "(%s has written nothing)" % node))
+        threading.Thread(target=work, daemon=True).start()
+
+    @kb.add("/", filter=not_filtering)
+    def _filter(event: Any) -> None:
+        filtering[0] = True
+
+    @kb.add("<any>", filter=in_filter)
+    def _filter_char(event: Any) -> None:
+        if event.data.isprintable():
+            state.set_filter(state.filter + event.data)
+
+    @kb.add("backspace", filter=in_filter)
+    def _filter_back(event: Any) -> None:
+        state.set_filter(state.filter[:-1])
+
+    @kb.add("enter", filter=in_filter)
+    def _filter_done(event: Any) -> None:
+        filtering[0] = False
+
+    @kb.add("escape", filter=in_filter)
+    def _filter_clear(event: Any) -> None:
+        filtering[0] = False
+        state.set_filter("")
+
+    @kb.add("q", filter=not_filtering)
+    @kb.add("c-c")
+    def _quit(event: Any) -> None:
+        event.app.exit()
+
+    layout = Layout(HSplit([
+        Window(FormattedTextControl(title), height=1),
+        Window(FormattedTextControl(header), height=1, style="class:header"),
+        Window(FormattedTextControl(table), height=lambda: Dimension.exact(table_height())),
+        Window(FormattedTextControl(rule), height=1),
+        Window(FormattedTextControl(output), wrap_lines=False),
+        Window(FormattedTextControl(help_line), height=1),
+    ]))
+    style = Style.from_dict({"title": "reverse bold", "header": "bold", "rule": "ansiblue", "help": "ansicyan",
+                             "message": "ansiyellow bold", "dim": "ansibrightblack",
+                             "state.green": "ansigreen", "state.yellow": "ansiyellow", "state.red": "ansired bold",
+                             "state.grey": "ansibrightblack"})
+    # (refresh_interval: the uptimes tick; mouse off: the terminal's own selection keeps working)
+    app: Any = Application(layout=layout, key_bindings=kb, style=style, full_screen=True, refresh_interval=1.0)
+
+    def post(fn: Callable[[], None]) -> None:
+        loop = getattr(app, "loop", None)
+        if loop is None or loop.is_closed():
+            return
+
+        def run() -> None:
+            fn()
+            app.invalidate()
+        try:
+            loop.call_soon_threadsafe(run)
+        except RuntimeError:  # (the loop ended meanwhile)
+            pass
+
+    feed = Feed(uri, state, post)
+
+    def pre_run() -> None:
+        feed.start()
+        if launch_proc is not None:
+            def watch() -> None:
+                launch_proc.wait()
+                post(lambda: app.exit() if app.is_running else None)
+            threading.Thread(target=watch, daemon=True).start()
+
+    try:
+        app.run(pre_run=pre_run, handle_sigint=False)
+    finally:
+        feed.ended.set()
+    if on_quit is not None:
+        on_quit()
+
+
+class _Cond:
+    """A prompt_toolkit filter of a plain function (imported lazily, as the rest)."""
+
+    def __new__(cls, fn: Callable[[], bool]) -> Any:
+        from prompt_toolkit.filters import Condition
+        return Condition(fn)
+
+
+# ---- without a terminal ------------------------------------------------------------------------------------
+
+def plain(uri: str) -> int:
+    """Without a terminal: the table once, then each change and each output line as it comes, until Ctrl-C."""
+    state = ViewState()
+    info = client.status(uri)
+    state.load(info)
+    from launcher.operate.status import table
+    sys.stdout.write(table(info) + "\n")
+    sys.stdout.flush()
+    lock = threading.Lock()
+
+    def post(fn: Callable[[], None]) -> None:
+        with lock:
+            before = len(state.lines)
+            fn()
+            # (deque: the newest lines are at the end)
+            new = list(state.lines)[before:] if len(state.lines) > before else []
+            for line in new:
+                sys.stdout.write(("[%s] %s\n" % (line.node, line.text)))
+            sys.stdout.flush()
+
+    feed = Feed(uri, state, post)
+    feed.start()
+    try:
+        while not feed.gone:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        return client.EXIT_OK
+    sys.stderr.write("launcher ui: %s\n" % feed.gone)
+    return client.EXIT_NO_LAUNCH
+
+
+# ---- `launcher ui` -----------------------------------------------------------------------------------------
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="launcher ui", description="a live view of a running launch: every node's "
+                                "state, CPU and RSS, their output; start, stop and restart nodes (q leaves the "
+                                "launch running)")
+    p.add_argument("--token-file", dest="token_file", help="the run's token file (default: the one the launch "
+                   "wrote in its log directory; from another machine, a copy of it)")
+    client.add_launch_options(p)
+    return p
+
+
+def _main(argv: list[str]) -> int:
+    opts = parser().parse_args(argv)
+    uri = client.find_launch(opts)
+    if not terminal_ok():
+        sys.stderr.write("launcher ui: no terminal (or TERM=dumb): plain lines follow\n")
+        return plain(uri)
+    run_view(uri, token_file=opts.token_file)
+    return client.EXIT_OK
+
+
+def main(argv: list[str]) -> int:
+    return client.run_tool(_main, argv)
+
+
+# ---- `launch --ui` -----------------------------------------------------------------------------------------
+
+def launch_with_view(args: list[str], master_uri: str) -> int:
+    """`launch ARGS` as a child process (its console to a file), the view in front; quitting the view stops
+    the launch as Ctrl-C does and waits for its end. Returns the launch's exit status."""
+    fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log")
+    env = dict(os.environ, ROS_MASTER_URI=master_uri)
+    # its own session: the terminal's signals are the view's, which passes the stop on (one Ctrl-C, not two)
+    with os.fdopen(fd, "wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "launcher"] + args, stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+
+    def stop_launch() -> None:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+
+    # the terminal closed, or the view was told to end: the launch stops as at Ctrl-C, and the view ends with it
+    old = {sig: signal.signal(sig, lambda *_: stop_launch()) for sig in (signal.SIGHUP, signal.SIGTERM)}
+    uri = None
+    try:
+        uri = _wait_for_launch(proc, master_uri)
+        if uri is not None:
+            try:
+                run_view(uri, launch_proc=proc)
+            except client.ToolError as e:
+                sys.stderr.write("launch --ui: %s\n" % e)
+            except KeyboardInterrupt:  # (a SIGINT from outside the terminal's keys: the same stop)
+                pass
+            if proc.poll() is None:
+                sys.stderr.write("stopping the launch (its output: %s) ...\n" % console_path)
+                sys.stderr.flush()
+                stop_launch()
+        while True:
+            try:
+                status = proc.wait()
+                break
+            except KeyboardInterrupt:  # a second Ctrl-C: the launch's own second-Ctrl-C rule
+                stop_launch()
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    # the launch's last words (all of them when it ended before the view could attach: a load error)
+    sys.stdout.write(_tail(console_path, 20 if uri is not None else None))
+    sys.stdout.flush()
+    return status if status >= 0 else 128 - status
+
+
+def _wait_for_launch(proc: subprocess.Popen, master_uri: str) -> str | None:
+    """The URI of the launch `proc` runs, once its server is registered on the master (None: it ended first)."""
+    opts = SimpleNamespace(uri=None, launch=str(proc.pid), master_uri=master_uri)
+    while proc.poll() is None:
+        try:
+            return client.find_launch(opts)  # type: ignore[arg-type]
+        except client.ToolError:
+            time.sleep(0.1)
+        except KeyboardInterrupt:
+            proc.send_signal(signal.SIGINT)
+    return None
+
+
+def _tail(path: str, lines: int | None) -> str:
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError:
+        return ""
+    text = data.decode("utf-8", "replace")
+    kept = text.splitlines(keepends=True)
+    return "".join(kept[-lines:] if lines else kept)
+

@@ -1,0 +1,220 @@
+"""The live view's state, without a terminal: the nodes, the selection, the filter, muted nodes, the output pane and
+its scrolling, and the rows as text (`operate/ui.py` draws them with prompt_toolkit; tested in tests/operate).
+
+It is fed what the launch's server sends: `launcher_status` once (`load`), then
+the change stream (`changes`, the events file's lines), the resource samples
+(`samples`) and the nodes' output (`output`). Every function of time takes
+`now` (wall-clock seconds), so the rows are a function of what was fed and a
+clock.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import Any, Iterable
+
+from launcher.operate import status as status_columns
+
+OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
+STATE_STYLE = {"running": "green", "waiting": "yellow", "respawning": "yellow", "hung": "red", "fatal": "red",
+               "exited": "grey", "stopped": "grey"}
+NODE_OUTPUT = "node"  # the pane shows the selected node's recent output (its log), not every node's
+ALL_OUTPUT = "all"
+HELP = "\u2191\u2193 node  s/t/r stop/start/restart  S/T all  / filter  m mute  o log  q quit"
+
+
+class Line:
+    """One line of the output pane."""
+
+    __slots__ = ("node", "text", "kind")
+
+    def __init__(self, node: str, text: str, kind: str = "output"):
+        self.node = node
+        self.text = text
+        self.kind = kind  # "output" (the node's) or "state" (a change the view saw)
+
+
+class ViewState:
+    """What the view shows. Nodes are the status's dicts (fields as in `launcher_status`), kept up to date."""
+
+    def __init__(self) -> None:
+        self.info: dict[str, Any] = {}
+        self.nodes: dict[str, dict[str, Any]] = {}  # in the launch's order
+        self.selected = ""  # a node name ('' before any)
+        self.filter = ""
+        self.muted: set[str] = set()
+        self.lines: collections.deque[Line] = collections.deque(maxlen=OUTPUT_KEPT)
+        self._partial: dict[str, str] = {}  # a node's output line not ended yet
+        self.scroll = 0  # output lines scrolled back from the newest (0: follows the output)
+        self.table_top = 0  # the first visible row of the node table
+        self.mode = ALL_OUTPUT
+        self.node_output: list[str] = []  # the selected node's recent output, in NODE_OUTPUT mode
+        self.message = ""  # the answer to the operator's last action
+        self.seq = 0  # the last change of the stream applied
+
+    # ---- fed by the launch ---------------------------------------------------------------------------
+
+    def load(self, info: dict[str, Any]) -> None:
+        """The whole status (`launcher_status`): at start, and when the change stream lost changes."""
+        self.info = info
+        self.nodes = {n["name"]: dict(n) for n in info.get("nodes") or ()}
+        if self.selected not in self.nodes:
+            shown = self.visible()
+            self.selected = shown[0] if shown else ""
+
+    def changes(self, lines: Iterable[dict[str, Any]]) -> None:
+        """Changes of the stream (as the events file writes them): each node's row, and a line in the pane."""
+        for c in lines:
+            self.seq = max(self.seq, c.get("seq", 0))
+            node = self.nodes.get(c.get("node", ""))
+            if node is None:
+                continue
+            was_running, old_pid = node.get("state") == "running", node.get("pid")
+            for key in ("state", "pid", "exit_code", "exit_signal", "restarts", "failures", "next_start",
+                        "over_limit", "reason", "phase"):
+                if key in c:
+                    node[key] = c[key]
+            if node["state"] == "running" and (not was_running or node.get("pid") != old_pid):
+                node["started_at"] = c.get("time")
+            if node["state"] != "running":
+                node["started_at"] = None
+                node["cpu"] = node["rss"] = None
+            self.lines.append(Line(node["name"], change_text(c), "state"))
+
+    def samples(self, samples: dict[str, list]) -> None:
+        """CPU (cores) and RSS (bytes) of the running nodes (`launcher_samples`)."""
+        for name, node in self.nodes.items():
+            cpu_rss = samples.get(name)
+            node["cpu"], node["rss"] = cpu_rss if cpu_rss else (None, None)
+
+    def output(self, node: str, text: str) -> None:
+        """A piece of a node's output: whole lines go to the pane, a line's start waits for its end."""
+        text = self._partial.pop(node, "") + text
+        *done, rest = text.split("\n")
+        if rest:
+            self._partial[node] = rest
+        for line in done:
+            self.lines.append(Line(node, line.rstrip("\r")))
+        if self.scroll:  # (the operator reads back: what they read stays in place)
+            self.scroll = min(self.scroll + len(done), max(0, len(self.lines) - 1))
+
+    # ---- the operator's keys -----------------------------------------------------------------------------
+
+    def visible(self) -> list[str]:
+        """The nodes the filter lets through (a part of the name, any case)."""
+        f = self.filter.lower()
+        return [name for name in self.nodes if f in name.lower()]
+
+    def move(self, delta: int) -> None:
+        shown = self.visible()
+        if not shown:
+            self.selected = ""
+            return
+        i = shown.index(self.selected) if self.selected in shown else 0
+        self.selected = shown[max(0, min(len(shown) - 1, i + delta))]
+
+    def set_filter(self, text: str) -> None:
+        self.filter = text
+        shown = self.visible()
+        if self.selected not in shown:
+            self.selected = shown[0] if shown else ""
+        self.table_top = 0
+
+    def toggle_mute(self) -> None:
+        if not self.selected:
+            return
+        if self.selected in self.muted:
+            self.muted.discard(self.selected)
+            self.message = "%s unmuted" % self.selected
+        else:
+            self.muted.add(self.selected)
+            self.message = "%s muted: its output is not shown" % self.selected
+        self.scroll = 0
+
+    def scroll_output(self, delta: int) -> None:
+        """Back (positive) or forward through the pane's lines; 0 is the newest (following)."""
+        self.scroll = max(0, min(self.scroll + delta, max(0, len(self.shown_lines()) - 1)))
+
+    def show_node_output(self, text: str | None) -> None:
+        """The selected node's recent output (None: back to every node's output)."""
+        if text is None:
+            self.mode, self.node_output = ALL_OUTPUT, []
+        else:
+            self.mode, self.node_output = NODE_OUTPUT, text.split("\n")
+        self.scroll = 0
+
+    # ---- what is drawn -------------------------------------------------------------------------------------
+
+    def shown_lines(self) -> list[str]:
+        if self.mode == NODE_OUTPUT:
+            return self.node_output
+        return ["[%s] %s" % (line.node, line.text) for line in self.lines if line.node not in self.muted]
+
+    def output_rows(self, height: int) -> list[str]:
+        """The pane's lines, `height` of them at most, ending `scroll` lines before the newest."""
+        lines = self.shown_lines()
+        end = len(lines) - self.scroll
+        return lines[max(0, end - height):end]
+
+    def table_rows(self, height: int, now: float) -> list[tuple[str, str, bool]]:
+        """(row text, the state's style, selected) of the visible nodes, `height` rows at most, scrolled so that
+        the selection shows. The columns are `launcher status`'s (operate/status.row), in its widths."""
+        shown = self.visible()
+        if height <= 0 or not shown:
+            return []
+        if self.selected in shown:
+            i = shown.index(self.selected)
+            if i < self.table_top:
+                self.table_top = i
+            elif i >= self.table_top + height:
+                self.table_top = i - height + 1
+        self.table_top = max(0, min(self.table_top, len(shown) - height))
+        window = shown[self.table_top:self.table_top + height]
+        rows = [status_columns.row(self._with_uptime(self.nodes[name], now)) for name in window]
+        widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(status_columns.HEADER)]
+        self.widths = widths
+        out = []
+        for name, r in zip(window, rows):
+            node = self.nodes[name]
+            # ("> ": the selection shows without colours too)
+            text = ("> " if name == self.selected else "  ") + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip()
+            if node.get("over_limit"):
+                text += "  OVER " + ",".join(sorted(node["over_limit"]))
+            if name in self.muted:
+                text += "  (muted)"
+            out.append((text, "red" if node.get("over_limit") else STATE_STYLE.get(node["state"], ""),
+                        name == self.selected))
+        return out
+
+    def table_header(self, now: float) -> str:
+        """The column names in the widths of the rows under them (table_rows first)."""
+        widths = getattr(self, "widths", [len(h) for h in status_columns.HEADER])
+        return "  " + "  ".join(h.ljust(w) for h, w in zip(status_columns.HEADER, widths)).rstrip()
+
+    def title(self) -> str:
+        shown, total = len(self.visible()), len(self.nodes)
+        running = sum(1 for n in self.nodes.values() if n["state"] == "running")
+        text = "launch %s  run %s  %d/%d running" % (self.info.get("uri", "?"), self.info.get("run_id", "?"),
+                                                   running, total)
+        if self.filter:
+            text += "  filter [%s]: %d shown" % (self.filter, shown)
+        return text
+
+    @staticmethod
+    def _with_uptime(node: dict[str, Any], now: float) -> dict[str, Any]:
+        if node.get("state") == "running" and node.get("started_at"):
+            return dict(node, uptime=max(0.0, now - node["started_at"]))
+        return dict(node, uptime=None)
+
+
+def change_text(c: dict[str, Any]) -> str:
+    """A change as one line of the pane: the state, and the pid or how the run ended."""
+    parts = [c.get("state", "?")]
+    if c.get("state") == "running" and c.get("pid"):
+        parts.append("pid %s" % c["pid"])
+    exit_text = status_columns.last_exit(c)
+    if c.get("state") != "running" and exit_text != "-":
+        parts.append(exit_text)
+    if c.get("reason"):
+        parts.append("(%s)" % c["reason"])
+    return " ".join(parts)

@@ -1,0 +1,236 @@
+"""The live terminal view in a real terminal: tmux (Debian's) runs `launch --ui` and `launcher ui` on launches of
+real rospy nodes; `capture-pane` reads what the operator sees, `send-keys` types."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from helpers import free_port, pid_alive, until
+from running import Launcher, make_package, ros_env, write_launch
+
+pytestmark = pytest.mark.integration
+
+Ticker = """#!/usr/bin/python3
+import rospy
+rospy.init_node("ticker")
+n = 0
+while not rospy.is_shutdown():
+    n += 1
+    rospy.loginfo("tick %d", n)
+    rospy.sleep(0.3)
+"""
+Sleeper = "#!/bin/sh\nexec sleep 1000\n"
+
+
+@pytest.fixture
+def tmux(tmp_path):
+    if shutil.which("tmux") is None:
+        if os.environ.get("REQUIRE_ROS"):
+            pytest.fail("tmux is missing (.ci/run installs it)")
+        pytest.skip("tmux is missing")
+    t = Tmux("launcher-ui-%d" % os.getpid())
+    yield t
+    t.close()
+
+
+class Tmux:
+    """A tmux server of the test's own (its own socket), one session."""
+
+    def __init__(self, socket: str):
+        self.base = ["tmux", "-L", socket]
+
+    def start(self, argv: list[str], env: dict[str, str], cols: int = 80, rows: int = 24) -> None:
+        command = "env -i %s %s" % (" ".join(shlex.quote("%s=%s" % kv) for kv in env.items()),
+                                    " ".join(shlex.quote(a) for a in argv))
+        subprocess.run(self.base + ["new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command, ";",
+                                    "set-option", "-t", "t", "remain-on-exit", "on"], check=True)
+
+    def screen(self) -> str:
+        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"], capture_output=True, text=True,
+                              check=True).stdout
+
+    def keys(self, *keys: str) -> None:
+        subprocess.run(self.base + ["send-keys", "-t", "t"] + list(keys), check=True)
+
+    def resize(self, cols: int, rows: int) -> None:
+        subprocess.run(self.base + ["resize-window", "-t", "t", "-x", str(cols), "-y", str(rows)], check=True)
+
+    def pane_dead(self) -> bool:
+        out = subprocess.run(self.base + ["display-message", "-p", "-t", "t", "#{pane_dead}"], capture_output=True,
+                             text=True).stdout.strip()
+        return out == "1"
+
+    def wait_screen(self, cond, what: str, timeout: float = 60.0):
+        last = [""]
+
+        def check():
+            last[0] = self.screen()
+            return last[0] if cond(last[0]) else None
+        try:
+            return until(check, timeout, 0.1, what=what)  # (the screen that met it)
+        except Exception:
+            raise AssertionError("%s; the screen:\n%s" % (what, last[0])) from None
+
+    def close(self) -> None:
+        subprocess.run(self.base + ["kill-server"], capture_output=True)
+
+
+def row(screen: str, name: str) -> list[str] | None:
+    """A node's row on the screen, split (the selection marker left out)."""
+    for line in screen.splitlines():
+        cells = line.split()
+        if cells and cells[0] == ">":
+            cells = cells[1:]
+        if cells and cells[0] == name and len(cells) >= 4:
+            return cells
+    return None
+
+
+def tool(env: dict, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+                          text=True, timeout=60)
+
+
+def status(env: dict) -> dict:
+    r = tool(env, "status", "--json")
+    return {n["name"]: n for n in json.loads(r.stdout)["nodes"]} if r.returncode == 0 else {}
+
+
+@pytest.fixture
+def env(tmp_path):
+    make_package(str(tmp_path / "pkgs"), "ui_tests", {"ticker": Ticker, "sleeper": Sleeper})
+    e = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
+    return e
+
+
+THREE = """
+  <node pkg="ui_tests" type="ticker" name="alpha" output="screen" respawn="true"/>
+  <node pkg="ui_tests" type="ticker" name="beta"/>
+  <group ns="g"><node pkg="ui_tests" type="ticker" name="gamma" respawn="true"/></group>
+"""
+
+
+def running_pid(screen: str, name: str) -> int | None:
+    r = row(screen, name)
+    return int(r[2]) if r and r[1] == "running" and r[2].isdigit() else None
+
+
+def steer_and_watch(tmux: Tmux, env: dict) -> None:
+    """What both views must do: every row, stop and start by keys, a respawn after an outside kill."""
+    names = ["/alpha", "/beta", "/g/gamma"]
+    screen = tmux.wait_screen(lambda s: all(running_pid(s, n) for n in names), "every node running")
+    st = until(lambda: (lambda s: s if all(s.get(n, {}).get("state") == "running" for n in names) else None)(
+        status(env)), 30, 0.2, what="status")
+    for n in names:
+        assert running_pid(screen, n) == st[n]["pid"]
+    # the output pane: a screen node's and a log node's lines, tagged
+    tmux.wait_screen(lambda s: re.search(r"\[/alpha\] .*tick \d+", s) and re.search(r"\[/beta\] .*tick \d+", s),
+                     "tagged output of both nodes")
+    # select /beta (the second row) and stop it, then start it: a new pid
+    tmux.keys("j")
+    tmux.wait_screen(lambda s: any(line.split()[:2] == [">", "/beta"] for line in s.splitlines() if line.split()),
+                     "/beta selected")
+    old = st["/beta"]["pid"]
+    tmux.keys("s")
+    tmux.wait_screen(lambda s: (row(s, "/beta") or [""])[1:2] == ["stopped"], "/beta stopped")
+    assert not pid_alive(old)
+    tmux.keys("t")
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/beta") not in (None, old), "/beta running again")
+    new = running_pid(screen, "/beta")
+    assert until(lambda: status(env)["/beta"]["pid"] == new, 10, 0.2, what="status agrees")
+    # killed from outside: respawned, the pane shows the new pid
+    gamma = running_pid(screen, "/g/gamma")
+    os.kill(gamma, signal.SIGKILL)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/g/gamma") not in (None, gamma), "/g/gamma respawned")
+    assert (row(screen, "/g/gamma") or [])[4] == "1"  # restarts
+    assert "[/g/gamma] running pid %d" % running_pid(screen, "/g/gamma") in screen
+
+
+def test_launch_ui_shows_steers_and_stops_a_launch_of_rospy_nodes(tmp_path, tmux, env):
+    launch = write_launch(str(tmp_path), THREE)
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"))
+    steer_and_watch(tmux, env)
+    # a resize is followed: the rule under the table spans the new width
+    tmux.resize(100, 30)
+    tmux.wait_screen(lambda s: any(line.startswith("\u2500\u2500 output") and len(line.rstrip()) == 100
+                                   for line in s.splitlines()), "the view redrawn at 100 columns")
+    pids = [n["pid"] for n in status(env).values()]
+    tmux.keys("q")  # = Ctrl-C: the launch's orderly stop
+    tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
+    assert not any(pid_alive(p) for p in pids)
+
+
+def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path, tmux, env):
+    lp = Launcher([write_launch(str(tmp_path), THREE)], env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[g/gamma-\d+\]: started", 60)
+        tmux.start([sys.executable, "-m", "launcher.tool", "ui"], dict(env, TERM="xterm"))
+        steer_and_watch(tmux, env)
+        pids = {n: s["pid"] for n, s in status(env).items()}
+        tmux.keys("q")
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+        assert lp.proc.poll() is None and all(pid_alive(p) for p in pids.values())
+        assert {n: s["pid"] for n, s in status(env).items()} == pids
+    finally:
+        lp.close()
+
+
+def test_thirty_nodes_scroll_in_80x24(tmp_path, tmux, env):
+    launch = write_launch(str(tmp_path), "".join(
+        '<node pkg="ui_tests" type="sleeper" name="n%02d"/>\n' % i for i in range(30)))
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"), 80, 24)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/n00"), "the first rows")
+    assert row(screen, "/n29") is None  # (not all fit)
+    assert all(len(line) <= 80 for line in screen.splitlines()) and len(screen.splitlines()) <= 24
+    tmux.keys(*["j"] * 29)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/n29"), "the last row scrolled into view")
+    assert row(screen, "/n00") is None
+    tmux.keys("C-c")
+    tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
+
+
+def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmux):
+    lp = Launcher(["--ui", write_launch(str(tmp_path), THREE)], env, str(tmp_path))
+    try:
+        lp.wait_output("no terminal", 30, stream="stderr")
+        lp.wait_output(r"process\[alpha-\d+\]: started with pid", 60)
+        out = open(tmp_path / "ui.out", "wb")
+        ui = subprocess.Popen([sys.executable, "-m", "launcher.tool", "ui"], env=env, stdout=out,
+                              stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+        try:
+            until(lambda: re.search(r"\[/alpha\] .*tick \d+", (tmp_path / "ui.out").read_text()), 30,
+                  what="plain output lines")
+            text = (tmp_path / "ui.out").read_text()
+            assert re.search(r"^/g/gamma +(waiting|running)", text, re.M)
+            assert "\x1b" not in text
+        finally:
+            ui.send_signal(signal.SIGINT)
+            ui.wait(10)
+            out.close()
+        assert b"no terminal" in ui.stderr.read()
+        # a terminal that cannot draw (TERM=dumb): the same plain lines
+        tmux.start([sys.executable, "-m", "launcher.tool", "ui"], dict(env, TERM="dumb"))
+        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] .*tick \d+", s),
+                                  "plain lines under TERM=dumb")
+        assert "\u2500\u2500 output" not in screen  # (no full-screen view)
+    finally:
+        lp.close()
+
+
+def test_a_closed_terminal_stops_the_launch_as_ctrl_c_does(tmp_path, tmux, env):
+    launch = write_launch(str(tmp_path), '<node pkg="ui_tests" type="sleeper" name="s"/>')
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"))
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/s"), "/s running")
+    pid = running_pid(screen, "/s")
+    tmux.close()  # (the terminal's end: SIGHUP to the view; the launch runs in a session of its own)
+    until(lambda: not pid_alive(pid), 30, 0.1, what="the node stopped with the launch")
+    assert not status(env)

@@ -1,0 +1,101 @@
+"""The launch server's calls for live views (launcher_output, launcher_samples) on real files, and the page server's
+guards (operate/web.py), without a launch."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+from types import SimpleNamespace
+
+import pytest
+
+from launcher.net.xmlrpc import Fault
+from launcher.operate import server as server_mod
+from launcher.operate.server import LaunchServer
+from launcher.operate.web import allowed_host, parse_address, round_sample
+from launcher.process.state import Fleet
+
+
+def make_server(tmp_path, names=("/a", "/b")):
+    fleet = Fleet()
+    specs = {}
+    for name in names:
+        fleet.add(name)
+        specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])))
+    # (the run as the server reads it: through its supervisor here, through `nodes.spec` in the RunView that
+    # main's runservices brings; both are given so that this test holds on either side of that merge)
+    supervisor = SimpleNamespace(node=lambda n: SimpleNamespace(spec=specs[n]) if n in specs else None)
+    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get))
+    return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), fleet
+
+
+def output(server, offsets, timeout=0.0):
+    code, _msg, text = asyncio.run(server.launcher_output(json.dumps(offsets), timeout))
+    assert code == 1
+    return json.loads(text)
+
+
+def test_output_from_the_end_then_what_follows_and_the_last_bytes_on_request(tmp_path):
+    server, _ = make_server(tmp_path)
+    (tmp_path / "a-stdout.log").write_text("old line\n")
+    first = output(server, {})
+    assert first == {"offsets": {"/a": 9, "/b": 0}, "output": {}}  # (no file yet for /b)
+    with open(tmp_path / "a-stdout.log", "a") as f:
+        f.write("new line\n")
+    (tmp_path / "b-stdout.log").write_text("bee\n")
+    second = output(server, first["offsets"])
+    assert second["output"] == {"/a": "new line\n", "/b": "bee\n"} and second["offsets"] == {"/a": 18, "/b": 4}
+    assert output(server, {"/a": -9})["output"] == {"/a": "new line\n"}
+    # rotated: shorter than the offset, read from its start
+    (tmp_path / "a-stdout.log").write_text("fresh\n")
+    assert output(server, {"/a": 18, "/b": 4})["output"] == {"/a": "fresh\n"}
+
+
+def test_a_waiting_output_call_answers_when_a_node_writes(tmp_path, monkeypatch):
+    monkeypatch.setattr(server_mod, "OUTPUT_CHECK_S", 0.01)
+    server, _ = make_server(tmp_path, ("/a",))
+    (tmp_path / "a-stdout.log").write_text("before\n")
+
+    async def scenario():
+        call = asyncio.ensure_future(server.launcher_output("{}", 30))
+        await asyncio.sleep(0.05)
+        assert not call.done()
+        with open(tmp_path / "a-stdout.log", "a") as f:
+            f.write("after\n")
+        return await asyncio.wait_for(call, 5)
+    code, _msg, text = asyncio.run(scenario())
+    assert json.loads(text)["output"] == {"/a": "after\n"}  # (what came after the call, not before)
+
+
+def test_bad_output_arguments_are_a_fault(tmp_path):
+    server, _ = make_server(tmp_path)
+    for args in (("[]", 0), ("{}", -1), ("not json", 0), (5, 0)):
+        with pytest.raises(Fault):
+            server.launcher_output(*args)
+
+
+def test_samples_are_the_running_nodes_cpu_and_rss(tmp_path):
+    server, fleet = make_server(tmp_path)
+    fleet.nodes["/a"].cpu, fleet.nodes["/a"].rss = 0.5, 1000
+    code, _msg, text = server.launcher_samples()
+    assert code == 1 and json.loads(text) == {"/a": [0.5, 1000]}
+
+
+def test_the_page_answers_only_hosts_that_name_it():
+    assert allowed_host("127.0.0.1:8080", 8080, "127.0.0.1")
+    assert allowed_host("localhost:8080", 8080, "127.0.0.1")
+    assert allowed_host("[::1]:8080", 8080, "::1")
+    assert allowed_host("%s:8080" % socket.gethostname(), 8080, "0.0.0.0")
+    assert not allowed_host("127.0.0.1:8081", 8080, "127.0.0.1")  # another port
+    assert not allowed_host("evil.example:8080", 8080, "127.0.0.1")  # DNS rebinding: a name resolving here
+    assert not allowed_host("127.0.0.1", 8080, "127.0.0.1")
+    assert not allowed_host("", 8080, "127.0.0.1")
+
+
+def test_address_is_loopback_unless_given_and_samples_round_to_what_shows():
+    assert parse_address("8080") == ("127.0.0.1", 8080)
+    assert parse_address("0.0.0.0:8080") == ("0.0.0.0", 8080)
+    assert parse_address("[::1]:8080") == ("::1", 8080)
+    assert round_sample(0.01234, 33_345_678) == [0.012, 33_300_000]
+    assert round_sample(None, None) == [None, None]

@@ -1,0 +1,127 @@
+"""The live view's state without a terminal (launcher/operate/view.py): rows, selection, filter, mute, scrolling,
+the change stream and the output pane, against a fake clock."""
+
+from __future__ import annotations
+
+from launcher.operate import status
+from launcher.operate.view import NODE_OUTPUT, ViewState
+
+T0 = 1000.0
+
+
+def node(name: str, state: str = "running", pid: int | None = 100, **kw) -> dict:
+    d = {"name": name, "process": name[1:], "host": "localhost", "state": state, "pid": pid,
+         "started_at": T0 if state == "running" else None, "uptime": None, "restarts": 0, "exit_code": None,
+         "exit_signal": None, "cpu": None, "rss": None, "over_limit": {}}
+    d.update(kw)
+    return d
+
+
+def view(*nodes: dict) -> ViewState:
+    v = ViewState()
+    v.load({"uri": "http://h:1/", "run_id": "r", "nodes": list(nodes)})
+    return v
+
+
+def test_rows_are_launcher_status_columns_with_uptime_from_the_clock():
+    v = view(node("/a", cpu=0.25, rss=50 * 1000 * 1000), node("/b", "stopped", None, exit_code=0))
+    rows = v.table_rows(10, T0 + 75)
+    a = rows[0][0].split()
+    assert a == [">", "/a", "running", "100", "1m15s", "0", "-", "25%", "50MB", "localhost"]
+    assert rows[0][1:] == ("green", True)
+    assert rows[1][0].split() == ["/b", "stopped", "-", "-", "0", "code", "0", "-", "-", "localhost"]
+    assert rows[1][1:] == ("grey", False)
+    # the same cells as `launcher status` gives for that node
+    assert tuple(a[1:]) == status.row(dict(v.nodes["/a"], uptime=75.0))
+    assert v.table_header(T0).split() == list(status.HEADER[:5]) + ["LAST", "EXIT"] + list(status.HEADER[6:])
+
+
+def test_a_change_updates_the_row_and_says_it_in_the_pane():
+    v = view(node("/a"))
+    v.changes([{"seq": 3, "time": T0 + 5, "node": "/a", "state": "respawning", "pid": 100, "exit_code": None,
+                "exit_signal": 9, "restarts": 0},
+               {"seq": 4, "time": T0 + 6, "node": "/a", "state": "running", "pid": 222, "restarts": 1}])
+    assert v.seq == 4
+    row = v.table_rows(5, T0 + 16)[0][0].split()
+    assert row[2:6] == ["running", "222", "10s", "1"]  # uptime from the new run's start
+    assert v.output_rows(10) == ["[/a] respawning SIGKILL", "[/a] running pid 222"]
+    v.changes([{"seq": 5, "time": T0 + 7, "node": "/a", "state": "stopped", "pid": 222, "exit_code": 0}])
+    assert v.table_rows(5, T0 + 20)[0][0].split()[2:5] == ["stopped", "-", "-"]
+    v.changes([{"seq": 6, "time": T0, "node": "/unknown", "state": "running"}])  # (not in the status: ignored)
+    assert list(v.nodes) == ["/a"]
+
+
+def test_over_limit_is_marked():
+    v = view(node("/a", over_limit={"memory_limit": 1e6}))
+    text, style, _ = v.table_rows(3, T0)[0]
+    assert "OVER memory_limit" in text and style == "red"
+
+
+def test_selection_moves_and_the_table_scrolls_to_keep_it_visible():
+    v = view(*(node("/n%02d" % i) for i in range(30)))
+    assert v.selected == "/n00"
+    v.move(-1)
+    assert v.selected == "/n00"
+    v.move(25)
+    rows = v.table_rows(10, T0)
+    assert len(rows) == 10 and rows[-1][2] and rows[-1][0].split()[1] == "/n25"
+    assert rows[0][0].split()[0] == "/n16"
+    v.move(100)
+    assert v.selected == "/n29" and v.table_rows(10, T0)[-1][0].split()[1] == "/n29"
+    v.move(-29)
+    assert v.table_rows(10, T0)[0][0].split()[1] == "/n00"
+
+
+def test_filter_narrows_rows_and_moves_the_selection_into_them():
+    v = view(node("/cam/left"), node("/cam/right"), node("/driver"))
+    v.move(2)
+    v.set_filter("CAM")
+    assert v.visible() == ["/cam/left", "/cam/right"] and v.selected == "/cam/left"
+    assert "filter [CAM]: 2 shown" in v.title()
+    v.set_filter("nothing")
+    assert v.table_rows(5, T0) == [] and v.selected == ""
+    v.set_filter("")
+    assert len(v.table_rows(5, T0)) == 3
+
+
+def test_output_lines_are_whole_tagged_and_muted_nodes_hidden():
+    v = view(node("/a"), node("/b"))
+    v.output("/a", "one\ntw")
+    v.output("/b", "bee\r\n")
+    assert v.output_rows(10) == ["[/a] one", "[/b] bee"]
+    v.output("/a", "o\n")
+    assert v.output_rows(10)[-1] == "[/a] two"
+    v.toggle_mute()  # /a, selected
+    assert v.output_rows(10) == ["[/b] bee"] and "(muted)" in v.table_rows(5, T0)[0][0]
+    v.toggle_mute()
+    assert len(v.output_rows(10)) == 3
+
+
+def test_scrolling_back_holds_the_lines_in_place_while_output_comes():
+    v = view(node("/a"))
+    v.output("/a", "".join("line %d\n" % i for i in range(100)))
+    assert v.output_rows(3) == ["[/a] line 97", "[/a] line 98", "[/a] line 99"]
+    v.scroll_output(10)
+    assert v.output_rows(3)[-1] == "[/a] line 89"
+    v.output("/a", "new 1\nnew 2\n")
+    assert v.output_rows(3)[-1] == "[/a] line 89"
+    v.scroll_output(-1000)
+    assert v.output_rows(1) == ["[/a] new 2"]
+    v.scroll_output(10 ** 6)
+    assert v.output_rows(1) == ["[/a] line 0"]
+
+
+def test_a_nodes_recent_output_replaces_the_pane_until_asked_back():
+    v = view(node("/a"))
+    v.output("/a", "live\n")
+    v.show_node_output("old 1\nold 2")
+    assert v.mode == NODE_OUTPUT and v.output_rows(5) == ["old 1", "old 2"]
+    v.show_node_output(None)
+    assert v.output_rows(5) == ["[/a] live"]
+
+
+def test_samples_fill_cpu_and_rss_of_running_nodes_only():
+    v = view(node("/a"), node("/b"))
+    v.samples({"/a": [0.5, 2 * 1000 * 1000]})
+    rows = [r[0].split() for r in v.table_rows(5, T0)]
+    assert rows[0][-3:-1] == ["50%", "2MB"] and rows[1][-3:-1] == ["-", "-"]
