@@ -63,6 +63,7 @@ class NodePolicy(NamedTuple):
     watch_min_rate: float | None = None
     watch_window: float = 5.0
     on_stall: str = "restart"  # "restart" | "warn"
+    bind_to: str = ""  # the node this one starts after and is stopped before (its resolved name)
     memory_limit: int | None = None  # bytes, RSS of the whole process group
     cpu_limit: float | None = None  # cores, over the last sample window
     on_limit: str = "warn"  # "warn" | "restart"

@@ -34,6 +34,7 @@ from launcher.net.open_files import raise_open_file_limit
 from launcher.nodeservice import NodeService
 from launcher.packages import PackageIndex
 from launcher.plan.machines import remote_machines
+from launcher.plan.order import check_cycles
 from launcher.plan.specs import node_specs
 from launcher.process import console, machine as node_machine
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size
@@ -164,6 +165,7 @@ class Plan:
                           opts=opts, run_dir=run_dir, first_number=first_number)
 
     def check_nodes(self, opts: RunOptions) -> None:
+        check_cycles(self.config.nodes)
         for node in self.config.nodes:
             if opts.required and node.respawn:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"

@@ -194,6 +194,7 @@ class Supervisor:
         # health hooks (see "health" below): what holds a node's start, and what watches each run
         self.readiness = None  # process/readiness.Readiness: holds nodes that have wait_for conditions
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
+        self._deferred: list[NodeProcess] = []  # at shutdown, nodes waiting for their dependents to be down
 
     @property
     def done(self) -> asyncio.Event:
@@ -448,23 +449,56 @@ class Supervisor:
             self._stopping_progress(proc)  # only leftovers of the group: watch them
 
     async def shutdown(self) -> list[str]:
-        """Stop every node (reverse start order, paced SIGINTs, per-node escalation); return the errors."""
+        """Stop every node (reverse start order, paced SIGINTs, per-node escalation); return the errors.
+
+        A node that another running node waited for (`wait_for="node:..."`, `bind_to`) is stopped once
+        that one is down: a controller spawner stops before its controller manager, a nodelet loader before
+        its manager. Nodes with no such relation stop together, as before."""
         self.shutting_down = True
+        dependents = self._dependents()
+        self._deferred = []
         for p in reversed(self.procs):
-            if not p.leftover:
-                self._tell(p, Event(machine.SHUTDOWN))
-            if not p.stopping and (p.alive or (p.group_alive and self._check_group(p))):
-                # a leftover group (or what an ended run left in its group): stopped as a node is
-                console.printlog("[%s] killing on exit" % p.name)
-                p.stopped = self.loop.create_future()
-                self._pacing_queue.append(p)
-        to_stop = [p for p in self.procs if p.stopping]
+            if any(d.alive for d in dependents.get(p, ())):
+                self._deferred.append(p)
+            else:
+                self._shut(p)
         self._pace()
-        if to_stop:
-            await asyncio.gather(*(p.stopped for p in to_stop))
+        while True:
+            stopping = [p.stopped for p in self.procs if p.stopping]
+            if not stopping and not self._deferred:
+                break
+            if stopping:
+                await asyncio.wait(stopping, return_when=asyncio.FIRST_COMPLETED)
+            ready = [p for p in self._deferred if not any(d.alive or d.stopping for d in dependents[p])]
+            if not ready and not any(p.stopping for p in self.procs):
+                ready = list(self._deferred)  # (nothing left to wait for)
+            for p in ready:
+                self._deferred.remove(p)
+                self._shut(p)
+            self._pace()
         if self.shutdown_errors:
             console.printerrlog("Shutdown errors:\n" + "\n".join(" * %s" % e for e in self.shutdown_errors))
         return self.shutdown_errors
+
+    def _dependents(self) -> dict[NodeProcess, list[NodeProcess]]:
+        """For each node, the nodes of this machine that waited for it (stopped before it)."""
+        by_name = {p.spec.node_name: p for p in self.procs if not p.leftover}
+        out: dict[NodeProcess, list[NodeProcess]] = {}
+        for p in by_name.values():
+            for kind, name in p.spec.policy.wait_for:
+                target = by_name.get(name) if kind == "node" else None
+                if target is not None and target is not p:
+                    out.setdefault(target, []).append(p)
+        return out
+
+    def _shut(self, p: NodeProcess) -> None:
+        if not p.leftover:
+            self._tell(p, Event(machine.SHUTDOWN))
+        if not p.stopping and (p.alive or (p.group_alive and self._check_group(p))):
+            # a leftover group (or what an ended run left in its group): stopped as a node is
+            console.printlog("[%s] killing on exit" % p.name)
+            p.stopped = self.loop.create_future()
+            self._pacing_queue.append(p)
 
     def _pace(self) -> None:
         while self._pacing_queue and self._pacing_active < self.stop_concurrency:
@@ -529,7 +563,11 @@ class Supervisor:
                 self._tell(p, Event(machine.DOWN, exit_code=code, exit_signal=sig, killed=p.sigkilled))
 
     def kill_now(self) -> list[str]:
-        """A second Ctrl-C: SIGKILL to every node still stopping; their process names."""
+        """A second Ctrl-C: SIGKILL to every node still stopping (and to those waiting for their turn); their
+        process names."""
+        for p in self._deferred:
+            self._shut(p)
+        self._deferred = []
         killed = []
         for p in self.procs:
             if p.stopping:

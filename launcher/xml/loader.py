@@ -799,6 +799,11 @@ class XmlLoader:
         if "wait_for" in fields:
             fields = dict(fields, wait_for=resolve_wait_names(fields["wait_for"], namespace,
                                                               ns_join(namespace, name)))
+        if fields.get("bind_to"):
+            # start after it (a wait_for condition), stopped before it (the supervisor's shutdown order)
+            (bound,) = resolve_wait_names((("node", fields["bind_to"]),), namespace, ns_join(namespace, name))
+            waits = tuple(fields.get("wait_for", ()))
+            fields = dict(fields, bind_to=bound[1], wait_for=waits if bound in waits else waits + (bound,))
         if "watch_topics" in fields:
             fields = dict(fields, watch_topics=resolve_watch_topics(fields["watch_topics"], namespace,
                                                                     ns_join(namespace, name), remaps))

@@ -139,6 +139,12 @@ def _topics(text: str) -> tuple[str, ...]:
     return names
 
 
+def _node_name(text: str) -> str:
+    if len(text.split()) != 1 or not is_legal_name(text):
+        raise PolicyError("one node name")
+    return text
+
+
 def _rate(text: str) -> float:
     value = _number(text, "a rate in Hz greater than zero")
     if value <= 0:
@@ -173,6 +179,7 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "watch_min_rate": ("watch_min_rate", _rate),
     "watch_window": ("watch_window", _seconds(positive=True)),
     "on_stall": ("on_stall", _choice("restart", "warn")),
+    "bind_to": ("bind_to", _node_name),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),
