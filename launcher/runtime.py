@@ -46,6 +46,7 @@ from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import EVENTS_FILE, Fleet
+from launcher.operate import systemd
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
 from launcher.runlog import RunLog, summary
@@ -313,9 +314,13 @@ class Run:
         self._started = time.monotonic()  # (the launch log's timings count from here)
         self._tasks: list[asyncio.Future] = []
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
+        # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
+        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog)
 
     async def main(self) -> int:
         self.signals = StopSignals(asyncio.get_running_loop())
+        if self.notifier is not None:
+            self.notifier.start_watchdog()
         status = 0
         try:
             await self._start()
@@ -369,6 +374,8 @@ class Run:
         await self.signals.guard(self._set_parameters())
         self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
         self._launch_nodes()
+        if self.notifier is not None:
+            self.notifier.attach(self.fleet, self.master_uri)
         if not self.core and not self.opts.no_diagnostics:
             await self.signals.guard(self._start_diagnostics())
         self.log.timing(self._started, "every node started")
@@ -656,6 +663,8 @@ class Run:
         return "ended"
 
     async def _teardown(self) -> None:
+        if self.notifier is not None:
+            self.notifier.stopping()
         for t in self._tasks:
             t.cancel()
         if self.rotator is not None:
@@ -696,5 +705,7 @@ class Run:
             console.printlog("... shutting down processing monitor complete")
             console.printlog_bold("done")
         self.log.close()
+        if self.notifier is not None:
+            self.notifier.close()
         sys.stdout.flush()
 
