@@ -26,6 +26,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "logs": ("launcher.operate.logs", "a node's output (-f follows it; after the end: the last run's)"),
     "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
+    "install": ("launcher.operate.install", "write a systemd unit that runs a launch at boot (--dry-run prints it)"),
+    "uninstall": ("launcher.operate.install:uninstall", "remove a unit `launcher install` wrote"),
+    "installed": ("launcher.operate.install:installed", "the units `launcher install` wrote: name, kind, state, "
+                  "launch files"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
 
