@@ -4,7 +4,6 @@ WATCHDOG=1 at half of WATCHDOG_USEC and none while the loop is held, STOPPING=1 
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import statistics
@@ -13,18 +12,9 @@ import time
 
 import pytest
 
-from helpers import ROS_PATH, ROS_PYTHON, free_port, until
-from running import Launcher, make_package, master_proxy, ros_env, write_launch
+from helpers import ROS_PATH, free_port, until
+from running import Launcher, SlowSpinner, make_package, master_proxy, ros_env, write_launch
 
-# a rospy node that is slow to register: it sleeps, notes the wall time just before init_node, then spins
-SlowSpinner = """#!%s
-import os, sys, time, rospy
-time.sleep(float(sys.argv[1]))
-with open(os.path.join(os.environ["STAMPS"], sys.argv[2]), "w") as f:
-    f.write(repr(time.time()))
-rospy.init_node(sys.argv[2])
-rospy.spin()
-""" % ROS_PYTHON
 # a program that never registers and dies after a while (respawned by the launch)
 Crasher = "#!/bin/sh\nsleep 6\nexit 3\n"
 
