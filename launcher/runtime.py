@@ -42,6 +42,7 @@ from launcher.process.hang import HangDetector
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size, watch_log_disk
 from launcher.process.logrotate import LogRotator
 from launcher.process.readiness import Readiness
+from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.roshome import log_root
 from launcher.process.spawn import ProcessSpec
@@ -316,11 +317,14 @@ class Run:
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
         # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
         self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog)
+        self.reaper: Reaper | None = None  # orphans re-parented to us (PID 1 of a container, or a subreaper)
 
     async def main(self) -> int:
         self.signals = StopSignals(asyncio.get_running_loop())
         if self.notifier is not None:
             self.notifier.start_watchdog()
+        if os.getpid() == 1 or become_subreaper():
+            self.reaper = Reaper(asyncio.get_running_loop(), self._own_pids)
         status = 0
         try:
             await self._start()
@@ -617,6 +621,11 @@ class Run:
                                    sigterm_timeout=self.opts.sigterm_timeout)
         await self.remote.start(self.server.uri if self.server is not None else "")
 
+    def _own_pids(self) -> list[int]:
+        """The children whose exits their runners wait for (the reaper leaves them alone)."""
+        pids = [r.pid for r in self.fleet.records.values() if r.pid] if self.fleet is not None else []
+        return pids + ([self.watchdog.pid] if self.watchdog is not None else [])
+
     # ---- running ---------------------------------------------------------------------------------------
 
     async def _wait_for_the_end(self) -> None:
@@ -678,6 +687,8 @@ class Run:
             self.signals.while_stopping = self._kill_now
             stops.append(self.supervisor.shutdown())
         await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
+        if self.reaper is not None:
+            await self.reaper.stop_orphans()  # a node's daemonized grandchildren, re-parented to us
         if self.supervisor is not None:
             self.signals.while_stopping = None
             self.supervisor.close()
@@ -707,5 +718,7 @@ class Run:
         self.log.close()
         if self.notifier is not None:
             self.notifier.close()
+        if self.reaper is not None:
+            self.reaper.close()
         sys.stdout.flush()
 
