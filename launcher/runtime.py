@@ -316,7 +316,7 @@ class Run:
         self._tasks: list[asyncio.Future] = []
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
         # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
-        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog)
+        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
         self.reaper: Reaper | None = None  # orphans re-parented to us (PID 1 of a container, or a subreaper)
 
     async def main(self) -> int:

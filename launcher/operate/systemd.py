@@ -7,7 +7,7 @@ functions of the fleet; `Notifier` sends them from the launch's loop:
 
 - READY=1 once every node meant to start has started and registered with the
   master (a program that never registers counts once it has run for its
-  `respawn_min_uptime`), or when `READY_TIMEOUT_S` passes (then STATUS= names
+  `respawn_min_uptime`), or when `--ready-timeout` (60 s) passes (then STATUS= names
   the nodes not up), so that systemd's "active" means the robot is up;
 - STATUS= after every change of the fleet ("12/12 nodes running, 1 respawning");
 - WATCHDOG=1 every half of WATCHDOG_USEC from a loop timer: a loop that is stuck
@@ -26,10 +26,11 @@ from typing import Any, Callable, Iterable
 
 from launcher.net import xmlrpc
 from launcher.process import machine
+from launcher.runopts import RunOptions
 
 # How long READY=1 waits for the nodes before it is sent anyway, naming the nodes not up (systemd's own
 # TimeoutStartSec, which the unit sets longer, would otherwise kill a robot with one node that is slow)
-READY_TIMEOUT_S = 60.0
+READY_TIMEOUT_S = RunOptions().ready_timeout
 POLL_S = 0.2  # the master is asked at most this often while the launch is not ready
 CALL_TIMEOUT_S = 2.0
 CALLER_ID = "/roslaunch"

@@ -145,3 +145,17 @@ def test_without_notify_socket_nothing_is_sent(tmp_path, setup):
         assert notify.read() == []
     finally:
         launch.close()
+
+
+def test_ready_timeout_sends_ready_naming_the_nodes_not_up(tmp_path, setup):
+    env, notify, _stamps = setup
+    body = ('<node pkg="sd_tests" type="slow_spinner" name="n0" args="0 n0"/>\n'
+            '<node pkg="sd_tests" type="slow_spinner" name="late" args="1000 late" respawn_min_uptime="2000"/>')
+    launch = Launcher([write_launch(str(tmp_path), body), "--ready-timeout", "3"], env, str(tmp_path))
+    try:
+        started = time.time()
+        when, fields = until(lambda: notify.first("READY", "1"), 30, what="READY=1 at the ready timeout")
+        assert 2.5 < when - started < 10, when - started
+        assert fields["STATUS"] == "2/2 nodes running; not up after 3s: /late", fields
+    finally:
+        launch.close()
