@@ -205,7 +205,8 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
         if not eq or not key:
             raise InstallError("--env %r: give KEY=VALUE" % item)
         env.append((key, value))
-    launch = launch_executable() + files + args + (["--wait"] if ns.master else [])
+    # --screen: every node's output, INFO included, reaches the journal (and still its <name>-stdout.log)
+    launch = launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
     return UnitOptions(name=name, launch=tuple(launch), description=ns.description or "", files=tuple(files),
                        user=user, ros_home=ros_home,
                        setup=os.path.abspath(ns.setup) if ns.setup else "", env=tuple(env),

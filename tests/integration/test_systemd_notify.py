@@ -4,15 +4,18 @@ WATCHDOG=1 at half of WATCHDOG_USEC and none while the loop is held, STOPPING=1 
 
 from __future__ import annotations
 
+import os
+import re
 import signal
 import socket
 import statistics
 import subprocess
+import sys
 import time
 
 import pytest
 
-from helpers import ROS_PATH, free_port, until
+from helpers import ROS_PATH, ROS_PYTHON, free_port, until
 from running import Launcher, SlowSpinner, make_package, master_proxy, ros_env, write_launch
 
 # a program that never registers and dies after a while (respawned by the launch)
@@ -159,3 +162,37 @@ def test_ready_timeout_sends_ready_naming_the_nodes_not_up(tmp_path, setup):
         assert fields["STATUS"] == "2/2 nodes running; not up after 3s: /late", fields
     finally:
         launch.close()
+
+
+# a rospy node writing INFO (stdout), ERROR (stderr) and a plain stderr line
+Chatty = """#!%s
+import sys, rospy
+rospy.init_node("chatty")
+rospy.loginfo("all is well")
+rospy.logerr("the arm is stuck")
+sys.stderr.write("a plain line on stderr\\n")
+sys.stderr.flush()
+rospy.spin()
+""" % ROS_PYTHON
+
+
+def test_journal_stream_gets_priority_and_node_per_line(tmp_path, setup):
+    env, _notify, _stamps = setup
+    del env["NOTIFY_SOCKET"]
+    make_package(str(tmp_path / "pkgs"), "sd_tests", {"chatty": Chatty})
+    out_path = tmp_path / "journal.out"
+    with open(out_path, "wb") as out:
+        st = os.fstat(out.fileno())
+        env["JOURNAL_STREAM"] = "%d:%d" % (st.st_dev, st.st_ino)
+        proc = subprocess.Popen([sys.executable, "-m", "launcher", "--screen",
+                                 write_launch(str(tmp_path), '<node pkg="sd_tests" type="chatty" name="chatty"/>')],
+                                env=env, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            until(lambda: b"a plain line" in out_path.read_bytes(), 60, what="the node's lines")
+            lines = out_path.read_bytes().splitlines()
+            assert any(re.fullmatch(rb"<6>chatty-\d+: \[INFO\] \[[\d.]+\]: all is well", x) for x in lines), lines
+            assert any(re.fullmatch(rb"<3>chatty-\d+: \[ERROR\] \[[\d.]+\]: the arm is stuck", x) for x in lines), lines
+            assert any(re.fullmatch(rb"<3>chatty-\d+: a plain line on stderr", x) for x in lines), lines
+        finally:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
