@@ -291,6 +291,9 @@ class Run:
     # roslaunch starts the master as a process of the launch, and says so ("auto-starting new master",
     # "[master] killing on exit"); rostest's runs inside it, started and stopped without a word
     MASTER_IS_A_PROCESS = True
+    # orphans re-parented to the launch are reaped (process/reaper.py); a run whose process starts children
+    # of its own outside the fleet (rostest's test node, waited for by popen.wait) must not
+    REAP_ORPHANS = True
 
     def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None):
         self.opts = opts
@@ -323,7 +326,7 @@ class Run:
         self.signals = StopSignals(asyncio.get_running_loop())
         if self.notifier is not None:
             self.notifier.start_watchdog()
-        if os.getpid() == 1 or become_subreaper():
+        if self.REAP_ORPHANS and (os.getpid() == 1 or become_subreaper()):
             self.reaper = Reaper(asyncio.get_running_loop(), self._own_pids)
         status = 0
         try:
@@ -624,6 +627,8 @@ class Run:
     def _own_pids(self) -> list[int]:
         """The children whose exits their runners wait for (the reaper leaves them alone)."""
         pids = [r.pid for r in self.fleet.records.values() if r.pid] if self.fleet is not None else []
+        if self.remote is not None:  # each machine's ssh (a session of its own, waited for by asyncio)
+            pids += [c.ssh.pid for c in self.remote.children.values() if c.ssh is not None]
         return pids + ([self.watchdog.pid] if self.watchdog is not None else [])
 
     # ---- running ---------------------------------------------------------------------------------------

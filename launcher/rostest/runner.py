@@ -61,6 +61,7 @@ class TestAttempt(Run):
     """One attempt of one `<test>`: a launch of the file's fixture, then the test node, then tear-down."""
 
     MASTER_IS_A_PROCESS = False  # (rostest's master is a rosmaster.Master in its own process)
+    REAP_ORPHANS = False  # its test node is waited for by popen.wait(): its exit status is the test's result
 
     def __init__(self, opts: Any, plan: Plan, watchdog: Any, test: Node, result_file: str, *,
                  reuse_master: bool, clear: bool, text: bool, processes_before: int = 0):
