@@ -87,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds from SIGTERM to SIGKILL when stopping a node (default 2)")
     p.add_argument("--monitor-period", dest="monitor_period", type=float, default=_RUN["monitor_period"], metavar="SECONDS",
                    help="seconds between two samples of the nodes' CPU and memory (default 1)")
+    p.add_argument("--ready-timeout", dest="ready_timeout", type=float, default=_RUN["ready_timeout"], metavar="SECONDS",
+                   help="under systemd (NOTIFY_SOCKET): tell it READY=1 at the latest after this, naming the nodes "
+                        "not up (default 60)")
     # operating a running launch (the `launcher` command)
     p.add_argument("--no-start", dest="no_start", action="store_true",
                    help="load and set the parameters but start no node (start them with `launcher start`)")
@@ -174,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
             raise LaunchError("--sigint-timeout and --sigterm-timeout must be greater than zero")
         if not opts.monitor_period > 0:
             raise LaunchError("--monitor-period must be greater than zero")
+        if not opts.ready_timeout > 0:
+            raise LaunchError("--ready-timeout must be greater than zero")
         if opts.child_name or opts.server_uri:
             from launcher.child import run_child  # a roslaunch child on another machine
             status = run_child(opts)

@@ -29,6 +29,7 @@ class RunOptions(NamedTuple):
     sigint_timeout: float = 15.0  # the stop escalation: SIGINT, then SIGTERM after this ...
     sigterm_timeout: float = 2.0  # ... then SIGKILL after this
     monitor_period: float = 1.0  # CPU and memory samples of the nodes
+    ready_timeout: float = 60.0  # under systemd: READY=1 at the latest after this, naming the nodes not up
     pid_fn: str | None = None  # write the launcher's pid to this file
     no_start: bool = False  # start no node: an operator does (`launcher start`)
     no_diagnostics: bool = False  # publish no /diagnostics

@@ -32,6 +32,7 @@ from launcher.master import advertised_host
 from launcher.masterlink import MasterSession
 from launcher.net.open_files import raise_open_file_limit
 from launcher.nodeservice import NodeService
+from launcher.operate import systemd
 from launcher.packages import PackageIndex
 from launcher.plan.machines import remote_machines
 from launcher.plan.order import check_cycles
@@ -40,6 +41,7 @@ from launcher.process import console, machine as node_machine
 from launcher.process.logdir import DEFAULT_THRESHOLD, parse_size
 from launcher.process.spawn import ProcessSpec
 from launcher.process.state import Change
+from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.watchdog import Watchdog
 from launcher.remote import ssh
 from launcher.remote.parent import check_addresses, machine_nodes, policy_warnings
@@ -254,7 +256,8 @@ class Run:
 
     def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None, *,
                  master: Callable[..., MasterSession] = MasterSession, rosout: bool = True,
-                 diagnostics: bool = True, log_disk: bool = True, body: Callable[[Run], Awaitable[None]] | None = None, first_number: int = 0):
+                 diagnostics: bool = True, log_disk: bool = True, body: Callable[[Run], Awaitable[None]] | None = None,
+                 first_number: int = 0, reap_orphans: bool = True):
         self.opts = opts
         self.plan = plan
         self.watchdog = watchdog
@@ -275,6 +278,12 @@ class Run:
         self.first_number = first_number  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
         self._up: list[Any] = []  # the services started (or starting)
+        # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
+        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
+        # orphans re-parented to the launch are reaped (process/reaper.py); a front-end that waits for a
+        # child of its own (rostest's test node: its exit status is the test's result) says False
+        self.reap_orphans = reap_orphans
+        self.reaper: Reaper | None = None
 
     @property
     def services(self) -> list[Any]:
@@ -289,6 +298,10 @@ class Run:
 
     async def main(self) -> int:
         self.signals.install(asyncio.get_running_loop())
+        if self.notifier is not None:
+            self.notifier.start_watchdog()
+        if self.reap_orphans and (os.getpid() == 1 or become_subreaper()):
+            self.reaper = Reaper(asyncio.get_running_loop(), self._own_pids)
         try:
             await self._start()
             await self.body(self)
@@ -296,9 +309,16 @@ class Run:
             pass
         finally:
             gc.unfreeze()  # (a process that runs again, as `launcher test` does, collects this run's cycles)
+            if self.notifier is not None:
+                self.notifier.stopping()
             for service in reversed(self.services):
                 if service in self._up:
                     await service.stop()
+            if self.reaper is not None:
+                await self.reaper.stop_orphans()  # a node's daemonized grandchildren, re-parented to us
+                self.reaper.close()
+            if self.notifier is not None:
+                self.notifier.close()
             self._done()
             self.signals.close()
         return self.nodes.exit_status
@@ -335,6 +355,8 @@ class Run:
         self.nodes.start(master.uri, first, exit_when_all_dead=master.external)
         if master.master is not None:  # (ours: what a node that ended registered goes with it)
             self.nodes.fleet.listeners.append(self._process_ended)
+        if self.notifier is not None:
+            self.notifier.attach(self.nodes.fleet, master.uri)
         if self.rosout is not None:
             self.rosout.warm_up()
         for service in (self.diagnostics, self.log_disk):
@@ -346,6 +368,14 @@ class Run:
         # out of the cyclic collector's way, a full collection no longer scans it. With 1,000 callbacks in
         # flight, the master's slowest other call went from 20-38 ms to 6-14 ms (benchmarks/hung_subscribers.py).
         gc.freeze()
+
+    def _own_pids(self) -> list[int]:
+        """The children whose exits their runners wait for (the reaper leaves them alone)."""
+        fleet, remote = self.nodes.fleet, self.nodes.remote
+        pids = [r.pid for r in fleet.records.values() if r.pid] if fleet is not None else []
+        if remote is not None:  # each machine's ssh (a session of its own, waited for by asyncio)
+            pids += [c.ssh.pid for c in remote.children.values() if c.ssh is not None]
+        return pids + ([self.watchdog.pid] if self.watchdog is not None else [])
 
     def _process_ended(self, change: Change) -> None:
         """A fleet listener: a node's process ended (here, or on another machine as its child told), and what

@@ -31,6 +31,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
             "an address is given)"),
     "check": ("launcher.check", "check launch files without running them, over every if/unless branch"),
     "bag": ("launcher.bag.main", "record, play, inspect and reindex ROS 1 bags (rosbag's options; no ROS needed)"),
+    "install": ("launcher.operate.install", "write a systemd unit that runs a launch at boot (--dry-run prints it)"),
+    "uninstall": ("launcher.operate.install:uninstall", "remove a unit `launcher install` wrote"),
+    "installed": ("launcher.operate.install:installed", "the units `launcher install` wrote: name, kind, state, "
+                  "launch files"),
     "test": ("launcher.rostest.runner", "run a rostest file's <test> nodes, each on its own master (rostest)"),
 }
 

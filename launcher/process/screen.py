@@ -43,7 +43,7 @@ import weakref
 from typing import TextIO
 
 from launcher import nodepython
-from launcher.process import console
+from launcher.process import console, journal
 
 CHUNK = 65536  # one read per readable event: a pipe's default capacity
 # At a node's exit at most this much is read at once per stream: more than any pipe or pty buffers
@@ -177,6 +177,9 @@ class ScreenOutput:
         self.started = loop.time()
         self.missing_module: str | None = None  # what an import error at the start named (nodepython.py)
         self.log_fd: int | None = None
+        # under systemd, stdout is the journal: each line goes with its priority and node (process/journal.py)
+        self.framers = {fd: journal.LineFramer(name, stream is sys.stderr) for fd, stream in self.sources.items()
+                        } if journal.is_journal(os.environ) else {}
         if log_path:
             flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (os.O_TRUNC if truncate else 0)
             try:
@@ -214,7 +217,8 @@ class ScreenOutput:
                                          % (self.name, e.strerror))
                 os.close(self.log_fd)
                 self.log_fd = None
-        if not console.relay(self.sources[fd], data) and not self.paused:
+        framer = self.framers.get(fd)
+        if not console.relay(self.sources[fd], framer.feed(data) if framer else data) and not self.paused:
             self._pause()
         if (b"No module named" in data and self.missing_module is None
                 and self.loop.time() - self.started < nodepython.AT_ONCE_S):
@@ -266,6 +270,9 @@ class ScreenOutput:
             console.printerrlog(hint[1])
 
     def _close(self, fd: int) -> None:
+        framer = self.framers.pop(fd, None)
+        if framer is not None and fd in self.sources:
+            console.relay(self.sources[fd], framer.end())
         self.sources.pop(fd, None)
         _sized_ptys.pop(fd, None)
         if not self.paused:

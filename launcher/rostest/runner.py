@@ -122,6 +122,7 @@ class TestAttempt:
     async def main(self) -> int:
         master = functools.partial(RostestMaster, reuse_master=self.reuse_master, clear=self.clear)
         run = Run(self.opts, self.plan, self.watchdog, master=master, rosout=False, diagnostics=False,
+                  reap_orphans=False,  # (its test node is waited for by popen.wait(): its exit status is the result)
                   log_disk=False, body=self._body, first_number=self.processes_before)
         try:
             return await run.main()

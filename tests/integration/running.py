@@ -12,7 +12,7 @@ import sys
 import time
 import xmlrpc.client
 
-from helpers import ROS_PATH, free_port, until
+from helpers import ROS_PATH, ROS_PYTHON, free_port, until
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -35,6 +35,17 @@ while not rospy.is_shutdown():
     except rospy.ROSInterruptException:
         break
 """
+
+# a rospy node slow to register: it sleeps argv[1] seconds, writes the wall time to $STAMPS/<argv[2]> just before
+# init_node (where it registers) as argv[2], then spins
+SlowSpinner = """#!%s
+import os, sys, time, rospy
+time.sleep(float(sys.argv[1]))
+with open(os.path.join(os.environ["STAMPS"], sys.argv[2]), "w") as f:
+    f.write(repr(time.time()))
+rospy.init_node(sys.argv[2])
+rospy.spin()
+""" % ROS_PYTHON
 
 
 def make_package(root: str, name: str, scripts: dict[str, str]) -> str:
