@@ -28,3 +28,14 @@ class LaunchError(Exception):
         for fname, line in self.include_chain:
             text += "\n  included from %s:%d" % (fname, line)
         return text
+
+
+SHOWN_CHARS = 300  # of a user's text quoted in a message
+
+
+def shorten(text: str) -> str:
+    """A user's text as a message quotes it: whole, or, past SHOWN_CHARS, its start and end around
+    the number of characters left out (a 5 MB attribute makes no readable error)."""
+    if len(text) <= SHOWN_CHARS:
+        return text
+    return "%s[... %d characters ...]%s" % (text[:200], len(text) - 260, text[-60:])

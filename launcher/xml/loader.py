@@ -16,7 +16,7 @@ import sys
 from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
-from launcher.errors import LaunchError
+from launcher.errors import SHOWN_CHARS, LaunchError, shorten
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
@@ -26,7 +26,7 @@ from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
-from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
+from launcher.xml.substitution import ArgNotSet, LoadBudget, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists, plus our supervision extensions (xml/policy.py) where they
 # apply; anything else is warned about
@@ -51,6 +51,7 @@ CORE_NODE_NAMES = ("/rosout",)
 MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-params loads
 
 _MULTISLASH = re.compile("//+")
+_SEPS = re.compile(SEP)
 
 
 class XmlLoader:
@@ -85,6 +86,10 @@ class XmlLoader:
         self._clean_ns: str | None = None  # see _add_param
         self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
+        self._budget = LoadBudget()  # the text all substitutions of this load may make
+        # the element being read and its scope, for an error that has no other place to name
+        # (Python's recursion limit, met by elements nested deeply enough)
+        self._at: tuple[Scope, Any] | None = None
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
         self.yaml_cache = YamlCache(ros_home(environ))  # saved by xml.load once the files are read
@@ -135,13 +140,13 @@ class XmlLoader:
     def _warn(self, scope: Scope, el: Any, msg: str) -> None:
         line = getattr(el, "sourceline", None)
         where = "%s:%d: " % (scope.source, line) if line else "%s: " % scope.source
-        text = where + msg
+        text = where + _shortened(msg)
         for f, ln in scope.include_chain:
             text += "\n  included from %s:%d" % (f, ln)
         self._warn_plain(text)
 
     def _fail(self, scope: Scope, el: Any, msg: str) -> LaunchError:
-        return LaunchError(msg, scope.source, getattr(el, "sourceline", None), scope.include_chain)
+        return LaunchError(_shortened(msg), scope.source, getattr(el, "sourceline", None), scope.include_chain)
 
     def _sub(self, text: str | None, scope: Scope, el: Any) -> str | None:
         """Resolve substitution args, turning their errors into located LaunchErrors."""
@@ -243,13 +248,24 @@ class XmlLoader:
         self.files.append(filename)
         scope = Scope(self.root_ns, filename, environ=self.environ,
                       find_package=self._find_package, find_resource=self._find_resource,
-                      args=dict(self.cli_args), used_args=self._used_args)
+                      args=dict(self.cli_args), used_args=self._used_args, budget=self._budget)
         self.root_scope = scope
-        self._launch_tag(launch, scope)
-        if not self.args_only:
-            for m in doc.masters:
-                self._warn(scope, m, "ignoring defunct <master /> tag")
-        self._recurse(launch, scope, None)
+        self._at = None
+        try:
+            self._launch_tag(launch, scope)
+            if not self.args_only:
+                for m in doc.masters:
+                    self._warn(scope, m, "ignoring defunct <master /> tag")
+            self._recurse(launch, scope, None)
+        except RecursionError:
+            # the walk follows the nesting of <group>s and <include>s (expat has no depth limit);
+            # the stack is unwound here, so the error can be made
+            if self._at is None:
+                raise LaunchError("elements or includes are nested too deeply (Python's recursion limit)",
+                                  filename) from None
+            at_scope, el = self._at
+            raise self._fail(at_scope, el, "elements or includes are nested too deeply around this <%s> "
+                                           "(Python's recursion limit)" % el.tag) from None
 
     def _launch_tag(self, launch: Any, scope: Scope) -> None:
         self._check_attrs(launch, scope, LAUNCH_ATTRS)
@@ -279,6 +295,7 @@ class XmlLoader:
         """Process the children of `parent_el` in order; returns the default machine after them."""
         handlers = self.tag_handlers
         for el in parent_el:
+            self._at = (scope, el)
             tag = el.tag
             if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
                 self._arg_tag(el, scope)
@@ -533,14 +550,13 @@ class XmlLoader:
         if ns_end <= 0 or key[:ns_end] != self._clean_ns:
             clean = True
             key_lengths = self._key_lengths
-            i = key.find(SEP, 1)
-            while i > 0:
+            for sep in _SEPS.finditer(key, 1):
+                i = sep.start()
                 if i in key_lengths:
                     parent = key[:i]
                     if parent in params:
                         clean = False
                         self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
-                i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
         self._key_lengths.add(len(key))
         params[key] = new_param(key, value, scope.source, el.sourceline or 0)
@@ -878,14 +894,15 @@ class XmlLoader:
         chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
         if len(chain) > MAX_INCLUDE_DEPTH:
             raise self._fail(scope, el, "includes are nested more than %d deep" % MAX_INCLUDE_DEPTH)
+        # (whether it exists first: os.path.realpath is quadratic in the number of a path's parts)
+        if not os.path.exists(inc_file):
+            raise self._fail(scope, el, "included file [%s] does not exist" % inc_file)
         real = self._realpath(inc_file)
         if any(self._realpath(f) == real for f, _ in chain):
             raise self._fail(scope, el, "include cycle: [%s] includes itself" % inc_file)
         child.source = inc_file
         child.include_chain = chain
-        doc = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
-        if doc is None:
-            raise self._fail(scope, el, "included file [%s] does not exist" % inc_file)
+        doc = read_launch(inc_file, include_chain=chain)
         launch = doc.launch
         self.files.append(inc_file)
         self._launch_tag(launch, child)
@@ -915,6 +932,21 @@ def _read_text(path: str) -> str:
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     return text
+
+
+_LONG_RUN = re.compile(r"[^\s\[\]'\"]{%d,}" % (SHOWN_CHARS + 1))
+
+
+def _shortened(msg: str) -> str:
+    """A message that quotes long texts of the user's, shortened: each long run of them by
+    `errors.shorten`, then, if still long (a long text of short words), its middle left out
+    (a 5 MB value makes no readable error; the start and the end say which and what is wrong)."""
+    if len(msg) <= 4 * SHOWN_CHARS:
+        return msg
+    msg = _LONG_RUN.sub(lambda m: shorten(m.group(0)), msg)
+    if len(msg) <= 12 * SHOWN_CHARS:
+        return msg
+    return "%s[... %d characters ...]%s" % (msg[:2 * SHOWN_CHARS], len(msg) - 3 * SHOWN_CHARS, msg[-SHOWN_CHARS:])
 
 
 def _machine_key(m: Machine) -> tuple:
