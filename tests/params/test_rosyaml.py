@@ -293,6 +293,9 @@ _tricky_strings = st.one_of(
                      "/a b/c", "a b: c", "yes no", "a " + "b" * 76, "a " + "b" * 77, "2001-12-14 21:59:43.10",
                      "1 2", ".a b", "-a b", "a\tb", "a b\nc"]),
     st.lists(st.text(alphabet="aZ1_./-", min_size=1, max_size=30), min_size=2, max_size=5).map(" ".join),
+    st.lists(st.text(alphabet="aZ1_./-", min_size=1, max_size=90), min_size=2, max_size=40).map(" ".join),
+    st.builds(lambda c, n: c * n, st.sampled_from(["x", "1", "a_1/", "-", ".5"]), st.integers(90, 600)),
+    st.text(alphabet="ab1_./-()$ '\":#,[]{}&*!|>%@`?=~+<;", min_size=60, max_size=400),
     st.text(max_size=12),
     st.text(alphabet="ab01_./-:# '\"\n", max_size=12))
 _scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.integers(min_value=-2**70, max_value=2**70),
@@ -318,9 +321,13 @@ def test_dump_yaml_writes_strings_with_inner_spaces_itself(monkeypatch):
         raise AssertionError("PyYAML used for %r" % (value,))
     monkeypatch.setattr("launcher.params.dump._pyyaml_dump", refuse)
     assert dump_yaml(value) == expected
-    # a line that PyYAML would fold at column 80 is still left to PyYAML
-    with pytest.raises(AssertionError, match="PyYAML used"):
-        dump_yaml({"/k": "a " + "b" * 80})
+    # a long one is folded at column 80 as PyYAML folds it (its emitter took ~1 s a megabyte)
+    long = {"/k": "a " + "b" * 80 + " c" * 200, "/l": ["x " * 100 + "y"], "/m": {"n": "p " * 100 + "q"},
+            "/o": "u" * 300_000}
+    monkeypatch.undo()
+    expected = rosyaml._pyyaml_dump(long)
+    monkeypatch.setattr("launcher.params.dump._pyyaml_dump", refuse)
+    assert dump_yaml(long) == expected
 
 
 def test_dump_yaml_shared_containers_keep_pyyaml_anchors():
