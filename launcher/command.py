@@ -12,9 +12,9 @@ never `__ns:=`) and the node's `<env>`s.
 from __future__ import annotations
 
 import os
-import shlex
 from typing import Any, Iterable, Mapping
 
+from launcher import shellwords
 from launcher.config import Node
 from launcher.errors import LaunchError
 from launcher.roshome import ros_home
@@ -65,7 +65,7 @@ def node_env(node: Node, master_uri: str, environ: Mapping[str, str]) -> dict[st
 
 def _split(text: str, what: str, node: Node) -> list[str]:
     try:
-        return shlex.split(text)
+        return shellwords.split(text)
     except ValueError as e:
         raise LaunchError("node [%s]: cannot split %s [%s] like a shell: %s" % (node.full_name, what, text, e),
                           node.filename or None, node.line or None) from None

@@ -48,6 +48,7 @@ ONLY = {
     "launcher.names": set(),
     "launcher.errors": set(),
     "launcher.roshome": set(),
+    "launcher.shellwords": set(),
     "launcher.config": {"launcher.names"},
 }
 # part -> parts it must not import
