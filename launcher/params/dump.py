@@ -307,9 +307,18 @@ def dump_yaml(value: Any) -> str:
 _SIMPLE_KEY_MAX = 128 - len("!!str")
 
 
+_LONG_KEY_STANDIN = "_" * _SIMPLE_KEY_MAX
+
+
 def _long_key_entry(key: Any, value: Any) -> str | None:
-    """A top-level entry with a long simple key (a parameter name of a megabyte) and a scalar value, as
-    PyYAML writes it; None for anything else."""
+    """A top-level entry with a long key (a parameter name of a megabyte), as PyYAML writes it: the
+    key written here, the value after it by PyYAML if need be, under a stand-in key as long (its
+    lines do not depend on the key's, and PyYAML's analysis of a long key costs ~1 s a megabyte);
+    None if the key is no one-line text."""
     k = _plain_scalar(key, 2, 2) if type(key) is str else None
+    if k is None:
+        return None
     v = _float_text(value) if type(value) is float else _plain_scalar(value, 2, 2)
-    return None if k is None or v is None else "? %s\n: %s\n" % (k, v)
+    if v is not None:
+        return "? %s\n: %s\n" % (k, v)
+    return "? " + k + _pyyaml_dump({_LONG_KEY_STANDIN: value})[2 + len(_LONG_KEY_STANDIN):]
