@@ -87,6 +87,7 @@ class XmlLoader:
         self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
         self._budget = LoadBudget()  # the text all substitutions of this load may make
+        self._found_resources: dict[tuple[str, str], str] = {}
         # the element being read and its scope, for an error that has no other place to name
         # (Python's recursion limit, met by elements nested deeply enough)
         self._at: tuple[Scope, Any] | None = None
@@ -288,7 +289,13 @@ class XmlLoader:
         return self.packages.get_path(pkg)
 
     def _find_resource(self, pkg: str, rel: str) -> str:
-        return self.packages.find_resource(pkg, rel)
+        # once per distinct `$(find pkg)path` in a load: each is up to three file checks, and a long
+        # attribute can repeat the same one a hundred thousand times
+        key = (pkg, rel)
+        found = self._found_resources.get(key)
+        if found is None:
+            found = self._found_resources[key] = self.packages.find_resource(pkg, rel)
+        return found
 
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
