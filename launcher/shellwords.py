@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import re
 
-_PART = re.compile(r"""[^ \t\r\n'"\\]+|\\(.)|'([^']*)'|"((?:[^"\\]|\\.)*)"|[ \t\r\n]+""", re.S)
-_QUOTED_ESCAPE = re.compile(r"""\\([\\"])""")
+# (patterns compiled at the first split, by re's cache: ~0.4 ms that a `launch --nodes` need not pay)
+_PART = r"""[^ \t\r\n'"\\]+|\\(.)|'([^']*)'|"((?:[^"\\]|\\.)*)"|[ \t\r\n]+"""
+_QUOTED_ESCAPE = r"""\\([\\"])"""
 
 
 def split(text: str) -> list[str]:
@@ -23,7 +24,7 @@ def split(text: str) -> list[str]:
     words: list[str] = []
     word: list[str] | None = None  # the parts of the word being read
     pos, end = 0, len(text)
-    match = _PART.match
+    match = re.compile(_PART, re.S).match
     while pos < end:
         m = match(text, pos)
         if m is None:  # a quote that does not close, or a backslash at the end
@@ -47,7 +48,7 @@ def split(text: str) -> list[str]:
             word.append(m.group(2))
         elif first == '"':
             inner = m.group(3)
-            word.append(_QUOTED_ESCAPE.sub(r"\1", inner) if "\\" in inner else inner)
+            word.append(re.sub(_QUOTED_ESCAPE, r"\1", inner) if "\\" in inner else inner)
         else:
             word.append(m.group(0))
     if word is not None:

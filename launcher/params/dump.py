@@ -96,17 +96,18 @@ def _plain_scalar(value: Any, column: int = _BEST_WIDTH, indent: int | None = No
 
 # A one-line string of printable ASCII that PyYAML's analysis would not write plain: an indicator
 # first (or `---`, `...`), `: ` or a `:` at the end, ` #`, a space first or last.
-_PRINTABLE_LINE = re.compile(r"[\x20-\x7e]*\Z")
-_NOT_PLAIN = re.compile(r"""^(?:[#,\[\]{}&*!|>'"%@`]|[?:-](?: |\Z)|---|\.\.\.| )|: |:\Z| #| \Z""")
+# (compiled at first use, by re's cache: ~0.3 ms at every start, for long or unusual strings only)
+_PRINTABLE_LINE = r"[\x20-\x7e]*\Z"
+_NOT_PLAIN = r"""^(?:[#,\[\]{}&*!|>'"%@`]|[?:-](?: |\Z)|---|\.\.\.| )|: |:\Z| #| \Z"""
 
 
 def _ascii_scalar(value: str, column: int, indent: int) -> str | None:
     """A one-line string of printable ASCII with no two spaces in a row, as PyYAML writes it from
     `column`: plain when its analysis and resolver allow, else single-quoted; folded at a space past
     column 80 (a long one costs no PyYAML emitter, ~1 s a megabyte). None for anything else."""
-    if "  " in value or not _PRINTABLE_LINE.match(value):
+    if "  " in value or not re.match(_PRINTABLE_LINE, value):
         return None
-    if not _NOT_PLAIN.search(value) and _quoted_if_typed(value) is value:
+    if not re.search(_NOT_PLAIN, value) and _quoted_if_typed(value) is value:
         return _folded(value, column, indent)
     # PyYAML's write_single_quoted: a quote doubled; no fold at a space that starts or ends the text
     words = value.replace("'", "''").split(" ")

@@ -51,7 +51,6 @@ CORE_NODE_NAMES = ("/rosout",)
 MAX_INCLUDE_DEPTH = 100  # roscore.xml's node, which every launch but --dump-params loads
 
 _MULTISLASH = re.compile("//+")
-_SEPS = re.compile(SEP)
 
 
 class XmlLoader:
@@ -557,9 +556,10 @@ class XmlLoader:
         if ns_end <= 0 or key[:ns_end] != self._clean_ns:
             clean = True
             key_lengths = self._key_lengths
-            for sep in _SEPS.finditer(key, 1):
-                i = sep.start()
-                if i in key_lengths:
+            i = -1  # (the position of each '/' but the last, from one split: a find() per '/' rescans the key)
+            for part in key.split(SEP)[:-1]:
+                i += len(part) + 1
+                if i in key_lengths and i > 0:
                     parent = key[:i]
                     if parent in params:
                         clean = False

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import os
 import re
-from collections import Counter
 from typing import Any, Callable, Mapping
 
 from launcher.errors import shorten
@@ -97,7 +96,7 @@ class SubstitutionScope:
 # misplaced '$' or '(' (a `$(` whose body meets one before its ')': the machine's two errors).
 _COMMAND = re.compile(r"\$\(([^$()]+)\)")
 _MISPLACED = re.compile(r"\$\([^$()]*([$(])")
-_AFTER_DOLLAR = re.compile(r"(?<=\$)\$\(([^$()]+)\)")
+_AFTER_DOLLAR = r"(?<=\$)\$\(([^$()]+)\)"  # (rarely needed: compiled at first use, by re's cache)
 _PATH = re.compile(r"[^ ]*")  # what a $(find pkg) takes as its path: the text up to a space
 
 
@@ -124,9 +123,7 @@ def resolve(text: str | None, scope: SubstitutionScope) -> str | None:
     if not text or "$" not in text:
         return text
     if text.startswith("$(eval ") and text.endswith(")"):
-        value = evaluate(text[7:-1], scope)
-        scope.budget.spend(len(value))
-        return value
+        return _made(evaluate(text[7:-1], scope), scope)
     resolved = _first_pass_resolve(text, scope)
     if "$" in resolved:
         resolved = _find_pass_resolve(resolved, scope)
@@ -143,9 +140,14 @@ def _too_long(chars: int) -> SubstitutionError:
                              % (chars, MAX_VALUE_CHARS))
 
 
+# (a short value is not counted: what a load makes of them is bounded by the length of its files)
+_CHARGED_FROM = 4096
+
+
 def _made(text: str, scope: SubstitutionScope) -> str:
     """A string a substitution has built: counted against the load's budget."""
-    scope.budget.spend(len(text))
+    if len(text) > _CHARGED_FROM:
+        scope.budget.spend(len(text))
     return text
 
 
@@ -180,12 +182,12 @@ class _FirstPlan:
     unknown one (command None), each evaluated once; `order` is every non-find body in order, the
     replacements roslaunch makes. `template` is a str.format template with a field for each copy
     of each command (a `$(find)` stays as it is, for the second pass), `counts` the copies of each
-    and `literal` the length of the rest: one format() call, in C, does the replacing, when no
+    (`most` the largest) and `literal` the length of the rest: one format() call, in C, does the replacing, when no
     replacement can make a new `$(...)` text (see _one_pass_is_roslaunchs); `after_dollar` are
     the commands with a copy right after a '$', `whole` says the text is one `$(...)`.
     """
 
-    __slots__ = ("commands", "order", "nothing", "template", "counts", "literal", "after_dollar", "whole")
+    __slots__ = ("commands", "order", "nothing", "template", "counts", "most", "literal", "after_dollar", "whole")
 
     def __init__(self, text: str):
         _check_commands(text)
@@ -215,16 +217,18 @@ class _FirstPlan:
         self.whole = len(commands) == 1 and len(self.order) == 1 and text == "$(%s)" % self.order[0]
         self.template: str | None = None
         self.counts = [0] * len(commands)
+        self.most = 0  # the most copies of one command
         self.literal = len(text)
         self.after_dollar: tuple[int, ...] = ()
         if not commands or commands[-1][1] is None:
             return  # (an unknown command: resolving raises)
-        for body, count in Counter(self.order).items():
-            k = index[body]
-            self.counts[k] = count
-            self.literal -= count * (len(body) + 3)
+        counts = self.counts
+        for body in self.order:
+            counts[index[body]] += 1
+            self.literal -= len(body) + 3
+        self.most = max(counts)
         if "$$(" in text:
-            self.after_dollar = tuple({index[b] for b in _AFTER_DOLLAR.findall(text) if b in index})
+            self.after_dollar = tuple({index[b] for b in re.findall(_AFTER_DOLLAR, text) if b in index})
         braces = "{" in text or "}" in text
         if braces:
             pieces[0::2] = [p.replace("{", "{{").replace("}", "}}") for p in pieces[0::2]]
@@ -235,9 +239,9 @@ class _FirstPlan:
         self.template = "".join(pieces)
 
 
-def _one_pass_is_roslaunchs(values: list[str], after_dollar: tuple[int, ...]) -> bool:
+def _one_pass_is_roslaunchs(values: list[str], dollar: bool, after_dollar: tuple[int, ...]) -> bool:
     """Whether replacing every `$(...)` of the text at once gives what roslaunch's replacements one
-    after another give.
+    after another give (`dollar`: some value holds a '$').
 
     A `$(...)` text holds one '$', its first character. When no value holds a '$', every '$' of
     the string is one of the text's own, and a new `$(...)` text could only start at a '$' whose
@@ -246,9 +250,8 @@ def _one_pass_is_roslaunchs(values: list[str], after_dollar: tuple[int, ...]) ->
     body, which the text's check has refused. So no replacement makes a new `$(...)` text, and
     each replaces exactly the text's own copies of its `$(...)`.
     """
-    for v in values:
-        if "$" in v:
-            return False
+    if dollar:
+        return False
     for k in after_dollar:
         v = values[k]
         if not v or v[0] == "(":
@@ -257,25 +260,35 @@ def _one_pass_is_roslaunchs(values: list[str], after_dollar: tuple[int, ...]) ->
 
 
 def _first_pass_resolve(text: str, scope: SubstitutionScope) -> str:
-    plan = _planned(_FIRST_PLANS, _FirstPlan, text)
+    plan = _FIRST_PLANS.get(text) or _planned(_FIRST_PLANS, _FirstPlan, text)
     if plan.nothing:
         return text
     values = []
+    dollar = False
     for body, cmd, args in plan.commands:
         if cmd is None:
             raise _unknown(body)
-        values.append(_first_pass(cmd, body, args, scope))
+        value = _first_pass(cmd, body, args, scope)
+        if "$" in value:
+            dollar = True
+        values.append(value)
     if plan.whole:
         return values[0]  # (the value itself: roslaunch's one replace makes nothing else of it)
-    if _one_pass_is_roslaunchs(values, plan.after_dollar):
-        chars = plan.literal
-        for count, v in zip(plan.counts, values):
-            chars += count * len(v)
-        if chars > MAX_VALUE_CHARS:
-            raise _too_long(chars)
-        return _made(plan.template.format(*values), scope)  # type: ignore[union-attr]
-    value_of = {c[0]: v for c, v in zip(plan.commands, values)}
-    return _made(_Pieces(text).replace_in_order(plan.order, value_of), scope)
+    if not dollar and (not plan.after_dollar or _one_pass_is_roslaunchs(values, dollar, plan.after_dollar)):
+        # copies of a value multiply it: measured before they are made (one copy each is no
+        # longer than what the values and the text already are, and is measured after)
+        if plan.most > 1 and plan.literal + plan.most * sum(map(len, values)) > MAX_VALUE_CHARS:
+            chars = plan.literal + sum(count * len(v) for count, v in zip(plan.counts, values))
+            if chars > MAX_VALUE_CHARS:
+                raise _too_long(chars)
+        out = plan.template.format(*values)  # type: ignore[union-attr]
+    else:
+        out = _Pieces(text).replace_in_order(plan.order, {c[0]: v for c, v in zip(plan.commands, values)})
+    if len(out) > _CHARGED_FROM:
+        if len(out) > MAX_VALUE_CHARS:
+            raise _too_long(len(out))
+        scope.budget.spend(len(out))
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -516,7 +529,7 @@ class _FindPlan:
 
 
 def _find_pass_resolve(resolved: str, scope: SubstitutionScope) -> str:
-    plan = _planned(_FIND_PLANS, _FindPlan, resolved)
+    plan = _FIND_PLANS.get(resolved) or _planned(_FIND_PLANS, _FindPlan, resolved)
     if plan.template is not None:
         values = []
         chars = plan.literal
