@@ -16,8 +16,9 @@ roslaunch's replacements give (nearly always), and `_Pieces` (the string cut at 
 brings a '$' and may make new `$(...)` texts. Hostile input meets documented limits,
 each a SubstitutionError that the loader reports with file and line:
 
-- MAX_VALUE_CHARS: the length of one substituted value (a 5 MB URDF is a large real one);
-- MAX_LOAD_CHARS: all the text substitutions make in one load (args that double each other);
+- MAX_VALUE_CHARS: the length of one substituted value (64 Mi; a 5 MB URDF is a large real one);
+- MAX_LOAD_CHARS: the text substitutions make in one load, in values of more than 4 kB
+  (512 Mi; args that double each other; what shorter ones make is bounded by the files);
 - MAX_REPLACEMENTS: `$(...)` copies replaced in one attribute beyond those of its own text
   (values that keep making each other's `$(...)` texts);
 - `$(find)`s whose path (the text up to a space) runs into the next `$(...)` can only be
