@@ -87,9 +87,6 @@ class XmlLoader:
         self._realpaths: dict[str, str] = {}
         self._budget = LoadBudget()  # the text all substitutions of this load may make
         self._found_resources: dict[tuple[str, str], str] = {}
-        # the element being read and its scope, for an error that has no other place to name
-        # (Python's recursion limit, met by elements nested deeply enough)
-        self._at: tuple[Scope, Any] | None = None
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
         self.yaml_cache = YamlCache(ros_home(environ))  # saved by xml.load once the files are read
@@ -250,20 +247,20 @@ class XmlLoader:
                       find_package=self._find_package, find_resource=self._find_resource,
                       args=dict(self.cli_args), used_args=self._used_args, budget=self._budget)
         self.root_scope = scope
-        self._at = None
         try:
             self._launch_tag(launch, scope)
             if not self.args_only:
                 for m in doc.masters:
                     self._warn(scope, m, "ignoring defunct <master /> tag")
             self._recurse(launch, scope, None)
-        except RecursionError:
+        except RecursionError as e:
             # the walk follows the nesting of <group>s and <include>s (expat has no depth limit);
             # the stack is unwound here, so the error can be made
-            if self._at is None:
+            where = getattr(e, "element", None)
+            if where is None:
                 raise LaunchError("elements or includes are nested too deeply (Python's recursion limit)",
                                   filename) from None
-            at_scope, el = self._at
+            at_scope, el = where
             raise self._fail(at_scope, el, "elements or includes are nested too deeply around this <%s> "
                                            "(Python's recursion limit)" % el.tag) from None
 
@@ -300,23 +297,29 @@ class XmlLoader:
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
         """Process the children of `parent_el` in order; returns the default machine after them."""
         handlers = self.tag_handlers
-        for el in parent_el:
-            self._at = (scope, el)
-            tag = el.tag
-            if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
-                self._arg_tag(el, scope)
-                continue
-            if self.args_only:
-                continue
-            handler = handlers.get(tag)
-            if handler is None:
-                if tag != "master":  # (<master> is warned about once per file)
-                    self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
-                continue
-            get = el.attrib.get
-            # most elements have neither if nor unless: decided here without a call
-            if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
-                default_machine = handler(self, el, scope, default_machine)
+        el = None
+        try:
+            for el in parent_el:
+                tag = el.tag
+                if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
+                    self._arg_tag(el, scope)
+                    continue
+                if self.args_only:
+                    continue
+                handler = handlers.get(tag)
+                if handler is None:
+                    if tag != "master":  # (<master> is warned about once per file)
+                        self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+                    continue
+                get = el.attrib.get
+                # most elements have neither if nor unless: decided here without a call
+                if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
+                    default_machine = handler(self, el, scope, default_machine)
+        except RecursionError as e:
+            # the innermost element being read when the nesting met Python's limit, for load_file's error
+            if getattr(e, "element", None) is None and el is not None:
+                e.element = (scope, el)  # type: ignore[attr-defined]
+            raise
         return default_machine
 
     # Each handler takes (element, scope, default machine) and returns the default machine for

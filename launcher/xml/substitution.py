@@ -116,7 +116,8 @@ def collect_commands(text: str) -> list[str]:
 
 
 def _words(body: str) -> list[str]:
-    return [w for w in body.split(" ") if w]  # (roslaunch splits at spaces only: a tab is part of a word)
+    words = body.split(" ")  # (roslaunch splits at spaces only: a tab is part of a word)
+    return [w for w in words if w] if "" in words else words
 
 
 def resolve(text: str | None, scope: SubstitutionScope) -> str | None:
@@ -544,7 +545,10 @@ def _find_pass_resolve(resolved: str, scope: SubstitutionScope) -> str:
         if one_pass:
             if chars > MAX_VALUE_CHARS:
                 raise _too_long(chars)
-            return _made(plan.template.format(*values), scope)
+            out = plan.template.format(*values)
+            if len(out) > _CHARGED_FROM:
+                scope.budget.spend(len(out))
+            return out
     # roslaunch's steps, one by one: a path runs into another `$(...)` text, or a value brings a '$'
     work_left = FIND_RESCAN_CHARS + FIND_RESCANS * len(resolved)
     for body, args in plan.steps:

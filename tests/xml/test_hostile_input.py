@@ -351,3 +351,16 @@ def test_the_work_of_a_load_grows_in_proportion_to_an_attribute(sandbox, target,
         work.append(Work().measure(load_and_compute, path, run_env, packages))
     event("ops at 20 kB: %s" % ("<10k" if work[1] < 10_000 else "<100k" if work[1] < 100_000 else ">=100k"))
     assert work[1] <= 13 * work[0], "%d -> %d operations for %r x10 in %s" % (work[0], work[1], text, target)
+
+
+def test_elements_nested_past_the_recursion_limit_are_an_error_at_their_line(sandbox):
+    """10,000 nested <group>s (roslaunch: "maximum recursion depth exceeded", without a place), and a deep
+    YAML list inside a few hundred of them: an error at the element the walk had reached."""
+    root, env, packages = sandbox
+    for name, inner in (("groups", '<param name="x" value="1"/>'), ("groups-yaml", "<rosparam>a: %s1%s</rosparam>"
+                                                                                  % ("[" * 250, "]" * 250))):
+        depth = 10_000 if name == "groups" else 400
+        path = root / ("%s.launch" % name)
+        path.write_text("<launch>\n" + "<group>\n" * depth + inner + "</group>" * depth + "</launch>\n")
+        error = load_and_compute(path, env, packages)
+        assert error is not None and "nested too deeply" in str(error) and error.line > 1, error
