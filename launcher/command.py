@@ -12,10 +12,10 @@ never `__ns:=`) and the node's `<env>`s.
 from __future__ import annotations
 
 import os
-import shlex
 import sys
 from typing import Any, Iterable, Mapping
 
+from launcher import shellwords
 from launcher.config import Node
 from launcher.errors import LaunchError
 from launcher.packages import BAG_MAIN
@@ -67,7 +67,7 @@ def node_env(node: Node, master_uri: str, environ: Mapping[str, str]) -> dict[st
 
 def _split(text: str, what: str, node: Node) -> list[str]:
     try:
-        return shlex.split(text)
+        return shellwords.split(text)
     except ValueError as e:
         raise LaunchError("node [%s]: cannot split %s [%s] like a shell: %s" % (node.full_name, what, text, e),
                           node.filename or None, node.line or None) from None

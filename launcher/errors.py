@@ -32,3 +32,14 @@ class LaunchError(Exception):
 
 class UsageError(LaunchError):
     """A command line roslaunch's option parser refuses: said with the usage, exit status 2."""
+
+
+SHOWN_CHARS = 300  # of a user's text quoted in a message
+
+
+def shorten(text: str) -> str:
+    """A user's text as a message quotes it: whole, or, past SHOWN_CHARS, its start and end around
+    the number of characters left out (a 5 MB attribute makes no readable error)."""
+    if len(text) <= SHOWN_CHARS:
+        return text
+    return "%s[... %d characters ...]%s" % (text[:200], len(text) - 260, text[-60:])

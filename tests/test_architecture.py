@@ -51,6 +51,7 @@ ONLY = {
     "launcher.units": set(),
     "launcher.runopts": set(),
     "launcher.suggest": set(),
+    "launcher.shellwords": set(),
     "launcher.config": {"launcher.names"},
     "launcher.nodepython": set(),
 }

@@ -64,18 +64,18 @@ _INF = math.inf
 _NINF = -math.inf
 
 
-def _plain_scalar(value: Any, column: int = _BEST_WIDTH) -> str | None:
-    """`value` as PyYAML's safe dumper writes it inline starting at `column`, or None when
-    it takes more care."""
+def _plain_scalar(value: Any, column: int = _BEST_WIDTH, indent: int | None = None) -> str | None:
+    """`value` as PyYAML's safe dumper writes it inline starting at `column` (a line it folds
+    going on at `indent`), or None when it takes more care."""
     kind = type(value)
     if kind is str:
         if not value:
             return "''"
-        if len(value) > 100 or not _SIMPLE_STRING.match(value):
-            if column + len(value) <= _BEST_WIDTH and _SPACED_STRING.match(value):
-                return value
-            return None
-        return _quoted_if_typed(value)
+        if _SIMPLE_STRING.match(value):  # (of any length: with no space, there is nothing to fold)
+            return _quoted_if_typed(value)
+        if _SPACED_STRING.match(value) and column + len(value) <= _BEST_WIDTH:
+            return value
+        return _ascii_scalar(value, column, indent) if indent is not None else None
     if kind is bool:
         return "true" if value else "false"
     if kind is int:
@@ -92,6 +92,61 @@ def _plain_scalar(value: Any, column: int = _BEST_WIDTH) -> str | None:
     if value is None:
         return "null"
     return None
+
+
+# A one-line string of printable ASCII that PyYAML's analysis would not write plain: an indicator
+# first (or `---`, `...`), `: ` or a `:` at the end, ` #`, a space first or last.
+# (compiled at first use, by re's cache: ~0.3 ms at every start, for long or unusual strings only)
+_PRINTABLE_LINE = r"[\x20-\x7e]*\Z"
+_NOT_PLAIN = r"""^(?:[#,\[\]{}&*!|>'"%@`]|[?:-](?: |\Z)|---|\.\.\.| )|: |:\Z| #| \Z"""
+
+
+def _ascii_scalar(value: str, column: int, indent: int) -> str | None:
+    """A one-line string of printable ASCII with no two spaces in a row, as PyYAML writes it from
+    `column`: plain when its analysis and resolver allow, else single-quoted; folded at a space past
+    column 80 (a long one costs no PyYAML emitter, ~1 s a megabyte). None for anything else."""
+    if "  " in value or not re.match(_PRINTABLE_LINE, value):
+        return None
+    if not re.search(_NOT_PLAIN, value) and _quoted_if_typed(value) is value:
+        return _folded(value, column, indent)
+    # PyYAML's write_single_quoted: a quote doubled; no fold at a space that starts or ends the text
+    words = value.replace("'", "''").split(" ")
+    out = ["'", words[0]]
+    column += 1 + len(words[0])
+    fold = "\n" + " " * indent
+    last = len(words) - 1
+    for i in range(1, last + 1):
+        word = words[i]
+        if column > _BEST_WIDTH and (i > 1 or words[0]) and (i < last or word):
+            out.append(fold)
+            column = indent
+        else:
+            out.append(" ")
+            column += 1
+        out.append(word)
+        column += len(word)
+    out.append("'")
+    return "".join(out)
+
+
+def _folded(value: str, column: int, indent: int) -> str:
+    """A string of simple words with single spaces between them as PyYAML writes it plain from
+    `column`: at a space past column 80 it breaks the line, and the next word starts at `indent`
+    (so a long one costs no PyYAML emitter, ~1 s a megabyte)."""
+    words = value.split(" ")
+    out = [words[0]]
+    column += len(words[0])
+    fold = "\n" + " " * indent
+    for word in words[1:]:
+        if column > _BEST_WIDTH:
+            out.append(fold)
+            column = indent
+        else:
+            out.append(" ")
+            column += 1
+        out.append(word)
+        column += len(word)
+    return "".join(out)
 
 
 def _float_text(value: float) -> str:
@@ -116,7 +171,7 @@ def _items_text(value: list, column: int) -> list[str] | None:
         elif kind is int:
             out.append(str(x))
         else:
-            text = _plain_scalar(x, column)
+            text = _plain_scalar(x, column, column)
             if text is None:
                 return None
             out.append(text)
@@ -153,7 +208,7 @@ def _entry(key: Any, value: Any, indent: int = 0) -> str | None:
                 return None
             out.append(text)
         return "".join(out)
-    v = _float_text(value) if kind is float else _plain_scalar(value, indent + len(k) + 2)
+    v = _float_text(value) if kind is float else _plain_scalar(value, indent + len(k) + 2, indent + 2)
     if v is not None:
         return "%s%s: %s\n" % (pad, k, v)
     return None
@@ -216,11 +271,15 @@ def dump_yaml(value: Any) -> str:
                 if not v:
                     append(k + ": ''\n")
                     continue
-                if len(v) <= 100 and match(v):
+                if match(v):
                     append(k + ": " + (v if (v[0] in first_chars and v not in non_str) else _quoted_if_typed(v)) + "\n")
                     continue
                 if len(k) + 2 + len(v) <= _BEST_WIDTH and spaced(v):
                     append(k + ": " + v + "\n")
+                    continue
+                text = _ascii_scalar(v, len(k) + 2, 2)
+                if text is not None:
+                    append(k + ": " + text + "\n")
                     continue
             elif kind is bool:
                 append(k + (": true\n" if v else ": false\n"))
@@ -238,6 +297,29 @@ def dump_yaml(value: Any) -> str:
                 else:
                     append(k + ": " + _plain_scalar(v) + "\n")  # type: ignore[operator]
                 continue
-        text = _entry(key, v)
+        long_key = type(key) is str and len(key) >= _SIMPLE_KEY_MAX
+        text = _long_key_entry(key, v) if long_key else _entry(key, v)
         append(text if text is not None else _pyyaml_dump({key: v}))
     return "".join(out)
+
+
+# PyYAML writes a key as a simple key while it and its tag (`!!str`) are shorter than 128 characters;
+# a longer one as an explicit `? key` with `: value` on the next line
+_SIMPLE_KEY_MAX = 128 - len("!!str")
+
+
+_LONG_KEY_STANDIN = "_" * _SIMPLE_KEY_MAX
+
+
+def _long_key_entry(key: Any, value: Any) -> str | None:
+    """A top-level entry with a long key (a parameter name of a megabyte), as PyYAML writes it: the
+    key written here, the value after it by PyYAML if need be, under a stand-in key as long (its
+    lines do not depend on the key's, and PyYAML's analysis of a long key costs ~1 s a megabyte);
+    None if the key is no one-line text."""
+    k = _plain_scalar(key, 2, 2) if type(key) is str else None
+    if k is None:
+        return None
+    v = _float_text(value) if type(value) is float else _plain_scalar(value, 2, 2)
+    if v is not None:
+        return "? %s\n: %s\n" % (k, v)
+    return "? " + k + _pyyaml_dump({_LONG_KEY_STANDIN: value})[2 + len(_LONG_KEY_STANDIN):]

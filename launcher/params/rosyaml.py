@@ -11,6 +11,15 @@ directly and the rest by PyYAML's SafeConstructor; a text libyaml refuses or rea
 differently goes to PyYAML's pure-Python loader, roslaunch's own, which also words errors.
 Equality with rosparam is checked by differential fuzzing and on real parameter files
 (tests/params/corpus). Dumping is launcher.params.dump.
+
+Limits of the interpreter that a document can reach are errors with the document's line:
+collections nested more than MAX_DEPTH deep (roslaunch gives up at Python's recursion limit,
+~480 levels, and cannot dump lists ~320 deep; libyaml's composer recurses in C and would
+crash the process some 30,000 levels down, so a document that may nest deeper than
+_C_SAFE_DEPTH is measured by libyaml's parser before it is composed), and integers longer
+than Python converts to text (`sys.get_int_max_str_digits()`, 4300 digits: roslaunch fails
+on them the same way; an `0x` integer or a base-60 one is checked before it is computed,
+as computing a base-60 one of a million parts takes hours).
 """
 
 from __future__ import annotations
@@ -19,11 +28,12 @@ import ast
 import math
 import operator
 import re
+import sys
 from typing import Any
 
 import yaml
 
-from launcher.errors import LaunchError
+from launcher.errors import LaunchError, shorten
 
 
 class RosYamlError(LaunchError, ValueError):
@@ -39,6 +49,118 @@ class _ValueRefused(Exception):
     def __init__(self, message: str, line: int):
         super().__init__(message)
         self.line = line
+
+
+class _Refused(_ValueRefused):
+    """A document refused for what it is, whichever loader reads it (too deep, an integer too long)."""
+
+
+MAX_DEPTH = 256  # collections nested in one document
+_C_SAFE_DEPTH = 5000  # libyaml's composer is known safe this deep (it recurses in C)
+_LONG_LINE = re.compile(r"(?m)^[^\n]{1000}")
+_INT_MAX_DIGITS = getattr(sys, "get_int_max_str_digits", lambda: 0)()  # (0: no limit, or an older Python)
+
+
+def _nesting_bound(text: str) -> int:
+    """How deep `text`'s collections may nest at most, from two counts (no parse).
+
+    Each level takes a character at least. A flow collection opens with a '[' or '{'; a block
+    collection is indented further than its parent, but for a sequence right under a mapping
+    key: block nesting is at most twice the longest line (below 1000 characters, unless a line
+    is longer).
+    """
+    if len(text) <= MAX_DEPTH:
+        return len(text)
+    line = min(len(text), 999)
+    if line == 999 and _LONG_LINE.search(text) is not None:
+        return len(text)
+    return min(len(text), text.count("[") + text.count("{") + 2 * (line + 2))
+
+
+def _nesting_refused(text: str, loader_cls: type) -> int | None:
+    """The line (0-based) where `text` nests deeper than MAX_DEPTH, by libyaml's parser (which keeps
+    its own stack: no recursion), or None."""
+    loader = loader_cls(text)
+    depth = 0
+    try:
+        while loader.check_event():
+            event = loader.get_event()
+            kind = type(event)
+            if kind is yaml.SequenceStartEvent or kind is yaml.MappingStartEvent:
+                depth += 1
+                if depth > MAX_DEPTH:
+                    return event.start_mark.line
+            elif kind is yaml.SequenceEndEvent or kind is yaml.MappingEndEvent:
+                depth -= 1
+    except yaml.YAMLError:
+        pass  # (composing stops at the same error, no deeper than here)
+    finally:
+        loader.dispose()
+    return None
+
+
+def _too_deep(value: Any) -> bool:
+    """Whether lists and maps nest more than MAX_DEPTH deep in `value`, following the ones YAML's aliases
+    share wherever they are (a cycle, which only an alias makes, adds nothing: PyYAML writes it back
+    as an alias, as roslaunch's --dump-params does)."""
+    if type(value) is not dict and type(value) is not list:
+        return False
+    heights: dict[int, int] = {}  # container id -> how deep it nests, itself included
+    on_path = {id(value)}
+    stack = [[value, iter(_inner(value)), 1]]
+    while stack:
+        frame = stack[-1]
+        for child in frame[1]:
+            height = heights.get(id(child))
+            if height is None:
+                if id(child) in on_path:
+                    continue
+                if len(stack) >= MAX_DEPTH:
+                    return True
+                on_path.add(id(child))
+                stack.append([child, iter(_inner(child)), 1])
+                break
+            frame[2] = max(frame[2], height + 1)
+        else:
+            stack.pop()
+            on_path.discard(id(frame[0]))
+            heights[id(frame[0])] = frame[2]
+            if frame[2] > MAX_DEPTH:
+                return True
+            if stack:
+                stack[-1][2] = max(stack[-1][2], frame[2] + 1)
+    return False
+
+
+def _inner(container: Any) -> list:
+    """The lists and maps directly inside a list or map."""
+    return [x for x in (container.values() if type(container) is dict else container)
+            if type(x) is dict or type(x) is list]
+
+
+def _too_many_digits(text: str, line: int) -> _Refused:
+    return _Refused("invalid YAML: the integer [%s] has more than %d digits, the most Python converts to text"
+                    % (shorten(text), _INT_MAX_DIGITS), line)
+
+
+def _construct_int(loader: Any, node: yaml.Node) -> int:
+    """SafeConstructor's int, refusing one that Python could not print (as roslaunch fails on it), and
+    before computing it where that takes long."""
+    text = loader.construct_scalar(node)
+    if _INT_MAX_DIGITS:
+        digits = text.replace("_", "").lstrip("+-")
+        # base 60: the value is at least 60**(parts - 1), which has 1.77 (parts - 1) digits
+        if ":" in digits and (digits.count(":") * 1.77 > _INT_MAX_DIGITS):
+            raise _too_many_digits(text, node.start_mark.line)
+        if digits.isdigit() and len(digits) > _INT_MAX_DIGITS and digits != "0" and digits[0] != "0":
+            raise _too_many_digits(text, node.start_mark.line)
+    value = yaml.constructor.SafeConstructor.construct_yaml_int(loader, node)
+    if _INT_MAX_DIGITS and value.bit_length() > 3 * _INT_MAX_DIGITS:  # (3.32 bits a digit: check nearer ones)
+        try:
+            str(value)
+        except ValueError:
+            raise _too_many_digits(text, node.start_mark.line) from None
+    return value
 
 
 # -- angle expressions -------------------------------------------------------------------
@@ -160,12 +282,17 @@ def _ros_flavour(base: type) -> type:
     return _with_ros_syntax(type("Ros" + base.__name__, (base,), {}))
 
 
-_PY_ROS = _ros_flavour(_guarded(yaml.SafeLoader))
-_PY_PLAIN = _guarded(yaml.SafeLoader)
+def _checked_ints(cls: type) -> type:
+    cls.add_constructor("tag:yaml.org,2002:int", _construct_int)
+    return cls
+
+
+_PY_ROS = _checked_ints(_ros_flavour(_guarded(yaml.SafeLoader)))
+_PY_PLAIN = _checked_ints(_guarded(yaml.SafeLoader))
 # libyaml's loader: no construction guard, since any error on it makes load_yaml retry with
 # the guarded pure-Python loader, which decides and words it
-_C_ROS = _ros_flavour(yaml.CSafeLoader) if hasattr(yaml, "CSafeLoader") else None
-_C_PLAIN = type("PlainCSafeLoader", (yaml.CSafeLoader,), {}) if hasattr(yaml, "CSafeLoader") else None
+_C_ROS = _checked_ints(_ros_flavour(yaml.CSafeLoader)) if hasattr(yaml, "CSafeLoader") else None
+_C_PLAIN = _checked_ints(type("PlainCSafeLoader", (yaml.CSafeLoader,), {})) if hasattr(yaml, "CSafeLoader") else None
 
 
 # Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
@@ -204,12 +331,22 @@ def parse_yaml(text: str, *, filename: str | None = None, first_line: int = 1,
         value, plain_tree = memo
         return (_copy_tree(value) if plain_tree else _fresh_copy(value)), plain_tree
     loaders = _loaders(angles, text)
+    bound = _nesting_bound(text)
+    deep = bound > MAX_DEPTH
+    if bound > _C_SAFE_DEPTH and loaders[0] in (_C_ROS, _C_PLAIN):
+        line = _nesting_refused(text, loaders[0])
+        if line is not None:
+            raise _yaml_error(_Refused(_NESTED, line), text, filename, first_line)
     for i, loader in enumerate(loaders):
         try:
             if loader is _C_ROS or loader is _C_PLAIN:
                 value, plain_tree = _load_c_tree(text, loader)
             else:
                 value, plain_tree = yaml.load(text, Loader=loader), False
+            if deep and not plain_tree and _too_deep(value):  # (_plain measures as it builds)
+                raise _Refused(_NESTED, 0)
+        except _Refused as e:
+            raise _yaml_error(e, text, filename, first_line) from None
         except Exception as e:  # noqa: BLE001 - whatever PyYAML raises, the text is not valid ROS YAML
             if i + 1 < len(loaders):
                 continue
@@ -254,7 +391,7 @@ def _load_c_tree(text: str, loader_cls: type) -> tuple[Any, bool]:
         node = loader.get_single_node()
         if node is None:
             return None, True
-        built: dict[Any, Any] = {}
+        built: dict[Any, Any] = {_DEPTH: 0}
         try:
             value = _plain(node, built)
             return value, _ALIASED not in built
@@ -295,6 +432,9 @@ def _plain(node: Any, built: dict[int, Any]) -> Any:
         built[_ALIASED] = True
         return done
     built[key] = _BUILDING
+    depth = built[_DEPTH] = built[_DEPTH] + 1
+    if depth > MAX_DEPTH:
+        raise _Refused(_NESTED, node.start_mark.line)
     if tag == _SEQ:
         out: Any = [_plain(item, built) for item in value]
     elif tag == _MAP:
@@ -305,12 +445,15 @@ def _plain(node: Any, built: dict[int, Any]) -> Any:
             out[_plain(key_node, built)] = _plain(value_node, built)
     else:
         raise _NotPlain
+    built[_DEPTH] = depth - 1
     built[key] = out
     return out
 
 
 _BUILDING = object()
 _ALIASED = "aliased"  # key in _plain's `built` (whose other keys are ints) once an alias was met
+_DEPTH = "depth"  # key in _plain's `built`: how many collections deep the node being built is
+_NESTED = "invalid YAML: collections are nested more than %d deep, the limit" % MAX_DEPTH
 _SCALAR_KEY_TAGS = frozenset((_STR, _INT, _FLOAT, _BOOL, _NULL))
 
 

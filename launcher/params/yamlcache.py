@@ -22,7 +22,7 @@ from typing import Any
 
 from launcher.roshome import read_cache, write_cache
 
-VERSION = 1
+VERSION = 2  # (2: documents nested more than rosyaml.MAX_DEPTH deep are no longer kept)
 FILE = os.path.join("launcher", "yaml_cache.marshal")
 MAX_CHARS = 2 * 1024 * 1024  # texts kept in all: the file stays small enough to read in about a millisecond
 

@@ -13,10 +13,11 @@ commands are running and for how long.
 from __future__ import annotations
 
 import os
-import shlex
 import sys
 import time
 from typing import Any, Callable, Mapping, TextIO
+
+from launcher import shellwords
 
 # subprocess and concurrent.futures are imported where a command runs: together they cost ~15 ms
 # (logging, threading, ...) that every `launch --nodes` of a file without command params would pay.
@@ -24,6 +25,7 @@ from typing import Any, Callable, Mapping, TextIO
 TIMEOUT_S = 60.0  # how long a command parameter may run
 PROGRESS_AFTER_S = 0.5  # a terminal is told what runs once it takes this long
 PROGRESS_PERIOD_S = 0.25
+_ARG_MAX = os.sysconf("SC_ARG_MAX") if hasattr(os, "sysconf") else 2 * 1024 * 1024  # the kernel's limit on argv + env
 
 
 class CommandError(Exception):
@@ -46,8 +48,11 @@ def run_command(command: str, name: str, environ: Mapping[str, str]) -> str:
     """The output of one command parameter's command, as roslaunch takes it; CommandError otherwise."""
     import subprocess
     what = "Cannot load command parameter [%s]: " % name
+    if len(command) > _ARG_MAX:
+        raise CommandError(what + "the command is %d characters long, more than a command line may be on this "
+                                  "system (ARG_MAX, %d bytes)" % (len(command), _ARG_MAX))
     try:
-        argv = shlex.split(command)
+        argv = shellwords.split(command)
     except ValueError as e:
         raise CommandError(what + "cannot split command [%s]: %s" % (command, e)) from None
     if not argv:

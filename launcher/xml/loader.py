@@ -16,7 +16,7 @@ import sys
 from typing import Any, Callable, Iterable, Mapping
 
 from launcher.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
-from launcher.errors import LaunchError
+from launcher.errors import SHOWN_CHARS, LaunchError, shorten
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
@@ -28,7 +28,7 @@ from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import (POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names,
                                  resolve_watch_topics)
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
-from launcher.xml.substitution import ArgNotSet, SubstitutionError, resolve
+from launcher.xml.substitution import ArgNotSet, LoadBudget, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists, plus our supervision extensions (xml/policy.py) where they
 # apply; anything else is warned about
@@ -87,6 +87,8 @@ class XmlLoader:
         self._clean_ns: str | None = None  # see _add_param
         self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
+        self._budget = LoadBudget()  # the text all substitutions of this load may make
+        self._found_resources: dict[tuple[str, str], str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False
         self.yaml_cache = YamlCache(ros_home(environ))  # saved by xml.load once the files are read
@@ -138,13 +140,13 @@ class XmlLoader:
     def _warn(self, scope: Scope, el: Any, msg: str) -> None:
         line = getattr(el, "sourceline", None)
         where = "%s:%d: " % (scope.source, line) if line else "%s: " % scope.source
-        text = where + msg
+        text = where + _shortened(msg)
         for f, ln in scope.include_chain:
             text += "\n  included from %s:%d" % (f, ln)
         self._warn_plain(text)
 
     def _fail(self, scope: Scope, el: Any, msg: str) -> LaunchError:
-        return LaunchError(msg, scope.source, getattr(el, "sourceline", None), scope.include_chain)
+        return LaunchError(_shortened(msg), scope.source, getattr(el, "sourceline", None), scope.include_chain)
 
     def _sub(self, text: str | None, scope: Scope, el: Any) -> str | None:
         """Resolve substitution args, turning their errors into located LaunchErrors."""
@@ -247,13 +249,24 @@ class XmlLoader:
         self.files.append(filename)
         scope = Scope(self.root_ns, filename, environ=self.environ,
                       find_package=self._find_package, find_resource=self._find_resource,
-                      args=dict(self.cli_args), used_args=self._used_args)
+                      args=dict(self.cli_args), used_args=self._used_args, budget=self._budget)
         self.root_scope = scope
-        self._launch_tag(launch, scope)
-        if not self.args_only:
-            for m in doc.masters:
-                self._warn(scope, m, "ignoring defunct <master /> tag")
-        self._recurse(launch, scope, None)
+        try:
+            self._launch_tag(launch, scope)
+            if not self.args_only:
+                for m in doc.masters:
+                    self._warn(scope, m, "ignoring defunct <master /> tag")
+            self._recurse(launch, scope, None)
+        except RecursionError as e:
+            # the walk follows the nesting of <group>s and <include>s (expat has no depth limit);
+            # the stack is unwound here, so the error can be made
+            where = getattr(e, "element", None)
+            if where is None:
+                raise LaunchError("elements or includes are nested too deeply (Python's recursion limit)",
+                                  filename) from None
+            at_scope, el = where
+            raise self._fail(at_scope, el, "elements or includes are nested too deeply around this <%s> "
+                                           "(Python's recursion limit)" % el.tag) from None
 
     def _launch_tag(self, launch: Any, scope: Scope) -> None:
         self._check_attrs(launch, scope, LAUNCH_ATTRS)
@@ -276,28 +289,41 @@ class XmlLoader:
         return self.packages.get_path(pkg)
 
     def _find_resource(self, pkg: str, rel: str) -> str:
-        return self.packages.find_resource(pkg, rel)
+        # once per distinct `$(find pkg)path` in a load: each is up to three file checks, and a long
+        # attribute can repeat the same one a hundred thousand times
+        key = (pkg, rel)
+        found = self._found_resources.get(key)
+        if found is None:
+            found = self._found_resources[key] = self.packages.find_resource(pkg, rel)
+        return found
 
     # ------------------------------------------------------------------ walk
     def _recurse(self, parent_el: Any, scope: Scope, default_machine: Machine | None) -> Machine | None:
         """Process the children of `parent_el` in order; returns the default machine after them."""
         handlers = self.tag_handlers
-        for el in parent_el:
-            tag = el.tag
-            if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
-                self._arg_tag(el, scope)
-                continue
-            if self.args_only:
-                continue
-            handler = handlers.get(tag)
-            if handler is None:
-                if tag != "master":  # (<master> is warned about once per file)
-                    self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
-                continue
-            get = el.attrib.get
-            # most elements have neither if nor unless: decided here without a call
-            if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
-                default_machine = handler(self, el, scope, default_machine)
+        el = None
+        try:
+            for el in parent_el:
+                tag = el.tag
+                if tag == "arg":  # (checks its own if/unless; the one tag read with args_only)
+                    self._arg_tag(el, scope)
+                    continue
+                if self.args_only:
+                    continue
+                handler = handlers.get(tag)
+                if handler is None:
+                    if tag != "master":  # (<master> is warned about once per file)
+                        self._warn(scope, el, "unrecognized tag <%s> (ignored)" % tag)
+                    continue
+                get = el.attrib.get
+                # most elements have neither if nor unless: decided here without a call
+                if (get("if") is None and get("unless") is None) or self._if_unless(el, scope):
+                    default_machine = handler(self, el, scope, default_machine)
+        except RecursionError as e:
+            # the innermost element being read when the nesting met Python's limit, for load_file's error
+            if getattr(e, "element", None) is None and el is not None:
+                e.element = (scope, el)  # type: ignore[attr-defined]
+            raise
         return default_machine
 
     # Each handler takes (element, scope, default machine) and returns the default machine for
@@ -537,14 +563,14 @@ class XmlLoader:
         if ns_end <= 0 or key[:ns_end] != self._clean_ns:
             clean = True
             key_lengths = self._key_lengths
-            i = key.find(SEP, 1)
-            while i > 0:
-                if i in key_lengths:
+            i = -1  # (the position of each '/' but the last, from one split: a find() per '/' rescans the key)
+            for part in key.split(SEP)[:-1]:
+                i += len(part) + 1
+                if i in key_lengths and i > 0:
                     parent = key[:i]
                     if parent in params:
                         clean = False
                         self._warn(scope, el, "parameter [%s] conflicts with parent parameter [%s]" % (key, parent))
-                i = key.find(SEP, i + 1)
             self._clean_ns = key[:ns_end] if clean and ns_end > 0 else None
         self._key_lengths.add(len(key))
         params[key] = new_param(key, value, scope.source, el.sourceline or 0)
@@ -892,14 +918,15 @@ class XmlLoader:
         chain = ((scope.source, el.sourceline or 0),) + scope.include_chain
         if len(chain) > MAX_INCLUDE_DEPTH:
             raise self._fail(scope, el, "includes are nested more than %d deep" % MAX_INCLUDE_DEPTH)
+        # (whether it exists first: os.path.realpath is quadratic in the number of a path's parts)
+        if not os.path.exists(inc_file):
+            raise self._fail(scope, el, "included file [%s] does not exist%s" % (inc_file, _near_files(inc_file)))
         real = self._realpath(inc_file)
         if any(self._realpath(f) == real for f, _ in chain):
             raise self._fail(scope, el, "include cycle: [%s] includes itself" % inc_file)
         child.source = inc_file
         child.include_chain = chain
-        doc = read_launch(inc_file, include_chain=chain) if os.path.exists(inc_file) else None
-        if doc is None:
-            raise self._fail(scope, el, "included file [%s] does not exist%s" % (inc_file, _near_files(inc_file)))
+        doc = read_launch(inc_file, include_chain=chain)
         launch = doc.launch
         self.files.append(inc_file)
         self._launch_tag(launch, child)
@@ -935,6 +962,21 @@ def _read_text(path: str) -> str:
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     return text
+
+
+_LONG_RUN = re.compile(r"[^\s\[\]'\"]{%d,}" % (SHOWN_CHARS + 1))
+
+
+def _shortened(msg: str) -> str:
+    """A message that quotes long texts of the user's, shortened: each long run of them by
+    `errors.shorten`, then, if still long (a long text of short words), its middle left out
+    (a 5 MB value makes no readable error; the start and the end say which and what is wrong)."""
+    if len(msg) <= 4 * SHOWN_CHARS:
+        return msg
+    msg = _LONG_RUN.sub(lambda m: shorten(m.group(0)), msg)
+    if len(msg) <= 12 * SHOWN_CHARS:
+        return msg
+    return "%s[... %d characters ...]%s" % (msg[:2 * SHOWN_CHARS], len(msg) - 3 * SHOWN_CHARS, msg[-SHOWN_CHARS:])
 
 
 def _machine_key(m: Machine) -> tuple:

@@ -17,7 +17,7 @@ import functools
 from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.names import canonicalize_name as canonical
 from launcher.names import is_legal_name as _is_legal_name
-from launcher.xml.substitution import SubstitutionScope
+from launcher.xml.substitution import LoadBudget, SubstitutionScope
 
 # names.is_legal_name, remembered: a launch tree checks the same few names (remaps, node names)
 # thousands of times; a pure function of the name
@@ -58,9 +58,10 @@ class Scope(SubstitutionScope):
 
     def __init__(self, ns: str, filename: str, *, environ: Mapping[str, str],
                  find_package: Callable[[str], str], find_resource: Callable[[str, str], str],
-                 args: dict[str, str] | None = None, used_args: set[str] | None = None):
+                 args: dict[str, str] | None = None, used_args: set[str] | None = None,
+                 budget: LoadBudget | None = None):
         super().__init__(args if args is not None else {}, {}, filename, environ, find_package, find_resource,
-                         used_args)
+                         used_args, budget)
         self.ns = global_ns(ns)
         self.parent: Scope | None = None
         self.remaps: list[tuple[str, str]] = []
@@ -99,6 +100,7 @@ class Scope(SubstitutionScope):
         c.find_package = self.find_package
         c.find_resource = self.find_resource
         c.used_args = self.used_args
+        c.budget = self.budget
         c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
         c.parent = self
         c.remaps = []
@@ -128,6 +130,7 @@ class Scope(SubstitutionScope):
         c.find_package = self.find_package
         c.find_resource = self.find_resource
         c.used_args = self.used_args
+        c.budget = self.budget
         c.ns = self.ns if child_ns is self.ns else global_ns(child_ns)
         c.parent = self
         c.remaps = []

@@ -149,7 +149,7 @@ def test_multiple_documents_are_an_error():
 
 @pytest.mark.parametrize("how", ["inline", "typed", "file"])
 def test_an_integer_too_long_for_python_is_a_clean_error_with_file_and_line(tmp_path, how):
-    # Python refuses int() of more than 4300 digits; roslaunch reports it as invalid YAML
+    # Python refuses int() of more than 4300 digits; roslaunch reports it as invalid YAML (so do we, in our words)
     digits = "9" * 5000
     launch = tmp_path / "main.launch"
     where = str(launch)
@@ -167,7 +167,7 @@ def test_an_integer_too_long_for_python_is_a_clean_error_with_file_and_line(tmp_
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1, out
     assert out.stderr.startswith("%s:%d: " % (where, line)), out.stderr
-    assert "invalid YAML" in out.stderr and "Exceeds the limit (4300 digits)" in out.stderr, out.stderr
+    assert "invalid YAML" in out.stderr and "has more than 4300 digits" in out.stderr, out.stderr
     assert "Traceback" not in out.stderr and "internal error" not in out.stderr
 
 
@@ -293,6 +293,9 @@ _tricky_strings = st.one_of(
                      "/a b/c", "a b: c", "yes no", "a " + "b" * 76, "a " + "b" * 77, "2001-12-14 21:59:43.10",
                      "1 2", ".a b", "-a b", "a\tb", "a b\nc"]),
     st.lists(st.text(alphabet="aZ1_./-", min_size=1, max_size=30), min_size=2, max_size=5).map(" ".join),
+    st.lists(st.text(alphabet="aZ1_./-", min_size=1, max_size=90), min_size=2, max_size=40).map(" ".join),
+    st.builds(lambda c, n: c * n, st.sampled_from(["x", "1", "a_1/", "-", ".5"]), st.integers(90, 600)),
+    st.text(alphabet="ab1_./-()$ '\":#,[]{}&*!|>%@`?=~+<;", min_size=60, max_size=400),
     st.text(max_size=12),
     st.text(alphabet="ab01_./-:# '\"\n", max_size=12))
 _scalars = st.one_of(st.none(), st.booleans(), st.integers(), st.integers(min_value=-2**70, max_value=2**70),
@@ -318,9 +321,13 @@ def test_dump_yaml_writes_strings_with_inner_spaces_itself(monkeypatch):
         raise AssertionError("PyYAML used for %r" % (value,))
     monkeypatch.setattr("launcher.params.dump._pyyaml_dump", refuse)
     assert dump_yaml(value) == expected
-    # a line that PyYAML would fold at column 80 is still left to PyYAML
-    with pytest.raises(AssertionError, match="PyYAML used"):
-        dump_yaml({"/k": "a " + "b" * 80})
+    # a long one is folded at column 80 as PyYAML folds it (its emitter took ~1 s a megabyte)
+    long = {"/k": "a " + "b" * 80 + " c" * 200, "/l": ["x " * 100 + "y"], "/m": {"n": "p " * 100 + "q"},
+            "/o": "u" * 300_000}
+    monkeypatch.undo()
+    expected = rosyaml._pyyaml_dump(long)
+    monkeypatch.setattr("launcher.params.dump._pyyaml_dump", refuse)
+    assert dump_yaml(long) == expected
 
 
 def test_dump_yaml_shared_containers_keep_pyyaml_anchors():
@@ -417,3 +424,65 @@ def test_bad_explicit_tags_are_yaml_errors(text):
     with pytest.raises(RosYamlError) as err:
         load_yaml(text, filename="t.yaml")
     assert str(err.value).startswith("t.yaml:1: ")
+
+
+# -- limits of the interpreter that a document can reach ------------------------------------
+
+def _nested(kind, depth):
+    """A document whose collections nest `depth` deep (the top mapping included)."""
+    if kind == "flow-seq":
+        return "a: " + "[" * (depth - 1) + "1" + "]" * (depth - 1)
+    if kind == "flow-map":
+        return "a: " + "{a: " * (depth - 1) + "1" + "}" * (depth - 1)
+    if kind == "block-map":
+        return "".join(" " * i + "a:\n" for i in range(depth - 1)) + " " * (depth - 1) + "a: 1\n"
+    if kind == "compact-seq":
+        return "a:\n" + "- " * (depth - 1) + "1\n"
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("kind", ["flow-seq", "flow-map", "block-map", "compact-seq"])
+def test_nesting_is_limited_with_the_line(kind):
+    """Collections up to MAX_DEPTH deep load and dump (roslaunch's own loader gives up at Python's recursion
+    limit, ~480, and its --dump-params fails on lists ~320 deep); deeper is an error with its line."""
+    from launcher.params.rosyaml import MAX_DEPTH
+    value = load_yaml(_nested(kind, MAX_DEPTH))
+    assert dump_yaml({"/p": value["a"]}) == rosyaml._pyyaml_dump({"/p": value["a"]})
+    with pytest.raises(RosYamlError, match="nested more than %d deep" % MAX_DEPTH) as e:
+        load_yaml(_nested(kind, MAX_DEPTH + 1), filename="f.yaml", first_line=10)
+    assert e.value.filename == "f.yaml" and e.value.line >= 10
+
+
+@pytest.mark.parametrize("kind", ["flow-seq", "compact-seq"])
+def test_deep_nesting_never_reaches_libyamls_composer(kind):
+    """libyaml's composer recurses in C: 100,000 levels (200 kB of text) crashed the process."""
+    script = ("import sys; from launcher.params.rosyaml import load_yaml, RosYamlError\n"
+              "try:\n    load_yaml(sys.stdin.read())\nexcept RosYamlError as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", script], input=_nested(kind, 100_000), capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0 and "nested more than" in out.stdout, (out.returncode, out.stderr[-500:])
+
+
+def test_aliases_cannot_nest_deeper_than_the_limit():
+    """A deep list held by an alias inside another deep list: each is under the limit, the value is not."""
+    text = "a: &x %s1%s\nb: %s*x%s\n" % ("[" * 200, "]" * 200, "[" * 100, "]" * 100)
+    with pytest.raises(RosYamlError, match="nested more than"):
+        load_yaml(text)
+
+
+def test_a_value_that_holds_itself_loads_as_in_roslaunch():
+    """`&x [*x]`: roslaunch loads it, and its --dump-params writes it back with an alias."""
+    value = load_yaml("a: &x [1, *x]\n" + "# pad\n" * 300)
+    assert value["a"][1] is value["a"]
+    assert dump_yaml(value) == rosyaml._pyyaml_dump(value)
+
+
+@pytest.mark.parametrize("text", ["a: 0x" + "f" * 5000, "a: 0b" + "1" * 20_000, "a: 1" + ":59" * 3000,
+                                  "a: 0" + "7" * 6000, "a: " + "9" * 5000, "a: 1" + ":00" * 1_000_000,
+                                  "? " + "9" * 5000 + "\n: 1", "a: !!int 0x" + "f" * 5000])
+def test_an_integer_python_cannot_print_is_refused_before_it_is_made(text):
+    """Python's str() refuses ints of more than 4300 digits, and --dump-params then failed with an internal
+    error; a base-60 one of a million parts took hours to compute."""
+    with pytest.raises(RosYamlError, match="has more than 4300 digits") as e:
+        load_yaml("x: 1\n" + text, filename="f.yaml")
+    assert e.value.line == 2

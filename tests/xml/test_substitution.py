@@ -198,12 +198,16 @@ def test_repeated_text_keeps_its_error_order():
 
 # ---------------------------------------------------------------- linear time, roslaunch's replacements kept
 
+def _roslaunch_words(body):
+    return [w for w in body.split(" ") if w]  # roslaunch: `[s for s in a.split(' ') if s]`
+
+
 def _roslaunch_resolve(text, sc):
     """roslaunch's resolve_args: for each `$(...)` in order, every copy of its text replaced in the string
     as it stands; then, for each `$(find)` of the result in order, its first copy and the path after it."""
     resolved = text
     for body in _roslaunch_collect(text):
-        words = body.split()
+        words = _roslaunch_words(body)
         if not words or words[0] not in ("arg", "anon", "find"):
             raise SubstitutionError("unknown command")
         if words[0] == "arg":
@@ -211,7 +215,7 @@ def _roslaunch_resolve(text, sc):
         elif words[0] == "anon":
             resolved = resolved.replace("$(%s)" % body, sc.anon.setdefault(words[1], "anon_" + words[1]))
     for body in _roslaunch_collect(resolved):
-        words = body.split()
+        words = _roslaunch_words(body)
         if not words or words[0] not in ("arg", "anon", "find"):
             raise SubstitutionError("unknown command")
         if words[0] == "find":
@@ -226,24 +230,37 @@ def _roslaunch_resolve(text, sc):
 
 
 @settings(max_examples=3000, deadline=None)
-@given(st.lists(st.sampled_from(["$(arg a)", "$(arg b)", "$(anon n)", "$(find pkg)", "$(find q)", "/x", " ",
-                                 "$", "(", ")", "y", "$$("]), max_size=10),
-       st.sampled_from(["A", "", "$(arg b)", "$(find q)/z", "(", "$", "$(anon n)"]),
-       st.sampled_from(["B", "$(arg a)", "$(find pkg)", ")"]))
-def test_resolve_replaces_as_roslaunch_does(parts, a, b):
-    """Each `$(...)` text is evaluated once and given to every copy at once; the result is what roslaunch's
-    one-replace-per-`$(...)` gives, also when a value holds `$(...)` texts of its own."""
+@given(st.lists(st.sampled_from(["$(arg a)", "$(arg b)", "$(anon n)", "$(anon m)", "$(find pkg)", "$(find q)", "/x",
+                                 " ", "$", "(", ")", "y", "$$(", "{", "}", "{0}", "$(arg\ta)"]), max_size=12),
+       st.sampled_from(["A", "", "$(arg b)", "$(find q)/z", "(", "$", "$(anon n)", "(arg b)", "{1}", "$(", "(anon m)"]),
+       st.sampled_from(["B", "$(arg a)", "$(find pkg)", ")", "", "$(arg b)$(arg a)", "(arg a)", "$$("]),
+       st.sampled_from(["anon_m", "", "(anon n)", "$"]))
+def test_resolve_replaces_as_roslaunch_does(parts, a, b, m):
+    """Each `$(...)` text is evaluated once; the result is what roslaunch's one-replace-per-`$(...)` gives,
+    also when a value holds `$(...)` texts (or a '$', or is empty after a '$'), and for `$(find)`s whose
+    path runs into the next `$(...)`."""
     text = "".join(parts)
     packages = {"pkg": "/p", "q": "/q$(arg a)"}
+
+    def fresh():
+        sc = scope({"a": a, "b": b}, packages=packages)
+        sc.anon.update(n="anon_n", m=m)
+        return sc
     try:
-        expected = _roslaunch_resolve(text, scope({"a": a, "b": b}, packages=packages))
+        expected = _roslaunch_resolve(text, fresh())
     except SubstitutionError:
         with pytest.raises(SubstitutionError):
-            resolve(text, scope({"a": a, "b": b}, packages=packages))
+            resolve(text, fresh())
         return
-    sc = scope({"a": a, "b": b}, packages=packages)
-    sc.anon["n"] = "anon_n"
-    assert resolve(text, sc) == expected
+    assert resolve(text, fresh()) == expected
+
+
+def test_a_tab_is_part_of_a_word_as_in_roslaunch():
+    """roslaunch splits a `$(...)` at spaces only: `$(arg<TAB>a)` is an unknown command, `$(arg a<TAB>b)` the
+    arg named "a<TAB>b"."""
+    with pytest.raises(SubstitutionError, match="Unknown substitution command"):
+        resolve("$(arg\ta)", scope({"a": "1"}))
+    assert resolve("x$(arg a\tb)", scope({"a\tb": "2"})) == "x2"
 
 
 def test_many_copies_of_a_substitution_take_linear_time():
@@ -257,3 +274,64 @@ def test_many_copies_of_a_substitution_take_linear_time():
     assert len(set(words[:50_000])) == 1 and words[0].startswith("x_")  # every copy gets the one name
     assert out.endswith("/pkgs/pkg/a " + "A" * 50_000)
     assert elapsed < 2.0, "took %.1f s" % elapsed
+
+
+# ---------------------------------------------------------------- documented limits
+
+def test_a_value_longer_than_the_limit_is_an_error(monkeypatch):
+    from launcher.xml import substitution
+    monkeypatch.setattr(substitution, "MAX_VALUE_CHARS", 1000)
+    s = scope({"a": "x" * 100, "d": "$"})
+    assert resolve("$(arg a)" * 9, s) == "x" * 900
+    for text in ("$(arg a)" * 11,                       # one format()
+                 "$(arg d)" + "$(arg a)" * 11,          # roslaunch's replacements
+                 "$(find pkg)/" + "y" * 1000):          # the $(find) pass
+        with pytest.raises(SubstitutionError, match="more than the limit of 1000"):
+            resolve(text, s)
+
+
+def test_args_that_double_each_other_meet_the_load_limit():
+    """Each arg twice the one before: 2**40 characters at the 40th, unless the load's budget stops it."""
+    from launcher.xml.substitution import LoadBudget
+    s = scope({"a0": "x" * 1000})
+    s.budget = LoadBudget(10_000_000)
+    with pytest.raises(SubstitutionError, match="more than .* characters of text in this launch"):
+        for i in range(1, 40):
+            s.args["a%d" % i] = resolve("$(arg a{0})$(arg a{0})".format(i - 1), s)
+
+
+def test_a_value_alone_is_the_args_own_string():
+    """`value="$(arg big)"` makes no copy of a 5 MB arg, and costs the load's budget nothing."""
+    from launcher.xml.substitution import LoadBudget
+    big = "u" * 5_000_000
+    s = scope({"big": big})
+    s.budget = LoadBudget(1000)
+    assert resolve("$(arg big)", s) is big
+
+
+def test_values_that_make_each_others_texts_meet_the_replacement_limit(monkeypatch):
+    """`$(arg a)` makes `$(arg b)`, which makes `$(arg a)` ...: every copy is replaced at each of the text's
+    own `$(...)`s, quadratic in the text; past MAX_REPLACEMENTS that is an error."""
+    from launcher.xml import substitution
+    monkeypatch.setattr(substitution, "MAX_REPLACEMENTS", 10_000)
+    s = scope({"a": "$(arg b)", "b": "$(arg a)"})
+    assert resolve("$(arg a)$(arg b)" * 10, s) == _roslaunch_resolve("$(arg a)$(arg b)" * 10, s)
+    with pytest.raises(SubstitutionError, match="more than 10000"):
+        resolve("$(arg a)$(arg b)" * 1000, s)
+
+
+def test_finds_whose_paths_run_into_each_other_meet_the_rescan_limit():
+    """`$(find pkg)/x$(find pkg)/x...`: each path runs to the next space, so each $(find) takes the rest of the
+    string as its path and roslaunch's steps rescan it; a short text is done as roslaunch does it."""
+    s = scope()
+    short = "$(find pkg)/a$(find pkg)/b"
+    assert resolve(short, s) == _roslaunch_resolve(short, s) == "/pkgs/pkg/a/pkgs/pkg/b"
+    with pytest.raises(SubstitutionError, match="put a space after each path"):
+        resolve("$(find pkg)/launch/x.launch" * 200_000, s)
+
+
+def test_errors_quote_a_long_text_by_its_start_and_end():
+    text = "$(arg " + "v" * 100_000 + " w)"
+    with pytest.raises(SubstitutionError) as e:
+        resolve(text, scope())
+    assert len(str(e.value)) < 1000 and "characters ...]" in str(e.value)
