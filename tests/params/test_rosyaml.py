@@ -460,7 +460,7 @@ def test_deep_nesting_never_reaches_libyamls_composer(kind):
               "try:\n    load_yaml(sys.stdin.read())\nexcept RosYamlError as e:\n    print(e)\n")
     out = subprocess.run([sys.executable, "-c", script], input=_nested(kind, 100_000), capture_output=True,
                          text=True, timeout=60)
-    assert out.returncode == 0 and "nested more than" in out.stdout, (out.returncode, out.stderr[-500:])
+    assert out.returncode == 0 and "nested" in out.stdout, (out.returncode, out.stdout, out.stderr[-500:])
 
 
 def test_aliases_cannot_nest_deeper_than_the_limit():
