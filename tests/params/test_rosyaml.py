@@ -479,7 +479,8 @@ def test_a_value_that_holds_itself_loads_as_in_roslaunch():
 
 @pytest.mark.parametrize("text", ["a: 0x" + "f" * 5000, "a: 0b" + "1" * 20_000, "a: 1" + ":59" * 3000,
                                   "a: 0" + "7" * 6000, "a: " + "9" * 5000, "a: 1" + ":00" * 1_000_000,
-                                  "? " + "9" * 5000 + "\n: 1", "a: !!int 0x" + "f" * 5000])
+                                  "? " + "9" * 5000 + "\n: 1", "a: !!int 0x" + "f" * 5000],
+                         ids=["hex", "binary", "base-60", "octal", "decimal", "base-60-huge", "key", "tagged"])
 def test_an_integer_python_cannot_print_is_refused_before_it_is_made(text):
     """Python's str() refuses ints of more than 4300 digits, and --dump-params then failed with an internal
     error; a base-60 one of a million parts took hours to compute."""
