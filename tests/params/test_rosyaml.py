@@ -487,3 +487,13 @@ def test_an_integer_python_cannot_print_is_refused_before_it_is_made(text):
     with pytest.raises(RosYamlError, match="has more than 4300 digits") as e:
         load_yaml("x: 1\n" + text, filename="f.yaml")
     assert e.value.line == 2
+
+
+def test_aliases_that_double_a_map_thirty_times_are_refused():
+    """A kilobyte of `&a1 {p: *a0, q: *a0}`: every path a parameter, 2**30 of them (roslaunch makes them all:
+    hours); past MAX_VALUES values, an error. Aliases in a real file stay well under it."""
+    lines = ["a0: &a0 {x: 1, y: 1}"] + ["a%d: &a%d {p: *a%d, q: *a%d}" % (i, i, i - 1, i - 1) for i in range(1, 31)]
+    with pytest.raises(RosYamlError, match="aliases make more than"):
+        load_yaml("\n".join(lines))
+    value = load_yaml("\n".join(lines[:10]))
+    assert value["a9"]["p"]["q"] is value["a7"]
