@@ -19,7 +19,9 @@ crash the process some 30,000 levels down, so a document that may nest deeper th
 _C_SAFE_DEPTH is measured by libyaml's parser before it is composed), and integers longer
 than Python converts to text (`sys.get_int_max_str_digits()`, 4300 digits: roslaunch fails
 on them the same way; an `0x` integer or a base-60 one is checked before it is computed,
-as computing a base-60 one of a million parts takes hours).
+as computing a base-60 one of a million parts takes hours), and aliases that make a document
+hold more than MAX_VALUES values (a kilobyte of `&a {p: *b, q: *b}` doubling 30 times: each
+becomes a parameter, which roslaunch too takes hours to make).
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ class _Refused(_ValueRefused):
 
 
 MAX_DEPTH = 256  # collections nested in one document
+MAX_VALUES = 1_000_000  # values in one document with its aliases followed (each a parameter or an item sent)
 _C_SAFE_DEPTH = 5000  # libyaml's composer is known safe this deep (it recurses in C)
 _LONG_LINE = re.compile(r"(?m)^[^\n]{1000}")
 _INT_MAX_DIGITS = getattr(sys, "get_int_max_str_digits", lambda: 0)()  # (0: no limit, or an older Python)
@@ -99,43 +102,47 @@ def _nesting_refused(text: str, loader_cls: type) -> int | None:
     return None
 
 
-def _too_deep(value: Any) -> bool:
-    """Whether lists and maps nest more than MAX_DEPTH deep in `value`, following the ones YAML's aliases
-    share wherever they are (a cycle, which only an alias makes, adds nothing: PyYAML writes it back
-    as an alias, as roslaunch's --dump-params does)."""
+def _shape(value: Any) -> tuple[int, int]:
+    """(how deep lists and maps nest in `value`, how many values it holds with YAML's aliases followed
+    wherever they are), each shared container measured once; a cycle, which only an alias makes, adds
+    nothing (PyYAML writes it back as an alias, as roslaunch's --dump-params does). The count stops
+    growing past MAX_VALUES and the walk stops past MAX_DEPTH."""
     if type(value) is not dict and type(value) is not list:
-        return False
-    heights: dict[int, int] = {}  # container id -> how deep it nests, itself included
+        return 0, 1
+    done: dict[int, tuple[int, int]] = {}  # container id -> (depth, values), itself included
     on_path = {id(value)}
-    stack = [[value, iter(_inner(value)), 1]]
+    stack = [[value, iter(_items(value)), 1, 1]]  # container, its items left, depth, values
     while stack:
         frame = stack[-1]
         for child in frame[1]:
-            height = heights.get(id(child))
-            if height is None:
+            if type(child) is not dict and type(child) is not list:
+                frame[3] += 1
+                continue
+            measured = done.get(id(child))
+            if measured is None:
                 if id(child) in on_path:
+                    frame[3] += 1
                     continue
                 if len(stack) >= MAX_DEPTH:
-                    return True
+                    return MAX_DEPTH + 1, frame[3]
                 on_path.add(id(child))
-                stack.append([child, iter(_inner(child)), 1])
+                stack.append([child, iter(_items(child)), 1, 1])
                 break
-            frame[2] = max(frame[2], height + 1)
+            frame[2] = max(frame[2], measured[0] + 1)
+            frame[3] = min(frame[3] + measured[1], MAX_VALUES + 1)
         else:
             stack.pop()
             on_path.discard(id(frame[0]))
-            heights[id(frame[0])] = frame[2]
-            if frame[2] > MAX_DEPTH:
-                return True
+            done[id(frame[0])] = (frame[2], frame[3])
             if stack:
-                stack[-1][2] = max(stack[-1][2], frame[2] + 1)
-    return False
+                parent = stack[-1]
+                parent[2] = max(parent[2], frame[2] + 1)
+                parent[3] = min(parent[3] + frame[3], MAX_VALUES + 1)
+    return done[id(value)]
 
 
-def _inner(container: Any) -> list:
-    """The lists and maps directly inside a list or map."""
-    return [x for x in (container.values() if type(container) is dict else container)
-            if type(x) is dict or type(x) is list]
+def _items(container: Any) -> Any:
+    return container.values() if type(container) is dict else container
 
 
 def _too_many_digits(text: str, line: int) -> _Refused:
@@ -343,8 +350,12 @@ def parse_yaml(text: str, *, filename: str | None = None, first_line: int = 1,
                 value, plain_tree = _load_c_tree(text, loader)
             else:
                 value, plain_tree = yaml.load(text, Loader=loader), False
-            if deep and not plain_tree and _too_deep(value):  # (_plain measures as it builds)
-                raise _Refused(_NESTED, 0)
+            if not plain_tree and (deep or "*" in text):  # (_plain measures a plain tree as it builds it)
+                depth, values = _shape(value)
+                if depth > MAX_DEPTH:
+                    raise _Refused(_NESTED, 0)
+                if values > MAX_VALUES:
+                    raise _Refused("invalid YAML: its aliases make more than %d values, the limit" % MAX_VALUES, 0)
         except _Refused as e:
             raise _yaml_error(e, text, filename, first_line) from None
         except Exception as e:  # noqa: BLE001 - whatever PyYAML raises, the text is not valid ROS YAML

@@ -479,10 +479,21 @@ def test_a_value_that_holds_itself_loads_as_in_roslaunch():
 
 @pytest.mark.parametrize("text", ["a: 0x" + "f" * 5000, "a: 0b" + "1" * 20_000, "a: 1" + ":59" * 3000,
                                   "a: 0" + "7" * 6000, "a: " + "9" * 5000, "a: 1" + ":00" * 1_000_000,
-                                  "? " + "9" * 5000 + "\n: 1", "a: !!int 0x" + "f" * 5000])
+                                  "? " + "9" * 5000 + "\n: 1", "a: !!int 0x" + "f" * 5000],
+                         ids=["hex", "binary", "base-60", "octal", "decimal", "base-60-huge", "key", "tagged"])
 def test_an_integer_python_cannot_print_is_refused_before_it_is_made(text):
     """Python's str() refuses ints of more than 4300 digits, and --dump-params then failed with an internal
     error; a base-60 one of a million parts took hours to compute."""
     with pytest.raises(RosYamlError, match="has more than 4300 digits") as e:
         load_yaml("x: 1\n" + text, filename="f.yaml")
     assert e.value.line == 2
+
+
+def test_aliases_that_double_a_map_thirty_times_are_refused():
+    """A kilobyte of `&a1 {p: *a0, q: *a0}`: every path a parameter, 2**30 of them (roslaunch makes them all:
+    hours); past MAX_VALUES values, an error. Aliases in a real file stay well under it."""
+    lines = ["a0: &a0 {x: 1, y: 1}"] + ["a%d: &a%d {p: *a%d, q: *a%d}" % (i, i, i - 1, i - 1) for i in range(1, 31)]
+    with pytest.raises(RosYamlError, match="aliases make more than"):
+        load_yaml("\n".join(lines))
+    value = load_yaml("\n".join(lines[:10]))
+    assert value["a9"]["p"]["q"] is value["a7"]
