@@ -79,7 +79,7 @@ def main() -> None:
     ap.add_argument("--cmd", default="%s -m launcher" % sys.executable)
     args = ap.parse_args()
     cmd = shlex.split(args.cmd)
-    tool = cmd[:-1] + ["launcher.tool"] if cmd[-1] == "launcher" else [sys.executable, "-m", "launcher.tool"]
+    tool = cmd[:-1] + ["launcher.cli.tool"] if cmd[-1] == "launcher" else [sys.executable, "-m", "launcher.cli.tool"]
     print("prompt_toolkit import: %.0f ms (median of 5, a fresh interpreter each)" % (1e3 * import_cost(cmd[0])))
     with tempfile.TemporaryDirectory(prefix="liveview-bench-") as root:
         launch = make_launch(root, args.n)

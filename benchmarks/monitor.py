@@ -110,7 +110,7 @@ def measure(cmd: list[str], launch: str, root: str, n: int, seconds: float, extr
 
 def compare_readers(pids: list[int], rounds: int = 20) -> None:
     sys.path.insert(0, os.path.dirname(HERE))
-    from launcher.process.resources import GroupReader
+    from launcher.health.resources import GroupReader
     groups = set(pids)
     reader = GroupReader()
     reader.read(groups)  # (the first reading opens the files)

@@ -84,7 +84,7 @@ def main() -> int:
     out = open(os.path.join(tmp, "launch.out"), "wb")
     lp = subprocess.Popen([sys.executable, "-m", "launcher", "--skip-log-check", launch], env=env, stdout=out,
                           stderr=subprocess.STDOUT)
-    status_cmd = [sys.executable, "-m", "launcher.tool", "status", "--json"]
+    status_cmd = [sys.executable, "-m", "launcher.cli.tool", "status", "--json"]
     try:
         deadline = time.monotonic() + 120
         while True:

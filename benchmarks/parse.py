@@ -108,7 +108,7 @@ def bench(args, main: str, env: dict[str, str]) -> dict:
 def profile(main: str, env: dict[str, str], top: int) -> None:
     """cProfile of one in-process load + the output step, for each mode."""
     os.environ.update(env)
-    from launcher.packages import PackageIndex
+    from launcher.workspace.packages import PackageIndex
     from launcher.params.rosyaml import dump_yaml
     from launcher.xml import load
 

@@ -74,7 +74,7 @@ def main() -> int:
         env.update(PATH=ROS_PATH + ":" + env.get("PATH", ""), ROS_PACKAGE_PATH=os.path.join(tmp, "src"),
                    ROS_HOME=os.path.join(tmp, "home"), ROS_IP="127.0.0.1",
                    PYTHONPATH=ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else ""))
-        cmds = {"rostest": ["rostest"], "launcher": [sys.executable, "-m", "launcher.tool", "test"]}
+        cmds = {"rostest": ["rostest"], "launcher": [sys.executable, "-m", "launcher.cli.tool", "test"]}
         for name in opts.file or sorted(TESTS):
             times: dict[str, list[float]] = {"rostest": [], "launcher": []}
             codes: dict[str, set[int]] = {"rostest": set(), "launcher": set()}

@@ -7,7 +7,7 @@ One output="screen" node writes `--mb` MB of 80-byte log lines (`yes | head -c`)
 and a marker, once the launch is up. The launch's stdout is a pipe or a pty
 (`--modes`) that this script reads as fast as it can. Under roslaunch the node
 writes to that stdout itself; under ours the bytes pass through the launcher
-(process/screen.py) and into the node's `-stdout.log`. Reported per command
+(output/screen.py) and into the node's `-stdout.log`. Reported per command
 and mode (median of `--reps`, commands alternated): MB/s from the start of the
 flood to the marker, and the launcher process's CPU over that time (% of one
 core; roslaunch's rosmaster is a separate process and not counted, ours is

@@ -13,7 +13,7 @@ src/, config/, launch/ and scripts/) and dated an hour back, as a workspace that
 was not just written is; the launch file includes one launch file of each of 20
 packages (a node and a `<rosparam load>` each). roslaunch crawls every package
 on every start (ros/ros_comm#535); we keep the crawl in ROS_HOME's crawl cache
-(launcher/crawlcache.py). Runs alternate (ABBA) and the ratio is the median of
+(launcher/workspace/crawlcache.py). Runs alternate (ABBA) and the ratio is the median of
 the paired ratios ours/roslaunch. Outputs are compared, and must be equal.
 """
 

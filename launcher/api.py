@@ -28,7 +28,7 @@ import xmlrpc.client
 from typing import Any, Mapping
 
 from launcher.operate import lastrun
-from launcher.roshome import log_root
+from launcher.workspace.roshome import log_root
 
 CALLER_ID = "/launcher_api"
 POLL_S = 0.05  # how often a wait asks the master again
@@ -195,7 +195,7 @@ class Launch:
         return []
 
     def status(self) -> dict[str, str]:
-        """Each node's state as the supervisor last recorded it (`running`, `stopped`, `respawning`, ...: process.state)."""
+        """Each node's state as the supervisor last recorded it (`running`, `stopped`, `respawning`, ...: fleet.state)."""
         path = os.path.join(log_root(self.env), self.run_id, lastrun.EVENTS_FILE)
         try:
             events = lastrun.read_events(path)

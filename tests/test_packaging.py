@@ -11,7 +11,7 @@ import zipfile
 
 import pytest
 
-from launcher import tool
+from launcher.cli import tool
 
 from helpers import ROOT
 
@@ -33,7 +33,7 @@ def test_every_runtime_dependency_is_imported_by_launcher():
         module = MODULE_OF.get(name, name.replace("-", "_"))
         assert re.search(r"^\s*(?:import|from) %s\b" % re.escape(module), code, re.M), \
             "%s is a runtime dependency but no launcher module imports %s" % (name, module)
-        assert module in tool.REQUIRED_PACKAGES, "launcher.tool's clear error does not know %s" % module
+        assert module in tool.REQUIRED_PACKAGES, "launcher.cli.tool's clear error does not know %s" % module
 
 
 def test_pytest_plugin_is_registered_by_entry_point():
@@ -46,7 +46,7 @@ def test_pytest_plugin_is_registered_by_entry_point():
 
 def test_a_python_without_a_dependency_gets_a_clear_error_not_a_traceback():
     """`launcher test` run by an interpreter launcher was not installed for (Debian's python3 lacks lxml)."""
-    code = "import sys; sys.modules['lxml'] = None\nfrom launcher.tool import main\nsys.exit(main(['test', '--help']))"
+    code = "import sys; sys.modules['lxml'] = None\nfrom launcher.cli.tool import main\nsys.exit(main(['test', '--help']))"
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                        cwd=ROOT)
     assert p.returncode == 1

@@ -20,7 +20,7 @@ import tty
 from collections.abc import Iterator
 from typing import Any
 
-from launcher import names
+from launcher.model import names
 from launcher.bag import rosargs
 from launcher.bag.info import BagError, open_bag
 from launcher.bag.msgtypes import ros1_type

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 from rosbags.rosbag1 import Writer
 from rosbags.rosbag1.writer import MAXSIZE, WriteChunk
 
-from launcher import names
+from launcher.model import names
 from launcher.bag import rosargs
 from launcher.bag.msgtypes import rosbags_type
 from launcher.net.slave import SlaveNode, default_host

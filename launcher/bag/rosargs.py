@@ -9,7 +9,7 @@ import sys
 from collections.abc import Mapping
 from typing import NamedTuple
 
-from launcher import names
+from launcher.model import names
 from launcher.net.xmlrpc import call
 
 # roscpp's special keys: each read here or, for the log file and addresses, harmless to a bag node.

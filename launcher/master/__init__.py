@@ -10,7 +10,7 @@ from typing import Any, Mapping, NamedTuple
 from launcher.master.api import MasterApi, unsendable
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
-from launcher.names import resolve_name
+from launcher.model.names import resolve_name
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.params.tree import ParamTree, copy_tree

@@ -15,7 +15,7 @@ from typing import Any, Callable
 from launcher.master import registry as reg
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier
-from launcher.names import ANYTYPE, SEP, canonicalize_name, resolve_name
+from launcher.model.names import ANYTYPE, SEP, canonicalize_name, resolve_name
 from launcher.params.tree import ParamTree, copy_tree
 from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
 

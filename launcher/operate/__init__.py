@@ -1,1 +1,1 @@
-"""The operator's side of a running launch: its XML-RPC API, the run's token, /diagnostics, and the `launcher` subcommands that use them."""
+"""The operator's client side of a running launch: `launcher status/start/stop/restart/logs/events`, the last run read from its log directory, the live view (terminal and web), `launcher install`."""

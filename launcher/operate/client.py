@@ -27,7 +27,7 @@ import time
 from typing import Any, Callable, Mapping, NamedTuple
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
-from launcher.suggest import did_you_mean
+from launcher.model.suggest import did_you_mean
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_LAUNCH, EXIT_REFUSED = 0, 1, 2, 3, 4
 DEFAULT_MASTER_URI = "http://localhost:11311/"

@@ -1,6 +1,6 @@
 """`launcher start|stop|restart PATTERN`: steer the nodes a node name, glob or regex selects (as rosmon).
 
-Needs the run's token (launcher.operate.token), read from the file the
+Needs the run's token (launcher.model.token), read from the file the
 launch wrote in its log directory: only the user who started the launch can.
 Prints each node it changed; no node matching is an error naming the pattern,
 and so is each node that could not be changed (exit status 1).
@@ -14,8 +14,8 @@ import sys
 
 from launcher.net.xmlrpc import Fault
 from launcher.operate import client
-from launcher.operate import token as run_token
-from launcher.suggest import did_you_mean
+from launcher.model import token as run_token
+from launcher.model.suggest import did_you_mean
 
 # a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation (15 s + 2 s by default)
 CONTROL_TIMEOUT_S = 600.0

@@ -16,7 +16,7 @@ import time
 
 from launcher.operate import client
 from launcher.operate.logs import follow, tail
-from launcher.process.state import LOCAL_HOST
+from launcher.fleet.state import LOCAL_HOST
 
 
 def parser() -> argparse.ArgumentParser:

@@ -3,7 +3,7 @@
 `unit_text(UnitOptions)` is the unit, a pure function of the options, so that
 `--dry-run` prints exactly what is written. The unit makes systemd supervise
 the launch end to end: `Type=notify` (active once the nodes are up:
-operate/systemd.py), `WatchdogSec=` (a stuck launch is restarted),
+services/systemd.py), `WatchdogSec=` (a stuck launch is restarted),
 `Restart=on-failure` with a start-rate limit, and a stop that leaves our own
 escalation in charge: `KillSignal=SIGINT` to the launch alone (`KillMode=mixed`),
 which stops its nodes SIGINT -> SIGTERM -> SIGKILL, each on its own clock,
@@ -23,7 +23,7 @@ import sys
 from typing import NamedTuple
 
 from launcher import __version__
-from launcher.runopts import RunOptions
+from launcher.model.runopts import RunOptions
 
 MARK = "# Written by `launcher install`"  # the first line of our units: only these are replaced or removed
 DEFAULT_WATCHDOG_S = 30  # systemd restarts a launch whose loop has not pinged for this long

@@ -4,7 +4,7 @@
 answers (the master is gone, or no launch of ours is on it) they read the last
 run instead (client.live_or_last): `$ROS_LOG_DIR/latest` (default `$ROS_HOME/log/latest`), or the
 run `--run RUN_ID` names. Each node's state at the end is its last event in
-`launcher-events.jsonl` (process.state.Fleet writes one line per change).
+`launcher-events.jsonl` (fleet.state.Fleet writes one line per change).
 How the launch ended is told by an event `{"event": "launch_ended", "time":
 ..., "reason": ...}` when the events file has one, else by its launch log
 (runlog.RunLog, `roslaunch-<host>-<pid>.log`): a launch that stopped by itself
@@ -23,9 +23,9 @@ import time
 from typing import Any, Mapping, NamedTuple
 
 from launcher.operate import client
-from launcher.process.state import EVENTS_FILE, LAUNCH_ENDED
-from launcher.roshome import log_root
-from launcher.suggest import did_you_mean
+from launcher.fleet.state import EVENTS_FILE, LAUNCH_ENDED
+from launcher.workspace.roshome import log_root
+from launcher.model.suggest import did_you_mean
 
 LAUNCH_LOG = re.compile(r"roslaunch-(?P<host>.+)-(?P<pid>\d+)\.log")
 # a line of our launch log: "[2024-05-01 12:00:03.123] text" (roslaunch's read "[roslaunch][INFO] 2024-...")

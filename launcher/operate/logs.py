@@ -4,7 +4,7 @@ Every node's output is in `<name>-stdout.log` in the run's log directory: an
 output="log" node writes its stdout there itself (and the launcher adds its
 stderr, which also goes to the terminal); an output="screen" node's stdout and
 stderr reach the terminal through the launcher, which keeps the same bytes
-there (process/screen.py). `-f` follows the file as it grows, across the
+there (output/screen.py). `-f` follows the file as it grows, across the
 node's restarts and the file's rotations, until Ctrl-C. Colours (the escape
 sequences rosconsole writes) are kept only on a terminal, or with `--color`.
 When no launch answers, the output the node left in the last run, after a line

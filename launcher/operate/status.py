@@ -19,8 +19,8 @@ import time
 from typing import Any
 
 from launcher.operate import client
-from launcher.process.state import over_limit_text
-from launcher.units import format_size
+from launcher.fleet.state import over_limit_text
+from launcher.model.units import format_size
 
 
 def parser() -> argparse.ArgumentParser:

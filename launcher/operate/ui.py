@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
-from launcher.operate import token as run_token
+from launcher.model import token as run_token
 from launcher.operate.view import HELP, NODE_OUTPUT, ViewState
 
 POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)

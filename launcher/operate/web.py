@@ -32,7 +32,7 @@ from typing import Any
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
-from launcher.operate import token as run_token
+from launcher.model import token as run_token
 from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
 from launcher.operate.ui import POLL_WAIT_S
 from launcher.operate.view import ViewState

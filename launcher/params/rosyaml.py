@@ -35,7 +35,7 @@ from typing import Any
 
 import yaml
 
-from launcher.errors import LaunchError, shorten
+from launcher.model.errors import LaunchError, shorten
 
 
 class RosYamlError(LaunchError, ValueError):

@@ -20,7 +20,7 @@ import marshal
 import os
 from typing import Any
 
-from launcher.roshome import read_cache, write_cache
+from launcher.workspace.roshome import read_cache, write_cache
 
 VERSION = 2  # (2: documents nested more than rosyaml.MAX_DEPTH deep are no longer kept)
 FILE = os.path.join("launcher", "yaml_cache.marshal")

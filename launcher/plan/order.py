@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from launcher.config import Node
-from launcher.errors import LaunchError
+from launcher.model.config import Node
+from launcher.model.errors import LaunchError
 
 
 def waits(node: Node) -> list[str]:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Mapping
 
-from launcher.command import node_command
-from launcher.errors import LaunchError
-from launcher.names import ns_join
-from launcher.process import console
+from launcher.process.command import node_command
+from launcher.model.errors import LaunchError
+from launcher.model.names import ns_join
+from launcher.output import console
 from launcher.process.spawn import ProcessSpec
-from launcher.runopts import RunOptions
+from launcher.model.runopts import RunOptions
 
 
 def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], packages: Any,

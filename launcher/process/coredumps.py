@@ -23,7 +23,7 @@ import socket
 import time
 from typing import Any
 
-from launcher.process import console
+from launcher.output import console
 
 CORE_PATTERN = "/proc/sys/kernel/core_pattern"
 CORE_USES_PID = "/proc/sys/kernel/core_uses_pid"

@@ -12,18 +12,18 @@ import os
 import signal
 import subprocess
 
-from launcher.command import NodeCommand
-from launcher.config import NodePolicy
-from launcher.process import console
+from launcher.process.command import NodeCommand
+from launcher.model.config import NodePolicy
+from launcher.output import console
 from launcher.process.coredumps import raise_core_limit, restore_core_limit
-from launcher.process.screen import Channels
+from launcher.output.screen import Channels
 
 
 DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
 
 
 class ProcessSpec:
-    """One node to supervise: its command (`launcher.command.node_command`) and how it is run."""
+    """One node to supervise: its command (`launcher.process.command.node_command`) and how it is run."""
 
     # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
     # first spawn)
@@ -39,7 +39,7 @@ class ProcessSpec:
         self.policy = policy if policy is not None else DEFAULT_POLICY  # restart policy, readiness, limits
         self.command = command
         # output="log": the node writes its stdout to `stdout_path` itself; output="screen": to the terminal,
-        # through the launcher, which keeps a copy in `stdout_path` (process/screen.py)
+        # through the launcher, which keeps a copy in `stdout_path` (output/screen.py)
         self.output = output or ("log" if stdout_path else "screen")
         self.stdout_path = stdout_path  # None: no file (a screen node then inherits the terminal unless relayed)
         self.log_dir = log_dir  # for the "log file:" hint after a death
@@ -78,7 +78,7 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
     """Start the node's process in a new session/process group. Raises SpawnError.
 
     `channels`: the ptys/pipes the launcher relays the node's terminal-bound streams through
-    (process/screen.py); their node ends are closed here once the node holds them.
+    (output/screen.py); their node ends are closed here once the node holds them.
 
     Signals the launcher handles are reset to their default disposition by exec
     itself; ones it inherited *ignored* (a background shell ignores SIGINT) are
@@ -89,7 +89,7 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
         stdout, stderr = channels.stdout, channels.stderr
     if spec.output == "log" and spec.stdout_path:
         # roslaunch: append when respawning, so earlier runs' output survives; always O_APPEND, so
-        # that a rotation's truncation (process/logrotate.py) moves the node's writes to the start
+        # that a rotation's truncation (output/logrotate.py) moves the node's writes to the start
         flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (0 if append or spec.respawn else os.O_TRUNC)
         try:
             stdout = stdout_file = os.open(spec.stdout_path, flags, 0o666)  # (a bare fd: no file object per node)

@@ -22,8 +22,8 @@ is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, 
 does (checked side by side); sending SIGINT again would not help.
 
 What happens to a node (its first start, what follows a run, operator stops and
-starts, the launch's end) is decided by its state machine (`launcher.process.machine`,
-stepped by the fleet, `launcher.process.state`); the supervisor tells the fleet what
+starts, the launch's end) is decided by its state machine (`launcher.fleet.machine`,
+stepped by the fleet, `launcher.fleet.state`); the supervisor tells the fleet what
 happened to each process and carries out the actions it gets back: spawn, a timer,
 a readiness hold, the stop escalation, SIGKILL. It decides nothing of its own but
 the mechanics: pidfds, process groups, pacing, escalation.
@@ -39,8 +39,9 @@ import subprocess
 from collections import deque
 from typing import Callable
 
-from launcher.process import console, machine, narrate, restart, screen, state
-from launcher.process.machine import Event
+from launcher.output import console, narrate, screen
+from launcher.fleet import machine, restart, state
+from launcher.fleet.machine import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
@@ -87,7 +88,7 @@ class NodeProcess:
         self.stopped: asyncio.Future | None = None  # set when a stop is complete (its group is empty)
         self.group_poll: asyncio.TimerHandle | None = None
         self.pacing_slot = False  # holds one of the shutdown pacing slots
-        self.screen: screen.ScreenOutput | None = None  # the current run's relayed output (process/screen.py)
+        self.screen: screen.ScreenOutput | None = None  # the current run's relayed output (output/screen.py)
 
     @property
     def name(self) -> str:
@@ -183,7 +184,7 @@ class Supervisor:
         self.fleet.exit_when_all_dead = exit_when_all_dead
         self.procs: list[NodeProcess] = []
         self._by_name: dict[str, NodeProcess] = {}
-        # terminal-bound node output goes through the launcher (process/screen.py); False: nodes inherit the
+        # terminal-bound node output goes through the launcher (output/screen.py); False: nodes inherit the
         # terminal, as under roslaunch
         self.relay_output = relay_output
         self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
@@ -192,7 +193,7 @@ class Supervisor:
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
         # health hooks (see "health" below): what holds a node's start, and what watches each run
-        self.readiness = None  # process/readiness.Readiness: holds nodes that have wait_for conditions
+        self.readiness = None  # health/readiness.Readiness: holds nodes that have wait_for conditions
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
         self._deferred: list[NodeProcess] = []  # at shutdown, nodes waiting for their dependents to be down
 
@@ -400,7 +401,7 @@ class Supervisor:
             self._tell(proc, Event(machine.HANG, reason=reason))
 
     def stalled(self, proc: NodeProcess, reason: str) -> None:
-        """The stall watch's verdict on the current run (process/stall.py): reported, and killed unless
+        """The stall watch's verdict on the current run (health/stall.py): reported, and killed unless
         its on_stall is "warn"."""
         if proc.alive and not self.shutting_down:
             self._tell(proc, Event(machine.STALL, reason=reason))

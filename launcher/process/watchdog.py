@@ -56,7 +56,7 @@ class Watchdog:
                                  os.environ, file_actions=[(os.POSIX_SPAWN_DUP2, rfd, 0)], setsid=True)
         except OSError as e:
             os.close(wfd)
-            from launcher.process import console  # (here: this file also runs alone as the guard, without the package)
+            from launcher.output import console  # (here: this file also runs alone as the guard, without the package)
             console.printerrlog("WARNING: cannot start the no-orphans guard (%s): if launch is killed with "
                                 "SIGKILL, its nodes will keep running" % e.strerror)
             return None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from launcher.config import Node
+from launcher.model.config import Node
 
 
 def _attr(value: object) -> str:

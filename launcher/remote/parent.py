@@ -9,7 +9,7 @@ business: it has set them on the master already). While it runs, the child
 reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`.
 At the end the parent calls `shutdown()`, then closes the ssh session (whose
 pty hangup stops a child that did not answer).
-PARENT_URI is the launch's own roslaunch server (`launcher.operate.server`,
+PARENT_URI is the launch's own roslaunch server (`launcher.services.server`,
 which hands these calls here), as roslaunch has one: a Debian child registers
 PARENT_URI on the master as the launch's, and a second server would be listed
 as a second launch.
@@ -17,7 +17,7 @@ as a second launch.
 Restarts: a node without supervision extensions is respawned by the child
 itself, as roslaunch does. A node with a `NodePolicy` is the parent's: the
 child gets it with respawn="false", and when it dies the parent applies the
-same restart policy as to a local node (`launcher.process.restart`: backoff,
+same restart policy as to a local node (`launcher.fleet.restart`: backoff,
 respawn_max_retries and FATAL, respawn_on="failure" ...), then starts it again
 by a second `launch` call holding just that node (both Debian's child and ours
 take more than one, and number the new process anew: talker-3). spawn_delay
@@ -27,13 +27,13 @@ again then gets a new session. What a child cannot be told (limits, core dumps,
 hang probes, per-node stop timeouts, log rotation) is warned about at load.
 
 What happens to each node is decided by its state machine
-(`launcher.process.machine`, kept by the fleet), as for a local node, with the
+(`launcher.fleet.machine`, kept by the fleet), as for a local node, with the
 remote states: pending (queued for its machine's child), launching (in a
 `launch` call), lost (its machine dropped). The nodes queued for a machine are
 those in pending or lost, so a node cannot be queued twice. The parent tells
 the fleet what its children report and carries out the actions.
 
-Operators (`launcher start|stop|restart`, launcher.operate.server) steer a
+Operators (`launcher start|stop|restart`, launcher.services.server) steer a
 remote node through `stop_node`/`start_node`: a stop is kept by the state
 machine (no restart on its death or its machine's return) and done by the
 child (`stop_process`, an extension of our child: roslaunch's child has none,
@@ -53,14 +53,15 @@ import os
 import signal
 from typing import Any, Callable, Mapping, NamedTuple
 
-from launcher.config import Machine, Node, NodePolicy
-from launcher.errors import LaunchError
+from launcher.model.config import Machine, Node, NodePolicy
+from launcher.model.errors import LaunchError
 from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.operate import processes
-from launcher.process import console, machine, state
-from launcher.process.machine import Event
-from launcher.process.readiness import Readiness
+from launcher.fleet import processes
+from launcher.output import console
+from launcher.fleet import machine, state
+from launcher.fleet.machine import Event
+from launcher.health.readiness import Readiness
 from launcher.remote import session, ssh
 from launcher.remote.launch_xml import remote_launch_xml
 
@@ -121,7 +122,7 @@ def policy_warnings(node: Node, machine: Machine) -> list[str]:
 
 
 class RemoteSpec(NamedTuple):
-    """What `process.readiness` reads of a held node (as of a NodeProcess's spec)."""
+    """What `health.readiness` reads of a held node (as of a NodeProcess's spec)."""
 
     name: str
     node_name: str
@@ -273,7 +274,7 @@ class RemoteParent:
         if not self.stopping:
             self._tell(rn, Event(machine.DUE))
 
-    # (process/readiness calls these two, as it calls the supervisor's for local nodes)
+    # (health/readiness calls these two, as it calls the supervisor's for local nodes)
     def release(self, rn: RemoteNode) -> None:
         if not self.stopping:
             self._tell(rn, Event(machine.READY))

@@ -17,8 +17,8 @@ import re
 import shlex
 from typing import Mapping
 
-from launcher.config import Machine
-from launcher.errors import LaunchError
+from launcher.model.config import Machine
+from launcher.model.errors import LaunchError
 
 # ssh's own keep-alive: a link that is cut is noticed after INTERVAL * COUNT_MAX seconds
 SERVER_ALIVE_INTERVAL_S = 1

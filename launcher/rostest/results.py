@@ -70,7 +70,7 @@ def results_dir(environ: dict[str, str], base_dir: str | None = None) -> str:
         return base_dir
     if environ.get("ROS_TEST_RESULTS_DIR"):
         return environ["ROS_TEST_RESULTS_DIR"]
-    from launcher.roshome import ros_home
+    from launcher.workspace.roshome import ros_home
     return os.path.join(ros_home(environ), "test_results")
 
 

@@ -31,20 +31,20 @@ import tempfile
 import time
 from typing import Any
 
-from launcher import masterlink
-from launcher.runopts import RunOptions
-from launcher.command import node_command
-from launcher.config import Node
-from launcher.errors import LaunchError
-from launcher.masterlink import MasterSession, RemoteParams
-from launcher.names import ns_join
-from launcher.packages import PackageIndex, package_of
-from launcher.process import console
+from launcher.services import masterlink
+from launcher.model.runopts import RunOptions
+from launcher.process.command import node_command
+from launcher.model.config import Node
+from launcher.model.errors import LaunchError
+from launcher.services.masterlink import MasterSession, RemoteParams
+from launcher.model.names import ns_join
+from launcher.workspace.packages import PackageIndex, package_of
+from launcher.output import console
 from launcher.process.spawn import ProcessSpec, start_process
 from launcher.process.watchdog import Watchdog
 from launcher.rostest.results import (TestOutcome, judge, results_dir, safe_test_name, summary, write_junit,
                                       write_test_file_failure)
-from launcher.runtime import Plan, Run, Stopped
+from launcher.run.runtime import Plan, Run, Stopped
 from launcher.xml import resolve_launch_arguments
 
 DEFAULT_TIME_LIMIT = 60.0  # rostest's default time-limit

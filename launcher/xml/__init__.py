@@ -6,9 +6,9 @@ import gc
 import os
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig
-from launcher.errors import LaunchError
-from launcher.packages import PackageIndex
+from launcher.model.config import LaunchConfig
+from launcher.model.errors import LaunchError
+from launcher.workspace.packages import PackageIndex
 from launcher.xml.arguments import resolve_launch_arguments
 from launcher.xml.loader import XmlLoader
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.errors import LaunchError, UsageError
-from launcher.names import REMAP, make_global_ns
-from launcher.packages import PackageNotFound
-from launcher.suggest import did_you_mean, near_file
+from launcher.model.errors import LaunchError, UsageError
+from launcher.model.names import REMAP, make_global_ns
+from launcher.workspace.packages import PackageNotFound
+from launcher.model.suggest import did_you_mean, near_file
 
 LAUNCH_FILE_ENDINGS = (".launch", ".xml", ".test")  # what a hint for `launch PKG FILE` may offer
 

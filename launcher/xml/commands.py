@@ -17,7 +17,7 @@ import sys
 import time
 from typing import Any, Callable, Mapping, TextIO
 
-from launcher import shellwords
+from launcher.model import shellwords
 
 # subprocess and concurrent.futures are imported where a command runs: together they cost ~15 ms
 # (logging, threading, ...) that every `launch --nodes` of a file without command params would pay.

@@ -17,7 +17,7 @@ import pyexpat
 import sys
 from typing import Callable, Iterator
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 # namespace processing as minidom does it: names arrive as "uri local prefix", which we turn
 # back into the qualified name minidom reports (`xacro:arg`); xmlns declarations are not attributes

@@ -15,13 +15,13 @@ import re
 import sys
 from typing import Any, Callable, Iterable, Mapping
 
-from launcher.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
-from launcher.errors import SHOWN_CHARS, LaunchError, shorten
-from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
+from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
+from launcher.model.errors import SHOWN_CHARS, LaunchError, shorten
+from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join
 from launcher.params.values import auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
-from launcher.roshome import ros_home
-from launcher.suggest import did_you_mean, near_file
+from launcher.workspace.roshome import ros_home
+from launcher.model.suggest import did_you_mean, near_file
 from launcher.xml.arguments import load_mappings, root_namespace
 from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch

@@ -7,7 +7,7 @@ This module turns an element's attributes (already substituted) into a dict of
 `Node.policy` from them. A bad value is a `PolicyError` whose message the loader
 prefixes with file and line.
 
-Units: times are seconds (a decimal number); sizes are bytes as `launcher.units`
+Units: times are seconds (a decimal number); sizes are bytes as `launcher.model.units`
 reads them (`500MB`, `1.5GiB`, `200k`), as `--log-max-size` is. CPU is in cores
 (`0.5` = half of one core; rosmon's `rosmon-cpu-limit` has the same unit).
 """
@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
-from launcher import units
-from launcher.names import is_legal_name
+from launcher.model import units
+from launcher.model.names import is_legal_name
 
 
 class PolicyError(ValueError):
@@ -28,7 +28,7 @@ class PolicyError(ValueError):
 WAIT_KINDS = ("topic", "service", "param", "node")
 
 def _size(text: str) -> int:
-    """A size greater than zero, in bytes (`launcher.units.parse_size`)."""
+    """A size greater than zero, in bytes (`launcher.model.units.parse_size`)."""
     try:
         size = units.parse_size(text)
     except ValueError:

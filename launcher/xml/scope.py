@@ -14,9 +14,9 @@ from typing import Any, Callable, Mapping
 
 import functools
 
-from launcher.names import PRIV_NAME, SEP, make_global_ns, ns_join
-from launcher.names import canonicalize_name as canonical
-from launcher.names import is_legal_name as _is_legal_name
+from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join
+from launcher.model.names import canonicalize_name as canonical
+from launcher.model.names import is_legal_name as _is_legal_name
 from launcher.xml.substitution import LoadBudget, SubstitutionScope
 
 # names.is_legal_name, remembered: a launch tree checks the same few names (remaps, node names)

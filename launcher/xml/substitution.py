@@ -32,8 +32,8 @@ import os
 import re
 from typing import Any, Callable, Mapping
 
-from launcher.errors import shorten
-from launcher.names import anonymous_name
+from launcher.model.errors import shorten
+from launcher.model.names import anonymous_name
 from launcher.params.values import auto_value
 
 VALID_COMMANDS = ("find", "env", "optenv", "dirname", "anon", "arg")

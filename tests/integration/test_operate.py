@@ -64,7 +64,7 @@ def pkgs(tmp_path, ros_env):
 
 
 def tool(env: dict, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "launcher.cli.tool"] + list(args), env=env, capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -204,7 +204,7 @@ def test_logs_follow_a_screen_node_and_a_log_node(tmp_path, pkgs):
         lp.wait_output(r"process\[lg-3\]: started")
         for node in ("/scr", "/lg"):
             out = open(tmp_path / ("follow%s.txt" % node.replace("/", "_")), "w")
-            followers.append((node, out, subprocess.Popen([sys.executable, "-m", "launcher.tool", "logs", "-f", node],
+            followers.append((node, out, subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "logs", "-f", node],
                                                           env=env, stdout=out, stderr=subprocess.STDOUT)))
         import re
 

@@ -140,7 +140,7 @@ def test_nodes_on_three_hosts_register_and_talk(hosts, launched, child):
     assert len(uris) == 1, uris
     # the events carry each node's host; `launcher events` names the host of a node on another machine
     def events(*args: str) -> str:
-        r = subprocess.run([sys.executable, "-m", "launcher.tool", "events"] + list(args), env=env,
+        r = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "events"] + list(args), env=env,
                            capture_output=True, text=True, timeout=30)
         assert r.returncode == 0, r.stderr
         return r.stdout
@@ -484,7 +484,7 @@ def test_policies_a_remote_child_cannot_apply_are_warned_about_at_load(tmp_path,
 
 def tool(env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
     """`launcher ARGS` against the launch of `env` (its master)."""
-    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "launcher.cli.tool"] + list(args), env=env, capture_output=True,
                           text=True, timeout=120)
 
 

@@ -198,7 +198,7 @@ def rostest(root: str, pkg: str, name: str) -> Summary:
 
 
 def ours(root: str, pkg: str, name: str, *extra: str) -> Summary:
-    proc = subprocess.run([sys.executable, "-m", "launcher.tool", "test", *extra, "rttest",
+    proc = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "test", *extra, "rttest",
                            os.path.basename(_test_file(pkg, name, "ours"))],
                           env=_env(root, "ours"), capture_output=True, text=True, timeout=180)
     return Summary(proc)
@@ -272,7 +272,7 @@ def test_default_results_file_is_rostests(workspace):
 def test_two_runs_of_one_file_in_parallel_do_not_interfere(workspace):
     root, pkg = workspace
     env = _env(root, "parallel")
-    procs = [subprocess.Popen([sys.executable, "-m", "launcher.tool", "test", "--results-filename", "p%d.xml" % i,
+    procs = [subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "test", "--results-filename", "p%d.xml" % i,
                                "rttest", "param.test"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               text=True) for i in range(2)]
     outs = [p.communicate(timeout=180)[0] for p in procs]
@@ -289,7 +289,7 @@ def test_reuse_master_and_clear_like_rostest(workspace, tmp_path, clear):
     master = RosMaster(str(tmp_path))
     try:
         results = {}
-        for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+        for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.cli.tool", "test"])):
             env = _env(root, who)
             env["ROS_MASTER_URI"] = "http://127.0.0.1:%d/" % master.port
             # (rostest insists on a /run_id, as roscore sets it)
@@ -330,7 +330,7 @@ def test_processes_are_numbered_as_rostest_numbers_them(workspace, tmp_path):
     """One counter for the whole file, fixture nodes first, no rosout process: the log files' names."""
     root, pkg = workspace
     names = {}
-    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.cli.tool", "test"])):
         env = _env(root, who)
         env["ROS_LOG_DIR"] = str(tmp_path / who)
         proc = subprocess.run(argv + ["rttest", "numbered.test"], env=env, capture_output=True, text=True,
@@ -369,7 +369,7 @@ def test_a_test_file_that_cannot_run_is_a_failed_result(workspace, name, words):
     from lxml import etree
     root, pkg = workspace
     path = os.path.join(pkg, name + ".test")
-    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.tool", "test"])):
+    for who, argv in (("rostest", ["rostest"]), ("ours", [sys.executable, "-m", "launcher.cli.tool", "test"])):
         env = _env(root, who)
         results = os.path.join(root, who, "home", "test_results", "rttest", "rostest-%s.xml" % name)
         os.makedirs(os.path.dirname(results), exist_ok=True)
@@ -394,7 +394,7 @@ def test_a_test_file_that_cannot_run_is_a_failed_result(workspace, name, words):
 def test_no_failure_result_for_a_command_line_that_names_no_package(workspace):
     root, pkg = workspace
     env = _env(root, "nopkg")
-    proc = subprocess.run([sys.executable, "-m", "launcher.tool", "test", "no_such_pkg", "x.test"], env=env,
+    proc = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "test", "no_such_pkg", "x.test"], env=env,
                           cwd=pkg, capture_output=True, text=True, timeout=180)  # (cwd: inside a package)
     assert proc.returncode == 1 and "is neither a launch file in package [no_such_pkg]" in proc.stderr, proc.stderr
     assert not os.path.exists(os.path.join(root, "nopkg", "home", "test_results")), proc.stderr

@@ -6,11 +6,11 @@ import asyncio
 import json
 import os
 
-from launcher.config import LaunchConfig, Node, NodePolicy
-from launcher.packages import PackageIndex
-from launcher.process.state import EVENTS_FILE
-from launcher.runopts import RunOptions
-from launcher.runtime import Plan, Run
+from launcher.model.config import LaunchConfig, Node, NodePolicy
+from launcher.workspace.packages import PackageIndex
+from launcher.fleet.state import EVENTS_FILE
+from launcher.model.runopts import RunOptions
+from launcher.run.runtime import Plan, Run
 
 from helpers import free_port
 from tests.integration.running import make_package

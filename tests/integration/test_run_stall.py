@@ -46,7 +46,7 @@ BODY = """
 
 
 def status(env: dict) -> dict:
-    r = subprocess.run([sys.executable, "-m", "launcher.tool", "status", "--json"], env=env, capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "status", "--json"], env=env, capture_output=True,
                        text=True, timeout=30)
     return {n["name"]: n for n in json.loads(r.stdout)["nodes"]} if r.returncode == 0 else {}
 

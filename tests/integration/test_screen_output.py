@@ -88,7 +88,7 @@ def pkgs(tmp_path, ros_env):
 
 
 def tool(env: dict, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "launcher.cli.tool"] + list(args), env=env, capture_output=True,
                           text=True, timeout=60)
 
 
@@ -108,7 +108,7 @@ def test_logs_follow_roscpp_and_rospy_screen_nodes_and_a_log_node(tmp_path, pkgs
             path = tmp_path / ("follow%s.txt" % node.replace("/", "_"))
             out = open(path, "w")
             followers[node] = (path, out, subprocess.Popen(
-                [sys.executable, "-m", "launcher.tool", "logs", "-f", "-n", "-1", node], env=env, stdout=out,
+                [sys.executable, "-m", "launcher.cli.tool", "logs", "-f", "-n", "-1", node], env=env, stdout=out,
                 stderr=subprocess.STDOUT))
 
         def numbers(node, word):

@@ -143,7 +143,7 @@ def test_a_real_systemd_supervises_the_launch(tmp_path, systemd):
             "--watchdog-sec", "3", "--sigint-timeout", "5", "--sigterm-timeout", "2"]
     for kv in env.items():
         args += ["--env", "%s=%s" % kv]
-    done = subprocess.run([sys.executable, "-m", "launcher.tool", "install", *args], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "install", *args], capture_output=True, text=True,
                           env=dict(os.environ, PYTHONPATH=ROOT), timeout=60)
     assert done.returncode == 0, done.stderr
     assert sd.ctl("daemon-reload").returncode == 0

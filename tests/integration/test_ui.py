@@ -96,7 +96,7 @@ def row(screen: str, name: str) -> list[str] | None:
 
 
 def tool(env: dict, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "launcher.tool"] + list(args), env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "launcher.cli.tool"] + list(args), env=env, capture_output=True,
                           text=True, timeout=60)
 
 
@@ -173,7 +173,7 @@ def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path
     lp = Launcher([write_launch(str(tmp_path), THREE)], env, str(tmp_path))
     try:
         lp.wait_output(r"process\[g/gamma-\d+\]: started", 60)
-        tmux.start([sys.executable, "-m", "launcher.tool", "ui"], dict(env, TERM="xterm"))
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
         steer_and_watch(tmux, env)
         pids = {n: s["pid"] for n, s in status(env).items()}
         tmux.keys("q")
@@ -204,7 +204,7 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmu
         lp.wait_output("no terminal", 30, stream="stderr")
         lp.wait_output(r"process\[alpha-\d+\]: started with pid", 60)
         out = open(tmp_path / "ui.out", "wb")
-        ui = subprocess.Popen([sys.executable, "-m", "launcher.tool", "ui"], env=env, stdout=out,
+        ui = subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "ui"], env=env, stdout=out,
                               stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
         try:
             until(lambda: re.search(r"\[/alpha\] .*tick \d+", (tmp_path / "ui.out").read_text()), 30,
@@ -218,7 +218,7 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmu
             out.close()
         assert b"no terminal" in ui.stderr.read()
         # a terminal that cannot draw (TERM=dumb): the same plain lines
-        tmux.start([sys.executable, "-m", "launcher.tool", "ui"], dict(env, TERM="dumb"))
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="dumb"))
         screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] .*tick \d+", s),
                                   "plain lines under TERM=dumb")
         assert "\u2500\u2500 output" not in screen  # (no full-screen view)

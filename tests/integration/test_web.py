@@ -67,7 +67,7 @@ def raw(port: int, request: bytes) -> bytes:
 
 
 def status(env: dict) -> dict:
-    r = subprocess.run([sys.executable, "-m", "launcher.tool", "status", "--json"], env=env, capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "launcher.cli.tool", "status", "--json"], env=env, capture_output=True,
                        text=True, timeout=60)
     return json.loads(r.stdout) if r.returncode == 0 else {}
 

@@ -174,7 +174,7 @@ def test_a_failing_disk_is_reported_once_and_writing_resumes(tmp_path, caplog):
 def test_without_rosbags_rosout_says_so_once_and_no_traceback(tmp_path):
     """An interpreter that lacks rosbags (Debian's python running `python3 -m launcher`): one error line."""
     port = free_port()
-    code = "import sys; sys.modules['rosbags'] = None\nfrom launcher.cli import main\nsys.exit(main())"
+    code = "import sys; sys.modules['rosbags'] = None\nfrom launcher.cli.launch import main\nsys.exit(main())"
     env = dict(os.environ, PYTHONPATH=ROOT, ROS_HOME=str(tmp_path), ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
     err = tmp_path / "stderr"
     with open(err, "w") as f:

@@ -65,7 +65,7 @@ def test_stop_timeout_outlasts_the_launch_escalation():
 
 
 def tool(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "launcher.tool", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "launcher.cli.tool", *args], capture_output=True, text=True,
                           env=dict(os.environ, PYTHONPATH=ROOT, **(env or {})), timeout=60)
 
 

@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import pytest
 
 from launcher.net.xmlrpc import Fault
-from launcher.operate import server as server_mod
-from launcher.operate.server import LaunchServer
+from launcher.services import server as server_mod
+from launcher.services.server import LaunchServer
 from launcher.operate.web import allowed_host, parse_address, round_sample
-from launcher.process.state import Fleet
+from launcher.fleet.state import Fleet
 
 
 def make_server(tmp_path, names=("/a", "/b")):

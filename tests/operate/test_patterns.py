@@ -1,6 +1,6 @@
 """Which nodes an operator's PATTERN selects: exact name, then glob, then regular expression."""
 
-from launcher.operate.patterns import match
+from launcher.model.patterns import match
 
 NAMES = ["/a", "/ab", "/g/b", "/g/c", "/g/sub/d", "/cam_left", "/cam_right"]
 

@@ -6,7 +6,7 @@ import stat
 import pytest
 
 from launcher.net.allow import AllowList, parse_networks
-from launcher.operate import token
+from launcher.model import token
 
 
 def test_token_file_is_readable_only_by_its_user(tmp_path):

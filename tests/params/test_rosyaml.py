@@ -14,7 +14,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.params import rosyaml
 from launcher.params.rosyaml import RosYamlError, degrees_value, dump_yaml, load_yaml, radians_value
 

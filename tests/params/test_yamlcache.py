@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.params import yamlcache
 from launcher.params.rosyaml import load_yaml
 from launcher.params.yamlcache import YamlCache

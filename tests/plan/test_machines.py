@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import socket
 
-from launcher.config import LaunchConfig, Machine, Node
-from launcher.packages import PackageIndex
+from launcher.model.config import LaunchConfig, Machine, Node
+from launcher.workspace.packages import PackageIndex
 from launcher.plan.machines import remote_machines, remote_test
 from launcher.plan.specs import node_specs
-from launcher.runopts import RunOptions
-from launcher.runtime import Plan
+from launcher.model.runopts import RunOptions
+from launcher.run.runtime import Plan
 
 FAR = "192.0.2.10"  # TEST-NET-1: never an address of this machine
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.plan.order import check_cycles
 from launcher.xml import load
 

@@ -6,12 +6,12 @@ import os
 import sys
 import time
 
-from launcher.command import NodeCommand
-from launcher.config import NodePolicy
-from launcher.masterlink import start_master
-from launcher.process import console
+from launcher.process.command import NodeCommand
+from launcher.model.config import NodePolicy
+from launcher.services.masterlink import start_master
+from launcher.output import console
 from launcher.process.spawn import ProcessSpec
-from launcher.process.state import Change, Fleet, visible
+from launcher.fleet.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor
 
 from helpers import ROS_PYTHON

@@ -8,7 +8,7 @@ import resource
 
 import pytest
 
-from launcher.config import NodePolicy
+from launcher.model.config import NodePolicy
 from launcher.process.coredumps import CoreDumpReporter, core_location
 from launcher.process.supervisor import Supervisor
 

@@ -6,8 +6,9 @@ from __future__ import annotations
 import asyncio
 import json
 
-from launcher.config import NodePolicy
-from launcher.process import console, state
+from launcher.model.config import NodePolicy
+from launcher.output import console
+from launcher.fleet import state
 from launcher.process.supervisor import Supervisor
 
 from helpers import until_async

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from launcher.command import NodeCommand
+from launcher.process.command import NodeCommand
 from launcher.process.spawn import ProcessSpec, SpawnError, spawn
 
 

@@ -17,9 +17,9 @@ import sys
 import textwrap
 
 from helpers import until_async
-from launcher.config import Machine, Node
-from launcher.process import machine as m
-from launcher.process.state import Fleet
+from launcher.model.config import Machine, Node
+from launcher.fleet import machine as m
+from launcher.fleet.state import Fleet
 from launcher.remote import parent as remote_parent
 
 FAKE_SSH = textwrap.dedent("""\

@@ -6,8 +6,8 @@ import shlex
 
 import pytest
 
-from launcher.config import Machine
-from launcher.errors import LaunchError
+from launcher.model.config import Machine
+from launcher.model.errors import LaunchError
 from launcher.remote import ssh
 
 ARM = Machine("arm", "arm.local", env_loader="/opt/ros/env.sh", ssh_port=2222, user="robot", timeout=10.0,

@@ -60,7 +60,7 @@ class LaunchDir:
         return {k: p.value for k, p in self.load(text, argv, env, core=False, **kw).params.items()}
 
     def error(self, text, argv=(), env=None, **kw):
-        from launcher.errors import LaunchError
+        from launcher.model.errors import LaunchError
         with pytest.raises(LaunchError) as e:
             self.load(text, argv, env, **kw)
         return e.value

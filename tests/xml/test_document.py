@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.xml.document import XmlSyntaxError, element_text, parse_xml, read_launch
 
 

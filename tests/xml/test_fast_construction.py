@@ -1,4 +1,4 @@
-"""config.py's records: NamedTuples built by position (the loader's fast path) or by keyword.
+"""model/config.py's records: NamedTuples built by position (the loader's fast path) or by keyword.
 
 The loader builds thousands of Params and Nodes with positional arguments; the
 rest of the code builds them by keyword. Both must make the same immutable
@@ -12,7 +12,7 @@ import pickle
 
 import pytest
 
-from launcher.config import LaunchConfig, Machine, Node, Param, new_param
+from launcher.model.config import LaunchConfig, Machine, Node, Param, new_param
 
 NODE_KWARGS = dict(package="pkg", type="t", name="n", namespace="/ns/", args="-a", remap_args=(("a", "b"),),
                    env_args=(("E", "1"),), respawn=True, respawn_delay=1.5, required=False, output="screen",
@@ -79,7 +79,7 @@ def test_config_imports_nothing_of_the_launcher_but_names():
     # and not dataclasses (with inspect, ~5 ms on the way to `launch --nodes`)
     import subprocess
     import sys
-    code = ("import sys; before = set(sys.modules); import launcher.config; "
+    code = ("import sys; before = set(sys.modules); import launcher.model.config; "
             "print(sorted(m for m in set(sys.modules) - before if m.startswith('launcher.') or m == 'dataclasses'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "['launcher.config', 'launcher.names']"
+    assert out.stdout.strip() == "['launcher.model.config', 'launcher.model.names']"

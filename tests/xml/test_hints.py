@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from launcher import errors
-from launcher.errors import LaunchError
-from launcher.packages import PackageIndex
+from launcher.model import errors
+from launcher.model.errors import LaunchError
+from launcher.workspace.packages import PackageIndex
 from launcher.xml import resolve_launch_arguments
 
 

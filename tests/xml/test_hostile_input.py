@@ -23,7 +23,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 MB = 1_000_000
 DEADLINE_S = 10.0
@@ -120,7 +120,7 @@ def sandbox(tmp_path_factory):
     (root / "empty").mkdir()
     env = {"ROS_PACKAGE_PATH": str(pkgs), "CMAKE_PREFIX_PATH": "", "ROS_HOME": str(root / "home"),
            "PATH": str(root / "empty"), "HOME": str(root)}
-    from launcher.packages import PackageIndex
+    from launcher.workspace.packages import PackageIndex
     return root, env, PackageIndex(env)
 
 
@@ -130,7 +130,7 @@ _LOCATED = re.compile(r"^(.+?):(\d+): ", re.S)
 def load_and_compute(path, env, packages):
     """Load `path` as `launch --dump-params` and `--args` would, then compute what they print. Returns
     the LaunchError (checked: it names the file and a line) or None; anything else escapes."""
-    from launcher.command import node_command
+    from launcher.process.command import node_command
     from launcher.params.dump import dump_yaml
     from launcher.xml import load
 

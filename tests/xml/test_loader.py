@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from launcher.errors import shorten
+from launcher.model.errors import shorten
 
 
 def names(config):

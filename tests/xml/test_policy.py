@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from launcher.config import NodePolicy
+from launcher.model.config import NodePolicy
 
 
 def policies(config):

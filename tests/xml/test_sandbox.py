@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.xml import sandbox
 from launcher.xml.substitution import SubstitutionError, SubstitutionScope, resolve
 

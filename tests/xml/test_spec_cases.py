@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 MAIN = "launch/main.launch"
 PKG = "spec_pkg"
@@ -826,7 +826,7 @@ def _check(case: Case, result: dict, pkg: str, who: str) -> None:
 
 
 def _ours(path: str, env: dict[str, str], argv: list[str]) -> dict:
-    from launcher.packages import PackageIndex
+    from launcher.workspace.packages import PackageIndex
     from launcher.xml import load
 
     try:

@@ -1,7 +1,7 @@
 """`--args`: the node command line and environment changes, against roslaunch's own node_args.
 
 Each case loads a small launch file and computes every node's command with
-`launcher.command.node_command`; roslaunch's answer comes from its setup_env +
+`launcher.process.command.node_command`; roslaunch's answer comes from its setup_env +
 create_local_process_args (what `roslaunch --args NODE` prints), run in-process by
 Debian's python. The tables below are the expected `--args` lines (with @PKG@/@WS@ for the
 temporary package and workspace), checked against both.
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 PKG = "spec_cmd_pkg"
 DEFAULT_URI = "http://localhost:11311/"
@@ -120,8 +120,8 @@ def _expected(line: str | None, pkg: str, ws: str) -> str | None:
 
 
 def _ours(launch_file: str, case: Cmd, env: dict[str, str]) -> dict[str, str | None]:
-    from launcher.command import node_command
-    from launcher.packages import PackageIndex
+    from launcher.process.command import node_command
+    from launcher.workspace.packages import PackageIndex
     from launcher.xml import load
 
     packages = PackageIndex(env)

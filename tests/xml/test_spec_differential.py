@@ -16,7 +16,7 @@ import subprocess
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 N_DOCS = 400
 SEED = 20261121
@@ -261,7 +261,7 @@ def corpus(tmp_path_factory):
 
 
 def _ours(path, env, argv=()):
-    from launcher.packages import PackageIndex
+    from launcher.workspace.packages import PackageIndex
     from launcher.xml import load
     try:
         config = load([path], list(argv), environ=env, packages=PackageIndex(env), core=False)

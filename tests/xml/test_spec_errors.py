@@ -10,7 +10,7 @@ import os
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 
 PKG = "spec_err_pkg"
 
@@ -34,7 +34,7 @@ def tree(tmp_path):
             return str(path)
 
         def load(self, rel="main.launch", argv=()):
-            from launcher.packages import PackageIndex
+            from launcher.workspace.packages import PackageIndex
             from launcher.xml import load
             return load([str(pkg / rel)], list(argv), environ=env, packages=PackageIndex(env), core=False)
 

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from launcher.errors import LaunchError
+from launcher.model.errors import LaunchError
 from launcher.xml.substitution import (ArgNotSet, SubstitutionError, SubstitutionScope, auto_value,
                                        collect_commands, resolve)
 

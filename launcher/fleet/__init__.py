@@ -1,0 +1,1 @@
+"""The nodes' state: the node state machine (`machine`, a pure transition table), the restart policy it applies (`restart`), and the one home of every node's record that every view listens to (`state.Fleet`)."""

@@ -1,0 +1,344 @@
+"""Every node's state, in one home: the records the node state machine (`fleet.machine`) steps, and the
+stream of their changes that every view listens to.
+
+A runner (the supervisor for this machine's nodes, `remote.parent` for the
+others) tells the fleet what happened to a node (`apply(name, event)`); the
+fleet steps the node's record, keeps the new one, and hands the change to
+each listener in order: the console's words (`output.narrate`), the launch
+log, the server's status cache, a remote child's reports to its parent. It
+appends it to the run's `launcher-events.jsonl` (one JSON object a line:
+time, node, host, state, pid, exit code or signal, restarts, failures, limits
+over, reason, and the machine's own `phase`), so a reader can follow a launch
+from outside; `changes_since` serves the same stream to a reader that asks
+(the long poll of the launch's server). It returns the actions for the runner
+to carry out. The launch's outcome is the fleet's too: `done` is set when a
+node ends the launch (required, on_fatal="shutdown") or, with
+`exit_when_all_dead`, when every node has ended.
+
+The outside sees eight states (README), each internal state mapping onto one
+(`machine.PUBLIC`):
+
+    waiting     its start is held (spawn_delay, wait_for, or on its way to its machine)
+    running     its process runs (also while it is being stopped)
+    respawning  its process ended; it starts again at `next_start`
+    exited      its process ended and will not be started again (or its machine dropped)
+    fatal       it failed `respawn_max_retries` runs in a row: not restarted, kept here
+    hung        it stopped answering its own XML-RPC API (then killed; respawning or exited follows)
+    stalled     a watched topic of its own went silent or too slow (killed, unless on_stall="warn")
+    stopped     the launch (or an operator) stopped it
+
+A running node may also be over one of its limits (`memory_limit`, `cpu_limit`
+with on_limit="warn"): `over_limit` names them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import json
+import time
+from typing import Callable, Iterable, NamedTuple
+
+from launcher.fleet import machine
+from launcher.fleet.machine import Event, Record, Rules
+
+WAITING = "waiting"
+RUNNING = "running"
+RESPAWNING = "respawning"
+EXITED = "exited"
+FATAL = "fatal"
+HUNG = "hung"
+STALLED = "stalled"
+STOPPED = "stopped"
+STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
+
+EVENTS_FILE = "launcher-events.jsonl"
+LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
+HISTORY = 60  # resource samples kept per node (a minute at the default period)
+CHANGES_KEPT = 10000  # changes a long-polling reader can ask for again
+
+
+class NodeStatus:
+    """One node as a reader sees it: a view of its record, written only by the fleet. Times are
+    wall-clock seconds (time.time())."""
+
+    __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
+                 "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
+                 "over_limit")
+
+    def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
+        self.name = name  # the ROS node name, e.g. /robot/driver
+        self.process = process or name  # roslaunch's process name, e.g. robot/driver-2
+        self.host = host
+        self.state = WAITING
+        self.phase = machine.NEW  # the state machine's own state (machine.STATES)
+        self.pid: int | None = None
+        self.started_at: float | None = None  # the current (or last) run's start
+        self.restarts = 0  # starts after the first
+        self.spawn_count = 0  # runs started
+        self.exit_code: int | None = None  # the last run's exit code, if it exited
+        self.exit_signal: int | None = None  # the signal that ended the last run, if one did
+        self.next_start: float | None = None  # when respawning
+        self.reason = ""  # why the last change happened, in words
+        self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
+        self.cpu: float | None = None  # cores used over the last sample period
+        self.rss: int | None = None  # bytes, the node's whole process group
+        self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
+        # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
+        self.over_limit: dict[str, float] = {}
+
+    def uptime(self, now: float | None = None) -> float | None:
+        if self.state != RUNNING or self.started_at is None:
+            return None
+        return (time.time() if now is None else now) - self.started_at
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "process": self.process, "host": self.host, "state": self.state,
+                "phase": self.phase, "pid": self.pid, "started_at": self.started_at, "uptime": self.uptime(),
+                "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
+                "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
+                "rss": self.rss, "over_limit": dict(self.over_limit)}
+
+
+class Change(NamedTuple):
+    """One step of one node: what every view listens to."""
+
+    seq: int  # 1, 2, ... in the order of the changes of this run
+    time: float  # wall clock
+    old: Record
+    new: Record
+    event: Event
+    actions: list  # the machine's actions (a NOTE among them is for the console)
+    status: NodeStatus  # the node's view now (it changes with later changes)
+    line: dict  # the change as the events file writes it
+
+
+def size_text(n: float) -> str:
+    """Bytes in words: 612.0 MB."""
+    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
+        if n >= scale:
+            return "%.1f %s" % (n / scale, unit)
+    return "%d B" % n
+
+
+def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
+    """The limits a node is over, each with the value it has now: "memory_limit 500.0 MB (uses 612.0 MB)"."""
+    parts = []
+    for limit, maximum in sorted(over_limit.items()):
+        if limit == "memory_limit":
+            parts.append("memory_limit %s (uses %s)" % (size_text(maximum), "?" if rss is None else size_text(rss)))
+        else:
+            parts.append("%s %g cores (uses %s)" % (limit, maximum, "?" if cpu is None else "%.2f" % cpu))
+    return ", ".join(parts)
+
+
+def visible(change: Change) -> bool:
+    """Is this a change a reader of the events file sees? (Internal steps, e.g. running -> stopping, or
+    pending -> launching, are not written: the outside's states and their fields are the file's.)"""
+    old, new = change.old, change.new
+    if new.state in machine.ON_THE_WAY or new.state == machine.STOPPING:
+        return False  # (what follows says more: running, stopped, or why not)
+    return (machine.PUBLIC[old.state] != machine.PUBLIC[new.state] or old.pid != new.pid
+            or old.spawn_count != new.spawn_count or old.exit_code != new.exit_code
+            or old.exit_signal != new.exit_signal or old.over_limit != new.over_limit
+            or old.failures != new.failures or (old.reason != new.reason and new.reason != ""))
+
+
+class Fleet:
+    """The records of all nodes of a run, their views, the change stream and the launch's outcome."""
+
+    def __init__(self, events_path: str | None = None, warn: Callable[[str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic, exit_when_all_dead: bool = False,
+                 say: Callable[[str], None] | None = None):
+        self.records: dict[str, Record] = {}
+        self.nodes: dict[str, NodeStatus] = {}
+        self.clock = clock  # the runners' clock (the loop's): timers, uptimes
+        self._events = None
+        self._warn = warn
+        self.say = say  # the outcome's words ("all processes on machine have died ...")
+        self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
+        self.seq = 0
+        self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
+        self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
+        # the outcome
+        self.done = asyncio.Event()
+        # the launch's exit status when a node ended it: a required node's own exit code (128 + the
+        # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
+        self.exit_status = 0
+        self.exit_when_all_dead = exit_when_all_dead
+        self._registrations_complete = False
+        self._unstarted = 0  # nodes that never got a record (their command could not be made)
+        if events_path:
+            try:
+                # line-buffered: a reader (`launcher events -f`) sees each event as it happens
+                self._events = open(events_path, "a", buffering=1, encoding="utf-8")
+            except OSError as e:
+                self._warning("cannot write the events file [%s]: %s" % (events_path, e.strerror))
+
+    # ---- records -------------------------------------------------------------------------------------
+
+    def add(self, name: str, process: str = "", host: str = LOCAL_HOST, rules: Rules = Rules()) -> Record:
+        """The node's record, made on first sight (a second add of the same name keeps the first)."""
+        record = self.records.get(name)
+        if record is None:
+            record = self.records[name] = Record(name, process or name, host, rules)
+            self.nodes[name] = NodeStatus(name, record.process, host)
+        return record
+
+    def apply(self, name: str, event: Event) -> list[machine.Action]:
+        """Step the node with `event`; tell every listener; return what the runner is to do."""
+        old = self.records[name]
+        now = self.clock()
+        try:
+            new, actions = machine.step(old, event, now)
+        except machine.InvalidTransition as e:  # a runner's bug: said, and the node is left as it was
+            self._warning("internal error: %s" % e)
+            return []
+        if new is old:
+            return actions
+        self.records[name] = new
+        status = self._mirror(new, now)
+        self.seq += 1
+        when = time.time()
+        change = Change(self.seq, when, old, new, event, actions, status, self._line(self.seq, when, new, status))
+        self.changes.append(change)
+        if visible(change):
+            self._write(change)
+        for listener in self.listeners:
+            try:
+                listener(change)
+            except Exception as e:  # noqa: BLE001 - a view's bug must not stop the supervision of the nodes
+                self._warning("internal error in %r: %s: %s" % (listener, type(e).__name__, e))
+        if self._changed is not None:
+            self._changed.set()
+        for action in actions:
+            if action.kind == machine.END_LAUNCH:
+                self.end(action.status)
+        if new.state in machine.ENDED and old.state not in machine.ENDED:
+            self._check_all_dead()
+        return actions
+
+    def _mirror(self, r: Record, now: float) -> NodeStatus:
+        status = self.nodes[r.name]
+        wall = time.time() - now  # this clock's zero on the wall clock
+        status.process = r.process
+        status.state = machine.PUBLIC[r.state]
+        status.phase = r.state
+        status.pid = r.pid
+        status.started_at = None if r.started is None or r.spawn_count == 0 else wall + r.started
+        status.restarts = r.restarts
+        status.spawn_count = r.spawn_count
+        status.exit_code, status.exit_signal = r.exit_code, r.exit_signal
+        status.next_start = None if r.next_start is None else wall + r.next_start
+        status.reason = r.reason
+        status.failures = r.failures
+        status.over_limit = dict(r.over_limit)
+        if status.state != RUNNING:
+            status.cpu = status.rss = None  # (a stopped node uses nothing: no stale sample)
+        return status
+
+    def sample(self, name: str, cpu: float, rss: int) -> None:
+        status = self.nodes.get(name)
+        if status is not None and status.state == RUNNING:
+            status.cpu, status.rss = cpu, rss
+            status.history.append((time.time(), cpu, rss))
+
+    def __iter__(self) -> Iterable[NodeStatus]:
+        return iter(self.nodes.values())
+
+    # ---- the change stream, for readers outside -----------------------------------------------------------
+
+    def changes_since(self, seq: int) -> tuple[list[dict], bool]:
+        """The changes after `seq`, as the events file has them, and whether they are all there (False:
+        older ones were dropped; a reader should read the status again)."""
+        changes = [c for c in self.changes if c.seq > seq]
+        complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
+        return [c.line for c in changes], complete
+
+    async def wait_change(self, seq: int, timeout: float) -> None:
+        """Return when there is a change after `seq`, or after `timeout` seconds."""
+        if self.seq > seq:
+            return
+        if self._changed is None:
+            self._changed = asyncio.Event()
+        self._changed.clear()
+        try:
+            await asyncio.wait_for(self._changed.wait(), timeout)
+        except asyncio.TimeoutError:
+            pass
+
+    # ---- the launch's outcome ------------------------------------------------------------------------
+
+    def end(self, status: int) -> None:
+        """A node (here or elsewhere) ends the launch with `status` (the first one that fails decides)."""
+        if not self.done.is_set() or (status and not self.exit_status):
+            self.exit_status = status
+        self.done.set()
+
+    def not_started(self, required: bool) -> None:
+        """A node whose command could not even be made (already reported by name): it has no record."""
+        if required:
+            self.end(1)
+        else:
+            self._unstarted += 1
+            self._check_all_dead()
+
+    def registrations_complete(self) -> None:
+        """Every node of the launch has been started (or failed to)."""
+        self._registrations_complete = True
+        self._check_all_dead()
+
+    def _check_all_dead(self) -> None:
+        if not (self.exit_when_all_dead and self._registrations_complete) or self.done.is_set():
+            return
+        local = [r for r in self.records.values() if r.host == LOCAL_HOST]
+        if self._unstarted and not any(r.state in machine.ALIVE for r in local) or machine.outcome_all_dead(local):
+            if self.say is not None:
+                self.say("all processes on machine have died, roslaunch will exit")
+            self.done.set()
+
+    # ---- the events file -----------------------------------------------------------------------------------
+
+    def launch_ended(self, reason: str, exit_status: int) -> None:
+        """The launch's last line in the events file: a reader after it knows it ended, when and why (one
+        that was killed has none)."""
+        line = {"event": LAUNCH_ENDED, "time": round(time.time(), 6), "reason": reason, "exit_status": exit_status}
+        if self._events is not None:
+            try:
+                self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
+            except OSError as e:
+                self._warning("cannot write the events file: %s" % e.strerror)
+                self._close()
+
+    @staticmethod
+    def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:
+        """A change as the events file and the long poll give it."""
+        return {"seq": seq, "time": round(when, 6), "node": r.name, "host": r.host, "state": status.state,
+                "phase": r.state, "pid": r.pid, "exit_code": r.exit_code, "exit_signal": r.exit_signal,
+                "restarts": r.restarts, "failures": r.failures, "next_start": status.next_start,
+                "over_limit": dict(r.over_limit), "reason": r.reason}
+
+    def _write(self, change: Change) -> None:
+        if self._events is None:
+            return
+        try:
+            self._events.write(json.dumps(change.line, separators=(",", ":")) + "\n")
+        except OSError as e:  # a full disk: say so once, keep supervising
+            self._warning("cannot write the events file: %s" % e.strerror)
+            self._close()
+
+    def _warning(self, msg: str) -> None:
+        if self._warn is not None:
+            self._warn("WARNING: %s" % msg)
+
+    def _close(self) -> None:
+        if self._events is not None:
+            try:
+                self._events.close()
+            except OSError:
+                pass
+            self._events = None
+
+    def close(self) -> None:
+        self._close()

@@ -1,0 +1,110 @@
+"""Readiness: holding a node's start until its `wait_for` conditions exist on the master.
+
+A condition is `(kind, name)`:
+
+    topic    some node publishes it (a publisher in getSystemState)
+    service  some node provides it (getSystemState's services, what lookupService answers)
+    param    the parameter is set (hasParam)
+    node     the node is registered (lookupNode)
+
+One poll of the master serves every waiting node (one getSystemState, plus one
+call per distinct parameter or node asked about), at most `POLL_S` apart, so a
+launch with a hundred waiting nodes asks no more than one with a single one.
+The conditions are checked at the first start only: a respawn does not wait
+again (what it needed was there once; holding a crashed node back until its
+peers are all up again is the restart policy's business, not readiness').
+
+While held, the node's state is `held` (`waiting` to the outside); when its
+`wait_timeout` passes with a condition still missing, its runner reports it
+as failed to start, naming what was missing (`give_up_waiting`). The runner
+(the supervisor, or the remote parent) is told `release(key)` or
+`give_up_waiting(key, why)`; `drop(key)` lets go of a node (stopped, shutdown).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+from launcher.net import xmlrpc
+from launcher.fleet.machine import describe
+
+# At most this often the master is asked (per launch, whatever the number of waiting nodes).
+POLL_S = 0.2
+# One master call may take this long before the poll counts its conditions as not met yet.
+CALL_TIMEOUT_S = 2.0
+CALLER_ID = "/roslaunch"
+
+
+class Readiness:
+    """The nodes of one runner whose start is held, and the poll that releases them."""
+
+    def __init__(self, master_uri: str, runner: Any, period: float = POLL_S):
+        self.master_uri = master_uri
+        self.runner = runner
+        self.period = period
+        self.loop = asyncio.get_running_loop()
+        self.waiting: dict[Any, float] = {}  # NodeProcess -> loop time of its wait_timeout
+        self._task: asyncio.Task | None = None
+
+    def hold(self, proc: Any) -> None:
+        """Hold `proc` (anything with a `spec.policy`) until its conditions are met; the poll starts with
+        the first one."""
+        self.waiting[proc] = self.loop.time() + proc.spec.policy.wait_timeout
+        if self._task is None or self._task.done():
+            self._task = self.loop.create_task(self._poll())
+
+    def drop(self, proc: Any) -> None:
+        self.waiting.pop(proc, None)
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+        self.waiting.clear()
+
+    async def _poll(self) -> None:
+        while self.waiting:
+            started = self.loop.time()
+            wanted = {c for proc in self.waiting for c in proc.spec.policy.wait_for}
+            present = await self.present(wanted)
+            now = self.loop.time()
+            for proc, deadline in list(self.waiting.items()):
+                if proc not in self.waiting:  # let go of (dropped) while the master was asked
+                    continue
+                missing = [c for c in proc.spec.policy.wait_for if c not in present]
+                if not missing:
+                    del self.waiting[proc]
+                    self.runner.release(proc)
+                elif now >= deadline:
+                    del self.waiting[proc]
+                    self.runner.give_up_waiting(
+                        proc, "still waiting after %g s for %s" % (proc.spec.policy.wait_timeout, describe(missing)))
+            if self.waiting:
+                await asyncio.sleep(max(0.0, started + self.period - self.loop.time()))
+
+    async def present(self, wanted: set[tuple[str, str]]) -> set[tuple[str, str]]:
+        """Which of the `wanted` conditions hold on the master now (a master that does not answer: none)."""
+        found: set[tuple[str, str]] = set()
+        if any(kind in ("topic", "service") for kind, _ in wanted):
+            reply = await self._ask("getSystemState")
+            if reply is not None:
+                publishers, _subscribers, services = reply
+                found.update(("topic", t) for t, nodes in publishers if nodes)
+                found.update(("service", s) for s, nodes in services if nodes)
+        for kind, name in wanted:
+            if kind == "param":
+                if await self._ask("hasParam", name):
+                    found.add((kind, name))
+            elif kind == "node":
+                if await self._ask("lookupNode", name) is not None:
+                    found.add((kind, name))
+        return found & wanted
+
+    async def _ask(self, method: str, *args: Any) -> Any:
+        """The value of a master call that succeeded (code 1), else None."""
+        try:
+            code, _msg, value = await xmlrpc.call(self.master_uri, method, CALLER_ID, *args, timeout=CALL_TIMEOUT_S)
+        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
+            return None
+        return value if code == 1 else None

@@ -1,0 +1,1 @@
+"""What every layer shares and nothing of ours is imported by: ROS graph names, the launch model (`LaunchConfig`), errors a user can fix, sizes, shell words, close-match suggestions, an operator's PATTERN, the run's token."""

@@ -1,0 +1,1 @@
+"""What a run writes: the console (roslaunch's lines, node output relayed through the launcher, journald framing), the words for each change (`narrate`), the log directory, node output logs and their rotation, the run log."""

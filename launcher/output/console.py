@@ -1,0 +1,270 @@
+"""roslaunch-style console messages (plain, bold, error lines), written by one thread that may block so nothing else does.
+
+The launcher's stdout is often something it does not control: a terminal paused
+with Ctrl-S, a pipe nobody reads, a slow SSH link. A `write` there blocks, and
+if the event loop made it, the embedded master would stop answering and
+respawns would stop. So a line is written by the caller only when that cannot
+block: nothing is queued before it, and the stream is in memory or its
+descriptor is ready for a write of that size (`select`; a line of at most
+PIPE_BUF bytes then goes through whole). Otherwise it is handed to the
+console's writer thread through a bounded queue and the caller goes on at once.
+When the queue is full the oldest lines are dropped, and the writer says how
+many once output flows again. The extra sinks (the launch's own log file) get
+every message in full, at once, from the caller.
+
+Node output relayed by the launcher (output/screen.py) goes through the same
+queue, so that it keeps its order with the launcher's lines, but it is never
+dropped: `relay` says when more than MAX_QUEUED_OUTPUT bytes of it wait, and
+the relay then stops reading the node until `when_drained` calls it back. The
+node then blocks in its own write, as it would on a blocked terminal.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import select
+import sys
+import threading
+from typing import Callable, TextIO
+
+# Extra sinks (e.g. the launcher's own log file); each gets every message.
+_handlers: list[Callable[[str], None]] = []
+
+MAX_QUEUED_CHARS = 128 * 1024  # console text held while the terminal or pipe does not take it
+MAX_QUEUED_OUTPUT = 256 * 1024  # node output held before the nodes' readers pause (never dropped)
+PIPE_BUF = select.PIPE_BUF  # a write this small to a ready pipe or terminal is taken whole
+
+
+def add_handler(fn: Callable[[str], None]) -> None:
+    _handlers.append(fn)
+
+
+def remove_handler(fn: Callable[[str], None]) -> None:
+    if fn in _handlers:
+        _handlers.remove(fn)
+
+
+# Sinks that also want to know whether a message is an error (a roslaunch child tells its parent the level).
+_level_handlers: list[Callable[[str, bool], None]] = []
+
+
+def add_level_handler(fn: Callable[[str, bool], None]) -> None:
+    _level_handlers.append(fn)
+
+
+def remove_level_handler(fn: Callable[[str, bool], None]) -> None:
+    if fn in _level_handlers:
+        _level_handlers.remove(fn)
+
+
+_is_terminal: dict[int, tuple[TextIO, bool]] = {}  # id(stream) -> (stream, isatty): one ioctl per stream
+
+
+def _colours(stream: TextIO) -> bool:
+    known = _is_terminal.get(id(stream))
+    if known is None or known[0] is not stream:
+        try:
+            known = _is_terminal[id(stream)] = (stream, stream.isatty())
+        except (OSError, ValueError):
+            return False
+    return known[1]
+
+
+class _Writer:
+    """The one thread that writes console lines, in the order they were emitted, to their streams."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        # (stream, text) for a launcher line, (stream, bytes) for a chunk of a node's output
+        self._queue: collections.deque[tuple[TextIO, str | bytes]] = collections.deque()
+        self._queued_chars = 0  # launcher lines only: they are what may be dropped
+        self._queued_output = 0  # node output bytes
+        self._drained: list[Callable[[], None]] = []  # relays waiting for the node output to drain
+        self._dropped: dict[TextIO, int] = {}  # lines dropped, by the stream they were for
+        self._writing = False
+        self._thread: threading.Thread | None = None
+
+    def put(self, stream: TextIO, text: str) -> None:
+        with self._cond:
+            size = len(text) if text.isascii() else len(text.encode(errors="replace"))
+            if not self._queue and not self._writing and not self._dropped and size <= PIPE_BUF and _ready(stream):
+                _write(stream, text)  # the common case: at once, in order, from the caller
+                return
+            self._queue.append((stream, text))
+            self._queued_chars += len(text)
+            while self._queued_chars > MAX_QUEUED_CHARS and self._drop_oldest_line():
+                pass
+            self._wake()
+
+    def put_output(self, stream: TextIO, data: bytes) -> bool:
+        """Queue a chunk of node output (never dropped); False when the nodes should wait."""
+        with self._cond:
+            if not self._queue and not self._writing and len(data) <= PIPE_BUF and _ready(stream):
+                _write_output(stream, data)
+                return True
+            self._queue.append((stream, data))
+            self._queued_output += len(data)
+            self._wake()
+            return self._queued_output <= MAX_QUEUED_OUTPUT
+
+    def when_drained(self, callback: Callable[[], None]) -> None:
+        """Call `callback` (from the writer thread) once the node output queued is down to half its bound."""
+        with self._cond:
+            if self._queued_output > MAX_QUEUED_OUTPUT // 2:
+                self._drained.append(callback)
+                return
+        callback()
+
+    def _drop_oldest_line(self) -> bool:
+        """Drop the oldest launcher line but the newest one (node output is never dropped)."""
+        for i in range(len(self._queue) - 1):
+            lost_stream, lost = self._queue[i]
+            if isinstance(lost, str):
+                del self._queue[i]
+                self._queued_chars -= len(lost)
+                self._dropped[lost_stream] = self._dropped.get(lost_stream, 0) + 1
+                return True
+        return False
+
+    def _wake(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="console", daemon=True)
+            self._thread.start()
+            atexit.register(self.flush, 2.0)  # (an os._exit path calls flush() itself)
+        self._cond.notify()
+
+    def flush(self, timeout: float) -> bool:
+        """Wait until every queued line is written (False if the output stayed blocked for `timeout`)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._queue and not self._writing, timeout)
+
+    def _run(self) -> None:
+        drained: list[Callable[[], None]] = []
+        while True:
+            for callback in drained:  # (outside the lock: a callback hands over to the event loop)
+                try:
+                    callback()
+                except Exception:  # noqa: BLE001 - a closed loop at exit: nothing left to resume
+                    pass
+            with self._cond:
+                self._writing = False
+                self._cond.notify_all()
+                self._cond.wait_for(lambda: self._queue)
+                stream, item = self._queue.popleft()
+                if isinstance(item, str):
+                    self._queued_chars -= len(item)
+                else:
+                    self._queued_output -= len(item)
+                drained = []
+                if self._drained and self._queued_output <= MAX_QUEUED_OUTPUT // 2:
+                    drained, self._drained = self._drained, []
+                dropped: dict[TextIO, int] = {}
+                if isinstance(item, str):  # (said among the launcher's lines, not inside a node's output)
+                    dropped, self._dropped = self._dropped, {}
+                self._writing = True
+            for lost_stream, count in dropped.items():  # said where the lines would have gone
+                _write(lost_stream, "[launch] %d console line%s dropped while the output was blocked\n"
+                       % (count, "" if count == 1 else "s"))
+            if isinstance(item, str):
+                _write(stream, item)
+            else:
+                _write_output(stream, item)
+
+
+def _ready(stream: TextIO) -> bool:
+    """Would a short write to `stream` go through without blocking?"""
+    try:
+        fd = stream.fileno()
+    except (OSError, ValueError, AttributeError):
+        return True  # an in-memory stream (a test's capture) never blocks
+    try:
+        return bool(select.select((), (fd,), (), 0)[1])
+    except (OSError, ValueError):
+        return False
+
+
+def _write(stream: TextIO, text: str) -> None:
+    try:
+        stream.write(text)
+        # Flushed per line: node output shares the same terminal/pipe.
+        stream.flush()
+    except (OSError, ValueError):
+        pass
+
+
+def _write_output(stream: TextIO, data: bytes) -> None:
+    """Node output as the node wrote it: bytes, to the stream's binary buffer (text only for a capture)."""
+    try:
+        buffer = stream.buffer  # type: ignore[attr-defined]
+    except AttributeError:
+        _write(stream, data.decode(errors="replace"))
+        return
+    try:
+        stream.flush()  # (text someone printed without flushing goes first)
+        buffer.write(data)
+        buffer.flush()
+    except (OSError, ValueError):
+        pass
+
+
+_writer = _Writer()
+
+
+def flush(timeout: float = 2.0) -> bool:
+    """Write out what is queued before the process exits; give up after `timeout` if the output is blocked."""
+    return _writer.flush(timeout)
+
+
+def relay(stream: TextIO, data: bytes) -> bool:
+    """A chunk of a node's output for `stream`, in order with the launcher's lines and never dropped.
+
+    False when more node output waits than the console's bound: the caller stops reading the node
+    and asks `when_drained` to be told when to go on.
+    """
+    return _writer.put_output(stream, data)
+
+
+def when_drained(callback: Callable[[], None]) -> None:
+    """Call `callback` once the node output waiting is down to half the bound (perhaps at once, perhaps
+    from the console's thread)."""
+    _writer.when_drained(callback)
+
+
+def _emit(stream: TextIO, msg: str, style: str | None) -> None:
+    for h in _handlers:
+        try:
+            h(msg)
+        except Exception:  # a broken log sink must never stop the launch
+            pass
+    for lh in _level_handlers:
+        try:
+            lh(msg, stream is sys.stderr)
+        except Exception:
+            pass
+    # Colours only on a terminal: roslaunch always writes escapes, which
+    # litter redirected output; the words are the same either way.
+    if style and _colours(stream):
+        _writer.put(stream, "\033[%sm%s\033[0m\n" % (style, msg))
+    else:
+        _writer.put(stream, msg + "\n")
+
+
+def printlog(msg: str) -> None:
+    """A plain line on stdout."""
+    _emit(sys.stdout, msg, None)
+
+
+def printlog_bold(msg: str) -> None:
+    """A bold line on stdout (roslaunch's `printlog_bold`)."""
+    _emit(sys.stdout, msg, "1")
+
+
+def printerrlog(msg: str) -> None:
+    """A red line on stderr (roslaunch's `printerrlog`)."""
+    _emit(sys.stderr, msg, "31")
+
+
+def printfatal(msg: str) -> None:
+    """The error that ends the launch: bold red on stderr, so it stands out from the (red) warnings before it."""
+    _emit(sys.stderr, msg, "1;31")

@@ -1,0 +1,423 @@
+"""Running a launch on one asyncio loop: master (found or ours), log, rosout, parameters, supervised nodes, shutdown.
+
+There is one path. `launch --core` is a run of an empty launch whose master
+must be ours (roscore's words and output); `launch file.launch` uses a
+master that already answers at the master URI, else starts ours. Here:
+
+- `Plan`: the loaded launch and its checks (no socket, no process), with
+  what `launcher.plan` works out from it (which machines are other hosts,
+  each node's process spec);
+- `StopSignals`: SIGINT/SIGTERM/SIGHUP for the whole run, installed on the
+  loop before anything starts;
+- `Run`: the ordered list of the run's services (`masterlink.MasterSession`,
+  `servers`, `nodeservice.NodeService`), started in order, stopped in reverse.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import gc
+import os
+import signal
+import sys
+import time
+from typing import Any, Awaitable, Callable
+
+from launcher.services import masterlink
+from launcher.process.command import master_uri
+from launcher.model.config import LaunchConfig
+from launcher.model.errors import LaunchError
+from launcher.master import advertised_host
+from launcher.services.masterlink import MasterSession
+from launcher.net.open_files import raise_open_file_limit
+from launcher.services.nodeservice import NodeService
+from launcher.services import systemd
+from launcher.workspace.packages import PackageIndex
+from launcher.plan.machines import remote_machines
+from launcher.plan.order import check_cycles
+from launcher.plan.specs import node_specs
+from launcher.output import console
+from launcher.fleet import machine as node_machine
+from launcher.output.logdir import DEFAULT_THRESHOLD, parse_size
+from launcher.process.spawn import ProcessSpec
+from launcher.fleet.state import Change
+from launcher.process.reaper import Reaper, become_subreaper
+from launcher.process.watchdog import Watchdog
+from launcher.remote import ssh
+from launcher.remote.parent import check_addresses, machine_nodes, policy_warnings
+from launcher.output.runlog import RunLog, summary
+from launcher.model.runopts import RunOptions
+from launcher.services.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
+from launcher.xml import load, resolve_launch_arguments
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Stopped(Exception):
+    """A stop signal arrived while the run was starting."""
+
+
+def run(opts: RunOptions, *, exit_process: bool = False) -> int:
+    """`launch [pkg] file.launch ...` or `launch --core`: run until a stop signal, a `shutdown` call, a
+    required node's exit, or (with a master already running) every node's exit; the exit status.
+
+    With `exit_process` (the `launch` command itself), the process ends here
+    once everything is stopped and flushed, skipping the interpreter's
+    tear-down (tens of ms that a user waiting for the prompt would notice).
+    """
+    core = opts.core
+    # The guard is started first, so that no node can ever run unwatched (a core runs none).
+    watchdog = None if core else Watchdog.start()
+    pid_fn = opts.pid_fn
+    try:
+        if pid_fn:
+            try:
+                with open(pid_fn, "w") as f:
+                    f.write(str(os.getpid()))
+            except OSError as e:
+                raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
+        raise_open_file_limit()  # every client of the master and the rosout node is a file
+        plan = Plan.core(opts) if core else Plan.load(opts)
+        status = asyncio.run(Run(opts, plan, watchdog).main())
+    finally:
+        if watchdog is not None:
+            watchdog.close()
+        if pid_fn:
+            try:
+                os.unlink(pid_fn)
+            except OSError:
+                pass
+    if exit_process:
+        console.flush()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(status)
+    return status
+
+
+class Plan:
+    """What a run runs: the loaded launch, its master URI, the checks that need no master."""
+
+    def __init__(self, config: Any, master_uri: str, environ: dict[str, str], *, core: bool = False,
+                 packages: Any = None, log_threshold: int = DEFAULT_THRESHOLD, core_port: int = 0):
+        self.config = config
+        self.master_uri = master_uri
+        self.environ = environ
+        self.core = core
+        self.packages = packages
+        self.log_threshold = log_threshold
+        self.log_max_size = 0  # node output logs are rotated past this size (0: never)
+        self.core_port = core_port
+
+    @classmethod
+    def core(cls, opts: RunOptions) -> Plan:
+        """roscore: an empty launch, our master on -p or ROS_MASTER_URI's port."""
+        environ = dict(os.environ)
+        port = masterlink.master_port(opts.port, environ)
+        uri_port = masterlink.master_port(None, environ)
+        if environ.get("ROS_MASTER_URI") and uri_port != port:
+            print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),
+                  file=sys.stderr)
+        return cls(LaunchConfig(), "", environ, core=True, core_port=port)
+
+    @classmethod
+    def load(cls, opts: RunOptions) -> Plan:
+        """Read the launch files; LaunchError (file and line) for bad input."""
+        environ = dict(os.environ)
+        warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
+        packages = PackageIndex(environ, warn=warn)
+        files, argv = resolve_launch_arguments(list(opts.positional), packages)
+        if not files:
+            raise LaunchError("you must specify at least one input file")
+        config = load(files, argv, environ=environ, packages=packages, warn=warn)
+        uri = master_uri(argv, environ)
+        if opts.port:
+            if not 0 < opts.port < 65536:
+                raise LaunchError("invalid port assignment: %s" % opts.port)
+            uri = "http://%s:%d/" % (advertised_host(environ), opts.port)
+        threshold = DEFAULT_THRESHOLD
+        if opts.log_check_threshold:
+            try:
+                threshold = parse_size(opts.log_check_threshold)
+            except ValueError as e:
+                raise LaunchError("--log-check-threshold: %s" % e) from None
+        plan = cls(config, uri, environ, packages=packages, log_threshold=threshold)
+        try:
+            plan.log_max_size = parse_size(opts.log_max_size or "0")
+        except ValueError as e:
+            raise LaunchError("--log-max-size: %s" % e) from None
+        plan.check_nodes(opts)
+        return plan
+
+    @functools.cached_property
+    def remote_machines(self) -> frozenset[str]:
+        """The machines of the launch's nodes that are other hosts, looked up once (plan.machines)."""
+        return remote_machines(self.config, self.environ)
+
+    def remote(self, node: Any) -> bool:
+        """Is the node assigned to another machine?"""
+        return bool(node.machine_name) and node.machine_name in self.remote_machines
+
+    def specs(self, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
+        """What runs for each local node (plan.specs.node_specs)."""
+        return node_specs(self.config, self.master_uri, self.environ, self.packages, self.remote,
+                          opts=opts, run_dir=run_dir, first_number=first_number)
+
+    def check_nodes(self, opts: RunOptions) -> None:
+        check_cycles(self.config.nodes)
+        for node in self.config.nodes:
+            if opts.required and node.respawn:
+                raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"
+                                  % node.full_name, node.filename or None, node.line or None)
+            if node.respawn and node.required:
+                raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
+                                  node.filename or None, node.line or None)
+        if not opts.local:
+            machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
+            for machine in sorted(machines, key=lambda m: m.name):
+                ssh.check_machine(machine)
+            if machines:
+                check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
+            for node in self.config.nodes:
+                if self.remote(node):
+                    for warning in policy_warnings(node, self.config.machines[node.machine_name]):
+                        console.printerrlog("WARNING: %s" % warning)
+
+    def remote_nodes(self) -> dict[str, list[Any]]:
+        """The nodes to launch on other machines, by machine name."""
+        return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
+
+
+class StopSignals:
+    """SIGINT, SIGTERM and SIGHUP for the whole run: each sets `event`, which ends the run."""
+
+    def __init__(self) -> None:
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.event = asyncio.Event()  # (bound to the loop that first waits on it)
+        # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
+        self.while_stopping: Callable[[], None] | None = None
+        self.received = ""  # the first stop signal's name
+
+    def install(self, loop: asyncio.AbstractEventLoop) -> None:
+        """On the run's loop, before anything starts."""
+        self.loop = loop
+        for sig in STOP_SIGNALS:
+            loop.add_signal_handler(sig, self._on_signal, sig)
+
+    def _on_signal(self, sig: int = 0) -> None:
+        if not self.received and sig:
+            self.received = signal.Signals(sig).name
+        if self.while_stopping is not None:
+            self.while_stopping()
+        self.event.set()
+
+    def check(self) -> None:
+        if self.event.is_set():
+            raise Stopped()
+
+    async def guard(self, step: Awaitable[Any]) -> Any:
+        """Await a start-up step, or raise Stopped as soon as a stop signal arrives (the step is cancelled)."""
+        self.check()
+        task = asyncio.ensure_future(step)
+        stop = asyncio.ensure_future(self.event.wait())
+        await asyncio.wait((task, stop), return_when=asyncio.FIRST_COMPLETED)
+        if task.done():
+            stop.cancel()
+            return task.result()
+        task.cancel()
+        try:
+            await task
+        except BaseException:  # noqa: BLE001 - the step was abandoned; its outcome no longer matters
+            pass
+        raise Stopped()
+
+    def close(self) -> None:
+        if self.loop is not None:
+            for sig in STOP_SIGNALS:
+                self.loop.remove_signal_handler(sig)
+
+
+class Run:
+    """One run on the running loop: an ordered list of services, started in order and stopped in reverse.
+
+    The services: the master session (`masterlink.MasterSession`), roslaunch's
+    API server, rosout, the nodes (`nodeservice.NodeService`), /diagnostics and
+    the log-disk check (`servers`). Start-up keeps roslaunch's order of lines,
+    so two of them start in steps: the master session is found first (its run
+    id names the log), started after the summary and given the parameters once
+    rosout is up; the node service's `prepare` starts the other machines'
+    children right after the API server (they call it). A front-end that runs differently
+    (rostest) gives its own master session (a class), False for a server it does
+    not run, and its own `body` (what the run does between its start and stop).
+    """
+
+    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None, *,
+                 master: Callable[..., MasterSession] = MasterSession, rosout: bool = True,
+                 diagnostics: bool = True, log_disk: bool = True, body: Callable[[Run], Awaitable[None]] | None = None,
+                 first_number: int = 0, reap_orphans: bool = True):
+        self.opts = opts
+        self.plan = plan
+        self.watchdog = watchdog
+        self.core = plan.core
+        self.signals = StopSignals()
+        self.log = RunLog(plan.environ)
+        env = plan.environ
+        self.master = master(opts, plan, self.signals)
+        self.nodes = NodeService(opts, plan, self.log, self.signals, watchdog, self._end_reason)
+        self.rosout = RosoutService(self.master, self.log, env) if rosout else None
+        self.view = RunView(self.master, self.nodes, self.log, self.rosout, plan.config.files)
+        self.api = ApiServer(self.view, self.master, env)
+        self.diagnostics = (DiagnosticsService(self.master, self.nodes, env)
+                            if diagnostics and not self.core and not opts.no_diagnostics else None)
+        self.log_disk = (LogDiskCheck(env, plan.log_threshold)
+                         if log_disk and not self.core and not opts.skip_log_check else None)
+        self.body = body if body is not None else Run.wait_for_the_end
+        self.first_number = first_number  # roslaunch numbers processes (rosout-1, then the nodes)
+        self._started = time.monotonic()  # (the launch log's timings count from here)
+        self._up: list[Any] = []  # the services started (or starting)
+        # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
+        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
+        # orphans re-parented to the launch are reaped (process/reaper.py); a front-end that waits for a
+        # child of its own (rostest's test node: its exit status is the test's result) says False
+        self.reap_orphans = reap_orphans
+        self.reaper: Reaper | None = None
+
+    @property
+    def services(self) -> list[Any]:
+        """In start order; each has `start()` and `stop()` (the stop undoes what a start did, if anything)."""
+        return [s for s in (self.master, self.api, self.rosout, self.nodes, self.diagnostics, self.log_disk)
+                if s is not None]  # (rosout outlives the nodes: their last words reach its log)
+
+    @property
+    def process_count(self) -> int:
+        """The processes numbered so far: rosout's, then the nodes'."""
+        return self.first_number + (self.rosout.processes if self.rosout is not None else 0) + self.nodes.processes
+
+    async def main(self) -> int:
+        self.signals.install(asyncio.get_running_loop())
+        if self.notifier is not None:
+            self.notifier.start_watchdog()
+        if self.reap_orphans and (os.getpid() == 1 or become_subreaper()):
+            self.reaper = Reaper(asyncio.get_running_loop(), self._own_pids)
+        try:
+            await self._start()
+            await self.body(self)
+        except Stopped:
+            pass
+        finally:
+            gc.unfreeze()  # (a process that runs again, as `launcher test` does, collects this run's cycles)
+            if self.notifier is not None:
+                self.notifier.stopping()
+            for service in reversed(self.services):
+                if service in self._up:
+                    await service.stop()
+            if self.reaper is not None:
+                await self.reaper.stop_orphans()  # a node's daemonized grandchildren, re-parented to us
+                self.reaper.close()
+            if self.notifier is not None:
+                self.notifier.close()
+            self._done()
+            self.signals.close()
+        return self.nodes.exit_status
+
+    async def _start(self) -> None:
+        guard, up = self.signals.guard, self._up.append
+        master, plan = self.master, self.plan
+        up(master)
+        await guard(master.find())  # (a core starts its master here: a busy port is all it has to say)
+        self.log.open(master.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
+        if self.core:
+            master.open_log(self.log.run_dir)  # (clients may call the master already)
+        up(self.api)
+        await guard(self.api.start())
+        if self.core:
+            console.printlog("ros_comm version %s" % masterlink.ros_version_params(plan.environ)[0].strip())
+        else:
+            up(self.nodes)
+            await self.nodes.prepare(master.run_id, master.uri, self.api.uri)
+        if not self.opts.no_summary:
+            console.printlog(summary(plan.config, master.summary_params(), remote=plan.remote,
+                                     machines=self.nodes.remote is not None))
+        await master.start(self.log.run_dir)
+        await guard(self.api.register())
+        if self.rosout is not None:
+            up(self.rosout)
+            await guard(self.rosout.start())
+        self.log.timing(self._started, "master %s at %s" % ("found" if master.external else "started", master.uri))
+        await guard(master.set_parameters())
+        self.log.timing(self._started, "%d parameters set" % len(plan.config.params))
+        if self.nodes not in self._up:
+            up(self.nodes)
+        first = self.first_number + (self.rosout.processes if self.rosout is not None else 0)
+        self.nodes.start(master.uri, first, exit_when_all_dead=master.external)
+        if master.master is not None:  # (ours: what a node that ended registered goes with it)
+            self.nodes.fleet.listeners.append(self._process_ended)
+        if self.notifier is not None:
+            self.notifier.attach(self.nodes.fleet, master.uri)
+        if self.rosout is not None:
+            self.rosout.warm_up()
+        for service in (self.diagnostics, self.log_disk):
+            if service is not None:
+                up(service)
+                await guard(service.start())
+        self.log.timing(self._started, "every node started")
+        # What start-up made (the loaded launch, the modules, the master's tables) lives as long as the run:
+        # out of the cyclic collector's way, a full collection no longer scans it. With 1,000 callbacks in
+        # flight, the master's slowest other call went from 20-38 ms to 6-14 ms (benchmarks/hung_subscribers.py).
+        gc.freeze()
+
+    def _own_pids(self) -> list[int]:
+        """The children whose exits their runners wait for (the reaper leaves them alone)."""
+        fleet, remote = self.nodes.fleet, self.nodes.remote
+        pids = [r.pid for r in fleet.records.values() if r.pid] if fleet is not None else []
+        if remote is not None:  # each machine's ssh (a session of its own, waited for by asyncio)
+            pids += [c.ssh.pid for c in remote.children.values() if c.ssh is not None]
+        return pids + ([self.watchdog.pid] if self.watchdog is not None else [])
+
+    def _process_ended(self, change: Change) -> None:
+        """A fleet listener: a node's process ended (here, or on another machine as its child told), and what
+        it registered on our master goes (master.process_ended checks that no new run took its name)."""
+        if change.event.kind in (node_machine.EXITED_, node_machine.DOWN) and change.old.pid:
+            self.master.master.process_ended(change.new.name, change.old.pid)
+
+    async def wait_for_the_end(self) -> None:
+        """A launch's body: until a stop signal, the nodes' end (a required node...) or a `shutdown` call."""
+        self.signals.check()
+        waiters = [asyncio.ensure_future(self.signals.event.wait()),
+                   asyncio.ensure_future(self.nodes.done.wait())]
+        shutdown = self.master.shutdown_requested
+        if shutdown is not None:
+            waiters.append(asyncio.ensure_future(shutdown.wait()))
+        await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+        for w in waiters:
+            w.cancel()
+        if shutdown is not None and shutdown.is_set():
+            console.printlog("shutdown request: %s" % self.master.master.shutdown_reason)
+
+    def _end_reason(self) -> str:
+        """Why the run ends, in words (the events file's last line, which `launcher status` reads after it)."""
+        if self.signals.received:
+            return "stopped by %s" % self.signals.received
+        shutdown = self.master.shutdown_requested
+        if shutdown is not None and shutdown.is_set():
+            return "shutdown request: %s" % self.master.master.shutdown_reason
+        done = self.nodes.done
+        if done is not None and done.is_set():
+            return "its nodes ended it (exit status %d)" % self.nodes.exit_status
+        return "ended"
+
+    def _done(self) -> None:
+        """roslaunch's last lines, then the launch log closed."""
+        if self.core:
+            if self.master.master is not None:
+                console.printlog("done")
+        else:
+            console.printlog("shutting down processing monitor...")
+            console.printlog("... shutting down processing monitor complete")
+            console.printlog_bold("done")
+        self.log.close()
+        sys.stdout.flush()

@@ -1,0 +1,1 @@
+"""A run's services, each with one start/stop: the master session (`masterlink`), the nodes (`nodeservice`), the servers (`servers`: roslaunch's API in `server` with the process API in `processes`, rosout, `/diagnostics`, the log-disk check) and systemd's notify protocol (`systemd`)."""

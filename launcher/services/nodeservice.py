@@ -1,0 +1,214 @@
+"""A run's nodes as one service: the fleet, the local supervisor, the health checks, the remote parent and the output-log rotation, started and stopped together.
+
+What the launch's API server steers (`control`: start, stop, restart one
+node, here or on another machine) and reads (`spec`, `package_of`) goes
+through this service too, so that the server sees the nodes, not the run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import sys
+from typing import Any, Callable
+
+from launcher.master import advertised_host
+from launcher.plan.specs import packages_of
+from launcher.output import console
+from launcher.process.coredumps import CoreDumpReporter
+from launcher.health.hang import HangDetector
+from launcher.health.stall import StallWatch
+from launcher.output.logrotate import LogRotator
+from launcher.health.readiness import Readiness
+from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
+from launcher.process.spawn import ProcessSpec
+from launcher.fleet.state import EVENTS_FILE, Fleet
+from launcher.process.supervisor import Supervisor
+from launcher.remote.parent import RemoteParent
+from launcher.model.runopts import RunOptions
+
+
+def _short_repr(value: Any, limit: int = 200) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "... (%d characters)" % len(text)
+
+
+class NodeService:
+    """Every node of one run. `prepare` starts the other machines' children (they connect while the run
+    sets up its master), `start` spawns this machine's nodes and hands the others to their children,
+    `stop` stops them all (the machines while this one stops its own) and writes the launch's end."""
+
+    def __init__(self, opts: RunOptions, plan: Any, log: Any, signals: Any, watchdog: Any,
+                 end_reason: Callable[[], str]):
+        self.opts = opts
+        self.plan = plan
+        self.log = log  # runlog.RunLog: where the launch log is, what it notes
+        self.signals = signals
+        self.watchdog = watchdog
+        self.end_reason = end_reason  # why the run ends, in words (the events file's last line)
+        self.remote: RemoteParent | None = None  # when nodes run on other machines
+        self.supervisor: Supervisor | None = None
+        self.fleet: Fleet | None = None  # every node's state (fleet/state.py)
+        self.rotator: LogRotator | None = None  # node output logs under --log-max-size
+        self.processes = 0  # the local nodes numbered by `start` (roslaunch numbers each process)
+        self._packages: dict[str, str] = {}  # process name -> package, for process_info
+        self._tasks: list[asyncio.Future] = []
+        self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
+
+    # ---- start -----------------------------------------------------------------------------------------
+
+    async def prepare(self, run_id: str, master_uri: str, parent_uri: str) -> None:
+        """The other machines' children, started on their own tasks; they get their nodes at `start`."""
+        if self.opts.local:
+            # roslaunch's words (ROSLaunchParent._init_remote), whether or not a node is remote
+            console.printlog_bold("LOCAL\nlocal only launch specified, will not launch remote nodes\nLOCAL\n")
+            return
+        by_machine = self.plan.remote_nodes()
+        if not by_machine:
+            return
+        self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=run_id,
+                                   master_uri=master_uri, host=advertised_host(self.plan.environ),
+                                   environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,
+                                   sigterm_timeout=self.opts.sigterm_timeout)
+        await self.remote.start(parent_uri)
+
+    def start(self, master_uri: str, first_number: int, *, exit_when_all_dead: bool) -> None:
+        """Spawn every node in order, each supervised from its start.
+
+        Every command line is worked out first: once nodes run, each competes with the
+        launcher for the CPU (on 2 cores, 100 starting roscpp nodes leave it a few percent),
+        so the loop that spawns them does as little as possible.
+        """
+        self.signals.check()
+        specs, failed = self.plan.specs(self.opts, self.log.run_dir, first_number)
+        self.processes = len(specs) + len(failed)
+        self._note_launch(specs)
+        self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
+                           warn=console.printerrlog)
+        self.fleet.listeners.append(self.log.state_change)
+        self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
+                                     sigterm_timeout=self.opts.sigterm_timeout,
+                                     exit_when_all_dead=exit_when_all_dead, watchdog=self.watchdog, fleet=self.fleet)
+        self._watch_health(master_uri)
+        self._packages = packages_of(self.plan.config, specs)
+        if self.remote is not None:
+            self.remote.attach(self.fleet)
+        stop = self.signals.event
+        no_start = self.opts.no_start
+        for spec in specs:
+            if stop.is_set():
+                break
+            if no_start:
+                self.supervisor.add(spec)  # started later by `launcher start`
+            else:
+                self.supervisor.start(spec)
+        for name, required in failed:
+            self.supervisor.not_started(name, required)
+        self.supervisor.registrations_complete()
+        self.rotator = LogRotator(self.plan.log_max_size, self.opts.log_backups, self.log.note)
+        for spec in specs:
+            if spec.stdout_path:
+                self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
+        self.rotator.start()
+
+    def _note_launch(self, specs: list[ProcessSpec]) -> None:
+        """What this run is, for the launch log: files, args, environment, parameters, command lines."""
+        note = self.log.note
+        note("launch files: %s" % " ".join(self.plan.config.files or ("(none)",)))
+        note("command line: %s" % " ".join(sys.argv))
+        note("ROS environment: %s" % ", ".join("%s=%s" % (k, v) for k, v in sorted(self.plan.environ.items())
+                                              if k.startswith("ROS_") or k == "CMAKE_PREFIX_PATH"))
+        for key, param in sorted(self.plan.config.params.items()):
+            note("param %s = %s" % (key, _short_repr(param.value)))
+        for spec in specs:
+            cmd = spec.command
+            note("node [%s] (process %s): %s%s" % (spec.node_name, spec.name, cmd.format_args(),
+                                                   " (cwd %s)" % cmd.cwd if cmd.cwd else ""))
+
+    def _watch_health(self, master_uri: str) -> None:
+        """wait_for holds, hang probes, stalled-topic watches, core dump reports, and the resource sampling of
+        every node."""
+        sup = self.supervisor
+        sup.readiness = Readiness(master_uri, sup)
+        hang = HangDetector(master_uri, sup)
+        stall = StallWatch(master_uri, sup)
+        sup.watchers += [hang, stall, CoreDumpReporter()]
+        self._health += [sup.readiness, hang, stall]
+        monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
+        self._tasks.append(asyncio.ensure_future(monitor.run()))
+
+    # ---- the run's end ---------------------------------------------------------------------------------
+
+    @property
+    def done(self) -> asyncio.Event | None:
+        """Set when the nodes end the launch (a required node, all dead with a master not ours)."""
+        return self.supervisor.done if self.supervisor is not None else None
+
+    @property
+    def exit_status(self) -> int:
+        return self.supervisor.exit_status if self.supervisor is not None else 0
+
+    def _kill_now(self) -> None:
+        """A stop signal while nodes are being stopped: kill what is left, and say so."""
+        killed = self.supervisor.kill_now() if self.supervisor is not None else []
+        if killed:
+            console.printerrlog("second stop signal: killing %d node(s) still stopping with SIGKILL: %s"
+                                % (len(killed), ", ".join(killed)))
+
+    async def stop(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        if self.rotator is not None:
+            self.rotator.close()
+        for h in self._health:
+            h.close()
+        # (the diagnostics publisher, which reads the fleet, is stopped before this)
+        stops = [self.remote.shutdown()] if self.remote is not None else []
+        if self.supervisor is not None:
+            self.signals.while_stopping = self._kill_now
+            stops.append(self.supervisor.shutdown())
+        await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
+        if self.supervisor is not None:
+            self.signals.while_stopping = None
+            self.supervisor.close()
+        if self.fleet is not None:
+            self.fleet.launch_ended(self.end_reason(), self.exit_status)
+            self.fleet.close()
+
+    # ---- what the launch's API server steers and reads -------------------------------------------------
+
+    def spec(self, node_name: str) -> ProcessSpec | None:
+        """The process spec of a local node (its command line, log files), None for a remote one."""
+        proc = self.supervisor.node(node_name) if self.supervisor is not None else None
+        return proc.spec if proc is not None else None
+
+    def package_of(self, process_name: str) -> str:
+        return self._packages.get(process_name, "")
+
+    def remote_names(self) -> list[str]:
+        """The nodes of other machines (launcher.remote.parent steers them), once the nodes are started."""
+        return self.remote.node_names() if self.remote is not None and self.supervisor is not None else []
+
+    def parent_calls(self) -> tuple[str, ...]:
+        """The calls only a child on another machine makes (to its parent: this launch's server)."""
+        return self.remote.PARENT_CALLS if self.remote is not None else ()
+
+    def parent_call(self, method: str, params: list) -> Any:
+        return self.remote.parent_call(method, params)
+
+    async def control(self, verb: str, name: str, remote: bool) -> str:
+        """Start, stop or restart one node (`remote`: a node of another machine); '' or why not."""
+        if remote:
+            if verb == "start":
+                return self.remote.start_node(name)
+            return await (self.remote.stop_node(name) if verb == "stop" else self.remote.restart_node(name))
+        supervisor = self.supervisor
+        if verb == "start":
+            supervisor.start_node(name)
+        elif verb == "stop":
+            stopping = supervisor.stop_node(name)
+            if stopping is not None:
+                await stopping
+        else:
+            await supervisor.restart_node(name)
+        return ""

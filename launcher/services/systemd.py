@@ -1,0 +1,203 @@
+"""systemd's notify protocol for `launch` run as a service: READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to $NOTIFY_SOCKET.
+
+The protocol is one datagram of `KEY=value` lines to the AF_UNIX socket named
+by `NOTIFY_SOCKET` (a leading `@` is the abstract namespace), so it is spoken
+here directly. The words (`message`, `fleet_status`, `not_ready`) are pure
+functions of the fleet; `Notifier` sends them from the launch's loop:
+
+- READY=1 once every node meant to start has started and registered with the
+  master (a program that never registers counts once it has run for its
+  `respawn_min_uptime`), or when `--ready-timeout` (60 s) passes (then STATUS= names
+  the nodes not up), so that systemd's "active" means the robot is up;
+- STATUS= after every change of the fleet ("12/12 nodes running, 1 respawning");
+- WATCHDOG=1 every half of WATCHDOG_USEC from a loop timer: a loop that is stuck
+  sends nothing, and systemd restarts the launch (WatchdogSec=);
+- STOPPING=1 when the launch begins its orderly stop.
+
+Without NOTIFY_SOCKET nothing of this runs (`Notifier.from_environ` is None).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+from typing import Any, Callable, Iterable
+
+from launcher.net import xmlrpc
+from launcher.fleet import machine
+from launcher.model.runopts import RunOptions
+
+# How long READY=1 waits for the nodes before it is sent anyway, naming the nodes not up (systemd's own
+# TimeoutStartSec, which the unit sets longer, would otherwise kill a robot with one node that is slow)
+READY_TIMEOUT_S = RunOptions().ready_timeout
+POLL_S = 0.2  # the master is asked at most this often while the launch is not ready
+CALL_TIMEOUT_S = 2.0
+CALLER_ID = "/roslaunch"
+# on the way up: a node in one of these is not started yet
+NOT_STARTED = frozenset((machine.NEW, machine.WAITING, machine.HELD)) | machine.ON_THE_WAY
+
+
+def message(**fields: Any) -> bytes:
+    """One notification: `message(READY=1, STATUS="3/3 nodes running")` -> b"READY=1\\nSTATUS=3/3 nodes running".
+
+    A value cannot hold a newline (it would end the field): it is made a space."""
+    return "\n".join("%s=%s" % (k, str(v).replace("\n", " ")) for k, v in fields.items()).encode()
+
+
+def socket_address(value: str) -> str | bytes:
+    """The address of $NOTIFY_SOCKET: a path, or `@name`, a name in the abstract namespace."""
+    if value.startswith("@"):
+        return b"\0" + value[1:].encode()
+    return value
+
+
+def watchdog_period(environ: dict[str, str], pid: int) -> float | None:
+    """Seconds between WATCHDOG=1 pings (half of WATCHDOG_USEC, as sd_watchdog_enabled advises), or None
+    when systemd asks for none or asks another process (WATCHDOG_PID)."""
+    usec = environ.get("WATCHDOG_USEC", "")
+    wpid = environ.get("WATCHDOG_PID", "")
+    if not usec.isdigit() or int(usec) == 0 or (wpid and wpid != str(pid)):
+        return None
+    return int(usec) / 2e6
+
+
+def fleet_status(records: Iterable[machine.Record]) -> str:
+    """The STATUS= line: "12/12 nodes running, 1 respawning" (the other states counted when there are any)."""
+    counts: dict[str, int] = {}
+    total = 0
+    for r in records:
+        total += 1
+        public = machine.PUBLIC[r.state]
+        counts[public] = counts.get(public, 0) + 1
+    text = "%d/%d nodes running" % (counts.pop("running", 0), total)
+    return ", ".join([text] + ["%d %s" % (n, state) for state, n in sorted(counts.items())])
+
+
+def not_ready(records: Iterable[machine.Record], registered: set[str], now: float) -> list[str]:
+    """The nodes that keep the launch from being ready: not started yet, or running but neither registered
+    with the master nor up for their respawn_min_uptime. A node that ended (or was kept stopped) is no
+    longer awaited: it is named in STATUS= instead."""
+    waiting = []
+    for r in records:
+        if r.state in NOT_STARTED and not r.operator_stopped:
+            waiting.append(r.name)
+        elif r.state == machine.RUNNING and r.name not in registered:
+            if r.started is None or now - r.started < r.rules.policy.respawn_min_uptime:
+                waiting.append(r.name)
+    return waiting
+
+
+class Notifier:
+    """The launch's messages to its service manager, sent from the loop."""
+
+    def __init__(self, address: str | bytes, watchdog_s: float | None, *, warn: Callable[[str], None] = print,
+                 ready_timeout: float = READY_TIMEOUT_S):
+        self.address = address
+        self.watchdog_s = watchdog_s
+        self.ready_timeout = ready_timeout
+        self.ready = False
+        self._warn = warn
+        self._warned = False
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+        self._fleet: Any = None
+        self._master_uri = ""
+        self._registered: set[str] = set()
+        self._status = ""
+        self._status_due = False
+        self._ping: asyncio.TimerHandle | None = None
+        self._task: asyncio.Future | None = None
+
+    @classmethod
+    def from_environ(cls, environ: dict[str, str] | None = None, **kw: Any) -> Notifier | None:
+        env = os.environ if environ is None else environ
+        value = env.get("NOTIFY_SOCKET", "")
+        if not value:
+            return None
+        return cls(socket_address(value), watchdog_period(dict(env), os.getpid()), **kw)
+
+    def send(self, data: bytes) -> None:
+        try:
+            self._sock.sendto(data, self.address)
+        except OSError as e:  # the service manager gone or busy: the robot runs on, said once
+            if not self._warned:
+                self._warned = True
+                self._warn("cannot notify the service manager at %r: %s" % (self.address, e.strerror or e))
+
+    # ---- the watchdog: pings from the loop itself, so a stuck loop sends none --------------------------------
+
+    def start_watchdog(self) -> None:
+        if self.watchdog_s is not None and self._ping is None:
+            self._watchdog()
+
+    def _watchdog(self) -> None:
+        self.send(message(WATCHDOG=1))
+        self._ping = asyncio.get_running_loop().call_later(self.watchdog_s, self._watchdog)
+
+    # ---- readiness and status -------------------------------------------------------------------------------
+
+    def attach(self, fleet: Any, master_uri: str) -> None:
+        """Follow `fleet`: STATUS= at its changes, READY=1 once its nodes are up."""
+        self._fleet = fleet
+        self._master_uri = master_uri
+        fleet.listeners.append(self._changed)
+        self._task = asyncio.ensure_future(self._until_ready())
+
+    def _changed(self, change: Any) -> None:
+        if change.new.pid != change.old.pid:
+            self._registered.discard(change.new.name)  # a new run registers anew
+        if not self._status_due:  # (a burst of changes in one loop pass makes one datagram)
+            self._status_due = True
+            asyncio.get_running_loop().call_soon(self._send_status)
+
+    def _send_status(self, **more: Any) -> None:
+        self._status_due = False
+        status = fleet_status(self._fleet.records.values())
+        if status != self._status or more:
+            self._status = status
+            self.send(message(**more, STATUS=status))
+
+    async def _until_ready(self) -> None:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.ready_timeout
+        while True:
+            waiting = not_ready(self._fleet.records.values(), self._registered, self._fleet.clock())
+            if not waiting:
+                break
+            if loop.time() >= deadline:
+                self.ready = True
+                self._status = ""
+                self.send(message(READY=1, STATUS="%s; not up after %gs: %s" % (
+                    fleet_status(self._fleet.records.values()), self.ready_timeout, ", ".join(waiting))))
+                return
+            await asyncio.gather(*(self._lookup(name) for name in waiting
+                                   if self._fleet.records[name].state == machine.RUNNING))
+            if not_ready(self._fleet.records.values(), self._registered, self._fleet.clock()):
+                await asyncio.sleep(POLL_S)
+        self.ready = True
+        self._send_status(READY=1)
+
+    async def _lookup(self, name: str) -> None:
+        try:
+            code, _msg, _uri = await xmlrpc.call(self._master_uri, "lookupNode", CALLER_ID, name,
+                                                 timeout=CALL_TIMEOUT_S)
+        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, ValueError, TypeError):
+            return  # the master busy: asked again at the next poll
+        if code == 1:
+            self._registered.add(name)
+
+    # ---- the end --------------------------------------------------------------------------------------------
+
+    def stopping(self) -> None:
+        """The orderly stop begins (the watchdog keeps pinging: the stop escalation runs on the loop)."""
+        if self._task is not None:
+            self._task.cancel()
+        self.send(message(STOPPING=1, STATUS="stopping"))
+
+    def close(self) -> None:
+        if self._ping is not None:
+            self._ping.cancel()
+        if self._task is not None:
+            self._task.cancel()
+        self._sock.close()

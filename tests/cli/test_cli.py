@@ -1,0 +1,103 @@
+"""The `launch` command line: the argparse-free reading of simple command lines is argparse's reading."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from launcher.cli import launch as cli
+
+
+def _argparse(argv: list[str]) -> dict:
+    return vars(cli.build_parser().parse_intermixed_args(argv))
+
+
+def test_defaults_and_flags_are_the_parsers():
+    parser = cli.build_parser()
+    defaults = {a.dest: a.default for a in parser._actions if a.dest not in ("help", "version", "positional")}
+    assert {k: v for k, v in cli._DEFAULTS.items()} == defaults
+    store_true = {s: a.dest for a in parser._actions if a.__class__.__name__ == "_StoreTrueAction"
+                  for s in a.option_strings}
+    # every flag read without argparse is a store_true option of the parser, under the same name
+    assert {s: d for s, d in store_true.items() if s in cli._FLAGS} == cli._FLAGS
+
+
+@pytest.mark.parametrize("argv", [
+    ["--nodes", "a.launch"], ["a.launch", "--dump-params"], ["pkg", "f.launch", "x:=1", "--files", "__ns:=/r"],
+    ["-v", "--screen", "--log", "--required", "--wait", "--local", "--no-summary", "--skip-log-check",
+     "--disable-title", "f.launch"], ["--core"], ["-", "--nodes"], [], ["--ros-args", "f.launch", "a:=b c"],
+])
+def test_simple_command_lines_read_as_argparse_reads_them(argv):
+    opts = cli.parse_simple_args(argv)
+    assert opts is not None and vars(opts) == _argparse(argv)
+
+
+@pytest.mark.parametrize("argv", [
+    ["--args", "/n", "f.launch"], ["--find-node=/n", "f.launch"], ["-p", "11312", "--core"], ["-h"], ["--version"],
+    ["--node", "f.launch"], ["--nodes", "--", "-f.launch"], ["-vv"], ["--sigint-timeout", "3", "f.launch"],
+])
+def test_anything_else_goes_to_argparse(argv):
+    assert cli.parse_simple_args(argv) is None
+
+
+def test_command_lines_only_argparse_reads_keep_its_errors():
+    out = subprocess.run([sys.executable, "-m", "launcher", "--bogus"], capture_output=True, text=True)
+    assert out.returncode == 2 and "unrecognized arguments: --bogus" in out.stderr
+    out = subprocess.run([sys.executable, "-m", "launcher", "--nodes"], capture_output=True, text=True)
+    assert out.returncode == 1 and "you must specify at least one input file" in out.stderr
+
+
+def test_the_fatal_error_is_the_most_visible_line_on_a_terminal(tmp_path):
+    """On a terminal the error that ends the launch is bold red, and it comes after the warnings before it."""
+    import os
+    import pty
+    import subprocess
+    import sys
+    f = tmp_path / "bad.launch"
+    f.write_text('<launch>\n<node pkg="nopkg" type="x" name="n" bogus="1"/>\n'
+                 '<include file="%s/missing.launch"/>\n</launch>\n' % tmp_path)
+    primary, secondary = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "launcher", "--nodes", str(f)], stdout=secondary, stderr=secondary)
+    os.close(secondary)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(primary, 4096)
+        except OSError:  # the terminal's other side closed: the launch has exited
+            break
+        if not chunk:
+            break
+        out += chunk
+    os.close(primary)
+    assert proc.wait(30) == 1
+    text = out.decode()
+    warning = text.index("unknown <node> attribute 'bogus'")
+    fatal = text.index("\x1b[1;31m%s:3: included file" % f)
+    assert warning < fatal
+
+
+def test_an_input_file_that_does_not_exist_is_a_usage_error_as_in_roslaunch(tmp_path):
+    """`launch robot.launch robot=r3` (a colon left out): roslaunch's parser.error, exit status 2, with the usage,
+    and the argument it probably was."""
+    f = tmp_path / "robot.launch"
+    f.write_text('<launch><arg name="robot" default="r1"/></launch>')
+    for argv in ([str(f), "robot=r3"], ["--nodes", str(f), "robot=r3"]):
+        out = subprocess.run([sys.executable, "-m", "launcher"] + argv, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2, out.stderr
+        assert out.stderr.startswith("usage: launch [options]")
+        assert out.stderr.endswith("launch: error: The following input files do not exist: robot=r3 (did you mean "
+                                   "robot:=r3?)\n")
+
+
+def test_the_run_options_are_the_command_lines_with_its_defaults():
+    """A run reads typed options: every field comes from `launch`'s parsed command line, and a command line
+    that says nothing gives RunOptions' own defaults (one set of defaults, not two)."""
+    from launcher.model.runopts import RunOptions
+    assert RunOptions.from_args(cli.build_parser().parse_args(["a.launch"])) == RunOptions(positional=("a.launch",))
+    assert RunOptions.from_args(cli.parse_simple_args(["a.launch"])) == RunOptions(positional=("a.launch",))
+    given = RunOptions.from_args(cli.build_parser().parse_args(
+        ["--screen", "-p", "11400", "--sigint-timeout", "3", "--master-allow", "10.0.0.0/8", "a.launch", "x:=1"]))
+    assert (given.screen, given.port, given.sigint_timeout, given.master_allow, given.positional) == (
+        True, 11400, 3.0, ("10.0.0.0/8",), ("a.launch", "x:=1"))

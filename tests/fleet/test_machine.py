@@ -1,0 +1,254 @@
+"""The node state machine as a pure function: every state x event against a matrix written out here, the
+remote sub-states, the cases that were bugs, and invariants checked by hypothesis."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from launcher.model.config import NodePolicy
+from launcher.fleet import machine as m
+from launcher.fleet.machine import Action, Event, Record, Rules
+
+# Columns: the events, in this order.
+EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
+          m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
+          m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED]
+SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
+         "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
+         "fat": m.FATAL, "stp": m.STOPPED}
+# For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
+# "!": a runner's bug (InvalidTransition); else the state after the event.
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL
+MATRIX = """
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+"""
+RULES = Rules(respawn=True)
+
+
+def record_in(state: str, rules: Rules = RULES) -> Record:
+    started = state not in (m.NEW, m.WAITING, m.HELD, m.STARTING, m.PENDING, m.LAUNCHING)
+    return Record("/n", "n-1", "localhost", rules, state=state, pid=1 if state in (m.RUNNING, m.HUNG, m.STALLED, m.STOPPING)
+                  else None, spawn_count=1 if started else 0, started=0.0 if started else None)
+
+
+def event(kind: str) -> Event:
+    return Event(kind, pid=1, exit_code=1, over_limit=(("memory_limit", 1.0),), process="n-2", reason="why")
+
+
+def cells():
+    rows = [line.split() for line in MATRIX.strip().splitlines()]
+    for row in rows:
+        assert len(row) == len(EVENTS) + 1, row[0]
+        for kind, expected in zip(EVENTS, row[1:]):
+            yield SHORT[row[0]], kind, expected
+
+
+def test_the_matrix_covers_every_state_and_event():
+    assert {s for s, _, _ in cells()} == set(m.STATES)
+    assert set(EVENTS) == set(m.EVENTS)
+
+
+@pytest.mark.parametrize("state,kind,expected", list(cells()), ids=lambda x: str(x))
+def test_every_state_and_event(state, kind, expected):
+    before = record_in(state)
+    if expected == "!":
+        with pytest.raises(m.InvalidTransition):
+            m.step(before, event(kind), 10.0)
+        return
+    after, actions = m.step(before, event(kind), 10.0)
+    if expected == "-":
+        assert after is before and actions == []
+    else:
+        assert after.state == SHORT[expected]
+
+
+def test_a_first_start_waits_for_spawn_delay_then_for_its_conditions():
+    rules = Rules(policy=NodePolicy(spawn_delay=2.0, wait_for=(("topic", "/scan"),)))
+    r, actions = m.step(record_in(m.NEW, rules), Event(m.START), 5.0)
+    assert (r.state, r.next_start, actions) == (m.WAITING, 7.0, [Action(m.SCHEDULE, 2.0)])
+    r, actions = m.step(r, Event(m.DUE), 7.0)
+    assert (r.state, actions, r.reason) == (m.HELD, [Action(m.HOLD)], "waiting for topic:/scan")
+    r, actions = m.step(r, Event(m.READY), 8.0)
+    assert (r.state, actions) == (m.STARTING, [Action(m.SPAWN)])
+
+
+def test_an_operator_stop_during_a_respawn_delay_keeps_it_stopped():
+    r = record_in(m.RUNNING)
+    r, actions = m.step(r, Event(m.EXITED_, exit_code=3), 10.0)
+    assert r.state == m.RESPAWNING and Action(m.SCHEDULE, m.restart.MIN_RESPAWN_INTERVAL_S) not in actions
+    assert actions[-1].kind == m.SCHEDULE
+    r, actions = m.step(r, Event(m.STOP), 10.01)
+    assert (r.state, r.operator_stopped, r.reason, actions) == (m.STOPPED, True, "stopped by operator",
+                                                                [Action(m.CANCEL)])
+    # the timer that fired as it was cancelled starts nothing
+    assert m.step(r, Event(m.DUE), 10.1) == (r, [])
+
+
+def test_a_link_cut_during_a_launch_call_queues_the_node_once():
+    """The cut-link double launch: the session ends while its `launch` call is under way; the node is lost
+    (queued for the next session) once, and the cancelled call's late words change nothing."""
+    rules = Rules(remote=True, owned=False, machine="m1")
+    r, actions = m.step(record_in(m.NEW, rules), Event(m.START), 0.0)
+    assert (r.state, actions) == (m.PENDING, [Action(m.LAUNCH)])
+    r, _ = m.step(r, Event(m.LAUNCH_SENT), 0.1)
+    assert r.state == m.LAUNCHING
+    r, actions = m.step(r, Event(m.LINK_LOST, reason="machine [m1] dropped"), 0.2)
+    assert (r.state, actions, m.PUBLIC[r.state]) == (m.LOST, [], "exited")
+    # what the cancelled call may still say: refused, or launched
+    assert m.step(r, Event(m.LAUNCH_REFUSED), 0.3) == (r, [])
+    assert m.step(r, Event(m.LAUNCHED, process="talker-1"), 0.3) == (r, [])
+    assert m.step(r, Event(m.LINK_LOST), 0.3) == (r, [])
+    # the next session takes it, as one launch
+    r, _ = m.step(r, Event(m.LAUNCH_SENT), 1.0)
+    r, _ = m.step(r, Event(m.SPAWNED, pid=7, process="talker-2"), 1.1)
+    assert (r.state, r.pid, r.process, r.spawn_count, r.restarts) == (m.RUNNING, 7, "talker-2", 1, 0)
+
+
+def test_a_required_node_that_exits_ends_the_launch_with_its_status():
+    rules = Rules(required=True)
+    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.EXITED_, exit_signal=9), 1.0)
+    assert r.state == m.EXITED and actions == [Action(m.END_LAUNCH, status=128 + 9)]
+    r, actions = m.step(record_in(m.STARTING, rules), Event(m.SPAWN_FAILED), 1.0)
+    assert actions == [Action(m.END_LAUNCH, status=1)]
+    remote = Rules(required=True, remote=True, owned=False)
+    assert m.step(record_in(m.RUNNING, remote), Event(m.EXITED_, exit_code=0), 1.0)[1] == [Action(m.END_LAUNCH)]
+
+
+def test_fatal_after_too_many_failed_starts_and_an_operator_start_clears_the_count():
+    rules = Rules(respawn=True, policy=NodePolicy(respawn_max_retries=1, on_fatal="shutdown"))
+    r = record_in(m.RUNNING, rules)._replace(started=0.0)
+    r, _ = m.step(r, Event(m.EXITED_, exit_code=1), 0.1)  # a failed start (under respawn_min_uptime)
+    assert (r.state, r.failures) == (m.RESPAWNING, 1)
+    r, _ = m.step(r, Event(m.DUE), 0.5)
+    r, _ = m.step(r, Event(m.SPAWNED, pid=2), 0.5)
+    r, actions = m.step(r, Event(m.EXITED_, exit_code=1), 0.6)
+    assert r.state == m.FATAL and r.failures == 2 and Action(m.END_LAUNCH, status=1) in actions
+    r, actions = m.step(r, Event(m.OPERATOR_START), 5.0)
+    assert (r.state, r.failures, actions) == (m.STARTING, 0, [Action(m.CANCEL), Action(m.SPAWN)])
+
+
+def test_a_remote_node_its_child_respawns_is_not_the_parents_to_restart():
+    rules = Rules(respawn=True, remote=True, owned=False)
+    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.EXITED_, exit_code=1), 1.0)
+    assert (r.state, actions) == (m.RESPAWNING, [])  # no timer: the child starts it again
+    assert m.step(r, Event(m.LINK_LOST), 1.1)[0].state == m.LOST  # (as a running one: it was on the child)
+    r, actions = m.step(r, Event(m.SPAWNED, pid=9, process="n-3"), 1.2)
+    assert (r.state, r.pid, r.restarts, actions) == (m.RUNNING, 9, 1, [])
+
+
+def test_hang_and_limit_restart_kill_the_run_and_what_follows():
+    r, actions = m.step(record_in(m.RUNNING), Event(m.HANG, reason="no answer"), 1.0)
+    assert (r.state, actions) == (m.HUNG, [Action(m.KILL)])
+    r, actions = m.step(record_in(m.RUNNING, Rules()), Event(m.RESTART, reason="over memory_limit"), 1.0)
+    assert actions == [Action(m.KILL)] and m.step(r, Event(m.RESTART), 1.0) == (r, [])
+    r, actions = m.step(r, Event(m.EXITED_, exit_signal=9), 1.1)
+    assert (r.state, actions) == (m.RESPAWNING, [Action(m.SCHEDULE, 0.0)])  # (not respawn="true": still again)
+
+
+# ---- invariants over random event sequences ---------------------------------------------------------------
+
+RULE_SETS = [Rules(), Rules(respawn=True), Rules(required=True),
+             Rules(respawn=True, policy=NodePolicy(respawn_max_retries=2, spawn_delay=1.0)),
+             Rules(respawn=True, remote=True, owned=False, machine="m1"),
+             Rules(respawn=True, remote=True, owned=True, machine="m1",
+                   policy=NodePolicy(respawn_max_retries=1, wait_for=(("node", "/a"),)))]
+BY_ITSELF = [m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG, m.RESTART, m.LIMIT,
+             m.DOWN, m.STOP_REFUSED, m.LAUNCH_SENT, m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED,
+             m.SHUTDOWN]
+STARTS = (m.SPAWN, m.LAUNCH)
+
+
+@settings(max_examples=300, deadline=None)
+@given(rules=st.sampled_from(RULE_SETS), kinds=st.lists(st.sampled_from(EVENTS), max_size=40),
+       codes=st.lists(st.integers(-9, 3), min_size=40, max_size=40))
+def test_invariants(rules, kinds, codes):
+    """A stopped node never starts by itself, a FATAL one only by an operator; every state has a public name;
+    counts never go down; a transition not in the table raises, and changes nothing."""
+    r = Record("/n", "n-1", "host", rules)
+    now = 0.0
+    for kind, code in zip(kinds, codes):
+        now += 0.3
+        e = Event(kind, pid=100 + int(now * 10), exit_code=code if code >= 0 else None,
+                  exit_signal=-code if code < 0 else None, process="n-%d" % int(now * 10))
+        try:
+            new, actions = m.step(r, e, now)
+        except m.InvalidTransition:
+            continue
+        assert new.state in m.PUBLIC
+        assert new.spawn_count >= r.spawn_count and new.restarts >= r.restarts
+        starts = any(a.kind in STARTS for a in actions)
+        if r.state in (m.STOPPED, m.FATAL) and kind in BY_ITSELF:
+            assert not starts and new.state in (m.STOPPED, m.FATAL), (r, e, new)
+        # (START from a stopped state is the launch starting it anew: a remote child's parent does)
+        if r.state == m.STOPPED and r.operator_stopped and kind not in (m.OPERATOR_START, m.START):
+            assert new.state == m.STOPPED
+        r = new
+
+
+def test_one_record_per_node_in_a_fleet():
+    from launcher.fleet.state import Fleet
+    fleet = Fleet()
+    first = fleet.add("/a", process="a-1")
+    assert fleet.add("/a", process="a-2") is first and list(fleet.records) == ["/a"]
+
+
+def test_the_change_stream_serves_a_long_poll():
+    """A reader waiting for changes after the last one it saw wakes at the next change, gets it with the
+    events file's fields, and a reader that asks too late is told its list is incomplete."""
+    import asyncio
+
+    from launcher.fleet import state
+
+    async def main():
+        fleet = state.Fleet(clock=lambda: 100.0)
+        fleet.add("/a", process="a-1")
+        fleet.apply("/a", Event(m.START))
+        seen, complete = fleet.changes_since(0)
+        assert complete and [c["phase"] for c in seen] == [m.STARTING]
+        waiter = asyncio.ensure_future(fleet.wait_change(fleet.seq, 5.0))
+        await asyncio.sleep(0)
+        assert not waiter.done()
+        fleet.apply("/a", Event(m.SPAWNED, pid=4))
+        await asyncio.wait_for(waiter, 1.0)
+        new, complete = fleet.changes_since(1)
+        assert complete and [(c["seq"], c["state"], c["pid"]) for c in new] == [(2, "running", 4)]
+        before = asyncio.get_running_loop().time()
+        await fleet.wait_change(fleet.seq, 0.05)  # nothing new: back after the timeout
+        assert asyncio.get_running_loop().time() - before >= 0.04
+        fleet.changes.popleft()  # (the oldest dropped, as past CHANGES_KEPT)
+        assert fleet.changes_since(0)[1] is False
+    asyncio.run(main())
+
+
+def test_the_events_file_ends_with_the_launchs_end(tmp_path):
+    """Visible changes are written, internal steps are not, and the launch's end is the last line."""
+    import json
+
+    from launcher.fleet import state
+    path = tmp_path / "events.jsonl"
+    fleet = state.Fleet(str(path), clock=lambda: 1.0)
+    fleet.add("/a", process="a-1")
+    fleet.apply("/a", Event(m.START))  # new -> starting: not written
+    fleet.apply("/a", Event(m.SPAWNED, pid=5))
+    fleet.apply("/a", Event(m.SHUTDOWN))  # running -> stopping: not written
+    fleet.apply("/a", Event(m.DOWN, exit_signal=2))
+    fleet.launch_ended("stopped by SIGINT", 0)
+    fleet.close()
+    lines = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [(e.get("state"), e.get("phase")) for e in lines[:-1]] == [("running", "running"), ("stopped", "stopped")]
+    assert lines[-1]["event"] == state.LAUNCH_ENDED and lines[-1]["reason"] == "stopped by SIGINT"

@@ -1,0 +1,71 @@
+"""The log directory: run dir + `latest`, and the background disk checks."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+
+import pytest
+
+from launcher.output import logdir
+
+
+def test_log_root_follows_ros_log_dir_then_ros_home(tmp_path):
+    assert logdir.log_root({"ROS_LOG_DIR": "/x/logs", "ROS_HOME": "/h"}) == "/x/logs"
+    assert logdir.log_root({"ROS_HOME": "/h"}) == "/h/log"
+    assert logdir.log_root({}) == os.path.join(os.path.expanduser("~"), ".ros", "log")
+
+
+def test_run_dir_and_latest_link(tmp_path):
+    env = {"ROS_LOG_DIR": str(tmp_path / "log")}
+    first = logdir.make_run_log_dir(env, "run-1")
+    second = logdir.make_run_log_dir(env, "run-2")
+    assert os.path.isdir(first) and os.path.isdir(second)
+    assert os.readlink(tmp_path / "log" / "latest") == second
+
+
+def test_check_warns_over_threshold_with_roslaunch_words(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "big.log").write_bytes(b"x" * 5000)
+    over = asyncio.run(logdir.check_once(str(tmp_path), 4096))
+    assert (True, "WARNING: disk usage in log directory [%s] is over 4KiB.\n"
+                  "It's recommended that you use the 'rosclean' command." % tmp_path) in over
+    under = asyncio.run(logdir.check_once(str(tmp_path), 10**9))
+    assert (False, "Done checking log file disk usage. Usage is <1GB.") in under
+    # roslaunch's threshold, 2**30 bytes: its words are "1GB"
+    under = asyncio.run(logdir.check_once(str(tmp_path), logdir.DEFAULT_THRESHOLD))
+    assert (False, "Done checking log file disk usage. Usage is <1GB.") in under
+
+
+def test_background_check_runs_later_and_cancels_at_once(tmp_path, capsys):
+    calls = []
+
+    async def slow_check(root, threshold):
+        calls.append(time.monotonic())
+        await asyncio.sleep(100)
+        return []
+
+    async def main():
+        t0 = time.monotonic()
+        task = asyncio.ensure_future(logdir.watch_log_disk(str(tmp_path), 1, first_delay=0.05, check=slow_check))
+        while not calls:
+            await asyncio.sleep(0.01)
+        started = calls[0] - t0
+        t1 = time.monotonic()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        return started, time.monotonic() - t1
+    started, cancel_took = asyncio.run(main())
+    assert started >= 0.05  # never during start-up
+    assert cancel_took < 0.05
+
+
+def test_disk_usage_is_apparent_size(tmp_path):
+    for i in range(50):
+        (tmp_path / ("f%d" % i)).write_bytes(b"x" * 100)
+    sparse = tmp_path / "sparse"
+    with open(sparse, "wb") as f:
+        f.truncate(10 << 20)  # 10 MB apparent, nothing on disk: du -sb counts it, as roslaunch's check
+    assert asyncio.run(logdir.disk_usage_bytes(str(tmp_path))) >= 5000 + (10 << 20)

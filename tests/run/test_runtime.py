@@ -1,0 +1,69 @@
+"""runtime: roslaunch's summary block and value shortening, and where a launch's master can be started."""
+
+from __future__ import annotations
+
+from launcher.model.config import LaunchConfig, Machine, Node, Param
+from launcher.services.masterlink import is_local_host as _is_local_host
+from launcher.output.runlog import summary, summary_value as _summary_value
+
+
+def test_summary_matches_roslaunch_layout():
+    config = LaunchConfig(
+        nodes=(Node("refpkg", "quick.sh", "quitter"), Node("refpkg", "sleeper.sh", "n1", namespace="/robot/"),
+               Node("refpkg", "nothere", "missing")),
+        params={"/s": Param("/s", "hello"), "/a": Param("/a", 1)},
+        clear_params=("/robot/",))
+    text = summary(config, {"/s": "hello", "/a": 1, "/rosdistro": "Debian\n"})
+    # recorded from `roslaunch` 1.15.15 (same launch), plus the CLEAR PARAMETERS block of config.summary()
+    assert text == ("\nSUMMARY\n========\n\nCLEAR PARAMETERS\n * /robot/\n\nPARAMETERS\n * /a: 1\n"
+                    " * /rosdistro: Debian\n * /s: hello\n\nNODES\n  /\n    missing (refpkg/nothere)\n"
+                    "    quitter (refpkg/quick.sh)\n  /robot/\n    n1 (refpkg/sleeper.sh)\n")
+
+
+def test_summary_without_params():
+    assert summary(LaunchConfig(), {}) == "\nSUMMARY\n========\n\nNODES\n"
+
+
+def test_summary_of_a_run_with_other_machines_lists_them_and_every_node_else_only_this_machines():
+    far = Node("refpkg", "sleeper.sh", "far", machine_name="robot2")
+    config = LaunchConfig(nodes=(Node("refpkg", "quick.sh", "here"), far),
+                          machines={"robot2": Machine("robot2", "192.0.2.10"), "base": Machine("base", "192.0.2.11")})
+    remote = lambda n: n.machine_name == "robot2"  # noqa: E731
+    # as roslaunch's ROSLaunchConfig.summary(local=False) when it runs remote children
+    assert summary(config, {}, remote=remote, machines=True) == (
+        "\nSUMMARY\n========\n\nMACHINES\n * base\n * robot2\n\nNODES\n  /\n    far (refpkg/sleeper.sh)\n"
+        "    here (refpkg/quick.sh)\n")
+    # --local (summary(local=True)): the other machine's node is not listed
+    assert summary(config, {}, remote=remote) == "\nSUMMARY\n========\n\nNODES\n  /\n    here (refpkg/quick.sh)\n"
+
+
+def test_summary_value_shortening_as_roslaunch():
+    assert _summary_value("a" * 20) == "a" * 20
+    assert _summary_value("a" * 21) == "a" * 17 + "..."
+    assert _summary_value(2.5) == "2.5"
+    assert _summary_value(True) == "True"
+    assert _summary_value("1.15.15\n") == "1.15.15"  # trailing whitespace of command output
+    assert _summary_value("line1\nline2") == "<...>"
+    assert _summary_value("caf\u00e9") == "<...>"
+    assert _summary_value({"a": 1}) == "{'a': 1}"
+
+
+def test_local_hosts():
+    env = {"ROS_HOSTNAME": "myrobot"}
+    assert _is_local_host("localhost", env) and _is_local_host("127.0.0.1", env)
+    assert _is_local_host("myrobot", env)
+    assert not _is_local_host("192.0.2.77", env)  # TEST-NET-1: never a local address
+
+
+def test_malformed_master_host_is_not_local_and_not_a_crash(tmp_path):
+    assert not _is_local_host("a..b", {})
+    import os
+    import subprocess
+    import sys
+    launch = tmp_path / "a.launch"
+    launch.write_text("<launch/>")
+    env = dict(os.environ, ROS_MASTER_URI="http://a..b:11311/", ROS_HOME=str(tmp_path))
+    out = subprocess.run([sys.executable, "-m", "launcher", str(launch)], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 1
+    assert "unable to contact ROS master at [http://a..b:11311/]" in out.stderr and "internal error" not in out.stderr

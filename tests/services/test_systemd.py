@@ -1,0 +1,47 @@
+"""The notify protocol's words: the datagram, the socket's address, the watchdog period, STATUS= and readiness."""
+
+from __future__ import annotations
+
+from launcher.model.config import NodePolicy
+from launcher.services import systemd
+from launcher.fleet import machine
+
+
+def rec(name: str, state: str, started: float | None = None, min_uptime: float = 1.0, **kw) -> machine.Record:
+    rules = machine.Rules(policy=NodePolicy(respawn_min_uptime=min_uptime))
+    return machine.Record(name, name.strip("/"), "localhost", rules, state=state, started=started, **kw)
+
+
+def test_message_is_key_value_lines():
+    assert systemd.message(READY=1, STATUS="2/2 nodes running") == b"READY=1\nSTATUS=2/2 nodes running"
+    assert systemd.message(STATUS="a\nb") == b"STATUS=a b"
+
+
+def test_abstract_socket_address():
+    assert systemd.socket_address("/run/systemd/notify") == "/run/systemd/notify"
+    assert systemd.socket_address("@sd/notify") == b"\0sd/notify"
+
+
+def test_watchdog_period_is_half_of_watchdog_usec_for_this_pid_only():
+    assert systemd.watchdog_period({"WATCHDOG_USEC": "20000000"}, 7) == 10.0
+    assert systemd.watchdog_period({"WATCHDOG_USEC": "20000000", "WATCHDOG_PID": "7"}, 7) == 10.0
+    assert systemd.watchdog_period({"WATCHDOG_USEC": "20000000", "WATCHDOG_PID": "8"}, 7) is None
+    assert systemd.watchdog_period({}, 7) is None
+    assert systemd.watchdog_period({"WATCHDOG_USEC": "0"}, 7) is None
+
+
+def test_status_counts_the_public_states():
+    records = [rec("/a", machine.RUNNING), rec("/b", machine.STOPPING), rec("/c", machine.RESPAWNING),
+               rec("/d", machine.FATAL), rec("/e", machine.STARTING)]
+    assert systemd.fleet_status(records) == "2/5 nodes running, 1 fatal, 1 respawning, 1 waiting"
+    assert systemd.fleet_status([]) == "0/0 nodes running"
+
+
+def test_not_ready_until_started_and_registered_or_up_for_min_uptime():
+    now = 100.0
+    records = [rec("/starting", machine.STARTING), rec("/held", machine.HELD),
+               rec("/young", machine.RUNNING, started=99.5), rec("/registered", machine.RUNNING, started=99.9),
+               rec("/old", machine.RUNNING, started=98.0), rec("/dead", machine.FATAL),
+               rec("/kept", machine.NEW, operator_stopped=True), rec("/respawning", machine.RESPAWNING)]
+    assert systemd.not_ready(records, {"/registered"}, now) == ["/starting", "/held", "/young"]
+    assert systemd.not_ready([rec("/young", machine.RUNNING, started=99.5, min_uptime=0.4)], set(), now) == []
