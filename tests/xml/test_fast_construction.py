@@ -82,4 +82,4 @@ def test_config_imports_nothing_of_the_launcher_but_names():
     code = ("import sys; before = set(sys.modules); import launcher.model.config; "
             "print(sorted(m for m in set(sys.modules) - before if m.startswith('launcher.') or m == 'dataclasses'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "['launcher.model.config', 'launcher.model.names']"
+    assert out.stdout.strip() == "['launcher.model', 'launcher.model.config', 'launcher.model.names']"
