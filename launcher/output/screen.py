@@ -169,7 +169,7 @@ class ScreenOutput:
     """One run's relayed output: readers on the loop, the copy in the node's output file, backpressure."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, name: str, sources: list[tuple[int, TextIO]],
-                 log_path: str | None, truncate: bool) -> None:
+                 log_path: str | None, truncate: bool, node_name: str | None = None) -> None:
         self.loop = loop
         self.name = name
         self.sources = dict(sources)  # launcher's end -> console stream, while open
@@ -177,9 +177,16 @@ class ScreenOutput:
         self.started = loop.time()
         self.missing_module: str | None = None  # what an import error at the start named (workspace/nodepython.py)
         self.log_fd: int | None = None
-        # under systemd, stdout is the journal: each line goes with its priority and node (output/journal.py)
-        self.framers = {fd: journal.LineFramer(name, stream is sys.stderr) for fd, stream in self.sources.items()
-                        } if journal.is_journal(os.environ) else {}
+        # under systemd, stdout is the journal: each line goes with its priority and node (output/journal.py),
+        # as an entry with the node's fields where journald's socket is there, else framed on the stream
+        self.framers: dict[int, journal.LineFramer] = {}
+        self.targets: dict[int, object] = {}  # launcher's end -> where its framed lines go, if not the stream
+        if journal.is_journal(os.environ):
+            sock = journal.shared_socket()
+            for fd, stream in self.sources.items():
+                self.framers[fd] = journal.LineFramer("" if sock else name, stream is sys.stderr)
+                if sock:
+                    self.targets[fd] = journal.NativeStream(sock, name, node_name or "/" + name, stream)
         if log_path:
             flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | os.O_APPEND | (os.O_TRUNC if truncate else 0)
             try:
@@ -218,7 +225,8 @@ class ScreenOutput:
                 os.close(self.log_fd)
                 self.log_fd = None
         framer = self.framers.get(fd)
-        if not console.relay(self.sources[fd], framer.feed(data) if framer else data) and not self.paused:
+        target = self.targets.get(fd, self.sources[fd])
+        if not console.relay(target, framer.feed(data) if framer else data) and not self.paused:
             self._pause()
         if (b"No module named" in data and self.missing_module is None
                 and self.loop.time() - self.started < nodepython.AT_ONCE_S):
@@ -272,7 +280,7 @@ class ScreenOutput:
     def _close(self, fd: int) -> None:
         framer = self.framers.pop(fd, None)
         if framer is not None and fd in self.sources:
-            console.relay(self.sources[fd], framer.end())
+            console.relay(self.targets.pop(fd, self.sources[fd]), framer.end())
         self.sources.pop(fd, None)
         _sized_ptys.pop(fd, None)
         if not self.paused:

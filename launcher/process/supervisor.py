@@ -328,7 +328,8 @@ class Supervisor:
         # a screen node's copy starts afresh as a log node's file does (roslaunch: kept across respawns);
         # a log node's stderr joins the file its stdout is written to
         truncate = spec.output == "screen" and not (append or spec.respawn)
-        proc.screen = screen.ScreenOutput(self.loop, spec.name, channels.sources, spec.stdout_path, truncate)
+        proc.screen = screen.ScreenOutput(self.loop, spec.name, channels.sources, spec.stdout_path, truncate,
+                                              spec.node_name)
         self.screens = [s for s in self.screens if not s.closed]
         self.screens.append(proc.screen)
 

@@ -4,6 +4,7 @@ WATCHDOG=1 at half of WATCHDOG_USEC and none while the loop is held, STOPPING=1 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -15,7 +16,7 @@ import time
 
 import pytest
 
-from helpers import ROS_PATH, ROS_PYTHON, free_port, until
+from helpers import ROOT, ROS_PATH, ROS_PYTHON, free_port, until
 from running import Launcher, SlowSpinner, make_package, master_proxy, ros_env, write_launch
 
 # a program that never registers and dies after a while (respawned by the launch)
@@ -196,3 +197,58 @@ def test_journal_stream_gets_priority_and_node_per_line(tmp_path, setup):
         finally:
             proc.send_signal(signal.SIGINT)
             proc.wait(30)
+
+
+# Run inside a mount namespace whose /run is a tmpfs: the test's socket stands where journald's native socket is.
+JOURNAL_READER = r'''
+import json, os, signal, socket, subprocess, sys, time
+out_path, launch_file = sys.argv[1:3]
+sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+sock.bind("/run/systemd/journal/socket")
+sock.settimeout(0.5)
+with open(out_path, "wb") as out:
+    st = os.fstat(out.fileno())
+    env = dict(os.environ, JOURNAL_STREAM="%d:%d" % (st.st_dev, st.st_ino))
+    proc = subprocess.Popen([sys.executable, "-m", "launcher", "--screen", launch_file], env=env, stdout=out,
+                            stderr=subprocess.STDOUT)
+entries, deadline = [], time.time() + 60
+while time.time() < deadline and not any("a plain line" in e.get("MESSAGE", "") for e in entries):
+    try:
+        data = sock.recv(65536)
+    except socket.timeout:
+        continue
+    entries.append(dict(line.split("=", 1) for line in data.decode().split("\n") if line))
+proc.send_signal(signal.SIGINT)
+proc.wait(30)
+print(json.dumps(entries))
+'''
+
+
+def test_journal_socket_gets_an_entry_per_line_with_the_nodes_fields(tmp_path, setup):
+    """Under systemd (journald's socket there), `journalctl -u NAME ROS_NODE=/chatty` or `-t chatty-1` finds one
+    node's lines and `-p err` its errors: each line is an entry with PRIORITY, SYSLOG_IDENTIFIER and ROS_NODE."""
+    env, _notify, _stamps = setup
+    del env["NOTIFY_SOCKET"]
+    make_package(str(tmp_path / "pkgs"), "sd_tests", {"chatty": Chatty})
+    reader = tmp_path / "reader.py"
+    reader.write_text(JOURNAL_READER)
+    out_path = tmp_path / "journal.out"
+    launch = write_launch(str(tmp_path), '<node pkg="sd_tests" type="chatty" name="chatty"/>')
+    done = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                           'mount -t tmpfs tmpfs /run && mkdir -p /run/systemd/journal && exec "$@"', "sh",
+                           sys.executable, str(reader), str(out_path), launch],
+                          env=dict(env, PYTHONPATH=ROOT), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    entries = json.loads(done.stdout)
+    by_message = {e["MESSAGE"]: e for e in entries}
+    info = next(e for m, e in by_message.items() if m.endswith("all is well"))
+    error = next(e for m, e in by_message.items() if m.endswith("the arm is stuck"))
+    plain = by_message["a plain line on stderr"]
+    assert re.fullmatch(r"\[INFO\] \[[\d.]+\]: all is well", info["MESSAGE"])
+    assert (info["PRIORITY"], error["PRIORITY"], plain["PRIORITY"]) == ("6", "3", "3")
+    for e in (info, error, plain):
+        assert re.fullmatch(r"chatty-\d+", e["SYSLOG_IDENTIFIER"]) and e["ROS_NODE"] == "/chatty", e
+    # the node's lines went to the journal as entries, not also to the stream; the launcher's own lines still do
+    stream = out_path.read_bytes()
+    assert b"all is well" not in stream and b"a plain line" not in stream, stream
+    assert b"process[chatty-" in stream, stream
