@@ -3,11 +3,12 @@ own and a boot target that starts nothing else), a unit `launcher install` wrote
 
 Shown: `active` only once the nodes registered, the STATUS= text in `systemctl show`, a `kill -9` of launch
 restarted, a launch whose loop is held (gdb) restarted by the watchdog, and `systemctl stop` stopping every node
-within TimeoutStopSec."""
+within TimeoutStopSec, a bound node before the node it is bound to."""
 
 from __future__ import annotations
 
 import glob
+import json
 import os
 import shutil
 import signal
@@ -133,8 +134,9 @@ def test_a_real_systemd_supervises_the_launch(tmp_path, systemd):
     stamps = tmp_path / "stamps"
     stamps.mkdir()
     port = free_port()
-    body = "\n".join('<node pkg="sd_service" type="slow_spinner" name="n%d" args="%s n%d" respawn_min_uptime="20"/>'
-                     % (i, delay, i) for i, delay in enumerate((0.5, 2.0)))
+    # n1 is bound to n0 (as a spawner to its controller manager): started after it, stopped before it
+    body = "\n".join('<node pkg="sd_service" type="slow_spinner" name="n%d" args="%s n%d" respawn_min_uptime="20"%s/>'
+                     % (i, delay, i, bound) for i, delay, bound in ((0, 0.5, ""), (1, 2.0, ' bind_to="n0"')))
     launch_file = write_launch(str(tmp_path), body)
     env = {"PYTHONPATH": ROOT, "ROS_MASTER_URI": "http://127.0.0.1:%d/" % port, "ROS_PACKAGE_PATH": pkgs,
            "ROS_HOME": str(tmp_path / "home"), "ROS_LOG_DIR": str(tmp_path / "log"), "ROS_IP": "127.0.0.1",
@@ -189,3 +191,8 @@ def test_a_real_systemd_supervises_the_launch(tmp_path, systemd):
     assert took < 5 + 2 + 5, took
     assert sd.show("robot", "ActiveState") in ("inactive", "failed")
     assert not [p for p in nodes if pid_alive(p)]
+    # in the launch's order: the bound node first (the last run's events file)
+    events = max(glob.glob(str(tmp_path / "log" / "*" / "launcher-events.jsonl")), key=os.path.getmtime)
+    with open(events) as f:
+        stopped = [e["node"] for e in map(json.loads, f) if e.get("state") == "stopped"]
+    assert stopped == ["/n1", "/n0"], stopped
