@@ -20,8 +20,31 @@ from launcher.model.names import resolve_name
 
 
 def waits(node: Node) -> list[str]:
-    """The node names `node` waits for."""
-    return [name for kind, name in (node.policy.wait_for if node.policy else ()) if kind == "node"]
+    """The node names `node` waits for: to register, or for a line of their output."""
+    # (an output condition is NODE:PATTERN; a node name holds no colon)
+    return [name.partition(":")[0] for kind, name in (node.policy.wait_for if node.policy else ())
+            if kind in ("node", "output")]
+
+
+def check_output_waits(nodes: Iterable[Node], is_remote: Callable[[Node], bool]) -> None:
+    """A LaunchError for a `wait_for="output:NODE:PATTERN"` the launcher cannot watch: NODE must be a node of
+    this launch on this machine (its output file is read here), and so must the node that waits."""
+    nodes = list(nodes)
+    local = {n.full_name for n in nodes if not is_remote(n)}
+    for node in nodes:
+        for kind, name in node.policy.wait_for if node.policy else ():
+            if kind != "output":
+                continue
+            watched = name.partition(":")[0]
+            if is_remote(node):
+                why = "[%s] runs on another machine" % node.full_name
+            elif watched not in local:
+                known = any(n.full_name == watched for n in nodes)
+                why = "[%s] %s" % (watched, "runs on another machine" if known else "is no node of this launch")
+            else:
+                continue
+            raise LaunchError("wait_for output:%s: %s; a node's output is watched for the nodes of this machine "
+                              "only" % (name, why), node.filename or None, node.line or None)
 
 
 def check_cycles(nodes: Iterable[Node]) -> None:

@@ -427,6 +427,11 @@ class Supervisor:
         if not (self.shutting_down or self.done.is_set()):
             self._tell(proc, Event(machine.READY))
 
+    def output_path(self, node_name: str) -> str | None:
+        """The file that holds a node's output (readiness' `output:` conditions), None for no node here."""
+        proc = self.node(node_name)
+        return proc.spec.stdout_path if proc is not None else None
+
     def give_up_waiting(self, proc: NodeProcess, why: str) -> None:
         """A held node's conditions were not met in time: it failed to start (a required one ends the launch)."""
         self._tell(proc, Event(machine.NOT_READY, reason=why))

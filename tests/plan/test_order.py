@@ -64,3 +64,27 @@ def test_a_loader_whose_manager_waits_for_it_is_a_cycle(tmp_path):
     with pytest.raises(LaunchError) as e:
         check_cycles(bind_nodelets(config, lambda n: False).nodes)
     assert "/m -> /l -> /m (/m at %s:2; /l at %s:3)" % (f, f) in str(e.value)
+
+
+def test_an_output_condition_names_a_node_of_this_machine_and_joins_the_cycle_check(tmp_path):
+    from launcher.plan.order import check_output_waits
+    config, f = _load(tmp_path, '<node pkg="p" type="t" name="a" wait_for="output:b:\'ready to go\'"/>\n'
+                                '<node pkg="p" type="t" name="b" wait_for="node:/a"/>\n')
+    assert config.nodes[0].policy.wait_for == (("output", "/b:ready to go"),)
+    with pytest.raises(LaunchError) as e:
+        check_cycles(config.nodes)
+    assert "/a -> /b -> /a" in str(e.value)
+    config, f = _load(tmp_path, '<node pkg="p" type="t" name="a"/>\n'
+                                '<node pkg="p" type="t" name="b" wait_for="output:a:x"/>\n'
+                                '<node pkg="p" type="t" name="c" wait_for="output:/nobody:ready"/>\n')
+    check_output_waits(config.nodes[:2], lambda n: False)
+    with pytest.raises(LaunchError) as e:
+        check_output_waits(config.nodes, lambda n: False)
+    assert str(e.value) == ("%s:4: wait_for output:/nobody:ready: [/nobody] is no node of this launch; a node's "
+                            "output is watched for the nodes of this machine only" % f)
+    with pytest.raises(LaunchError) as e:
+        check_output_waits(config.nodes[:2], lambda n: n.name == "a")
+    assert "%s:3: wait_for output:/a:x: [/a] runs on another machine" % f in str(e.value)
+    with pytest.raises(LaunchError) as e:
+        check_output_waits(config.nodes[:2], lambda n: n.name == "b")
+    assert "%s:3: wait_for output:/a:x: [/b] runs on another machine" % f in str(e.value)
