@@ -14,7 +14,9 @@ call per distinct parameter or node asked about), at most `POLL_S` apart, so a
 launch with a hundred waiting nodes asks no more than one with a single one.
 The conditions are checked at the first start only: a respawn does not wait
 again (what it needed was there once; holding a crashed node back until its
-peers are all up again is the restart policy's business, not readiness').
+peers are all up again is the restart policy's business, not readiness'). The
+one exception is a bound node (`bind_to`, a nodelet loader) started again after
+its partner's restart: it is held again until that partner has registered anew.
 
 While held, the node's state is `held` (`waiting` to the outside); when its
 `wait_timeout` passes with a condition still missing, its runner reports it
