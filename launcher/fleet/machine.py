@@ -24,6 +24,8 @@ Internal states, and the state the outside (README, events file, status,
     hung        no answer to getPid: being killed                hung
     stalled     a watched topic went silent or slow              stalled
     stopping    the stop escalation (or the child's stop) runs   running
+    detached    the node it is bound to is down: starts again    stopped
+                after that one's next start (bind_to, nodelets)
     respawning  ended; starts again at `next_start`              respawning
     lost        its machine dropped; launched again on return    exited
     exited      ended, not started again                         exited
@@ -42,11 +44,12 @@ NEW, WAITING, HELD, STARTING = "new", "waiting", "held", "starting"
 PENDING, LAUNCHING, LOST = "pending", "launching", "lost"
 RUNNING, HUNG, STOPPING, STALLED = "running", "hung", "stopping", "stalled"
 RESPAWNING, EXITED, FATAL, STOPPED = "respawning", "exited", "fatal", "stopped"
+DETACHED = "detached"
 STATES = (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, LOST,
-          EXITED, FATAL, STOPPED)
+          EXITED, FATAL, STOPPED, DETACHED)
 PUBLIC = {NEW: "waiting", WAITING: "waiting", HELD: "waiting", STARTING: "waiting", PENDING: "waiting",
           LAUNCHING: "waiting", RUNNING: "running", HUNG: "hung", STALLED: "stalled", STOPPING: "running", RESPAWNING: "respawning",
-          LOST: "exited", EXITED: "exited", FATAL: "fatal", STOPPED: "stopped"}
+          LOST: "exited", EXITED: "exited", FATAL: "fatal", STOPPED: "stopped", DETACHED: "stopped"}
 # a node in one of these may still run (or run again without an operator): the launch is not "all dead"
 ALIVE = frozenset((NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
                    LOST))
@@ -79,10 +82,13 @@ LAUNCHED = "launched"  # the child took it (process: the child's process name)
 LAUNCH_REFUSED = "launch refused"  # the call failed as a whole: it waits for the machine's next session
 LINK_LOST = "link lost"  # its machine's session ended (reason)
 MACHINE_FAILED = "machine failed"  # its machine could never be reached (reason)
+# the node it is bound to (bind_to, or the manager of a nodelet loader), on this machine:
+BOUND_ENDED = "bound ended"  # ... is down: a run of it ended, or it is being stopped (reason)
+BOUND_STARTED = "bound started"  # ... runs again
 EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, STALL, UNSTALL, RESTART,
           LIMIT, STOP,
           SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
-          MACHINE_FAILED)
+          MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED)
 
 # ---- actions: what the runner carries out
 SPAWN = "spawn"  # start the process (this machine)
@@ -132,6 +138,7 @@ class Record(NamedTuple):
     over_limit: tuple[tuple[str, float], ...] = ()  # the limits the current run is over, (limit, maximum)
     operator_stopped: bool = False  # an operator's stop holds: nothing but an operator's start starts it
     restart_reason: str = ""  # this run is being killed in order to start again
+    rebind: bool = False  # being stopped because the node it is bound to is down: detached once down
 
 
 class Event(NamedTuple):
@@ -231,7 +238,7 @@ def _spawned(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     first = r.spawn_count == 0
     return r._replace(state=RUNNING, pid=e.pid, process=e.process or r.process, spawn_count=r.spawn_count + 1,
                       restarts=r.restarts + (0 if first else 1), started=now, exit_code=None, exit_signal=None,
-                      next_start=None, reason="", over_limit=(), restart_reason=""), []
+                      next_start=None, reason="", over_limit=(), restart_reason="", rebind=False), []
 
 
 def _launch_sent(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
@@ -339,9 +346,12 @@ def _stop_before_start(r: Record, e: Event, now: float) -> tuple[Record, list[Ac
 def _down(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     code, sig = (e.exit_code, e.exit_signal) if e.exit_code is not None or e.exit_signal is not None \
         else (r.exit_code, r.exit_signal)
+    if r.rebind and not r.operator_stopped:  # (stopped with the node it is bound to: it waits for that one)
+        return r._replace(state=DETACHED, exit_code=code, exit_signal=sig, over_limit=(), restart_reason="",
+                          rebind=False), []
     why = "killed with SIGKILL" if e.killed else "stopped by operator" if r.operator_stopped else e.reason
     return r._replace(state=STOPPED, pid=r.pid, exit_code=code, exit_signal=sig, reason=why, over_limit=(),
-                      restart_reason=""), []
+                      restart_reason="", rebind=False), []
 
 
 def _stop_refused(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
@@ -353,6 +363,25 @@ def _operator_start(r: Record, e: Event, now: float) -> tuple[Record, list[Actio
     start of a FATAL program)."""
     new, actions = _go(r, reason="started by operator", failures=0, operator_stopped=False)
     return new, [Action(CANCEL)] + actions
+
+
+# ---- bound to another node (bind_to, a nodelet loader's manager) ----------------------------------------
+# A bound node is of no use without its partner (a nodelet's loader without its manager): it is stopped
+# while that one is down, and started again (once, whatever its own respawn says) after that one's next
+# start, its hold waiting for it to register. The runner tells it of its partner's ends and starts.
+
+def _bound_ended_running(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    return r._replace(state=STOPPING, rebind=True, reason=e.reason), [Action(BEGIN_STOP)]
+
+
+def _bound_ended_down(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    """Not running (held for its conditions, its own respawn pending, or ended): it waits for its partner's
+    next start instead."""
+    return r._replace(state=DETACHED, next_start=None, reason=e.reason), [Action(CANCEL)]
+
+
+def _bound_started(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    return _ready_or_hold(r._replace(failures=0))
 
 
 # ---- other machines ------------------------------------------------------------------------------------
@@ -381,7 +410,7 @@ def describe(conditions) -> str:
 
 # ---- the table -------------------------------------------------------------------------------------------
 
-_WAITING_TO_START = (NEW, WAITING, HELD, RESPAWNING, PENDING, LOST)
+_WAITING_TO_START = (NEW, WAITING, HELD, RESPAWNING, PENDING, LOST, DETACHED)
 _DOWN_FOR_GOOD = (EXITED, FATAL, STOPPED)
 
 TABLE = {
@@ -429,7 +458,10 @@ TABLE = {
     **{(s, START): _start for s in _DOWN_FOR_GOOD},
     **{(s, STOP): _stop_before_start for s in _WAITING_TO_START},
     **{(s, SHUTDOWN): _stop_before_start for s in _WAITING_TO_START + (LAUNCHING,)},
-    **{(s, OPERATOR_START): _operator_start for s in (NEW, WAITING, HELD, RESPAWNING) + _DOWN_FOR_GOOD},
+    **{(s, OPERATOR_START): _operator_start for s in (NEW, WAITING, HELD, RESPAWNING, DETACHED) + _DOWN_FOR_GOOD},
+    **{(s, BOUND_ENDED): _bound_ended_running for s in (RUNNING, STALLED, HUNG)},
+    **{(s, BOUND_ENDED): _bound_ended_down for s in (HELD, RESPAWNING, EXITED, FATAL)},
+    (DETACHED, BOUND_STARTED): _bound_started,
     **{(s, MACHINE_FAILED): _machine_failed for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, RUNNING, LOST,
                                                       RESPAWNING)},
 }
@@ -463,6 +495,14 @@ IGNORED = frozenset(
     + [(s, DUE) for s in (STOPPED, EXITED, FATAL)]  # a timer that fired as it was cancelled
     + [(s, READY) for s in (STOPPED, EXITED, FATAL)]
     + [(s, NOT_READY) for s in (STOPPED, EXITED, FATAL)]
+    # detached: down, as a stopped node, until its partner starts
+    + [(DETACHED, k) for k in (DUE, EXITED_, HANG, STALL, RESTART, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
+                               MACHINE_FAILED)]
+    # not started yet (its hold waits for the partner), being stopped, stopped, or waiting for it already
+    + [(s, BOUND_ENDED) for s in (NEW, WAITING, STARTING, STOPPING, STOPPED, DETACHED)]
+    # a partner's start concerns only a detached node
+    + [(s, BOUND_STARTED) for s in (NEW, WAITING, HELD, STARTING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
+                                     EXITED, FATAL, STOPPED)]
 )
 assert not IGNORED & TABLE.keys()
 

@@ -6,13 +6,17 @@ A condition is `(kind, name)`:
     service  some node provides it (getSystemState's services, what lookupService answers)
     param    the parameter is set (hasParam)
     node     the node is registered (lookupNode)
+    output   a line of that node's output matches a pattern (`NODE:PATTERN`; `health/outputwatch.py`
+             follows its output file while the condition waits)
 
 One poll of the master serves every waiting node (one getSystemState, plus one
 call per distinct parameter or node asked about), at most `POLL_S` apart, so a
 launch with a hundred waiting nodes asks no more than one with a single one.
 The conditions are checked at the first start only: a respawn does not wait
 again (what it needed was there once; holding a crashed node back until its
-peers are all up again is the restart policy's business, not readiness').
+peers are all up again is the restart policy's business, not readiness'). The
+one exception is a bound node (`bind_to`, a nodelet loader) started again after
+its partner's restart: it is held again until that partner has registered anew.
 
 While held, the node's state is `held` (`waiting` to the outside); when its
 `wait_timeout` passes with a condition still missing, its runner reports it
@@ -28,6 +32,7 @@ from typing import Any
 
 from launcher.net import xmlrpc
 from launcher.fleet.machine import describe
+from launcher.health.outputwatch import OutputFollower
 
 # At most this often the master is asked (per launch, whatever the number of waiting nodes).
 POLL_S = 0.2
@@ -46,6 +51,8 @@ class Readiness:
         self.loop = asyncio.get_running_loop()
         self.waiting: dict[Any, float] = {}  # NodeProcess -> loop time of its wait_timeout
         self._task: asyncio.Task | None = None
+        # node name -> its output file followed, while an output condition waits (runner.output_path(name))
+        self.outputs: dict[str, OutputFollower] = {}
 
     def hold(self, proc: Any) -> None:
         """Hold `proc` (anything with a `spec.policy`) until its conditions are met; the poll starts with
@@ -62,6 +69,7 @@ class Readiness:
             self._task.cancel()
             self._task = None
         self.waiting.clear()
+        self.outputs.clear()
 
     async def _poll(self) -> None:
         while self.waiting:
@@ -82,6 +90,7 @@ class Readiness:
                         proc, "still waiting after %g s for %s" % (proc.spec.policy.wait_timeout, describe(missing)))
             if self.waiting:
                 await asyncio.sleep(max(0.0, started + self.period - self.loop.time()))
+        self.outputs.clear()  # (a later wait reads the files from their start again)
 
     async def present(self, wanted: set[tuple[str, str]]) -> set[tuple[str, str]]:
         """Which of the `wanted` conditions hold on the master now (a master that does not answer: none)."""
@@ -93,13 +102,29 @@ class Readiness:
                 found.update(("topic", t) for t, nodes in publishers if nodes)
                 found.update(("service", s) for s, nodes in services if nodes)
         for kind, name in wanted:
-            if kind == "param":
+            if kind == "output":
+                if self._output_matched(name):
+                    found.add((kind, name))
+            elif kind == "param":
                 if await self._ask("hasParam", name):
                     found.add((kind, name))
             elif kind == "node":
                 if await self._ask("lookupNode", name) is not None:
                     found.add((kind, name))
         return found & wanted
+
+    def _output_matched(self, condition: str) -> bool:
+        node, _, pattern = condition.partition(":")  # (a node name holds no colon)
+        follower = self.outputs.get(node)
+        if follower is None:
+            path = self.runner.output_path(node)
+            if path is None:
+                return False
+            follower = self.outputs[node] = OutputFollower(path)
+        follower.matcher.want(pattern)
+        if pattern not in follower.matcher.matched:
+            follower.read()
+        return pattern in follower.matcher.matched
 
     async def _ask(self, method: str, *args: Any) -> Any:
         """The value of a master call that succeeded (code 1), else None."""

@@ -90,6 +90,11 @@ def lines(change: Change) -> list[tuple[str, str]]:
     elif kind == m.LIMIT:
         crossed = dict(new.over_limit).keys() - dict(old.over_limit).keys()
         out.append((ERROR if crossed else INFO, "[%s] %s" % (proc, event.detail)))
+    elif kind == m.BOUND_ENDED:
+        out.append((INFO, "[%s] %s: %s" % (proc, "stopping process" if new.state == m.STOPPING else "not restarted",
+                                           event.reason)))
+    elif kind == m.BOUND_STARTED:
+        out.append((INFO, "[%s] restarting process after [%s] (bound to it)" % (proc, rules.policy.bind_to)))
     elif kind == m.LINK_LOST and ends:
         out.append((ERROR, BAR + "REQUIRED process [%s] was lost with machine [%s]!\nInitiating shutdown!\n"
                     % (new.name, rules.machine) + BAR))

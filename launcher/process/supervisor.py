@@ -57,6 +57,12 @@ KILL_WAIT_S = 2.0
 MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy paces crash loops)
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
+# A node in one of these runs for the nodes bound to it; in one of the others it is down for them (its bound
+# nodes stop and wait for its next start). How it is down, in the words told to them:
+_UP = frozenset((machine.RUNNING, machine.STALLED))
+_DOWN_FOR_BOUND = {machine.RESPAWNING: "is respawning", machine.HUNG: "is hung", machine.STOPPING: "is being stopped",
+                   machine.EXITED: "exited", machine.FATAL: "is fatal", machine.STOPPED: "is stopped",
+                   machine.DETACHED: "is stopped"}
 
 
 class NodeProcess:
@@ -196,6 +202,8 @@ class Supervisor:
         self.readiness = None  # health/readiness.Readiness: holds nodes that have wait_for conditions
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
         self._deferred: list[NodeProcess] = []  # at shutdown, nodes waiting for their dependents to be down
+        self._bound: dict[str, list[str]] = {}  # node name -> the nodes bound to it (bind_to, nodelet loaders)
+        self._stopping_after_bound: set[str] = set()  # nodes an operator stops, waiting for their bound nodes
 
     @property
     def done(self) -> asyncio.Event:
@@ -213,7 +221,9 @@ class Supervisor:
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
     def _tell(self, proc: NodeProcess, event: Event) -> list[machine.Action]:
+        old = self._state(proc)
         actions = self.fleet.apply(proc.spec.node_name, event)
+        new = self._state(proc)  # (before the actions are carried out: they tell their own events)
         for action in actions:
             kind = action.kind
             if kind == machine.SPAWN:
@@ -231,7 +241,30 @@ class Supervisor:
                 self._begin_stop(proc)
             elif kind == machine.KILL:
                 _signal_group(proc.pgid, signal.SIGKILL)
+        if old != new and not self.shutting_down:  # (at shutdown, bound nodes are stopped first anyway)
+            self._tell_bound(proc, old, new)
         return actions
+
+    def _tell_bound(self, proc: NodeProcess, old: str, new: str) -> None:
+        """Tell the nodes bound to this one that it went down or runs again; a bound node that has just
+        come down while its partner already runs again is told so now (it was being stopped when it ran)."""
+        name = proc.spec.node_name
+        if new in _DOWN_FOR_BOUND:
+            why = "bound to [%s], which %s" % (name, _DOWN_FOR_BOUND[new])
+            for bound in self._bound_nodes(name):
+                self._tell(bound, Event(machine.BOUND_ENDED, reason=why))
+        elif new == machine.RUNNING and old not in _UP:
+            for bound in self._bound_nodes(name):
+                self._tell(bound, Event(machine.BOUND_STARTED))
+        if new == machine.DETACHED:
+            partner = self._by_name.get(proc.spec.policy.bind_to)
+            if partner is not None and not partner.leftover and self._state(partner) in _UP \
+                    and partner.spec.node_name not in self._stopping_after_bound:
+                self._tell(proc, Event(machine.BOUND_STARTED))
+
+    def _bound_nodes(self, name: str) -> list[NodeProcess]:
+        procs = (self._by_name.get(n) for n in self._bound.get(name, ()))
+        return [p for p in procs if p is not None and not p.leftover]
 
     def _state(self, proc: NodeProcess) -> str:
         return self.fleet.records[proc.spec.node_name].state
@@ -267,6 +300,9 @@ class Supervisor:
             earlier.leftover, earlier.status = True, None
         self.procs.append(proc)
         self._by_name[spec.node_name] = proc
+        partner = spec.policy.bind_to
+        if partner and spec.node_name not in self._bound.get(partner, ()):
+            self._bound.setdefault(partner, []).append(spec.node_name)
         return proc
 
     def start(self, spec: ProcessSpec) -> NodeProcess | None:
@@ -391,6 +427,11 @@ class Supervisor:
         """A held node's wait_for conditions are met: start it now."""
         if not (self.shutting_down or self.done.is_set()):
             self._tell(proc, Event(machine.READY))
+
+    def output_path(self, node_name: str) -> str | None:
+        """The file that holds a node's output (readiness' `output:` conditions), None for no node here."""
+        proc = self.node(node_name)
+        return proc.spec.stdout_path if proc is not None else None
 
     def give_up_waiting(self, proc: NodeProcess, why: str) -> None:
         """A held node's conditions were not met in time: it failed to start (a required one ends the launch)."""
@@ -602,8 +643,30 @@ class Supervisor:
         several records of one node and stops the one its parent names)."""
         if proc.stopping:
             return proc.stopped  # already being stopped
+        bound = [b for b in self._bound_nodes(proc.spec.node_name) if self._state(b) in _UP or b.stopping]
+        if bound and self._state(proc) in _UP:
+            return asyncio.ensure_future(self._stop_bound_first(proc, bound))
         self._tell(proc, Event(machine.STOP))
         return proc.stopped if proc.stopping else None
+
+    async def _stop_bound_first(self, proc: NodeProcess, bound: list[NodeProcess]) -> None:
+        """An operator's stop of a node others are bound to: they are stopped first (a nodelet's loader
+        unloads it from its manager), then it; they start again after its next start."""
+        name = proc.spec.node_name
+        why = "bound to [%s], which is being stopped" % name
+        self._stopping_after_bound.add(name)
+        try:
+            for b in bound:
+                self._tell(b, Event(machine.BOUND_ENDED, reason=why))
+            stopping = [b.stopped for b in bound if b.stopping]
+            if stopping:
+                await asyncio.wait(stopping)
+        finally:
+            self._stopping_after_bound.discard(name)
+        if not proc.stopping:
+            self._tell(proc, Event(machine.STOP))
+        if proc.stopping:
+            await proc.stopped
 
     async def restart_node(self, node_name: str) -> bool:
         stopping = self.stop_node(node_name)

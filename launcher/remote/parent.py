@@ -274,7 +274,13 @@ class RemoteParent:
         if not self.stopping:
             self._tell(rn, Event(machine.DUE))
 
-    # (health/readiness calls these two, as it calls the supervisor's for local nodes)
+    # (health/readiness calls these, as it calls the supervisor's for local nodes)
+    @staticmethod
+    def output_path(node_name: str) -> None:
+        """No output file here for an `output:` condition: those of a node of another machine are there (the
+        plan refuses such a condition, plan.order.check_output_waits)."""
+        return None
+
     def release(self, rn: RemoteNode) -> None:
         if not self.stopping:
             self._tell(rn, Event(machine.READY))

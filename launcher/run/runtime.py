@@ -35,7 +35,7 @@ from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
 from launcher.workspace.packages import PackageIndex
 from launcher.plan.machines import remote_machines
-from launcher.plan.order import check_cycles
+from launcher.plan.order import bind_nodelets, check_cycles, check_output_waits
 from launcher.plan.specs import node_specs
 from launcher.output import console
 from launcher.fleet import machine as node_machine
@@ -168,7 +168,9 @@ class Plan:
                           opts=opts, run_dir=run_dir, first_number=first_number)
 
     def check_nodes(self, opts: RunOptions) -> None:
+        self.config = bind_nodelets(self.config, self.remote)  # (a loader bound to its manager may close a cycle)
         check_cycles(self.config.nodes)
+        check_output_waits(self.config.nodes, self.remote)
         for node in self.config.nodes:
             if opts.required and node.respawn:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"

@@ -15,6 +15,7 @@ reads them (`500MB`, `1.5GiB`, `200k`), as `--log-max-size` is. CPU is in cores
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, Callable
 
 from launcher.model import units
@@ -25,7 +26,7 @@ class PolicyError(ValueError):
     """A bad extension attribute value; the loader adds file and line."""
 
 
-WAIT_KINDS = ("topic", "service", "param", "node")
+WAIT_KINDS = ("topic", "service", "param", "node", "output")
 
 def _size(text: str) -> int:
     """A size greater than zero, in bytes (`launcher.model.units.parse_size`)."""
@@ -115,19 +116,50 @@ def _choice(*choices: str) -> Callable[[str], str]:
     return parse
 
 
+# a wait_for item: unquoted runs and quoted parts ('...' or "..."), up to a space outside quotes; group 1: a
+# quote left open
+_WAIT_ITEM = re.compile(r"""(?:[^\s'"]+|'[^']*'|"[^"]*")+|(['"].*)""", re.S)
+_QUOTED = re.compile(r"'([^']*)'|\"([^\"]*)\"")
+
+
 def parse_wait_for(text: str) -> tuple[tuple[str, str], ...]:
-    """`topic:/scan service:static_map` -> (("topic", "/scan"), ("service", "static_map")); names as written."""
+    """`topic:/scan service:static_map` -> (("topic", "/scan"), ("service", "static_map")); names as written.
+
+    `output:NODE:PATTERN`: a line of NODE's output matches PATTERN (a Python regular expression, searched
+    in each line); the item is ("output", "NODE:PATTERN"). Items are separated by spaces; a part in single or
+    double quotes keeps its spaces (`output:driver:'ready to go'`). There are no escapes: a backslash is
+    the pattern's (`output:driver:'port \\d+'`)."""
+    words = []
+    for m in _WAIT_ITEM.finditer(text):
+        if m.group(1) is not None:
+            raise PolicyError("kind:name items, a pattern with spaces in quotes (an unclosed quote: %s)"
+                              % m.group(1))
+        words.append(_QUOTED.sub(lambda q: q.group(1) if q.group(1) is not None else q.group(2), m.group(0)))
     out = []
-    for word in text.split():
+    for word in words:
         kind, sep, name = word.partition(":")
         if not sep or kind not in WAIT_KINDS:
             raise PolicyError("kind:name items with a kind of %s (got '%s')" % (", ".join(WAIT_KINDS), word))
-        if not name or not is_legal_name(name):
+        if kind == "output":
+            name = _output_condition(word, name)
+        elif not name or not is_legal_name(name):
             raise PolicyError("kind:name items with a valid ROS name (got '%s')" % word)
         out.append((kind, name))
     if not out:
         raise PolicyError("kind:name items, e.g. topic:/scan service:/static_map")
     return tuple(out)
+
+
+def _output_condition(word: str, rest: str) -> str:
+    node, sep, pattern = rest.partition(":")
+    if not sep or not node or not is_legal_name(node) or not pattern:
+        raise PolicyError("output:NODE:PATTERN with a node name and a pattern (got '%s')" % word)
+    try:
+        re.compile(pattern)
+    except re.error as e:
+        raise PolicyError("output:NODE:PATTERN with a Python regular expression (got '%s': %s)" % (word, e)) \
+            from None
+    return rest
 
 
 def _topics(text: str) -> tuple[str, ...]:
@@ -224,14 +256,19 @@ def read_policy(attrib: Any, substitute: Callable[[str], str]) -> dict[str, Any]
 
 def resolve_wait_names(wait_for: tuple[tuple[str, str], ...], namespace: str,
                        node_name: str) -> tuple[tuple[str, str], ...]:
-    """wait_for names resolved as the node itself would: relative to its namespace, `~x` under its name."""
+    """wait_for names resolved as the node itself would: relative to its namespace, `~x` under its name (an
+    output condition's node name, its pattern kept)."""
     out = []
     for kind, name in wait_for:
+        pattern = ""
+        if kind == "output":
+            name, _, pattern = name.partition(":")
+            pattern = ":" + pattern
         if name.startswith("~"):
             name = node_name.rstrip("/") + "/" + name[1:].lstrip("/")
         elif not name.startswith("/"):
             name = namespace.rstrip("/") + "/" + name
-        out.append((kind, name))
+        out.append((kind, name + pattern))
     return tuple(out)
 
 

@@ -13,29 +13,30 @@ from launcher.fleet.machine import Action, Event, Record, Rules
 # Columns: the events, in this order.
 EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
           m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
-          m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED]
+          m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED, m.BOUND_ENDED, m.BOUND_STARTED]
 SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
          "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
-         "fat": m.FATAL, "stp": m.STOPPED}
+         "fat": m.FATAL, "stp": m.STOPPED, "det": m.DETACHED}
 # For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
 # "!": a runner's bug (InvalidTransition); else the state after the event.
-#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT
 MATRIX = """
-new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
-wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
-hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi
-sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !
-pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
-lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi
-run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi
-hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !
-stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !
-sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -
-res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi
-los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi
-exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
-fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
-stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -
+det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta
 """
 RULES = Rules(respawn=True)
 
@@ -97,6 +98,37 @@ def test_an_operator_stop_during_a_respawn_delay_keeps_it_stopped():
                                                                 [Action(m.CANCEL)])
     # the timer that fired as it was cancelled starts nothing
     assert m.step(r, Event(m.DUE), 10.1) == (r, [])
+
+
+def test_a_bound_node_is_stopped_with_its_partner_and_started_once_after_it():
+    rules = Rules(respawn=False, policy=NodePolicy(bind_to="/manager", wait_for=(("node", "/manager"),)))
+    r = record_in(m.RUNNING, rules)
+    r, actions = m.step(r, Event(m.BOUND_ENDED, reason="its manager ended"), 10.0)
+    assert (r.state, r.rebind, actions) == (m.STOPPING, True, [Action(m.BEGIN_STOP)])
+    r, _ = m.step(r, Event(m.EXITED_, exit_code=0), 10.1)
+    r, actions = m.step(r, Event(m.DOWN), 10.2)
+    assert (r.state, r.rebind, actions, m.PUBLIC[r.state]) == (m.DETACHED, False, [], "stopped")
+    assert m.step(r, Event(m.BOUND_ENDED), 10.3) == (r, [])  # (down again before it came back: one start)
+    # its partner runs again: it waits for it to register, then starts (whatever its own respawn says)
+    r, actions = m.step(r, Event(m.BOUND_STARTED), 11.0)
+    assert (r.state, actions) == (m.HELD, [Action(m.HOLD)])
+    r, actions = m.step(r, Event(m.READY), 11.5)
+    assert (r.state, actions) == (m.STARTING, [Action(m.SPAWN)])
+
+
+def test_a_bound_node_waiting_for_its_own_respawn_waits_for_its_partner_instead():
+    r = record_in(m.RESPAWNING)
+    r, actions = m.step(r, Event(m.BOUND_ENDED, reason="its manager ended"), 10.0)
+    assert (r.state, r.next_start, actions) == (m.DETACHED, None, [Action(m.CANCEL)])
+    assert m.step(r, Event(m.DUE), 10.1) == (r, [])  # (its timer, fired as it was cancelled)
+    # an operator's stop while it waits holds over its partner's start
+    stopped, actions = m.step(r, Event(m.STOP), 10.2)
+    assert (stopped.state, stopped.operator_stopped) == (m.STOPPED, True)
+    assert m.step(stopped, Event(m.BOUND_STARTED), 11.0) == (stopped, [])
+    # an operator stopping a node being stopped with its partner keeps it stopped
+    r, _ = m.step(record_in(m.RUNNING), Event(m.BOUND_ENDED), 10.0)
+    r, _ = m.step(r._replace(operator_stopped=True), Event(m.DOWN), 10.5)
+    assert r.state == m.STOPPED
 
 
 def test_a_link_cut_during_a_launch_call_queues_the_node_once():

@@ -114,6 +114,18 @@ def test_wait_for_names_resolved_like_the_node_would(ld):
     assert p["/robot/other"].wait_for == (("topic", "/robot/scan"),)
 
 
+def test_wait_for_output_takes_a_quoted_pattern_and_resolves_its_node(ld):
+    c = ld.load("""
+        <launch>
+          <group ns="robot">
+            <node name="amcl" pkg="tpkg" type="talker"
+                  wait_for="topic:scan output:driver:'ready to go' output:/cam:&quot;port \\d+: ok&quot; output:/x:\\w"/>
+          </group>
+        </launch>""")
+    assert policies(c)["/robot/amcl"].wait_for == (("topic", "/robot/scan"), ("output", "/robot/driver:ready to go"),
+                                                   ("output", "/cam:port \\d+: ok"), ("output", "/x:\\w"))
+
+
 @pytest.mark.parametrize("attr, value, expected", [
     ("respawn_backoff", "fast", "invalid value for respawn_backoff: 'fast' (expected a factor of 1 or more)"),
     ("respawn_backoff", "0.5", "invalid value for respawn_backoff: '0.5'"),
@@ -123,8 +135,15 @@ def test_wait_for_names_resolved_like_the_node_would(ld):
     ("log_max_size", "0.5B", "invalid value for log_max_size: '0.5B' (expected a size greater than zero)"),
     ("rosmon-memory-limit", "-1MB", "invalid value for rosmon-memory-limit: '-1MB'"),
     ("wait_for", "socket:/x", "invalid value for wait_for: 'socket:/x' (expected kind:name items with a kind of "
-                              "topic, service, param, node (got 'socket:/x'))"),
+                              "topic, service, param, node, output (got 'socket:/x'))"),
     ("wait_for", "topic:", "invalid value for wait_for: 'topic:'"),
+    ("wait_for", "output:/driver", "invalid value for wait_for: 'output:/driver' (expected output:NODE:PATTERN with a "
+                                   "node name and a pattern (got 'output:/driver'))"),
+    ("wait_for", "output:/driver:(ready", "invalid value for wait_for: 'output:/driver:(ready' (expected "
+                                          "output:NODE:PATTERN with a Python regular expression (got "
+                                          "'output:/driver:(ready': missing ), unterminated subpattern"),
+    ("wait_for", "output:/driver:'ready", "invalid value for wait_for: 'output:/driver:'ready' (expected kind:name "
+                                          "items, a pattern with spaces in quotes (an unclosed quote: 'ready))"),
     ("respawn_on", "sometimes", "invalid value for respawn_on: 'sometimes' (expected always or failure)"),
     ("on_limit", "kill", "invalid value for on_limit: 'kill' (expected warn or restart)"),
     ("on_fatal", "panic", "invalid value for on_fatal: 'panic' (expected none or shutdown)"),
