@@ -20,6 +20,7 @@ start, stop or restart one is refused by name, and nothing changes.
 from __future__ import annotations
 
 import asyncio
+import time
 from typing import Any
 
 from launcher.model.errors import LaunchError
@@ -45,6 +46,7 @@ class Reloader:
             run = self.run
             old = run.plan
             warnings: list[str] = []
+            started = time.monotonic()
             try:
                 new, diff = await asyncio.to_thread(self._load, old, given, warnings.append)
             except LaunchError as e:
@@ -54,6 +56,8 @@ class Reloader:
             refused = self._remote_refusals(old, new, diff)
             if refused:
                 return {**answer, "ok": False, "error": "\n".join(refused)}
+            run.log.timing(started, "reload: files read, %d change(s)%s" % (len(answer["lines"]),
+                                                                           " (dry run)" if dry_run else ""))
             if dry_run:
                 return answer
             notifier = run.notifier
@@ -64,6 +68,7 @@ class Reloader:
             finally:
                 if notifier is not None:
                     notifier.reloaded()
+            run.log.timing(started, "reload: applied")
             answer["applied"] = True
             return answer
 

@@ -290,3 +290,17 @@ def test_an_arg_given_on_the_reload_switches_an_if_branch(run):
     run.assert_params_are_the_files("sim:=false")
     # the run's args are now these: a reload without args keeps sim:=false
     assert run.reload()["lines"] == []
+
+
+def test_an_operator_stopped_node_stays_stopped_unless_it_changed(run):
+    for name in ("/a", "/b"):
+        r = run.tool("stop", name)
+        assert r.returncode == 0, r.stderr
+    until(lambda: not {"a", "b"} & set(run.pids()), 30, what="a and b stopped")
+    run.edit('args="--x 1"', 'args="--x 2"')  # b changes, a does not
+    answer = run.reload()
+    assert answer["ok"] and list(answer["difference"]["restart"]) == ["/b"]
+    after = run.ready(BASE_NAMES - {"a"})  # b started as new; a stays stopped
+    assert changed(run.before, after) == {"b"}
+    states = {n["name"]: n["state"] for n in json.loads(run.tool("status", "--json").stdout)["nodes"]}
+    assert states["/a"] == "stopped" and states["/b"] == "running"
