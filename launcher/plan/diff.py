@@ -106,9 +106,11 @@ def _policy_changes(old: NodePolicy | None, new: NodePolicy | None) -> list[str]
 
 
 def difference(old: LaunchConfig, new: LaunchConfig, old_commands: Mapping[str, Any] | None = None,
-               new_commands: Mapping[str, Any] | None = None) -> Difference:
+               new_commands: Mapping[str, Any] | None = None, remote: frozenset[str] = frozenset()) -> Difference:
     """What changes from `old` to `new`. `*_commands`: node name -> its command's comparable form (argv,
-    environment changes, cwd), for the nodes whose command is worked out here (not those of other machines)."""
+    environment changes, cwd), for the nodes whose command is worked out here (not those of other machines).
+    `remote`: the nodes of other machines, whose respawn is their child's unless they have a NodePolicy (the
+    child got it with the node: a change of it is a restart)."""
     old_commands = old_commands or {}
     new_commands = new_commands or {}
     old_params, new_params = old.params, new.params
@@ -146,6 +148,8 @@ def difference(old: LaunchConfig, new: LaunchConfig, old_commands: Mapping[str, 
         if node.machine_name and node.machine_name == before.machine_name and not _same_machine(
                 old.machines.get(node.machine_name), new.machines.get(node.machine_name)):
             why.append("machine %s changed" % node.machine_name)
+        if name in remote:
+            why += _child_supervision(before, node)
         why += param_changes.get(name, [])
         if why:
             restart.append(NodeChange(name, "; ".join(why)))
@@ -155,6 +159,18 @@ def difference(old: LaunchConfig, new: LaunchConfig, old_commands: Mapping[str, 
         if rules:
             supervise.append(NodeChange(name, "; ".join(rules)))
     return Difference(delete, sets, stop, tuple(restart), tuple(start), tuple(supervise))
+
+
+def _child_supervision(old: Node, new: Node) -> list[str]:
+    """The supervision of a node of another machine that its child holds (roslaunch's respawn, when the node
+    has no NodePolicy: the parent's restart policy is not in charge of it)."""
+    if (old.policy is None) != (new.policy is None):
+        return ["its restarts move between its machine's child and this launch (supervision attributes %s)"
+                % ("added" if new.policy is not None else "removed")]
+    if new.policy is None:
+        return [_field_words(f, getattr(old, f), getattr(new, f)) + " (its machine's child respawns it)"
+                for f in ("respawn", "respawn_delay") if getattr(old, f) != getattr(new, f)]
+    return []
 
 
 def _same_machine(a: Any, b: Any) -> bool:

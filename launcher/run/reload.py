@@ -13,8 +13,10 @@ prints and what a reload applies:
    changes apply where each node stands (services/nodeservice.py);
 3. the events file's `reload` line (fleet.state.Fleet.reloaded).
 
-Nodes of other machines are not changed by a reload yet: a difference that would
-start, stop or restart one is refused by name, and nothing changes.
+Nodes of other machines are stopped and started through the calls the operator's
+stop and start use (remote.parent); a change that needs what a child cannot do
+(Debian's roslaunch child stops no single node) or a child this run does not have
+(a new machine) is refused by name, and nothing changes.
 """
 
 from __future__ import annotations
@@ -79,7 +81,9 @@ class Reloader:
         new = old.again(self.run.opts, given, warn)
         old_commands = self._commands(old, new.packages, strict=False)
         new_commands = self._commands(new, new.packages, strict=True)
-        return new, difference(old.config, new.config, old_commands, new_commands)
+        remote = frozenset(n.full_name for n in old.config.nodes if old.remote(n)) | frozenset(
+            n.full_name for n in new.config.nodes if new.remote(n))
+        return new, difference(old.config, new.config, old_commands, new_commands, remote)
 
     @staticmethod
     def _commands(plan: Any, packages: Any, strict: bool) -> dict[str, tuple]:
@@ -99,13 +103,25 @@ class Reloader:
         return out
 
     def _remote_refusals(self, old: Any, new: Any, diff: Difference) -> list[str]:
-        """The nodes of other machines the difference would start, stop or restart, each by name."""
-        remote = {n.full_name: n.machine_name for n in old.config.nodes if old.remote(n)}
-        remote.update((n.full_name, n.machine_name) for n in new.config.nodes if new.remote(n))
-        return ["node [%s] runs on machine [%s]: a reload cannot %s it (stop and start the launch, or change only "
-                "this machine's nodes)" % (c.name, remote[c.name], verb)
-                for verb, changes in (("stop", diff.stop), ("restart", diff.restart), ("start", diff.start))
-                for c in changes if c.name in remote]
+        """Why the difference cannot be applied to the nodes of other machines, each by name ([]: it can).
+        They go through the same calls as the operator's stop and start (remote.parent); a node whose
+        machine has no child in this run, one that moves between this machine and another, and one to stop
+        under Debian's roslaunch child (which cannot stop one node) need the launch restarted."""
+        was = {n.full_name: n for n in old.config.nodes if old.remote(n)}
+        now = {n.full_name: n for n in new.config.nodes if new.remote(n)}
+        if not was and not now:
+            return []
+        moved = ["node [%s] moves from %s to %s: the launch needs a full restart for this change"
+                 % (c.name, "machine [%s]" % was[c.name].machine_name if c.name in was else "this machine",
+                    "machine [%s]" % now[c.name].machine_name if c.name in now else "this machine")
+                 for c in diff.restart if (c.name in was) != (c.name in now)]
+        stop = [(c.name, was[c.name].machine_name) for c in diff.stop + diff.restart if c.name in was]
+        start = [now[c.name] for c in diff.start + diff.restart if c.name in now]
+        parent = self.run.nodes.remote
+        if parent is None:
+            return moved + ["node [%s]: machine [%s] has no child in this launch: the launch needs a full restart "
+                            "for this change" % (n.full_name, n.machine_name) for n in start]
+        return moved + parent.reload_refusals(stop, start, new.config.machines)
 
     async def _apply(self, new: Any, diff: Difference) -> None:
         run = self.run

@@ -186,9 +186,29 @@ class NodeService:
         changed and removed nodes are stopped together, then the changed ones start anew and the new ones
         start, in the launch's order; supervision-only changes apply where each node stands. (The other
         machines' nodes: refused before this, services/reload.py.)"""
-        supervisor = self.supervisor
-        if supervisor is None:
+        if self.supervisor is None:
             return
+        await asyncio.gather(self._reload_here(diff, plan), self._reload_remote(diff, plan))
+        self.plan = plan
+
+    async def _reload_remote(self, diff: Difference, plan: Any) -> None:
+        """The other machines' part (remote.parent: the operator's stop and start calls)."""
+        remote = self.remote
+        if remote is None:
+            return
+        was = set(remote.node_names())
+        now = {n.full_name: n for n in plan.config.nodes if plan.remote(n)}
+        refusals = await remote.reload(
+            stop={c.name: c.why for c in diff.stop if c.name in was},
+            renew={c.name: (now[c.name], c.why) for c in diff.restart if c.name in was and c.name in now},
+            start=[now[c.name] for c in diff.start if c.name in now],
+            rules={c.name: (now[c.name], c.why) for c in diff.supervise if c.name in now},
+            machines=plan.config.machines)
+        for refusal in refusals:  # (checked before the reload began: a child that changed its mind since)
+            console.printerrlog("reload: %s" % refusal)
+
+    async def _reload_here(self, diff: Difference, plan: Any) -> None:
+        supervisor = self.supervisor
         restart = {c.name: c.why for c in diff.restart}
         start = {c.name: c.why for c in diff.start}
         supervise = {c.name: c.why for c in diff.supervise}
@@ -204,7 +224,6 @@ class NodeService:
                                    plan.remote, opts=self.opts, run_dir=self.log.run_dir,
                                    first_number=self.first_number + self.processes,
                                    process_names=kept)
-        self.plan = plan
         self.processes += len([s for s in specs if s.node_name in start]) + len(failed)
         self._packages.update(packages_of(plan.config, specs))
         for spec in specs:  # (in the launch's order)

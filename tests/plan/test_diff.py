@@ -173,3 +173,19 @@ def test_anonymous_names_are_the_runs_own_on_a_reload(tmp_path):
     # without the run's names, every load makes new ones: both nodes would be stopped and started
     d = difference(first, load([str(launch)], [], core=False))
     assert len(d.stop) == len(d.start) == 2
+
+
+def test_a_remote_nodes_respawn_is_its_childs_unless_it_has_a_policy():
+    r = A._replace(machine_name="m")
+    # the child got respawn with the node: a change is a restart
+    d = difference(config(r), config(r._replace(respawn=True)), remote=frozenset({"/a"}))
+    assert names(d.restart) == ["/a"] and "child respawns it" in d.restart[0].why
+    # with a NodePolicy the parent's restart policy is in charge: supervision only
+    p = r._replace(policy=NodePolicy(respawn_max_retries=2))
+    d = difference(config(p), config(p._replace(respawn=True)), remote=frozenset({"/a"}))
+    assert d.restart == () and names(d.supervise) == ["/a"]
+    # a policy added moves its restarts from the child to the parent
+    d = difference(config(r), config(p), remote=frozenset({"/a"}))
+    assert names(d.restart) == ["/a"] and "move" in d.restart[0].why
+    # a local node: supervision only, either way
+    assert names(difference(config(A), config(A._replace(respawn=True))).supervise) == ["/a"]
