@@ -599,17 +599,20 @@ class RemoteParent:
                 return child
         return None
 
-    def reload_refusals(self, stop: list[tuple[str, str]], start: list[Node], machines: Mapping[str, Machine]) -> list[str]:
-        """Why a reload cannot stop (`stop`: (name, machine name)) or start (`start`) these nodes of other
-        machines, by name ([] when it can)."""
+    def reload_refusals(self, stop: list[tuple[str, str]], start: list[Node],
+                        machines: Mapping[str, Machine]) -> list[str]:
+        """Why a reload cannot stop (`stop`: (name, machine name)) or start (`start`: new, or restarted) these
+        nodes of other machines, by name ([] when it can)."""
         refusals = []
         if not self.children_stop_nodes:
             refusals += ["node [%s] runs under Debian's roslaunch child on machine [%s], which cannot stop one node: "
                          "the launch needs a full restart for this change" % (name, m) for name, m in stop]
-        refusals += ["node [%s]: machine [%s] has no child in this launch (a new machine, or its address, user or "
-                     "env-loader changed): the launch needs a full restart for this change" % (n.full_name,
-                                                                                                n.machine_name)
-                     for n in start if self._child_for(n, machines) is None]
+        for n in start:
+            rn = self._node(n.full_name)
+            if rn is not None and self._child_for(n, machines) is not rn.child:
+                refusals.append("node [%s] moves to another machine (machine [%s]: its address, user, port or "
+                                "env-loader changed): the launch needs a full restart for this change"
+                                % (n.full_name, n.machine_name))
         return refusals
 
     async def reload(self, stop: dict[str, str], renew: dict[str, tuple[Node, str]], start: list[Node],
@@ -635,8 +638,11 @@ class RemoteParent:
             self._tell(rn, Event(machine.START))
         for node in start:
             child = self._child_for(node, machines)
-            if child is None:
-                continue
+            if child is None:  # a machine none of the launch's nodes used so far: its child starts
+                machine_ = machines[node.machine_name or ""]
+                child = RemoteChild("%s-%d" % (machine_.address, len(self.children)), machine_, [])
+                self.children[child.name] = child
+                child.task = asyncio.ensure_future(self._keep(child))
             rn = RemoteNode(node, child)
             child.nodes.append(rn)
             self.fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
