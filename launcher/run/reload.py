@@ -46,6 +46,8 @@ class Reloader:
             return {"ok": False, "error": "reload takes name:=value args only, not %s" % ", ".join(map(repr, bad))}
         async with self._lock:
             run = self.run
+            if run.signals.event.is_set():
+                return {"ok": False, "error": "the launch is stopping"}
             old = run.plan
             warnings: list[str] = []
             started = time.monotonic()
@@ -67,6 +69,9 @@ class Reloader:
                 notifier.reloading()
             try:
                 await self._apply(new, diff)
+            except LaunchError as e:  # (the master refused a parameter, or went away: said, as a launch says it)
+                console.printerrlog("reload: %s" % e)
+                return {**answer, "ok": False, "error": "the reload failed part way (see `launcher events`): %s" % e}
             finally:
                 if notifier is not None:
                     notifier.reloaded()

@@ -189,3 +189,14 @@ def test_a_remote_nodes_respawn_is_its_childs_unless_it_has_a_policy():
     assert names(d.restart) == ["/a"] and "move" in d.restart[0].why
     # a local node: supervision only, either way
     assert names(difference(config(A), config(A._replace(respawn=True))).supervise) == ["/a"]
+
+
+def test_a_param_command_runs_again_and_is_compared_like_any_value(tmp_path):
+    (tmp_path / "v").write_text("1")
+    launch = tmp_path / "a.launch"
+    launch.write_text('<launch><param name="from_cmd" command="cat %s"/><param name="same" command="echo x"/></launch>'
+                      % (tmp_path / "v"))
+    old = load([str(launch)], [], core=False)
+    assert difference(old, load([str(launch)], [], core=False)).empty
+    (tmp_path / "v").write_text("2")
+    assert difference(old, load([str(launch)], [], core=False)).set == (("/from_cmd", 2),)  # (typed as roslaunch does)
