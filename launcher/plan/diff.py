@@ -1,9 +1,10 @@
 """The difference of two plans of one launch (a reload): the parameters to set and delete, the nodes to start, stop and restart, each with why, and the nodes whose supervision settings alone changed.
 
-A pure function of the two loaded `LaunchConfig`s and of each node's command
-(`process.command.node_command`: argv, environment, working directory), which
-the caller works out with the same package index for both, so that only what
-the files say makes a difference. `launcher reload --dry-run` prints it and
+A pure function of the two loaded `LaunchConfig`s and of what each node's
+command (`process.command.node_command`: argv, environment, working directory)
+is made of beyond the node's own fields: its executable, which the caller looks
+up with the same package index for both plans, so that only what the files say
+(or a package that now has another executable) makes a difference. `launcher reload --dry-run` prints it and
 a reload (`services/reload.py`) applies it: the same record, so a reload does
 exactly what the dry run said.
 
@@ -107,8 +108,9 @@ def _policy_changes(old: NodePolicy | None, new: NodePolicy | None) -> list[str]
 
 def difference(old: LaunchConfig, new: LaunchConfig, old_commands: Mapping[str, Any] | None = None,
                new_commands: Mapping[str, Any] | None = None, remote: frozenset[str] = frozenset()) -> Difference:
-    """What changes from `old` to `new`. `*_commands`: node name -> its command's comparable form (argv,
-    environment changes, cwd), for the nodes whose command is worked out here (not those of other machines).
+    """What changes from `old` to `new`. `*_commands`: node name -> what its command is made of beyond its
+    fields (its executable's path: argv, environment and cwd are functions of that, the node's fields and the
+    launch's environment), for the nodes of this machine.
     `remote`: the nodes of other machines, whose respawn is their child's unless they have a NodePolicy (the
     child got it with the node: a change of it is a restart)."""
     old_commands = old_commands or {}
@@ -183,13 +185,8 @@ def _same_machine(a: Any, b: Any) -> bool:
 def _process_changes(old: Node, new: Node, old_command: Any, new_command: Any) -> list[str]:
     why = [_field_words(f, getattr(old, f), getattr(new, f)) for f in PROCESS_FIELDS if getattr(old, f) != getattr(new, f)]
     if not why and old_command != new_command:
-        why.append("command line %s -> %s" % (_short(old_command, 120), _short(new_command, 120)))
+        why.append("executable %s -> %s" % (_short(old_command, 120), _short(new_command, 120)))
     return why
-
-
-def command_key(command: Any) -> tuple:
-    """A node's command as the difference compares it: argv, the environment it changes, cwd."""
-    return (tuple(command.argv), tuple(command.env_changes), command.cwd)
 
 
 def lines(diff: Difference) -> Iterable[str]:

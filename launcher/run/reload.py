@@ -27,7 +27,7 @@ from typing import Any
 
 from launcher.model.errors import LaunchError
 from launcher.output import console
-from launcher.plan.diff import Difference, command_key, difference, lines
+from launcher.plan.diff import Difference, difference, lines
 from launcher.process.command import node_command
 
 
@@ -81,30 +81,34 @@ class Reloader:
 
     def _load(self, old: Any, given: list[str], warn: Any) -> tuple[Any, Difference]:
         """(In a worker thread.) The new plan and its difference to the old one; LaunchError for bad input,
-        a node whose executable cannot be found included (a launch would start without it; a reload that
-        would lose a node for a typo does not happen)."""
+        a node whose executable cannot be found, or whose command line cannot be made, included (a launch
+        would start without it; a reload that would lose a node for a typo does not happen)."""
         new = old.again(self.run.opts, given, warn)
-        old_commands = self._commands(old, new.packages, strict=False)
-        new_commands = self._commands(new, new.packages, strict=True)
+        packages = new.packages
         remote = frozenset(n.full_name for n in old.config.nodes if old.remote(n)) | frozenset(
             n.full_name for n in new.config.nodes if new.remote(n))
-        return new, difference(old.config, new.config, old_commands, new_commands, remote)
+        diff = difference(old.config, new.config, self._executables(old, packages, strict=False),
+                          self._executables(new, packages, strict=True), remote)
+        changed = {c.name for c in diff.start + diff.restart}
+        for node in new.config.nodes:
+            if node.full_name in changed and not new.remote(node):
+                node_command(node, master_uri=new.master_uri, environ=new.environ, packages=packages)
+        return new, diff
 
     @staticmethod
-    def _commands(plan: Any, packages: Any, strict: bool) -> dict[str, tuple]:
-        """Each local node's command as the difference compares it, worked out with one package index for
-        both plans (so that only what the files say makes a difference)."""
+    def _executables(plan: Any, packages: Any, strict: bool) -> dict[str, str]:
+        """Each local node's executable, looked up with one package index for both plans (so that only what
+        the files say, or a package that now has another executable, makes a difference)."""
         out = {}
         for node in plan.config.nodes:
             if plan.remote(node):
                 continue
             try:
-                command = node_command(node, master_uri=plan.master_uri, environ=plan.environ, packages=packages)
-            except LaunchError:
+                out[node.full_name] = packages.find_node(node.package, node.type)
+            except LaunchError as e:
                 if strict:
-                    raise
-                continue
-            out[node.full_name] = command_key(command)
+                    raise LaunchError("node [%s] (%s/%s): %s" % (node.full_name, node.package, node.type, e.message),
+                                      node.filename or None, node.line or None) from None
         return out
 
     def _remote_refusals(self, old: Any, new: Any, diff: Difference) -> list[str]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param
-from launcher.plan.diff import Difference, NodeChange, command_key, difference, lines, same_value
+from launcher.plan.diff import Difference, NodeChange, difference, lines, same_value
 from launcher.xml import load
 
 
@@ -88,14 +88,11 @@ def test_a_process_change_restarts_the_node_with_why(field, value):
     assert d.supervise == () and d.set == ()
 
 
-def test_a_changed_command_restarts_the_node():
-    class Cmd:
-        def __init__(self, argv):
-            self.argv, self.env_changes, self.cwd = argv, [("ROS_MASTER_URI", "u")], "/h"
-    old = {"/a": command_key(Cmd(["/x/exe", "__name:=a"])), "/b": command_key(Cmd(["/x/b"]))}
-    new = {"/a": command_key(Cmd(["/y/exe", "__name:=a"])), "/b": command_key(Cmd(["/x/b"]))}
+def test_a_changed_executable_restarts_the_node():
+    old = {"/a": "/ws1/pkg/exe", "/b": "/ws1/pkg/exe"}
+    new = {"/a": "/ws2/pkg/exe", "/b": "/ws1/pkg/exe"}
     d = difference(config(A, B), config(A, B), old, new)
-    assert names(d.restart) == ["/a"] and "command line" in d.restart[0].why
+    assert names(d.restart) == ["/a"] and d.restart[0].why == "executable '/ws1/pkg/exe' -> '/ws2/pkg/exe'"
 
 
 def test_a_changed_machine_restarts_its_nodes():
