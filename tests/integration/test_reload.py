@@ -20,6 +20,7 @@ pytestmark = pytest.mark.integration
 
 # READY_DIR gets a file once init_node has returned: a SIGINT during init_node can wedge rospy
 # (test_run_shutdown.py), so a node is stopped only once it is ready
+Crasher = "#!/bin/sh\nexit 3\n"
 Spinner = """#!%s
 import os, rospy
 rospy.init_node("spinner")
@@ -153,7 +154,7 @@ BASE_NAMES = {"a", "b", "cpp", "anon", "sim", "r"}
 
 @pytest.fixture
 def pkgs(tmp_path, ros_env):
-    pkg = make_package(str(tmp_path / "pkgs"), "rl_tests", {"spinner": Spinner})
+    pkg = make_package(str(tmp_path / "pkgs"), "rl_tests", {"spinner": Spinner, "crasher": Crasher})
     compile_roscpp("param_node.cpp", os.path.join(pkg, "param_cpp"))
     return str(tmp_path / "pkgs")
 
@@ -244,6 +245,7 @@ def test_a_changed_args_restarts_that_node_only(run):
     assert changed(run.before, after) == {"b"}
     with open("/proc/%d/cmdline" % after["b"], "rb") as f:
         assert b"--x\x002\x00" in f.read()
+    run.assert_params_are_the_files()
 
 
 def test_a_changed_respawn_max_retries_restarts_nothing(run):
@@ -252,6 +254,7 @@ def test_a_changed_respawn_max_retries_restarts_nothing(run):
     assert answer["ok"] and list(answer["difference"]["supervise"]) == ["/r"]
     assert answer["difference"]["restart"] == {} and answer["lines"] == ["supervise /r: respawn_max_retries 3 -> 5"]
     assert run.pids() == run.before
+    run.assert_params_are_the_files()
 
 
 def test_nothing_changed_restarts_nothing_and_sets_nothing(run):
@@ -304,3 +307,21 @@ def test_an_operator_stopped_node_stays_stopped_unless_it_changed(run):
     assert changed(run.before, after) == {"b"}
     states = {n["name"]: n["state"] for n in json.loads(run.tool("status", "--json").stdout)["nodes"]}
     assert states["/a"] == "stopped" and states["/b"] == "running"
+
+
+def test_a_fatal_node_stays_fatal_unless_it_changed(run):
+    def states() -> dict:
+        return {n["name"]: n for n in json.loads(run.tool("status", "--json").stdout)["nodes"]}
+    run.edit("</launch>", '<node pkg="rl_tests" type="crasher" name="crash" respawn="true" respawn_max_retries="1" '
+                          'respawn_delay="0.1"/>\n</launch>')
+    assert list(run.reload()["difference"]["start"]) == ["/crash"]
+    until(lambda: states()["/crash"]["state"] == "fatal", 30, 0.2, what="/crash FATAL")
+    runs = states()["/crash"]["restarts"]
+    run.edit('<param name="g" value="1"/>', '<param name="g" value="2"/>')  # another change: it stays FATAL
+    assert run.reload()["ok"]
+    assert states()["/crash"]["state"] == "fatal" and states()["/crash"]["restarts"] == runs
+    run.edit('type="crasher" name="crash"', 'type="crasher" name="crash" args="again"')  # changed: started anew
+    assert list(run.reload()["difference"]["restart"]) == ["/crash"]
+    until(lambda: states()["/crash"]["restarts"] > runs, 30, 0.2, what="/crash started anew")
+    until(lambda: states()["/crash"]["state"] == "fatal", 30, 0.2, what="/crash FATAL again (it failed again)")
+    assert run.pids() == run.before  # (the others kept their pids throughout)
