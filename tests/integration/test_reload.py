@@ -180,6 +180,10 @@ def test_a_changed_private_param_restarts_only_its_owner_and_the_master_holds_it
     assert dry["ok"] and not dry["applied"]
     assert dry["difference"]["set"] == {"/a/rate": 2} and list(dry["difference"]["restart"]) == ["/a"]
     assert run.pids() == run.before  # (a dry run changes nothing)
+    # it needs the run's token, as `launcher stop` does
+    (run.tmp / "wrong-token").write_text("0" * 64 + "\n")
+    refused = run.tool("reload", "--token-file", str(run.tmp / "wrong-token"))
+    assert refused.returncode == 4 and "reload needs this run's token" in refused.stderr, refused.stderr
     answer = run.reload()
     assert answer["ok"] and answer["applied"] and answer["difference"] == dry["difference"]
     after = run.ready(BASE_NAMES)
