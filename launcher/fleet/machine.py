@@ -79,7 +79,7 @@ LAUNCHED = "launched"  # the child took it (process: the child's process name)
 LAUNCH_REFUSED = "launch refused"  # the call failed as a whole: it waits for the machine's next session
 LINK_LOST = "link lost"  # its machine's session ended (reason)
 MACHINE_FAILED = "machine failed"  # its machine could never be reached (reason)
-# a reload (services/reload.py) of the launch's files: a node that changed or was removed is stopped (reason),
+# a reload (run/reload.py) of the launch's files: a node that changed or was removed is stopped (reason),
 # a changed one is then made anew with its new rules (and a clean slate: an operator's stop, failures, FATAL
 # are the old node's), and a node whose supervision settings alone changed gets them where it stands
 RELOAD_STOP = "reload stop"

@@ -5,7 +5,7 @@ command (`process.command.node_command`: argv, environment, working directory)
 is made of beyond the node's own fields: its executable, which the caller looks
 up with the same package index for both plans, so that only what the files say
 (or a package that now has another executable) makes a difference. `launcher reload --dry-run` prints it and
-a reload (`services/reload.py`) applies it: the same record, so a reload does
+a reload (`run/reload.py`) applies it: the same record, so a reload does
 exactly what the dry run said.
 
 Rules (issue 23):

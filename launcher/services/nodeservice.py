@@ -185,7 +185,7 @@ class NodeService:
         """Apply a reload's difference (plan/diff) to this machine's nodes, `plan` being the new one: the
         changed and removed nodes are stopped together, then the changed ones start anew and the new ones
         start, in the launch's order; supervision-only changes apply where each node stands. (The other
-        machines' nodes: refused before this, services/reload.py.)"""
+        machines' nodes: refused before this, run/reload.py.)"""
         if self.supervisor is None:
             return
         await asyncio.gather(self._reload_here(diff, plan), self._reload_remote(diff, plan))
