@@ -59,7 +59,7 @@ class ArgNotSet(SubstitutionError):
 
 class AnonNames:
     """The names `$(anon id)` made in a run's loads, by file and id in the order they were asked for: a
-    reload of the run (services/reload.py) is given the same ones, so an anonymous node stays the same node.
+    reload of the run (run/reload.py) is given the same ones, so an anonymous node stays the same node.
     (A first load that is not a run's needs none: `anonymous_name` makes each.)"""
 
     __slots__ = ("kept", "_asked")
