@@ -23,6 +23,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "start": ("launcher.operate.control:start", "start the nodes a name, glob or regex selects"),
     "stop": ("launcher.operate.control:stop", "stop the nodes a name, glob or regex selects (not respawned)"),
     "restart": ("launcher.operate.control:restart", "restart the nodes a name, glob or regex selects"),
+    "reload": ("launcher.operate.reload", "read the launch's files again and apply only the difference "
+               "(--dry-run prints it)"),
     "logs": ("launcher.operate.logs", "a node's output (-f follows it; after the end: the last run's)"),
     "events": ("launcher.operate.events", "the run's state changes (-f follows them; after the end: the last run's)"),
     "ui": ("launcher.operate.ui", "a live view of a running launch: states, CPU, RSS, output; start/stop/restart "

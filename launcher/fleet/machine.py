@@ -85,10 +85,16 @@ MACHINE_FAILED = "machine failed"  # its machine could never be reached (reason)
 # the node it is bound to (bind_to, or the manager of a nodelet loader), on this machine:
 BOUND_ENDED = "bound ended"  # ... is down: a run of it ended, or it is being stopped (reason)
 BOUND_STARTED = "bound started"  # ... runs again
+# a reload (run/reload.py) of the launch's files: a node that changed or was removed is stopped (reason),
+# a changed one is then made anew with its new rules (and a clean slate: an operator's stop, failures, FATAL
+# are the old node's), and a node whose supervision settings alone changed gets them where it stands
+RELOAD_STOP = "reload stop"
+RENEW = "renew"
+RULES = "rules"
 EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, STALL, UNSTALL, RESTART,
           LIMIT, STOP,
           SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
-          MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED)
+          MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED, RELOAD_STOP, RENEW, RULES)
 
 # ---- actions: what the runner carries out
 SPAWN = "spawn"  # start the process (this machine)
@@ -139,6 +145,7 @@ class Record(NamedTuple):
     operator_stopped: bool = False  # an operator's stop holds: nothing but an operator's start starts it
     restart_reason: str = ""  # this run is being killed in order to start again
     rebind: bool = False  # being stopped because the node it is bound to is down: detached once down
+    stop_reason: str = ""  # why the launch is stopping it (a reload), said once it is down
 
 
 class Event(NamedTuple):
@@ -151,6 +158,7 @@ class Event(NamedTuple):
     over_limit: tuple[tuple[str, float], ...] = ()
     killed: bool = False
     detail: str = ""  # the runner's own words about it, for the console (roslaunch's exit description)
+    rules: Rules | None = None  # RENEW, RULES: the node's new rules (None: as they are)
 
 
 class Action(NamedTuple):
@@ -330,12 +338,16 @@ def _limit(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
 
 def _stop_run(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     operator = e.kind == STOP
-    return r._replace(state=STOPPING, operator_stopped=r.operator_stopped or operator), [Action(BEGIN_STOP)]
+    why = e.reason if e.kind == RELOAD_STOP else ""
+    return r._replace(state=STOPPING, operator_stopped=r.operator_stopped or operator, stop_reason=why), \
+        [Action(BEGIN_STOP)]
 
 
 def _stop_before_start(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     if e.kind == STOP:
         why, operator = "stopped by operator", True
+    elif e.kind == RELOAD_STOP:
+        why, operator = e.reason, r.operator_stopped
     elif r.state in (HELD, NEW, WAITING) and r.spawn_count == 0:
         why, operator = "stopped while waiting to start", r.operator_stopped
     else:
@@ -348,10 +360,11 @@ def _down(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
         else (r.exit_code, r.exit_signal)
     if r.rebind and not r.operator_stopped:  # (stopped with the node it is bound to: it waits for that one)
         return r._replace(state=DETACHED, exit_code=code, exit_signal=sig, over_limit=(), restart_reason="",
-                          rebind=False), []
-    why = "killed with SIGKILL" if e.killed else "stopped by operator" if r.operator_stopped else e.reason
+                          rebind=False, stop_reason=""), []
+    why = "killed with SIGKILL" if e.killed else "stopped by operator" if r.operator_stopped \
+        else e.reason or r.stop_reason
     return r._replace(state=STOPPED, pid=r.pid, exit_code=code, exit_signal=sig, reason=why, over_limit=(),
-                      restart_reason="", rebind=False), []
+                      restart_reason="", rebind=False, stop_reason=""), []
 
 
 def _stop_refused(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
@@ -382,6 +395,20 @@ def _bound_ended_down(r: Record, e: Event, now: float) -> tuple[Record, list[Act
 
 def _bound_started(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     return _ready_or_hold(r._replace(failures=0))
+
+
+# ---- a reload ------------------------------------------------------------------------------------------
+
+def _renew(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    """Made anew by a reload (it changed): its new rules, and nothing of the old node's fate holds it
+    (an operator's stop, failures in a row, FATAL); a START follows. Its counts of runs go on."""
+    return r._replace(state=NEW, rules=e.rules or r.rules, failures=0, operator_stopped=False, respawns=0,
+                      restart_warned=False, next_start=None, reason=e.reason), []
+
+
+def _new_rules(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    """Its supervision settings changed (respawn, restart policy, limits): from its next decision on."""
+    return r._replace(rules=e.rules or r.rules), []
 
 
 # ---- other machines ------------------------------------------------------------------------------------
@@ -462,6 +489,10 @@ TABLE = {
     **{(s, BOUND_ENDED): _bound_ended_running for s in (RUNNING, STALLED, HUNG)},
     **{(s, BOUND_ENDED): _bound_ended_down for s in (HELD, RESPAWNING, EXITED, FATAL)},
     (DETACHED, BOUND_STARTED): _bound_started,
+    **{(s, RELOAD_STOP): _stop_run for s in (RUNNING, HUNG, STALLED)},
+    **{(s, RELOAD_STOP): _stop_before_start for s in _WAITING_TO_START + (LAUNCHING,)},
+    **{(s, RENEW): _renew for s in (NEW, DETACHED) + _DOWN_FOR_GOOD},  # (detached: held again for its partner)
+    **{(s, RULES): _new_rules for s in STATES},
     **{(s, MACHINE_FAILED): _machine_failed for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, RUNNING, LOST,
                                                       RESPAWNING)},
 }
@@ -479,6 +510,7 @@ TABLE[(RESPAWNING, LINK_LOST)] = _link_lost_respawning
 IGNORED = frozenset(
     [(s, STOP) for s in (STOPPING,) + _DOWN_FOR_GOOD]  # already stopped, being stopped, or down for good
     + [(s, SHUTDOWN) for s in (STOPPING,) + _DOWN_FOR_GOOD]  # (an operator's stop in progress goes on)
+    + [(s, RELOAD_STOP) for s in (STOPPING,) + _DOWN_FOR_GOOD]
     + [(s, OPERATOR_START) for s in (STARTING, RUNNING, HUNG, STALLED, STOPPING, PENDING, LAUNCHING, LOST)]
     + [(s, EXITED_) for s in (STOPPED, EXITED, FATAL, LOST, PENDING)]  # a child's late report
     + [(s, SPAWNED) for s in (STOPPED, STOPPING, LOST)]  # a child's late "started with pid"

@@ -54,6 +54,7 @@ STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 
 EVENTS_FILE = "launcher-events.jsonl"
 LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
 CHANGES_KEPT = 10000  # changes a long-polling reader can ask for again
@@ -186,6 +187,16 @@ class Fleet:
             self.nodes[name] = NodeStatus(name, record.process, host)
         return record
 
+    def remove(self, name: str) -> None:
+        """A node a reload took out of the launch, once it is down (it was stopped first): no longer the
+        launch's. (The events file's reload line says so.)"""
+        record = self.records.get(name)
+        if record is None:
+            return
+        if record.state in machine.ALIVE and record.state != machine.NEW:
+            raise ValueError("node [%s] is %s: it is stopped before it is removed" % (name, record.state))
+        del self.records[name], self.nodes[name]
+
     def apply(self, name: str, event: Event) -> list[machine.Action]:
         """Step the node with `event`; tell every listener; return what the runner is to do."""
         old = self.records[name]
@@ -307,6 +318,16 @@ class Fleet:
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
+            except OSError as e:
+                self._warning("cannot write the events file: %s" % e.strerror)
+                self._close()
+
+    def reloaded(self, reason: str, **what: list) -> None:
+        """A reload's line in the events file: what it changed, in words (`reason`) and by name."""
+        line = {"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what}
+        if self._events is not None:
+            try:
+                self._events.write(json.dumps(line, separators=(",", ":"), default=str) + "\n")
             except OSError as e:
                 self._warning("cannot write the events file: %s" % e.strerror)
                 self._close()

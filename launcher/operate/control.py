@@ -32,19 +32,25 @@ def _parser(verb: str) -> argparse.ArgumentParser:
     return p
 
 
-def _control(verb: str, argv: list[str]) -> int:
-    opts = _parser(verb).parse_args(argv)
-    uri = client.find_launch(opts)
-    info = client.status(uri)
+def read_token(opts: argparse.Namespace, uri: str, info: dict, verb: str) -> str:
+    """The run's token (--token-file, else the file the launch names in its status); refused in words."""
     path = opts.token_file or info.get("token_file") or ""
     if not path:
         raise client.ToolError("the launch at %s has no token file: %s is refused" % (uri, verb),
                                client.EXIT_REFUSED)
     try:
-        token = run_token.read(path)
+        return run_token.read(path)
     except OSError as e:
         raise client.ToolError("cannot read the run's token [%s]: %s (only the user who started the launch may "
-                               "start, stop or restart its nodes)" % (path, e.strerror), client.EXIT_REFUSED) from None
+                               "start, stop, restart or reload its nodes)" % (path, e.strerror),
+                               client.EXIT_REFUSED) from None
+
+
+def _control(verb: str, argv: list[str]) -> int:
+    opts = _parser(verb).parse_args(argv)
+    uri = client.find_launch(opts)
+    info = client.status(uri)
+    token = read_token(opts, uri, info, verb)
     try:
         code, msg, names = client.call(uri, "%s_nodes" % verb, token, opts.pattern, timeout=CONTROL_TIMEOUT_S)
     except Fault as e:

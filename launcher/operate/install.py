@@ -114,6 +114,10 @@ def unit_text(opts: UnitOptions) -> str:
     lines += ["Environment=%s" % quote("%s=%s" % kv) for kv in env]
     lines += ["EnvironmentFile=%s" % quote(f) for f in opts.env_files]
     lines += ["ExecStart=%s" % " ".join(quote(a) for a in command(opts)),
+              # `systemctl reload`: the launch reads its files again and applies the difference (issue 23); it
+              # says RELOADING=1, then READY=1
+              "ExecReload=%s reload --launch $MAINPID" % quote(os.path.join(os.path.dirname(opts.launch[0]),
+                                                                            "launcher")),
               "KillSignal=SIGINT",
               "KillMode=mixed",
               "TimeoutStartSec=%d" % START_TIMEOUT_S,

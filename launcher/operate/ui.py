@@ -208,12 +208,30 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
 
     def control(verb: str, pattern: str) -> None:
         state.message = "%s %s ..." % (verb, pattern)
+        steer(verb, lambda: call_blocking(uri, "%s_nodes" % verb, read_token(info, token_file), pattern,
+                                          timeout=CONTROL_TIMEOUT_S)[1])
 
+    def reload() -> None:
+        """`launcher reload`: the launch reads its files again and applies the difference."""
+        state.message = "reload ..."
+
+        def answer() -> str:
+            code, msg, text = call_blocking(uri, "launcher_reload", read_token(info, token_file), [], False,
+                                            timeout=CONTROL_TIMEOUT_S)
+            lines = json.loads(text).get("lines", [])
+            if code != 1:
+                return "reload refused, nothing changed: %s" % msg
+            if lines:  # (nodes added and removed: the whole status again)
+                status = json.loads(call_blocking(uri, "launcher_status")[2])
+                post(lambda: state.load(status))
+            return "reloaded: %s" % "; ".join(lines) if lines else "reload: nothing changed"
+        steer("reload", answer)
+
+    def steer(verb: str, call: Any) -> None:
+        """Make the call off the view's thread; its answer (or why not) becomes the message."""
         def work() -> None:
             try:
-                code, msg, _names = call_blocking(uri, "%s_nodes" % verb, read_token(info, token_file), pattern,
-                                                  timeout=CONTROL_TIMEOUT_S)
-                text = msg
+                text = call()
             except client.ToolError as e:
                 text = str(e)
             except Fault as e:
@@ -259,6 +277,10 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
             if pattern:
                 control(verb, pattern)
         kb.add(key, filter=not_filtering)(act)
+
+    @kb.add("R", filter=not_filtering)
+    def _reload(event: Any) -> None:
+        reload()
 
     @kb.add("m", filter=not_filtering)
     def _mute(event: Any) -> None:

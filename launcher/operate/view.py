@@ -20,7 +20,7 @@ STATE_STYLE = {"running": "green", "waiting": "yellow", "respawning": "yellow", 
                "exited": "grey", "stopped": "grey"}
 NODE_OUTPUT = "node"  # the pane shows the selected node's recent output (its log), not every node's
 ALL_OUTPUT = "all"
-HELP = "\u2191\u2193 node  s/t/r stop/start/restart  S/T all  / filter  m mute  o log  q quit"
+HELP = "\u2191\u2193 s/t/r stop/start/restart  S/T all  R reload  / filter  m mute  o log  q quit"
 
 
 class Line:

@@ -254,12 +254,15 @@ def make_handler(hub: Hub, port_box: list, bound: str) -> type:
             length = int(self.headers.get("Content-Length") or 0)
             body = self.rfile.read(min(length, 65536)) if length else b""
             verb = self.path.rpartition("/")[2]
-            if not self.path.startswith("/api/") or verb not in ("start", "stop", "restart"):
+            if not self.path.startswith("/api/") or verb not in ("start", "stop", "restart", "reload"):
                 self._send(404, b"not found\n")
                 return
             token = self.headers.get("X-Launcher-Token", "")
             if not token:
-                self._send(403, b"refused: start, stop and restart need the run's token\n")
+                self._send(403, b"refused: start, stop, restart and reload need the run's token\n")
+                return
+            if verb == "reload":
+                self._reload(token)
                 return
             try:
                 pattern = json.loads(body or b"{}").get("node", "")
@@ -275,6 +278,21 @@ def make_handler(hub: Hub, port_box: list, bound: str) -> type:
                 self._send(502, ("the launch does not answer: %s\n" % e).encode())
                 return
             self._json({"ok": code == 1, "message": msg, "nodes": names}, 200 if code == 1 else 400)
+
+        def _reload(self, token: str) -> None:
+            """The reload button: the launch reads its files again and applies the difference (`launcher reload`)."""
+            try:
+                code, msg, text = call_blocking(hub.uri, "launcher_reload", token, [], False, timeout=CONTROL_TIMEOUT_S)
+            except Fault as e:
+                self._send(403 if e.faultCode == run_token.REFUSED else 400, (e.faultString + "\n").encode())
+                return
+            except (OSError, XmlRpcError) as e:
+                self._send(502, ("the launch does not answer: %s\n" % e).encode())
+                return
+            lines = json.loads(text).get("lines", [])
+            message = ("reloaded: " + "; ".join(lines) if lines else "reload: nothing changed") if code == 1 \
+                else "reload refused, nothing changed: " + msg
+            self._json({"ok": code == 1, "message": message, "lines": lines}, 200 if code == 1 else 400)
 
         def _events(self) -> None:
             q, first = hub.subscribe()

@@ -15,10 +15,12 @@ from launcher.model.runopts import RunOptions
 
 def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], packages: Any,
                is_remote: Callable[[Any], bool], *, opts: RunOptions, run_dir: str,
-               first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
+               first_number: int, process_names: Mapping[str, str] | None = None,
+               ) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
     """What to run for each local node (numbered as roslaunch's processes, after `first_number`), and the
     (name, required) of nodes that cannot be prepared (each reported by name here). `opts` gives the
-    command line's --screen, --log and --required."""
+    command line's --screen, --log and --required; `process_names` the process names nodes keep (a node a
+    reload restarts keeps its name, its log files and its place in roslaunch's numbering)."""
     if config.tests:
         # roslaunch skips <test> tags without a word; say so, they are the user's
         console.printlog("ignoring %d <test> node(s) (%s): run them with `launcher test` (or rostest)"
@@ -29,8 +31,10 @@ def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], package
     for node in config.nodes:
         if is_remote(node):
             continue  # its machine's child runs it (launcher.remote), or --local leaves it out
-        number += 1
-        name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
+        name = process_names.get(node.full_name) if process_names else None
+        if name is None:
+            number += 1
+            name = ("%s-%d" % (ns_join(node.namespace, node.name), number)).lstrip("/")
         log_name = name.replace("/", "-")
         required = node.required or opts.required
         try:

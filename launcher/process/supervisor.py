@@ -221,6 +221,8 @@ class Supervisor:
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
     def _tell(self, proc: NodeProcess, event: Event) -> list[machine.Action]:
+        if proc.leftover:
+            return []  # (a late timer or watcher of a node a reload removed: no longer the fleet's)
         old = self._state(proc)
         actions = self.fleet.apply(proc.spec.node_name, event)
         new = self._state(proc)  # (before the actions are carried out: they tell their own events)
@@ -673,6 +675,45 @@ class Supervisor:
         if stopping is not None:
             await stopping
         return self.start_node(node_name)
+
+    # ---- a reload: nodes changed, added and removed (services/nodeservice.py applies plan/diff) ------------
+
+    def reload_stop(self, node_name: str, reason: str) -> asyncio.Future | None:
+        """Stop a node a reload changed or removed, as an operator's stop does but for `reason` (its record
+        is the launch's again afterwards: renewed or removed). A future done once it is down; None if it was
+        not running."""
+        proc = self.node(node_name)
+        if proc is None or proc.stopping:
+            return None if proc is None else proc.stopped
+        self._tell(proc, Event(machine.RELOAD_STOP, reason=reason))
+        return proc.stopped if proc.stopping else None
+
+    def renew(self, spec: ProcessSpec, reason: str) -> None:
+        """A node a reload changed, stopped already: its new spec, made anew and started as a new node is."""
+        proc = self.node(spec.node_name)
+        if proc is None or self.shutting_down:
+            return
+        proc.spec = spec
+        self._tell(proc, Event(machine.RENEW, rules=rules_of(spec), reason=reason))
+        self._tell(proc, Event(machine.START))
+
+    def new_rules(self, spec: ProcessSpec, reason: str) -> None:
+        """A node whose supervision settings alone a reload changed: they hold from its next decision on (its
+        process runs on, with the command line it has)."""
+        proc = self.node(spec.node_name)
+        if proc is None:
+            return
+        proc.spec.respawn, proc.spec.respawn_delay = spec.respawn, spec.respawn_delay
+        proc.spec.required, proc.spec.policy = spec.required, spec.policy
+        self._tell(proc, Event(machine.RULES, rules=rules_of(spec), reason=reason))
+
+    def remove(self, node_name: str) -> None:
+        """A node a reload took out of the launch, stopped already: its process record only has its process
+        group left to stop at shutdown (if anything of it lingers)."""
+        proc = self._by_name.pop(node_name, None)
+        if proc is not None:
+            proc.leftover, proc.status = True, None
+            self.fleet.remove(node_name)
 
     def close(self) -> None:
         """Drop loop registrations (after shutdown)."""

@@ -121,6 +121,11 @@ def policy_warnings(node: Node, machine: Machine) -> list[str]:
             for what, fields in unsupported.items()]
 
 
+def _same_host(a: Machine, b: Machine) -> bool:
+    """The same machine to reach, wherever it is declared and by whichever name."""
+    return (a.address, a.user, a.ssh_port, a.env_loader) == (b.address, b.user, b.ssh_port, b.env_loader)
+
+
 class RemoteSpec(NamedTuple):
     """What `health.readiness` reads of a held node (as of a NodeProcess's spec)."""
 
@@ -529,13 +534,14 @@ class RemoteParent:
                     return rn
         return None
 
-    async def stop_node(self, name: str) -> str:
+    async def stop_node(self, name: str, reload: str = "") -> str:
         """Stop the node and keep it stopped, as a local `launcher stop`: '' once done, else why not.
 
         From the STOP on, the state machine keeps it stopped: neither the death its child reports, nor
         its machine dropping and answering again, starts it; only `start_node` does. The child is asked
         to stop that one process (`stop_process`, our child's extension); roslaunch's child has no
-        such call, and the node is then left running."""
+        such call, and the node is then left running. With `reload` (why), a reload stops it (it is
+        then removed, or renewed)."""
         rn = self._node(name)
         if rn is None or self.stopping or self.fleet is None:
             return ""
@@ -543,7 +549,8 @@ class RemoteParent:
         # handed to the child by a `launch` call still under way: its process name comes with the answer
         while self._state(rn) == machine.LAUNCHING and child.launching is not None and not child.launching.done():
             await asyncio.wait([child.launching])
-        if machine.BEGIN_STOP not in {a.kind for a in self._tell(rn, Event(machine.STOP))}:
+        event = Event(machine.RELOAD_STOP, reason=reload) if reload else Event(machine.STOP)
+        if machine.BEGIN_STOP not in {a.kind for a in self._tell(rn, event)}:
             return ""  # stopped before its next start; or stopped, being stopped, or down for good
         process = self.fleet.records[rn.name].process
         exit_code = None
@@ -582,6 +589,77 @@ class RemoteParent:
 
     async def restart_node(self, name: str) -> str:
         return await self.stop_node(name) or self.start_node(name)
+
+    # ---- a reload (run/reload.py): nodes of the machines changed, added and removed --------------------
+
+    @property
+    def children_stop_nodes(self) -> bool:
+        """Can the children stop one node? Ours can (`stop_process`); Debian's roslaunch cannot."""
+        return os.path.basename(self.program) != "roslaunch"
+
+    def _child_for(self, node: Node, machines: Mapping[str, Machine]) -> RemoteChild | None:
+        """The child of the node's machine, if this launch has one for that machine as it is now."""
+        wanted = machines.get(node.machine_name or "")
+        for child in self.children.values():
+            if wanted is not None and _same_host(child.machine, wanted):
+                return child
+        return None
+
+    def reload_refusals(self, stop: list[tuple[str, str]], start: list[Node],
+                        machines: Mapping[str, Machine]) -> list[str]:
+        """Why a reload cannot stop (`stop`: (name, machine name)) or start (`start`: new, or restarted) these
+        nodes of other machines, by name ([] when it can)."""
+        refusals = []
+        if not self.children_stop_nodes:
+            refusals += ["node [%s] runs under Debian's roslaunch child on machine [%s], which cannot stop one node: "
+                         "the launch needs a full restart for this change" % (name, m) for name, m in stop]
+        for n in start:
+            rn = self._node(n.full_name)
+            if rn is not None and self._child_for(n, machines) is not rn.child:
+                refusals.append("node [%s] moves to another machine (machine [%s]: its address, user, port or "
+                                "env-loader changed): the launch needs a full restart for this change"
+                                % (n.full_name, n.machine_name))
+        return refusals
+
+    async def reload(self, stop: dict[str, str], renew: dict[str, tuple[Node, str]], start: list[Node],
+                     rules: dict[str, tuple[Node, str]], machines: Mapping[str, Machine]) -> list[str]:
+        """Apply a reload to the nodes of the machines: `stop` (name -> why: removed), `renew` (name -> (its
+        new node, why): stopped, then launched as new), `start` (new nodes), `rules` (name -> (node, why): new
+        supervision settings only). The refusals of the children, by name (checked before: there should be
+        none)."""
+        refusals = await asyncio.gather(*(self.stop_node(name, "reload: " + why) for name, why in
+                                          list(stop.items()) + [(n, why) for n, (_node, why) in renew.items()]))
+        for name in stop:
+            rn = self._node(name)
+            if rn is not None and self.fleet.records[name].state not in machine.ALIVE:
+                rn.child.nodes.remove(rn)
+                self.fleet.remove(name)
+        for name, (node, why) in renew.items():
+            rn = self._node(name)
+            if rn is None or self.fleet.records[name].state in machine.ALIVE:
+                continue
+            rn.node, rn.owned = node, node.policy is not None
+            rn.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
+            self._tell(rn, Event(machine.RENEW, rules=rn.rules(), reason="reload: " + why))
+            self._tell(rn, Event(machine.START))
+        for node in start:
+            child = self._child_for(node, machines)
+            if child is None:  # a machine none of the launch's nodes used so far: its child starts
+                machine_ = machines[node.machine_name or ""]
+                child = RemoteChild("%s-%d" % (machine_.address, len(self.children)), machine_, [])
+                self.children[child.name] = child
+                child.task = asyncio.ensure_future(self._keep(child))
+            rn = RemoteNode(node, child)
+            child.nodes.append(rn)
+            self.fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
+            self._tell(rn, Event(machine.START))
+        for name, (node, why) in rules.items():
+            rn = self._node(name)
+            if rn is not None:
+                rn.node = node
+                rn.spec = rn.spec._replace(policy=node.policy or _DEFAULT_POLICY)
+                self._tell(rn, Event(machine.RULES, rules=rn.rules(), reason="reload: " + why))
+        return [r for r in refusals if r]
 
     # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
 

@@ -33,6 +33,7 @@ from launcher.services.masterlink import MasterSession
 from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
+from launcher.run.reload import Reloader
 from launcher.workspace.packages import PackageIndex
 from launcher.plan.machines import remote_machines
 from launcher.plan.order import bind_nodelets, check_cycles, check_output_waits
@@ -49,7 +50,7 @@ from launcher.remote.parent import check_addresses, machine_nodes, policy_warnin
 from launcher.output.runlog import RunLog, summary
 from launcher.model.runopts import RunOptions
 from launcher.services.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
-from launcher.xml import load, resolve_launch_arguments
+from launcher.xml import AnonNames, load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -112,6 +113,10 @@ class Plan:
         self.log_threshold = log_threshold
         self.log_max_size = 0  # node output logs are rotated past this size (0: never)
         self.core_port = core_port
+        # what a reload reads again (run/reload.py): the files, the args, the run's $(anon) names
+        self.files: list[str] = []
+        self.argv: list[str] = []
+        self.anon_names = AnonNames()
 
     @classmethod
     def core(cls, opts: RunOptions) -> Plan:
@@ -133,7 +138,8 @@ class Plan:
         files, argv = resolve_launch_arguments(list(opts.positional), packages)
         if not files:
             raise LaunchError("you must specify at least one input file")
-        config = load(files, argv, environ=environ, packages=packages, warn=warn)
+        anon_names = AnonNames()
+        config = load(files, argv, environ=environ, packages=packages, warn=warn, anon_names=anon_names)
         uri = master_uri(argv, environ)
         if opts.port:
             if not 0 < opts.port < 65536:
@@ -146,10 +152,26 @@ class Plan:
             except ValueError as e:
                 raise LaunchError("--log-check-threshold: %s" % e) from None
         plan = cls(config, uri, environ, packages=packages, log_threshold=threshold)
+        plan.files, plan.argv, plan.anon_names = files, list(argv), anon_names
         try:
             plan.log_max_size = parse_size(opts.log_max_size or "0")
         except ValueError as e:
             raise LaunchError("--log-max-size: %s" % e) from None
+        plan.check_nodes(opts)
+        return plan
+
+    def again(self, opts: RunOptions, given: list[str], warn: Callable[[str], None]) -> Plan:
+        """The same launch read again (a reload): its files, its args with `given` ones replacing theirs, its
+        environment, its master URI, its `$(anon)` names; a fresh package index (packages built since count).
+        LaunchError for bad input, as at the start. Runs off the loop (it reads files)."""
+        names = {a.split(":=", 1)[0] for a in given}
+        argv = [a for a in self.argv if a.split(":=", 1)[0] not in names] + list(given)
+        packages = PackageIndex(self.environ, warn=warn)
+        config = load(self.files, argv, environ=self.environ, packages=packages, warn=warn,
+                      anon_names=self.anon_names)
+        plan = Plan(config, self.master_uri, self.environ, packages=packages, log_threshold=self.log_threshold)
+        plan.files, plan.argv, plan.anon_names = self.files, argv, self.anon_names
+        plan.log_max_size = self.log_max_size
         plan.check_nodes(opts)
         return plan
 
@@ -273,6 +295,8 @@ class Run:
         self.rosout = RosoutService(self.master, self.log, env) if rosout else None
         self.view = RunView(self.master, self.nodes, self.log, self.rosout, plan.config.files)
         self.api = ApiServer(self.view, self.master, env)
+        if not self.core and plan.files:
+            self.view.reload = Reloader(self).reload
         self.diagnostics = (DiagnosticsService(self.master, self.nodes, env)
                             if diagnostics and not self.core and not opts.no_diagnostics else None)
         self.log_disk = (LogDiskCheck(env, plan.log_threshold)

@@ -13,7 +13,9 @@ import sys
 from typing import Any, Callable
 
 from launcher.master import advertised_host
-from launcher.plan.specs import packages_of
+from launcher.model.config import LaunchConfig
+from launcher.plan.diff import Difference
+from launcher.plan.specs import node_specs, packages_of
 from launcher.output import console
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.health.hang import HangDetector
@@ -51,6 +53,7 @@ class NodeService:
         self.fleet: Fleet | None = None  # every node's state (fleet/state.py)
         self.rotator: LogRotator | None = None  # node output logs under --log-max-size
         self.processes = 0  # the local nodes numbered by `start` (roslaunch numbers each process)
+        self.first_number = 0  # the processes numbered before the nodes (rosout-1)
         self._packages: dict[str, str] = {}  # process name -> package, for process_info
         self._tasks: list[asyncio.Future] = []
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
@@ -80,6 +83,7 @@ class NodeService:
         so the loop that spawns them does as little as possible.
         """
         self.signals.check()
+        self.first_number = first_number
         specs, failed = self.plan.specs(self.opts, self.log.run_dir, first_number)
         self.processes = len(specs) + len(failed)
         self._note_launch(specs)
@@ -174,6 +178,68 @@ class NodeService:
         if self.fleet is not None:
             self.fleet.launch_ended(self.end_reason(), self.exit_status)
             self.fleet.close()
+
+    # ---- a reload ------------------------------------------------------------------------------------
+
+    async def reload(self, diff: Difference, plan: Any) -> None:
+        """Apply a reload's difference (plan/diff) to this machine's nodes, `plan` being the new one: the
+        changed and removed nodes are stopped together, then the changed ones start anew and the new ones
+        start, in the launch's order; supervision-only changes apply where each node stands. (The other
+        machines' nodes: refused before this, run/reload.py.)"""
+        if self.supervisor is None:
+            return
+        await asyncio.gather(self._reload_here(diff, plan), self._reload_remote(diff, plan))
+        self.plan = plan
+
+    async def _reload_remote(self, diff: Difference, plan: Any) -> None:
+        """The other machines' part (remote.parent: the operator's stop and start calls)."""
+        remote = self.remote
+        if remote is None:
+            return
+        was = set(remote.node_names())
+        now = {n.full_name: n for n in plan.config.nodes if plan.remote(n)}
+        refusals = await remote.reload(
+            stop={c.name: c.why for c in diff.stop if c.name in was},
+            renew={c.name: (now[c.name], c.why) for c in diff.restart if c.name in was and c.name in now},
+            start=[now[c.name] for c in diff.start if c.name in now],
+            rules={c.name: (now[c.name], c.why) for c in diff.supervise if c.name in now},
+            machines=plan.config.machines)
+        for refusal in refusals:  # (checked before the reload began: a child that changed its mind since)
+            console.printerrlog("reload: %s" % refusal)
+
+    async def _reload_here(self, diff: Difference, plan: Any) -> None:
+        supervisor = self.supervisor
+        restart = {c.name: c.why for c in diff.restart}
+        start = {c.name: c.why for c in diff.start}
+        supervise = {c.name: c.why for c in diff.supervise}
+        stopping = [supervisor.reload_stop(c.name, "reload: " + c.why) for c in diff.stop + diff.restart]
+        await asyncio.gather(*(s for s in stopping if s is not None))
+        for c in diff.stop:
+            supervisor.remove(c.name)
+        kept = {name: proc.spec.name for name in list(restart) + list(supervise)
+                if (proc := supervisor.node(name)) is not None}
+        nodes = tuple(n for n in plan.config.nodes if n.full_name in restart or n.full_name in start
+                      or n.full_name in supervise)
+        specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, plan.environ, plan.packages,
+                                   plan.remote, opts=self.opts, run_dir=self.log.run_dir,
+                                   first_number=self.first_number + self.processes,
+                                   process_names=kept)
+        self.processes += len([s for s in specs if s.node_name in start]) + len(failed)
+        self._packages.update(packages_of(plan.config, specs))
+        for spec in specs:  # (in the launch's order)
+            name = spec.node_name
+            if name in supervise:
+                supervisor.new_rules(spec, "reload: " + supervise[name])
+            elif name in restart:
+                supervisor.renew(spec, "reload: " + restart[name])
+            else:
+                supervisor.start(spec)
+                if spec.stdout_path and self.rotator is not None:
+                    self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
+        for name, required in failed:  # (checked before: a command that cannot be made refuses the reload)
+            supervisor.not_started(name, required)
+        if self.rotator is not None:
+            self.rotator.start()
 
     # ---- what the launch's API server steers and reads -------------------------------------------------
 

@@ -14,8 +14,10 @@ text: a 500-node status must cost the launcher little), `launcher_changes`
 every second), `launcher_output` (the nodes' output from their
 `-stdout.log` files after the offsets a reader has: a long poll too, so a view
 on another machine shows output from files it cannot read), and
-`start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
-refused with a fault unless `token` is the run's (`launcher.model.token`).
+`start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)` and
+`launcher_reload(token, args, dry_run)` (the launch's files read again and the
+difference applied, run/reload.py), which are refused with a fault unless
+`token` is the run's (`launcher.model.token`).
 The pattern selects among local and remote nodes alike (a remote node is
 steered by `launcher.remote.parent`); the answer is [1, text, names], or
 [0, the refusals, the names that were steered] when some node could not be.
@@ -296,10 +298,13 @@ class LaunchServer:
             return [1, "output", json.dumps({"offsets": nexts, "output": output}, separators=(",", ":"))]
         return wait()
 
-    def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
+    def _check_token(self, verb: str, given_token: Any) -> None:
         if not run_token.matches(self.token, given_token):
             raise Fault(run_token.REFUSED, REFUSED_TEXT % (verb, self.token_path or "launcher-token in the run's log "
                                                  "directory", verb))
+
+    def _control(self, verb: str, given_token: Any, pattern: Any) -> Any:
+        self._check_token(verb, given_token)
         if not isinstance(pattern, str):
             raise Fault(1, "%s: the pattern must be a string" % verb)
         nodes = self.run.nodes
@@ -330,9 +335,26 @@ class LaunchServer:
     def restart_nodes(self, token: Any, pattern: Any) -> Any:
         return self._control("restart", token, pattern)
 
+    def launcher_reload(self, token: Any, args: Any, dry_run: Any = False) -> Any:
+        """Read the launch's files again and apply the difference (run/reload.py); `args`: name:=value that
+        replace the run's; `dry_run`: only say what would change (it needs the token too: it reads the files
+        as the launch's user). [1, text, JSON answer] or [-1, the error (file:line), JSON answer]."""
+        self._check_token("reload", token)
+        reload = getattr(self.run, "reload", None)
+        if reload is None:
+            raise Fault(1, "this launch cannot be reloaded (a core, or a test run)")
+        if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
+            raise Fault(1, "launcher_reload(token, args: list of name:=value, dry_run: bool)")
+
+        async def reloaded() -> list:
+            answer = await reload(list(args), bool(dry_run))
+            text = json.dumps(answer, separators=(",", ":"), default=str)
+            return [1, "reload", text] if answer["ok"] else [-1, answer["error"], text]
+        return reloaded()
+
     _API: dict[str, Any] = {}
 
 
 LaunchServer._API = {name: getattr(LaunchServer, name) for name in (
     "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status", "launcher_changes",
-    "launcher_samples", "launcher_output", "start_nodes", "stop_nodes", "restart_nodes")}
+    "launcher_samples", "launcher_output", "start_nodes", "stop_nodes", "restart_nodes", "launcher_reload")}

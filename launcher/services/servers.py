@@ -30,6 +30,8 @@ class RunView:
         self._log = log
         self._rosout = rosout  # RosoutService, or None
         self.launch_files = list(launch_files)
+        # a reload of the run (run/reload.py: `async reload(args, dry_run) -> answer`), when it can have one
+        self.reload: Any = None
 
     @property
     def fleet(self) -> Any:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import os
 import socket
+import time
 from typing import Any, Callable, Iterable
 
 from launcher.net import xmlrpc
@@ -186,6 +187,21 @@ class Notifier:
             return  # the master busy: asked again at the next poll
         if code == 1:
             self._registered.add(name)
+
+    # ---- a reload ---------------------------------------------------------------------------------------------
+
+    def reloading(self) -> None:
+        """A reload begins (`launcher reload`, or systemctl reload through the unit's ExecReload=)."""
+        self.send(message(RELOADING=1, MONOTONIC_USEC=time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000,
+                          STATUS="reloading"))
+
+    def reloaded(self) -> None:
+        """The reload is applied: READY=1 again (once the launch was ready before), with the fleet's status."""
+        if self._fleet is None or not self.ready:
+            self.send(message(STATUS="reloaded"))
+            return
+        self._status = ""
+        self._send_status(READY=1)
 
     # ---- the end --------------------------------------------------------------------------------------------
 

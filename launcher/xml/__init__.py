@@ -11,25 +11,30 @@ from launcher.model.errors import LaunchError
 from launcher.workspace.packages import PackageIndex
 from launcher.xml.arguments import resolve_launch_arguments
 from launcher.xml.loader import XmlLoader
+from launcher.xml.substitution import AnonNames
 
-__all__ = ["load", "load_arg_docs", "resolve_launch_arguments"]
+__all__ = ["AnonNames", "load", "load_arg_docs", "resolve_launch_arguments"]
 
 
 def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,
          packages: Any = None, core: bool = True, args_only: bool = False,
-         warn: Callable[[str], None] | None = None) -> LaunchConfig:
+         warn: Callable[[str], None] | None = None, anon_names: AnonNames | None = None) -> LaunchConfig:
     """Load launch files, in order, with command-line `name:=value` args (incl. `__ns:=`).
 
     `core=False` leaves out roscore's implicit `/rosout` node (as `--dump-params`
     does); `args_only=True` evaluates `<arg>` tags only (`--ros-args`); `warn`
-    is called with each warning as it happens (they are also in `config.warnings`).
+    is called with each warning as it happens (they are also in `config.warnings`);
+    `anon_names`: the `$(anon)` names of a run, made again as before by a reload.
     Raises LaunchError.
     """
     if environ is None:
         environ = os.environ
     if packages is None:
         packages = PackageIndex(environ)
-    loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=args_only, core=core, warn=warn)
+    if anon_names is not None:
+        anon_names.start_load()
+    loader = XmlLoader(environ=environ, packages=packages, argv=argv, args_only=args_only, core=core, warn=warn,
+                       anon_names=anon_names)
     # A load allocates tens of thousands of objects and frees almost none of them, and makes no
     # reference cycles worth collecting: the cyclic GC would only rescan them (~10% of a big load).
     gc_was_enabled = gc.isenabled()

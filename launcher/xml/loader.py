@@ -28,7 +28,7 @@ from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import (POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names,
                                  resolve_watch_topics)
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
-from launcher.xml.substitution import ArgNotSet, LoadBudget, SubstitutionError, resolve
+from launcher.xml.substitution import AnonNames, ArgNotSet, LoadBudget, SubstitutionError, resolve
 
 # roslaunch's per-tag attribute lists, plus our supervision extensions (xml/policy.py) where they
 # apply; anything else is warned about
@@ -60,7 +60,7 @@ class XmlLoader:
 
     def __init__(self, *, environ: Mapping[str, str], packages: Any, argv: Iterable[str] = (),
                  args_only: bool = False, core: bool = True,
-                 warn: Callable[[str], None] | None = None):
+                 warn: Callable[[str], None] | None = None, anon_names: AnonNames | None = None):
         self.environ = environ
         self.packages = packages
         self.argv = list(argv)
@@ -87,7 +87,8 @@ class XmlLoader:
         self._clean_ns: str | None = None  # see _add_param
         self._key_lengths: set[int] = set()  # the lengths of the keys in self.params (see _add_param)
         self._realpaths: dict[str, str] = {}
-        self._budget = LoadBudget()  # the text all substitutions of this load may make
+        # the text all substitutions of this load may make; the anonymous names of the run it is a load of
+        self._budget = LoadBudget(anon_names=anon_names)
         self._found_resources: dict[tuple[str, str], str] = {}
         # the rosparam module's YAML tags (deg(), !degrees, ...) exist only after the first <rosparam>
         self._ros_yaml = False

@@ -57,13 +57,39 @@ class ArgNotSet(SubstitutionError):
         super().__init__(name)
 
 
+class AnonNames:
+    """The names `$(anon id)` made in a run's loads, by file and id in the order they were asked for: a
+    reload of the run (run/reload.py) is given the same ones, so an anonymous node stays the same node.
+    (A first load that is not a run's needs none: `anonymous_name` makes each.)"""
+
+    __slots__ = ("kept", "_asked")
+
+    def __init__(self) -> None:
+        self.kept: dict[tuple[str, str], list[str]] = {}
+        self._asked: dict[tuple[str, str], int] = {}
+
+    def start_load(self) -> None:
+        self._asked = {}
+
+    def name(self, id_: str, filename: str | None) -> str:
+        key = (filename or "", id_)
+        n = self._asked.get(key, 0)
+        self._asked[key] = n + 1
+        names = self.kept.setdefault(key, [])
+        if n == len(names):
+            names.append(anonymous_name(id_))
+        return names[n]
+
+
 class LoadBudget:
-    """The characters substitutions may still make in one load (MAX_LOAD_CHARS), shared by all its scopes."""
+    """The characters substitutions may still make in one load (MAX_LOAD_CHARS), shared by all its scopes;
+    and the anonymous names a run's loads share (`AnonNames`), if any."""
 
-    __slots__ = ("left",)
+    __slots__ = ("left", "anon_names")
 
-    def __init__(self, chars: int = MAX_LOAD_CHARS):
+    def __init__(self, chars: int = MAX_LOAD_CHARS, anon_names: AnonNames | None = None):
         self.left = chars
+        self.anon_names = anon_names
 
     def spend(self, chars: int) -> None:
         self.left -= chars
@@ -610,7 +636,8 @@ def _env(name: str, scope: SubstitutionScope) -> str:
 def _anon(id_: str, scope: SubstitutionScope) -> str:
     name = scope.anon.get(id_)
     if name is None:
-        name = scope.anon[id_] = anonymous_name(id_)
+        names = scope.budget.anon_names
+        name = scope.anon[id_] = anonymous_name(id_) if names is None else names.name(id_, scope.filename)
     return name
 
 

@@ -13,30 +13,31 @@ from launcher.fleet.machine import Action, Event, Record, Rules
 # Columns: the events, in this order.
 EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
           m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
-          m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED, m.BOUND_ENDED, m.BOUND_STARTED]
+          m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED, m.BOUND_ENDED, m.BOUND_STARTED,
+          m.RELOAD_STOP, m.RENEW, m.RULES]
 SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
          "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
          "fat": m.FATAL, "stp": m.STOPPED, "det": m.DETACHED}
 # For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
 # "!": a runner's bug (InvalidTransition); else the state after the event.
-#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES
 MATRIX = """
-new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -
-wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -
-hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -
-sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -
-pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !
-lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !
-run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -
-hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -
-stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -
-sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -
-res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -
-los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !
-exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -
-fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -
-stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -
-det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !     stp   !     lau
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -     sto   !     run
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     hun
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     stl
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -     -     !     sto
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -     stp   !     res
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     los
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   exi
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   fat
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -     -     new   stp
+det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta   stp   new   det
 """
 RULES = Rules(respawn=True)
 
@@ -183,6 +184,31 @@ def test_a_remote_node_its_child_respawns_is_not_the_parents_to_restart():
     assert (r.state, r.pid, r.restarts, actions) == (m.RUNNING, 9, 1, [])
 
 
+def test_a_reload_stops_a_changed_node_with_its_reason_and_renews_it_with_a_clean_slate():
+    r = record_in(m.RUNNING)._replace(failures=2)
+    r, actions = m.step(r, Event(m.RELOAD_STOP, reason="reload: args changed"), 1.0)
+    assert r.state == m.STOPPING and actions == [Action(m.BEGIN_STOP)] and not r.operator_stopped
+    r, _ = m.step(r, Event(m.DOWN, exit_code=0), 2.0)
+    assert (r.state, r.reason) == (m.STOPPED, "reload: args changed")
+    new_rules = Rules(respawn=False, policy=NodePolicy(respawn_max_retries=3))
+    r, actions = m.step(r._replace(operator_stopped=True), Event(m.RENEW, rules=new_rules, reason="reload"), 3.0)
+    assert (r.state, r.rules, r.failures, r.operator_stopped, actions) == (m.NEW, new_rules, 0, False, [])
+    r, actions = m.step(r, Event(m.START), 3.0)
+    assert r.state == m.STARTING and actions == [Action(m.SPAWN)]
+    r, _ = m.step(r, Event(m.SPAWNED, pid=7), 3.1)
+    assert (r.spawn_count, r.restarts) == (2, 1)  # (its runs go on counting: its log is appended to)
+
+
+def test_new_rules_apply_where_the_node_stands():
+    fatal = record_in(m.FATAL)
+    r, actions = m.step(fatal, Event(m.RULES, rules=Rules(policy=NodePolicy(respawn_max_retries=9))), 1.0)
+    assert r.state == m.FATAL and r.rules.policy.respawn_max_retries == 9 and actions == []
+    # an operator-stopped node that a reload does not change stays stopped
+    stopped = record_in(m.STOPPED)._replace(operator_stopped=True)
+    r, _ = m.step(stopped, Event(m.RULES, rules=Rules()), 1.0)
+    assert r.state == m.STOPPED and r.operator_stopped
+
+
 def test_hang_and_limit_restart_kill_the_run_and_what_follows():
     r, actions = m.step(record_in(m.RUNNING), Event(m.HANG, reason="no answer"), 1.0)
     assert (r.state, actions) == (m.HUNG, [Action(m.KILL)])
@@ -227,7 +253,7 @@ def test_invariants(rules, kinds, codes):
         if r.state in (m.STOPPED, m.FATAL) and kind in BY_ITSELF:
             assert not starts and new.state in (m.STOPPED, m.FATAL), (r, e, new)
         # (START from a stopped state is the launch starting it anew: a remote child's parent does)
-        if r.state == m.STOPPED and r.operator_stopped and kind not in (m.OPERATOR_START, m.START):
+        if r.state == m.STOPPED and r.operator_stopped and kind not in (m.OPERATOR_START, m.START, m.RENEW):
             assert new.state == m.STOPPED
         r = new
 

@@ -606,3 +606,58 @@ def test_a_remote_node_stopped_by_the_operator_stays_stopped_when_its_machine_co
     until(lambda: node_status(env)["/keeper"]["state"] == "running", 30, period=0.2, what="keeper running again")
     stays(lambda: not on_host(h1, "__name:=talker"), 2.5 * RESPAWN_DELAY_S, "the stopped talker came back")
     assert node_status(env)["/talker"]["state"] == "stopped"
+
+
+def reload_json(env: dict[str, str], *args: str) -> dict:
+    r = tool(env, "reload", "--json", *args)
+    assert r.stdout, r.stderr
+    return json.loads(r.stdout)
+
+
+def test_a_reload_changes_adds_and_removes_nodes_of_other_machines_with_our_child(tmp_path, hosts, launched):
+    la, env = launched(TALKER % "" + KEEPER + LOCAL, child="ours")
+    h1, h2 = hosts.hosts
+    talker = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    keeper = until(lambda: on_host(h1, "__name:=keeper"), 60, what="keeper on host one")[0]
+    until(lambda: pid_of_registered(env, "/talker") == talker, 60, period=0.2, what="talker registered")
+    local = until(lambda: (lambda s: s.get("/local_echo", {}).get("pid"))(node_status(env)), 30, period=0.2,
+                  what="local_echo running")
+    path = os.path.join(str(tmp_path), "robot.launch")
+    with open(path) as f:
+        text = f.read()
+    text = text.replace("hello -r 10", "hello -r 5").replace(KEEPER, LISTENER % "")
+    with open(path, "w") as f:
+        f.write(text)
+    answer = reload_json(env)
+    assert answer["ok"], answer.get("error")
+    assert list(answer["difference"]["restart"]) == ["/talker"] and list(answer["difference"]["stop"]) == ["/keeper"]
+    assert list(answer["difference"]["start"]) == ["/listener"]
+    new_talker = until(lambda: [p for p in on_host(h1, "__name:=talker") if p != talker], 60,
+                       what="talker started anew on host one")[0]
+    with open("/proc/%d/cmdline" % new_talker, "rb") as f:
+        assert b"-r\x005" in f.read()
+    until(lambda: not on_host(h1, "__name:=keeper"), 30, what="keeper gone from host one")
+    until(lambda: on_host(h2, "__name:=listener"), 60, what="listener on host two")
+    st = node_status(env)
+    assert "/keeper" not in st and st["/local_echo"]["pid"] == local
+    assert on_host(h1, "__name:=talker") == [new_talker] and keeper not in on_host(h1, "__name:=")
+
+
+def test_a_reload_that_must_stop_a_node_under_debians_child_is_refused_by_name(tmp_path, hosts, launched):
+    la, env = launched(TALKER % "" + LOCAL)
+    h1 = hosts.hosts[0]
+    talker = until(lambda: on_host(h1, "__name:=talker"), 60, what="talker on host one")[0]
+    until(lambda: node_status(env)["/talker"]["state"] == "running", 30, period=0.2, what="talker running")
+    path = os.path.join(str(tmp_path), "robot.launch")
+    with open(path) as f:
+        text = f.read()
+    with open(path, "w") as f:
+        f.write(text.replace("hello -r 10", "hello -r 5").replace('name="local_echo"', 'name="local_echo2"'))
+    dry = tool(env, "reload", "--dry-run")
+    assert dry.returncode == 1 and "would restart /talker" in dry.stdout, dry.stdout + dry.stderr
+    assert ("node [/talker] runs under Debian's roslaunch child on machine [one], which cannot stop one node: "
+            "the launch needs a full restart") in dry.stderr
+    r = tool(env, "reload")
+    assert r.returncode == 1 and "reload refused, nothing changed" in r.stderr, r.stderr
+    st = node_status(env)
+    assert set(st) == {"/talker", "/local_echo"} and on_host(h1, "__name:=talker") == [talker]

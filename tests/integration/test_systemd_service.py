@@ -182,6 +182,21 @@ def test_a_real_systemd_supervises_the_launch(tmp_path, systemd):
     assert sd.show("robot", "Result") in ("watchdog", "success"), sd.show("robot", "Result")
     assert sd.show("robot", "NRestarts") == "2"
 
+    # systemctl reload: ExecReload= has the launch read its file again (`launcher reload`); the node added starts,
+    # the others keep their pids, and the unit stays active (RELOADING=1, then READY=1)
+    until(lambda: len(nodes_pids(sd, "robot")) >= 2, 30, what="both nodes running again")
+    before = nodes_pids(sd, "robot")
+    with open(launch_file) as f:
+        text = f.read()
+    with open(launch_file, "w") as f:
+        f.write(text.replace("</launch>", '<node pkg="sd_service" type="slow_spinner" name="n2" args="0.1 n2"/>\n'
+                                          "</launch>"))
+    reloaded = sd.ctl("reload", "robot")
+    assert reloaded.returncode == 0, reloaded.stderr + sd.ctl("status", "--no-pager", "-l", "robot").stdout
+    until(lambda: master_proxy(port).lookupNode("/test", "/n2")[0] == 1, 60, what="the node added registered")
+    assert before < nodes_pids(sd, "robot") and sd.show("robot", "ActiveState") == "active"
+    assert sd.show("robot", "NRestarts") == "2"
+
     # systemctl stop: every node stopped, within TimeoutStopSec
     nodes = nodes_pids(sd, "robot")
     assert len(nodes) >= 2, sd.ctl("status", "--no-pager", "robot").stdout

@@ -234,3 +234,27 @@ def test_a_closed_terminal_stops_the_launch_as_ctrl_c_does(tmp_path, tmux, env):
     tmux.close()  # (the terminal's end: SIGHUP to the view; the launch runs in a session of its own)
     until(lambda: not pid_alive(pid), 30, 0.1, what="the node stopped with the launch")
     assert not status(env)
+
+
+def test_the_reload_key_applies_the_changed_files(tmp_path, tmux, env):
+    path = write_launch(str(tmp_path), THREE)
+    lp = Launcher([path], env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[g/gamma-\d+\]: started", 60)
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
+        screen = tmux.wait_screen(lambda s: all(running_pid(s, n) for n in ("/alpha", "/beta", "/g/gamma")),
+                                  "every node running")
+        before = {n: running_pid(screen, n) for n in ("/alpha", "/beta", "/g/gamma")}
+        with open(path) as f:
+            text = f.read()
+        with open(path, "w") as f:
+            f.write(text.replace('name="beta"/>', 'name="beta" args="--changed"/>\n'
+                                                  '<node pkg="ui_tests" type="ticker" name="delta"/>'))
+        tmux.keys("R")
+        tmux.wait_screen(lambda s: "reloaded: restart /beta: args" in s, "the reload's answer")
+        tmux.wait_screen(lambda s: running_pid(s, "/delta"), "the node added in the table")
+        screen = tmux.wait_screen(lambda s: running_pid(s, "/beta") not in (None, before["/beta"]),
+                                  "/beta running anew")
+        assert running_pid(screen, "/alpha") == before["/alpha"] and running_pid(screen, "/g/gamma") == before["/g/gamma"]
+    finally:
+        lp.close()

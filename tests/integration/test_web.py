@@ -150,3 +150,37 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
         assert {n["name"]: n["state"] for n in status(env)["nodes"]}["/listener"] == "running"
     finally:
         lp.close()
+
+
+def test_the_reload_button_applies_the_changed_files(tmp_path, browser):
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener})
+    env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
+    port = free_port()
+    path = write_launch(str(tmp_path), '<node pkg="web_tests" type="talker" name="talker"/>')
+    lp = Launcher(["--web", str(port), path], env, str(tmp_path))
+    try:
+        lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
+        info = until(lambda: (lambda s: s if s and all(n["state"] == "running" for n in s["nodes"]) else None)(
+            status(env)), 60, 0.2, what="talker running")
+        talker = info["nodes"][0]["pid"]
+        with open(path) as f:
+            text = f.read()
+        with open(path, "w") as f:
+            f.write(text.replace("</launch>", '<node pkg="web_tests" type="listener" name="listener"/>\n</launch>'))
+        from selenium.webdriver.common.by import By
+        browser.get("http://127.0.0.1:%d/" % port)
+        with open(info["token_file"]) as f:
+            token = f.read().strip()
+        browser.find_element(By.ID, "reload").click()
+        alert = until(lambda: browser.switch_to.alert, 10, what="the token prompt")
+        alert.send_keys(token)
+        alert.accept()
+        until(lambda: "reloaded: start /listener: new in the launch" in browser.find_element(By.ID, "message").text,
+              30, 0.2, what="the reload's answer in the page")
+        st = until(lambda: (lambda s: s if s.get("/listener", {}).get("state") == "running" else None)(
+            {n["name"]: n for n in status(env)["nodes"]}), 60, 0.2, what="listener running")
+        assert st["/talker"]["pid"] == talker
+        until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener']"), 30, 0.2,
+              what="the new node's row in the page")
+    finally:
+        lp.close()

@@ -36,6 +36,7 @@ EnvironmentFile=/etc/robot.env
 ExecStart=/bin/bash -c "source /ws/devel/setup.bash && export ROS_IP=\\"$$(ip -4 -o addr show dev eth0 scope global \
 | awk '{{sub(\\"/.*\\", \\"\\", $$4); print $$4; exit}}')\\" && {{ [ -n \\"$$ROS_IP\\" ] || {{ echo 'no IPv4 address on eth0' >&2; \
 exit 1; }}; }} && exec /usr/bin/launch /ws/robot.launch sim:=false --wait"
+ExecReload=/usr/bin/launcher reload --launch $MAINPID
 KillSignal=SIGINT
 KillMode=mixed
 TimeoutStartSec=120

@@ -89,8 +89,8 @@ function handle(ev) {
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
-      const n = nodes.get(c.node);
-      if (!n) continue;
+      let n = nodes.get(c.node);
+      if (!n) { n = {name: c.node}; nodes.set(c.node, n); }  // (a node a reload added)
       const newRun = c.state === "running" && (n.state !== "running" || n.pid !== c.pid);
       Object.assign(n, c);
       if (newRun) n.started_at = c.time;
@@ -185,6 +185,7 @@ function route() {
 }
 
 window.addEventListener("hashchange", route);
+$("reload").addEventListener("click", () => control("reload", ""));
 $("forget").addEventListener("click", () => { sessionStorage.removeItem("launcher-token"); $("message").textContent = "token forgotten"; });
 route();
 const source = new EventSource("/events");
