@@ -175,7 +175,7 @@ class MasterApi:
         self.uri = uri
         self.notifier = notifier
         self.params = params if params is not None else ParamTree()
-        self.registry = reg.Registry(self._bumped, notifier.forget)
+        self.registry = reg.Registry(self._bumped, notifier.forget, self._new_node)
         self.topic_types: dict[str, str] = {}
         self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None
@@ -245,8 +245,15 @@ class MasterApi:
         return (code, msg, val)
 
     # -- callbacks ------------------------------------------------------------------
-    def _bumped(self, old_api: str, caller_id: str) -> None:
-        self.notifier.shutdown_node(old_api, caller_id, "new node registered with same name")
+    def _bumped(self, old: reg.NodeRef, caller_id: str) -> None:
+        # rosmaster tells the old URI to shut down blindly: if that port is now another process's, the wrong
+        # node dies (ros/ros_comm#2241, #2018). Only the process that registered there is told (notify.py).
+        self.notifier.shutdown_node(old.api, caller_id, "new node registered with same name", lambda: old.pid)
+
+    def _new_node(self, node: reg.NodeRef) -> None:
+        def learned(pid: int) -> None:
+            node.pid = pid
+        self.notifier.ask_pid(node.api, learned)
 
     def _notify_params(self, updates: list) -> None:
         for subscribers, key, value, sub_key in updates:

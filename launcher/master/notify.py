@@ -1,4 +1,4 @@
-"""Master -> node callbacks (publisherUpdate, paramUpdate, shutdown) sent on the running loop.
+"""Master -> node callbacks (publisherUpdate, paramUpdate, getPid, shutdown) sent on the running loop.
 
 What goes when is `launcher.master.outbox.Outbox`'s decision (per-node order,
 coalescing, slots, back-off for failing nodes); this is the loop around it.
@@ -31,6 +31,13 @@ BATCH = 8
 PACE_S = 0.002
 
 
+def _pid_of(result: Any) -> int | None:
+    """The pid in a getPid answer (code 1, an int), else None."""
+    if isinstance(result, (list, tuple)) and len(result) == 3 and result[0] == 1 and type(result[2]) is int:
+        return result[2]
+    return None
+
+
 class Notifier:
     """Queues callbacks per node API and sends them on the running loop.
 
@@ -59,10 +66,32 @@ class Notifier:
     def param_update(self, api: str, key: str, value: Any, on_result: Callable[[Any], None] | None = None) -> None:
         self._put(api, Callback("paramUpdate", [MASTER_CALLER_ID, key, value], on_result, ("paramUpdate", key)))
 
-    def shutdown_node(self, api: str, caller_id: str, reason: str) -> None:
-        # the node at `api` has been replaced: it is told once, never retried
-        self._put(api, Callback("shutdown", [MASTER_CALLER_ID, "[%s] Reason: %s" % (caller_id, reason)],
-                                once=True))
+    def ask_pid(self, api: str, on_pid: Callable[[int], None]) -> None:
+        """Ask the node newly registered at `api` for its pid (`on_pid` gets it), so that a later
+        shutdown reaches that process and no other that took its port."""
+        def answered(result: Any) -> None:
+            pid = _pid_of(result)
+            if pid is not None:
+                on_pid(pid)
+        self._put(api, Callback("getPid", [MASTER_CALLER_ID], answered, once=True))
+
+    def shutdown_node(self, api: str, caller_id: str, reason: str, pid: Callable[[], int | None]) -> None:
+        """The node at `api` has been replaced: it is told once, never retried, and only if `api` still
+        answers getPid with `pid()` (the pid it gave at registration). A refused or unanswered getPid, or
+        another pid (a process that took the port), or none known, and no shutdown goes."""
+        message = "[%s] Reason: %s" % (caller_id, reason)
+
+        def checked(result: Any) -> None:
+            expected, answered = pid(), _pid_of(result)
+            if expected is not None and answered == expected:
+                self._put(api, Callback("shutdown", [MASTER_CALLER_ID, message], once=True))
+            else:
+                log.info("no shutdown sent to %s (%s): its process is not the node that registered there "
+                         "(pid %s, registered as %s)", api, message, answered, expected)
+                mlog.info("shutdown of %s not sent: getPid answered %s, the node registered as pid %s",
+                          api, answered, expected)
+        # (queued after the getPid of its registration, so `pid()` is known when this one is answered)
+        self._put(api, Callback("getPid", [MASTER_CALLER_ID], checked, once=True))
 
     def forget(self, api: str) -> None:
         """`api` is no longer any registered node's: what it is still owed is dropped."""

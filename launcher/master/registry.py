@@ -17,13 +17,15 @@ PARAM_SUBSCRIPTIONS = 4
 
 
 class NodeRef:
-    """A known node: its API and what it registered (the node is forgotten when all are gone)."""
+    """A known node: its API, the pid that answered there and what it registered (the node is forgotten
+    when all are gone)."""
 
-    __slots__ = ("id", "api", "keys")
+    __slots__ = ("id", "api", "keys", "pid")
 
     def __init__(self, node_id: str, api: str):
         self.id = node_id
         self.api = api
+        self.pid: int | None = None  # what its API answered to getPid when it first registered (None: not yet)
         self.keys: dict[int, set[str]] = {PUBLICATIONS: set(), SUBSCRIPTIONS: set(), SERVICES: set(),
                                           PARAM_SUBSCRIPTIONS: set()}
 
@@ -137,12 +139,14 @@ class Registrations:
 class Registry:
     """All registrations plus the node table.
 
-    `on_bump(old_api, caller_id)` is called when a node name registers with a
+    `on_bump(old_node, caller_id)` is called when a node name registers with a
     new API: the master tells the old process to shut down. `on_gone(api)` is
     called when no node is known by `api` any more: nothing is owed to it.
+    `on_new(node)` is called when a name registers with an API it did not have
+    (the master learns which process that is).
     """
 
-    def __init__(self, on_bump, on_gone=None):
+    def __init__(self, on_bump, on_gone=None, on_new=None):
         self.nodes: dict[str, NodeRef] = {}
         self._api_users: dict[str, int] = {}  # api -> known nodes with it (a client may reuse one for many)
         self.publishers = Registrations(PUBLICATIONS)
@@ -153,6 +157,7 @@ class Registry:
                          SERVICES: self.services, PARAM_SUBSCRIPTIONS: self.param_subscribers}
         self._on_bump = on_bump
         self._on_gone = on_gone
+        self._on_new = on_new
 
     def get_node(self, caller_id: str) -> NodeRef | None:
         return self.nodes.get(caller_id)
@@ -166,10 +171,12 @@ class Registry:
         self._api_users[caller_api] = self._api_users.get(caller_api, 0) + 1
         if node is not None:
             # same name, new process: the old one is told to go and forgotten entirely
-            self._on_bump(node.api, caller_id)
+            self._on_bump(node, caller_id)
             for r in self._by_kind.values():
                 r.unregister_all(caller_id)
             self._released(node.api)
+        if self._on_new is not None:
+            self._on_new(fresh)
         return fresh
 
     def _released(self, api: str) -> None:

@@ -62,7 +62,7 @@ def test_a_hanging_node_only_delays_itself():
     async def scenario():
         n = Notifier(timeout=2.0)
         async with SlowNode(delay=30) as hung, SlowNode() as fine:
-            n.shutdown_node(hung.uri, "/x", "why")
+            n.shutdown_node(hung.uri, "/x", "why", lambda: 0)
             n.param_update(hung.uri, "/p/", 2)
             n.param_update(fine.uri, "/p/", 3)
             await until_async(lambda: len(hung.calls) == 1, 5)
@@ -70,7 +70,7 @@ def test_a_hanging_node_only_delays_itself():
             await until_async(lambda: len(fine.calls) == 1, timeout=1.5)  # not behind the hung node's 2 s
             await until_async(lambda: len(hung.calls) == 2, timeout=5)      # time-out, then the next call
             assert asyncio.get_running_loop().time() - t0 >= 1.5
-            assert hung.calls[0] == ("shutdown", ["/master", "[/x] Reason: why"])
+            assert hung.calls[0] == ("getPid", ["/master"])  # (unanswered: no shutdown follows)
         await n.close()
         assert n.pending() == 0
     asyncio.run(scenario())
@@ -111,6 +111,26 @@ def test_non_http_apis_are_skipped_and_unreachable_ones_reported_until_forgotten
     asyncio.run(scenario())
 
 
+def test_a_replaced_node_is_told_to_shut_down_only_if_its_uri_still_answers_its_pid():
+    """ros/ros_comm#2241: the old URI of a name may be another process's now (its port reused)."""
+    async def scenario():
+        n = Notifier(timeout=2.0)
+        api = MasterApi(n)
+        async with SlowNode(answer=(1, "", 111)) as same, SlowNode(answer=(1, "", 111)) as reused, \
+                SlowNode(answer=(1, "", 333)) as fresh:
+            api.dispatch("registerPublisher", ["/a", "/t", "std_msgs/String", same.uri])
+            api.dispatch("registerPublisher", ["/b", "/t", "std_msgs/String", reused.uri])
+            await until_async(lambda: api.registry.get_node("/b").pid == 111, 5)
+            reused.answer = (1, "", 222)  # /b's process died and another took its port
+            api.dispatch("registerPublisher", ["/a", "/t", "std_msgs/String", fresh.uri])
+            api.dispatch("registerPublisher", ["/b", "/t", "std_msgs/String", fresh.uri])
+            await until_async(lambda: n.pending() == 0, 5)
+            assert [m for m, _ in same.calls if m != "publisherUpdate"] == ["getPid", "getPid", "shutdown"]
+            assert [m for m, _ in reused.calls if m != "publisherUpdate"] == ["getPid", "getPid"]
+        await n.close()
+    asyncio.run(scenario())
+
+
 class _Recorder:
     def __init__(self):
         self.calls = []
@@ -121,8 +141,11 @@ class _Recorder:
     def param_update(self, api, key, value, on_result=None):
         self.calls.append(("paramUpdate", api))
 
-    def shutdown_node(self, api, caller_id, reason):
+    def shutdown_node(self, api, caller_id, reason, pid=None):
         self.calls.append(("shutdown", api))
+
+    def ask_pid(self, api, on_pid):
+        pass  # ours alone: the pid a later shutdown is checked against
 
     def forget(self, api):
         self.calls.append(("forget", api))
