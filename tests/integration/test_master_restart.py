@@ -95,3 +95,32 @@ def test_a_restarted_roscore_gets_the_parameters_and_the_nodes_again(tmp_path, r
         if lp is not None:
             lp.close()
         stop_roscore(core)
+
+
+def test_a_master_that_stops_answering_and_comes_back_unchanged_restarts_nothing(tmp_path, ros_env):
+    port = free_port()
+    env = run_env(str(tmp_path), port, str(tmp_path))
+    tool_env = dict(env, PATH=ROS_PATH, ROS_LOG_DIR=str(tmp_path / "corelog"))
+    core = roscore(tool_env, port)
+    lp = None
+    try:
+        until(lambda: master_up(port), 30, what="roscore up")
+        until(lambda: "/rosout" in ros_tool(tool_env, "rosnode", "list").split(), 30, what="roscore's rosout")
+        lp = Launcher([write_launch(str(tmp_path), BODY)], dict(env, PATH=ROS_PATH + ":" + env["PATH"]),
+                      str(tmp_path))
+        until(lambda: {"/talker", "/listener"} <= set(ros_tool(tool_env, "rosnode", "list").split()), 60, 0.2,
+              what="the nodes registered")
+        before = lp.started_pids()
+        master_pid = master_proxy(port).getPid("/test")[2]
+        os.kill(master_pid, signal.SIGSTOP)  # silent, not gone
+        try:
+            lp.wait_output(r"WARNING: the master at \S+ does not answer", 20, stream="stderr")
+        finally:
+            os.kill(master_pid, signal.SIGCONT)
+        lp.wait_output(r"the master at \S+ answers again", 20)
+        assert lp.started_pids() == before
+        assert "restarted" not in lp.stdout
+    finally:
+        if lp is not None:
+            lp.close()
+        stop_roscore(core)
