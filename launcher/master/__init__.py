@@ -185,18 +185,11 @@ class Master:
         """A node's process (`pid`) ended, as its launcher saw: what that process registered goes at once,
         so that subscribers stop dialing a dead address and `rosnode list` tells the truth (no `rosnode
         cleanup`). Only if the URI registered under the name is that process's: a new run of the node
-        may have registered already. When the pid the node gave at registration is `pid`, it goes at
-        once; otherwise its URI is asked (a new run answers with its own pid, a dead process not at all)."""
+        may have registered already, and it answers getPid with its own pid."""
         if self._api is None:
             return
         node = self._api.registry.get_node(node_name)
-        if node is not None and node.pid == pid:
-            # the master knows this process registered (its getPid at registration): no need to ask
-            if self._api.unregister_process(node_name, node.api):
-                mlog.info("%s (pid %d) ended: its registrations under %s removed", node_name, pid, node.api)
-        elif node is not None:
-            # (another pid, or none known yet: a new run, or a node under a launch-prefix whose pid is not
-            # the one supervised; its URI is asked)
+        if node is not None:
             task = asyncio.get_running_loop().create_task(self._purge_if_gone(node_name, node.api, pid))
             self._purges.add(task)
             task.add_done_callback(self._purges.discard)

@@ -69,6 +69,7 @@ def test_a_name_registered_again_does_not_shut_down_the_node_that_took_its_old_p
     assert old_uri == "http://127.0.0.1:%d/" % port
     first.send_signal(signal.SIGKILL)  # gone without unregistering: the master still has /a at old_uri
     first.wait(10)
+    assert "/a" in procs.run(["rosnode", "list"]).stdout.split()  # (the stale registration of the scenario)
     other = _node(procs, ros_env, "c", port)  # an unrelated node on the same port
     assert proxy.lookupNode("/t", "/c")[2] == old_uri
     again = _node(procs, ros_env, "a", 0)  # /a again: the master tells old_uri to shut down...

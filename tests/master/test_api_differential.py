@@ -70,11 +70,8 @@ class RecordingNotifier:
     def param_update(self, api, key, value, on_result=None):
         self.calls.append(["paramUpdate", api, key, value])
 
-    def shutdown_node(self, api, caller_id, reason, pid=None):
+    def shutdown_node(self, api, caller_id, reason, registered_at=None):
         self.calls.append(["shutdown", api, "[%s] Reason: %s" % (caller_id, reason)])
-
-    def ask_pid(self, api, on_pid):
-        pass  # ours alone: the pid a later shutdown is checked against
 
     def forget(self, api):
         pass  # ours alone: queued callbacks to a node no longer registered are dropped (no rosmaster call)

@@ -219,8 +219,7 @@ def test_hanging_and_vanished_subscribers_delay_nobody(master):
         assert good.wait(lambda m, a: m == "publisherUpdate" and a[2] == want)
         # the hanging node times out (1 s) and the vanished one is refused: both reported, with their names
         deadline = time.monotonic() + 5
-        # (the fake publishers' URIs refuse the master's getPid too: they are reported as well)
-        while not {hang.uri, gone_uri} <= {u.api for u in master.call_soon(master.master.unresponsive_nodes)}:
+        while len(master.call_soon(master.master.unresponsive_nodes)) < 2:
             assert time.monotonic() < deadline, master.call_soon(master.master.unresponsive_nodes)
             time.sleep(0.05)
         report = {u.api: u for u in master.call_soon(master.master.unresponsive_nodes)}
