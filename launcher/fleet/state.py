@@ -314,7 +314,11 @@ class Fleet:
     def launch_ended(self, reason: str, exit_status: int) -> None:
         """The launch's last line in the events file: a reader after it knows it ended, when and why (one
         that was killed has none)."""
-        line = {"event": LAUNCH_ENDED, "time": round(time.time(), 6), "reason": reason, "exit_status": exit_status}
+        self.run_event(LAUNCH_ENDED, reason=reason, exit_status=exit_status)
+
+    def run_event(self, event: str, **fields: object) -> None:
+        """A line in the events file about the run, not one node (`event`: its name, `reason`: its words)."""
+        line = {"event": event, "time": round(time.time(), 6), **fields}
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":")) + "\n")

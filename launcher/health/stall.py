@@ -4,7 +4,10 @@ A node with `watch_topic` (its names resolved as the node resolves them, at
 load) is watched once its run has registered: the launcher asks the node
 itself for each topic (`requestTopic`, as any subscriber does) and subscribes
 over TCPROS with any type (`*`: no message package, nothing deserialized), so
-another publisher on the same topic cannot hide a stall. `TopicWatch` decides,
+another publisher on the same topic cannot hide a stall. The messages are
+counted, not kept (`tcpros.CountingLink`): the socket wakes the loop once 64 kB
+wait, and each verdict first drains it, so a quiet topic costs a read per
+verdict and a 30 MB/s one a read per 256 kB. `TopicWatch` decides,
 fed the times of the messages and a clock:
 
 - no message for `watch_timeout` s (counted from the run's start until a
@@ -32,7 +35,6 @@ from launcher.net import tcpros, xmlrpc
 from launcher.health.hang import registered_uri
 
 CALLER_ID = "/launcher_stall_watch"
-ANY_TYPE = tcpros.TopicType("*", tcpros.ANY_MD5, "")
 REGISTRATION_POLL_S = 0.25
 MAX_PERIOD_S = 1.0
 
@@ -51,8 +53,12 @@ class TopicWatch:
         self.last: float | None = None
 
     def message(self, now: float) -> None:
+        self.messages(1, now)
+
+    def messages(self, count: int, now: float) -> None:
+        """`count` messages read at `now` (a watch reads what has come in gulps)."""
         self.last = now
-        self.times.append(now)
+        self.times.extend([now] * count)
         self._trim(now)
 
     def _trim(self, now: float) -> None:
@@ -116,7 +122,7 @@ class StallWatch:
         started_at = self.loop.time()
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
-        links: dict[str, tcpros.PublisherLink] = {}
+        links: dict[str, tcpros.CountingLink] = {}
         uri = await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), REGISTRATION_POLL_S)
         period = min(w.period() for w in watches.values())
         stalled = False
@@ -126,6 +132,8 @@ class StallWatch:
                     link = links.get(topic)
                     if link is None or link.closed:
                         links[topic] = await self._subscribe(uri, topic, watch, period) or link
+                    else:
+                        link.drain()  # (a quiet topic's messages wait under the socket's low-water mark)
                 now = self.loop.time()
                 why = "; ".join(v for v in (w.verdict(now) for w in watches.values()) if v)
                 if not self._current(proc, popen):
@@ -152,11 +160,9 @@ class StallWatch:
         if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
             return None
         host, port = proto[1], proto[2]
-        link = tcpros.PublisherLink(topic, ANY_TYPE, CALLER_ID, uri,
-                                    on_message=lambda _payload, _link: watch.message(self.loop.time()),
-                                    on_close=lambda _link: None)
         try:
-            return await tcpros.connect_publisher(host or urllib.parse.urlsplit(uri).hostname, int(port), link,
-                                                  timeout=max(timeout, 0.5))
+            return await tcpros.watch_publisher(host or urllib.parse.urlsplit(uri).hostname, int(port), topic,
+                                                CALLER_ID, uri, lambda n: watch.messages(n, self.loop.time()),
+                                                timeout=max(timeout, 0.5))
         except (OSError, asyncio.TimeoutError, tcpros.TcprosError, ValueError):
             return None

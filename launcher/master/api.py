@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from launcher.master import registry as reg
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
-from launcher.master.notify import Notifier
+from launcher.master.notify import Notifier, since_boot
 from launcher.model.names import ANYTYPE, SEP, canonicalize_name, resolve_name
 from launcher.params.tree import ParamTree, copy_tree
 from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
@@ -175,7 +175,7 @@ class MasterApi:
         self.uri = uri
         self.notifier = notifier
         self.params = params if params is not None else ParamTree()
-        self.registry = reg.Registry(self._bumped, notifier.forget)
+        self.registry = reg.Registry(self._bumped, notifier.forget, since_boot)
         self.topic_types: dict[str, str] = {}
         self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None
@@ -245,8 +245,10 @@ class MasterApi:
         return (code, msg, val)
 
     # -- callbacks ------------------------------------------------------------------
-    def _bumped(self, old_api: str, caller_id: str) -> None:
-        self.notifier.shutdown_node(old_api, caller_id, "new node registered with same name")
+    def _bumped(self, old: reg.NodeRef, caller_id: str) -> None:
+        # rosmaster tells the old URI to shut down blindly: if that port is now another process's, the wrong
+        # node dies (ros/ros_comm#2241, #2018). Only the process that registered there is told (notify.py).
+        self.notifier.shutdown_node(old.api, caller_id, "new node registered with same name", old.registered_at)
 
     def _notify_params(self, updates: list) -> None:
         for subscribers, key, value, sub_key in updates:

@@ -1,4 +1,4 @@
-"""Master -> node callbacks (publisherUpdate, paramUpdate, shutdown) sent on the running loop.
+"""Master -> node callbacks (publisherUpdate, paramUpdate, shutdown, and the getPid that precedes a shutdown) sent on the running loop.
 
 What goes when is `launcher.master.outbox.Outbox`'s decision (per-node order,
 coalescing, slots, back-off for failing nodes); this is the loop around it.
@@ -10,8 +10,15 @@ paced, so that a thousand at once never stall the master's own replies.
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import logging
+import os
+import socket
+import time
 from typing import Any, Callable
+from urllib.parse import urlsplit
+
+import psutil
 
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.outbox import Callback, Outbox, Unreachable
@@ -29,6 +36,61 @@ CONNECT_TIMEOUT_S = 3.0  # a SYN and its first retransmissions: a host that is u
 # to wait for a CPU when one of them calls.
 BATCH = 8
 PACE_S = 0.002
+
+
+
+
+def since_boot() -> float:
+    """Now, on the clock /proc gives a process's start with."""
+    return time.clock_gettime(time.CLOCK_BOOTTIME)
+
+
+def process_started(pid: int) -> float | None:
+    """When process `pid` of this machine started, since boot (None: no such process here)."""
+    try:
+        with open("/proc/%d/stat" % pid, "rb") as f:
+            stat = f.read()
+        return int(stat[stat.rindex(b")") + 2:].split()[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def replaced_process(pid: int | None, started: float | None, registered_at: float) -> str | None:
+    """Why the process answering getPid at a replaced node's URI is not that node (None: it may be, and is
+    told to shut down). `pid`: its answer (None: refused, unanswered or no pid: nobody is the node there);
+    `started`: when that process started, if it is of this machine; `registered_at`: when the node first
+    registered at that URI. A process that started after the node registered took its port since."""
+    if pid is None:
+        return "nothing there answers getPid with a pid"
+    # (/proc gives a start in clock ticks, 10 ms, rounded down: the process that registered always started
+    # before; another that took the port within the same tick of the registration is not told apart)
+    if started is not None and started > registered_at:
+        return "pid %d there started %.2f s after the node registered there (its port was taken since)" \
+            % (pid, started - registered_at)
+    return None
+
+
+_local_hosts: set[str] = set()
+
+
+def is_this_host(api: str) -> bool:
+    """Whether `api`'s host is this machine (loopback, this host's name or one of its addresses): only
+    then does /proc say what a pid there is. No lookup by name: this runs on the master's loop."""
+    if not _local_hosts:
+        _local_hosts.update({"localhost", socket.gethostname()})
+        _local_hosts.update(a.address for addrs in psutil.net_if_addrs().values() for a in addrs)
+    host = urlsplit(api).hostname or ""
+    try:
+        return ipaddress.ip_address(host).is_loopback or host in _local_hosts
+    except ValueError:
+        return host in _local_hosts
+
+
+def _pid_of(result: Any) -> int | None:
+    """The pid in a getPid answer (code 1, an int), else None."""
+    if isinstance(result, (list, tuple)) and len(result) == 3 and result[0] == 1 and type(result[2]) is int:
+        return result[2]
+    return None
 
 
 class Notifier:
@@ -59,10 +121,23 @@ class Notifier:
     def param_update(self, api: str, key: str, value: Any, on_result: Callable[[Any], None] | None = None) -> None:
         self._put(api, Callback("paramUpdate", [MASTER_CALLER_ID, key, value], on_result, ("paramUpdate", key)))
 
-    def shutdown_node(self, api: str, caller_id: str, reason: str) -> None:
-        # the node at `api` has been replaced: it is told once, never retried
-        self._put(api, Callback("shutdown", [MASTER_CALLER_ID, "[%s] Reason: %s" % (caller_id, reason)],
-                                once=True))
+    def shutdown_node(self, api: str, caller_id: str, reason: str, registered_at: float) -> None:
+        """The node at `api` has been replaced: it is told once, never retried, and only if the process there
+        may be the one that registered (`replaced_process`): asked for its pid first, as its `shutdown` would
+        otherwise reach whoever took its port (ros/ros_comm#2241, #2018). rosmaster calls a node only to
+        update or stop it: the pid is asked here, of a node about to be stopped, never at registration."""
+        message = "[%s] Reason: %s" % (caller_id, reason)
+
+        def checked(result: Any) -> None:
+            pid = _pid_of(result)
+            started = process_started(pid) if pid is not None and is_this_host(api) else None
+            why = replaced_process(pid, started, registered_at)
+            if why is None:
+                self._put(api, Callback("shutdown", [MASTER_CALLER_ID, message], once=True))
+                return
+            log.info("no shutdown sent to %s (%s): %s", api, message, why)
+            mlog.info("shutdown of %s not sent: %s", api, why)
+        self._put(api, Callback("getPid", [MASTER_CALLER_ID], checked, once=True))
 
     def forget(self, api: str) -> None:
         """`api` is no longer any registered node's: what it is still owed is dropped."""

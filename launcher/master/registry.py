@@ -17,13 +17,17 @@ PARAM_SUBSCRIPTIONS = 4
 
 
 class NodeRef:
-    """A known node: its API and what it registered (the node is forgotten when all are gone)."""
+    """A known node: its API, when it first registered there and what it registered (the node is forgotten
+    when all are gone)."""
 
-    __slots__ = ("id", "api", "keys")
+    __slots__ = ("id", "api", "keys", "registered_at")
 
-    def __init__(self, node_id: str, api: str):
+    def __init__(self, node_id: str, api: str, registered_at: float = 0.0):
         self.id = node_id
         self.api = api
+        # since boot (CLOCK_BOOTTIME, as /proc gives a process's start): a process that answers at `api` and
+        # started later is not this node (notify.Notifier.shutdown_node)
+        self.registered_at = registered_at
         self.keys: dict[int, set[str]] = {PUBLICATIONS: set(), SUBSCRIPTIONS: set(), SERVICES: set(),
                                           PARAM_SUBSCRIPTIONS: set()}
 
@@ -137,12 +141,13 @@ class Registrations:
 class Registry:
     """All registrations plus the node table.
 
-    `on_bump(old_api, caller_id)` is called when a node name registers with a
+    `on_bump(old_node, caller_id)` is called when a node name registers with a
     new API: the master tells the old process to shut down. `on_gone(api)` is
     called when no node is known by `api` any more: nothing is owed to it.
+    `clock()` says when (since boot) a name registers with an API it did not have.
     """
 
-    def __init__(self, on_bump, on_gone=None):
+    def __init__(self, on_bump, on_gone=None, clock=lambda: 0.0):
         self.nodes: dict[str, NodeRef] = {}
         self._api_users: dict[str, int] = {}  # api -> known nodes with it (a client may reuse one for many)
         self.publishers = Registrations(PUBLICATIONS)
@@ -153,6 +158,7 @@ class Registry:
                          SERVICES: self.services, PARAM_SUBSCRIPTIONS: self.param_subscribers}
         self._on_bump = on_bump
         self._on_gone = on_gone
+        self._clock = clock
 
     def get_node(self, caller_id: str) -> NodeRef | None:
         return self.nodes.get(caller_id)
@@ -161,12 +167,12 @@ class Registry:
         node = self.nodes.get(caller_id)
         if node is not None and node.api == caller_api:
             return node
-        fresh = NodeRef(caller_id, caller_api)
+        fresh = NodeRef(caller_id, caller_api, self._clock())
         self.nodes[caller_id] = fresh
         self._api_users[caller_api] = self._api_users.get(caller_api, 0) + 1
         if node is not None:
             # same name, new process: the old one is told to go and forgotten entirely
-            self._on_bump(node.api, caller_id)
+            self._on_bump(node, caller_id)
             for r in self._by_kind.values():
                 r.unregister_all(caller_id)
             self._released(node.api)

@@ -30,6 +30,7 @@ from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
 from launcher.master import advertised_host
 from launcher.services.masterlink import MasterSession
+from launcher.services.masterwatch import MasterWatch
 from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
@@ -311,12 +312,13 @@ class Run:
         # child of its own (rostest's test node: its exit status is the test's result) says False
         self.reap_orphans = reap_orphans
         self.reaper: Reaper | None = None
+        self.master_watch: MasterWatch | None = None  # a master found running: its restarts (services/masterwatch)
 
     @property
     def services(self) -> list[Any]:
         """In start order; each has `start()` and `stop()` (the stop undoes what a start did, if anything)."""
-        return [s for s in (self.master, self.api, self.rosout, self.nodes, self.diagnostics, self.log_disk)
-                if s is not None]  # (rosout outlives the nodes: their last words reach its log)
+        return [s for s in (self.master, self.api, self.rosout, self.nodes, self.master_watch, self.diagnostics,
+                            self.log_disk) if s is not None]  # (rosout outlives the nodes: their last words reach its log)
 
     @property
     def process_count(self) -> int:
@@ -384,6 +386,10 @@ class Run:
             self.nodes.fleet.listeners.append(self._process_ended)
         if self.notifier is not None:
             self.notifier.attach(self.nodes.fleet, master.uri)
+        if master.external:
+            self.master_watch = MasterWatch(master, self.nodes)
+            up(self.master_watch)
+            await self.master_watch.start()
         if self.rosout is not None:
             self.rosout.warm_up()
         for service in (self.diagnostics, self.log_disk):

@@ -350,6 +350,24 @@ class MasterSession:
         console.printlog_bold("setting /run_id to %s" % self.run_id)
         await self.params.set("/run_id", self.run_id)
 
+    async def run_id_after_restart(self, seen: str | None) -> str:
+        """The /run_id of a master found running that has restarted (`seen`: what it had when asked): a
+        roscore's sets its own a moment after its master answers (roscore dies if another sets it first);
+        a bare rosmaster gets this run's, as at the launch's start."""
+        if seen:
+            return seen
+        if await started_by_roscore(self.uri):
+            code, value = await self._wait_for_roscore_run_id((-1, None))
+            if code == 1 and value:
+                return str(value)
+        await self._set_run_id(False)
+        return self.run_id
+
+    async def restore_parameters(self) -> None:
+        """The launch's parameters set again (clear_params first), on a master that restarted and lost them."""
+        config = self.plan.config
+        await self.params.upload(list(config.clear_params), [(p.key, p.value) for p in config.params.values()])
+
     def summary_params(self) -> dict[str, Any]:
         """The launch's parameters as the summary lists them (with roscore's version parameters)."""
         params = {k: p.value for k, p in self.plan.config.params.items()}
@@ -371,8 +389,7 @@ class MasterSession:
                         f.write(dump_yaml(value))
             except (KeyError, OSError, LaunchError) as e:
                 console.printerrlog("rosparam %s %s failed: %s" % (command, key, e))
-        config = self.plan.config
-        await self.params.upload(list(config.clear_params), [(p.key, p.value) for p in config.params.values()])
+        await self.restore_parameters()
 
     # ---- running and stopping --------------------------------------------------------------------------
 

@@ -70,7 +70,7 @@ class RecordingNotifier:
     def param_update(self, api, key, value, on_result=None):
         self.calls.append(["paramUpdate", api, key, value])
 
-    def shutdown_node(self, api, caller_id, reason):
+    def shutdown_node(self, api, caller_id, reason, registered_at=None):
         self.calls.append(["shutdown", api, "[%s] Reason: %s" % (caller_id, reason)])
 
     def forget(self, api):

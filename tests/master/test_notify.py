@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import os
+import subprocess
+import sys
 
 from launcher.net import xmlrpc_server
 from launcher.master.api import MasterApi
-from launcher.master.notify import Notifier
+from launcher.master.notify import Notifier, is_this_host, process_started, replaced_process, since_boot
 
-from helpers import until_async
+from helpers import until, until_async
 
 
 class SlowNode:
@@ -62,7 +65,7 @@ def test_a_hanging_node_only_delays_itself():
     async def scenario():
         n = Notifier(timeout=2.0)
         async with SlowNode(delay=30) as hung, SlowNode() as fine:
-            n.shutdown_node(hung.uri, "/x", "why")
+            n.shutdown_node(hung.uri, "/x", "why", 0.0)
             n.param_update(hung.uri, "/p/", 2)
             n.param_update(fine.uri, "/p/", 3)
             await until_async(lambda: len(hung.calls) == 1, 5)
@@ -70,7 +73,7 @@ def test_a_hanging_node_only_delays_itself():
             await until_async(lambda: len(fine.calls) == 1, timeout=1.5)  # not behind the hung node's 2 s
             await until_async(lambda: len(hung.calls) == 2, timeout=5)      # time-out, then the next call
             assert asyncio.get_running_loop().time() - t0 >= 1.5
-            assert hung.calls[0] == ("shutdown", ["/master", "[/x] Reason: why"])
+            assert hung.calls[0] == ("getPid", ["/master"])  # (unanswered: no shutdown follows)
         await n.close()
         assert n.pending() == 0
     asyncio.run(scenario())
@@ -111,6 +114,49 @@ def test_non_http_apis_are_skipped_and_unreachable_ones_reported_until_forgotten
     asyncio.run(scenario())
 
 
+def test_a_replaced_node_is_told_to_shut_down_only_if_the_process_at_its_uri_is_older_than_its_registration():
+    """ros/ros_comm#2241: the old URI of a name may be another process's now (its port reused). The master asks
+    it for its pid only then (never at registration: rosmaster calls nodes only to update or stop them), and
+    a process of this machine that started after the node registered there is not the node."""
+    async def scenario():
+        n = Notifier(timeout=2.0)
+        api = MasterApi(n)
+        async with SlowNode(answer=(1, "", os.getpid())) as same, SlowNode(answer=(1, "", 0)) as reused, \
+                SlowNode(answer=(1, "", 333)) as fresh:
+            api.dispatch("registerPublisher", ["/a", "/t", "std_msgs/String", same.uri])
+            api.dispatch("registerPublisher", ["/b", "/t", "std_msgs/String", reused.uri])
+            await until_async(lambda: n.pending() == 0, 5)
+            assert [m for m, _ in same.calls + reused.calls if m != "publisherUpdate"] == []  # nothing asked yet
+            # /b's process died and a newer one took its port (this test's child, started after /b registered)
+            registered = api.registry.get_node("/b").registered_at
+            until(lambda: since_boot() > registered + 0.02, 5)  # (a start in the same clock tick tells nothing)
+            newer = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+            try:
+                until(lambda: process_started(newer.pid) is not None, 5)
+                reused.answer = (1, "", newer.pid)
+                api.dispatch("registerPublisher", ["/a", "/t", "std_msgs/String", fresh.uri])
+                api.dispatch("registerPublisher", ["/b", "/t", "std_msgs/String", fresh.uri])
+                await until_async(lambda: n.pending() == 0, 5)
+            finally:
+                newer.kill()
+                newer.wait()
+            # this process is older than /a's registration: the node; the newer one is not
+            assert [m for m, _ in same.calls if m != "publisherUpdate"] == ["getPid", "shutdown"]
+            assert [m for m, _ in reused.calls if m != "publisherUpdate"] == ["getPid"]
+        await n.close()
+    asyncio.run(scenario())
+
+
+def test_who_is_not_the_replaced_node():
+    assert replaced_process(None, None, 10.0) == "nothing there answers getPid with a pid"
+    assert replaced_process(42, 9.0, 10.0) is None  # started before it registered: may be the node
+    assert replaced_process(42, None, 10.0) is None  # another machine's (or gone): cannot tell, as rosmaster
+    assert "started 5.00 s after" in replaced_process(42, 15.0, 10.0)
+    assert process_started(os.getpid()) < since_boot()
+    assert is_this_host("http://127.0.0.1:1/") and is_this_host("http://localhost:1/")
+    assert not is_this_host("http://192.0.2.1:1/")
+
+
 class _Recorder:
     def __init__(self):
         self.calls = []
@@ -121,7 +167,7 @@ class _Recorder:
     def param_update(self, api, key, value, on_result=None):
         self.calls.append(("paramUpdate", api))
 
-    def shutdown_node(self, api, caller_id, reason):
+    def shutdown_node(self, api, caller_id, reason, registered_at=None):
         self.calls.append(("shutdown", api))
 
     def forget(self, api):

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from launcher.net.tcpros import (FrameDecoder, InboundConnection, Publication, PublisherLink,
+from launcher.net.tcpros import (WATCH_LOWAT, FrameCounter, FrameDecoder, InboundConnection, Publication, PublisherLink,
                              ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
-                             decode_header, encode_frame, encode_header, transport_info)
+                             decode_header, encode_frame, encode_header, transport_info, watch_publisher)
 
 from helpers import until_async
 
@@ -87,6 +87,23 @@ def test_absurd_length_is_refused_before_allocating():
         decoder.feed(struct.pack("<I", 0xFFFFFFF0) + b"xx")
 
 
+@given(st.lists(st.integers(0, 3000), max_size=20), st.lists(st.integers(1, 5000), min_size=1, max_size=30))
+def test_the_frame_counter_counts_what_the_decoder_splits_however_the_stream_is_cut(sizes, cuts):
+    stream = b"".join(encode_frame(b"x" * n) for n in sizes)
+    counter, decoder, counted, frames, pos, i = FrameCounter(), FrameDecoder(), 0, 0, 0, 0
+    while pos < len(stream):
+        chunk = memoryview(stream)[pos:pos + cuts[i % len(cuts)]]
+        counted += counter.feed(chunk)
+        frames += len(decoder.feed(bytes(chunk)))
+        pos, i = pos + len(chunk), i + 1
+    assert counted == frames == len(sizes)
+
+
+def test_the_frame_counter_refuses_an_absurd_length():
+    with pytest.raises(TcprosError, match="exceeds"):
+        FrameCounter(limit=100).feed(struct.pack("<I", 101))
+
+
 def test_transport_info_has_rosnode_info_shape():
     assert transport_info(None) == "TCPROS connection"
 
@@ -124,6 +141,26 @@ def test_publish_and_subscribe_over_loopback():
         link.close()
         await until_async(lambda: not pub.links, 5)
         await server.stop()
+    asyncio.run(main())
+
+
+def test_a_watch_counts_a_busy_topic_as_it_comes_and_a_quiet_one_when_drained():
+    async def main():
+        server, pub = await _server_with_publication()
+        counts: list[int] = []
+        link = await watch_publisher("127.0.0.1", server.port, "/chat", "/watch", "http://pub:1/", counts.append)
+        await until_async(lambda: len(pub.links) == 1, 5)
+        for i in range(3):
+            pub.publish(b"small %d" % i)  # under the socket's low-water mark: the loop is not woken for them
+        await until_async(lambda: (link.drain(), sum(counts))[1] == 3, 5)
+        big = b"x" * (WATCH_LOWAT * 8)
+        for _ in range(5):
+            pub.publish(big)
+        await until_async(lambda: sum(counts) >= 7, 5)  # read by the loop, in gulps, without a drain
+        link.drain()
+        assert sum(counts) == 8 and len(counts) < 3 + 5 * 8  # (not a wake-up per message or per 64 kB)
+        await server.stop()
+        await until_async(lambda: (link.drain(), link.closed)[1], 5)  # the publisher went
     asyncio.run(main())
 
 
