@@ -15,6 +15,8 @@ terminal (or with TERM=dumb) the view says so and prints plain lines.
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
 import json
 import os
 import signal
@@ -29,7 +31,8 @@ from typing import Any, Callable
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
 from launcher.model import token as run_token
-from launcher.operate.view import HELP, NODE_OUTPUT, ViewState
+from launcher.operate.view import HELP, NODE_OUTPUT, Line, ViewState
+from launcher.workspace.roshome import log_root
 
 POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)
 SAMPLE_PERIOD_S = 1.0  # the CPU/RSS columns' refresh
@@ -134,8 +137,9 @@ def read_token(info: dict[str, Any], path: str | None = None) -> str:
 
 
 def run_view(uri: str, on_quit: Callable[[], None] | None = None,
-             launch_proc: subprocess.Popen | None = None, token_file: str | None = None) -> None:
-    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends)."""
+             launch_proc: subprocess.Popen | None = None, token_file: str | None = None, note: str = "") -> None:
+    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends); `note`
+    is the output pane's first line."""
     try:
         from prompt_toolkit.application import Application
     except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
@@ -151,6 +155,8 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     state = ViewState()
     info = client.status(uri)
     state.load(info)
+    if note:
+        state.lines.append(Line("launch", note, "state"))
     filtering = [False]
 
     def size() -> tuple[int, int]:
@@ -421,15 +427,42 @@ def main(argv: list[str]) -> int:
 
 # ---- `launch --ui` -----------------------------------------------------------------------------------------
 
+PR_SET_PDEATHSIG = 1
+CONSOLE_NAME = "launch-console.log"  # the launch's console under --ui, in its run's log directory
+
+
+def _stop_with_parent() -> Callable[[], None]:
+    """A preexec_fn: the child gets SIGINT (its orderly stop, as at Ctrl-C) when the view that started it dies,
+    SIGKILL included; else a launch would run on with nobody in front of it and no terminal to stop it from."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)  # (loaded before the fork)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGINT, 0, 0, 0)
+        if os.getppid() != parent:  # (the view died before the line above: nothing has started yet)
+            os._exit(1)
+    return preexec
+
+
 def launch_with_view(args: list[str], master_uri: str) -> int:
-    """`launch ARGS` as a child process (its console to a file), the view in front; quitting the view stops
-    the launch as Ctrl-C does and waits for its end. Returns the launch's exit status."""
-    fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log")
+    """`launch ARGS` as a child process (its console to a file that ends up in the run's log directory), the
+    view in front; quitting the view stops the launch as Ctrl-C does and waits for its end, and so does the
+    view's death (SIGKILL too). Returns the launch's exit status."""
+    # the console's file starts in the log root (the run's directory is named once the launch has its run id)
+    # so that moving it there is a rename on the same file system, which the launch writing it does not notice
+    root = log_root(os.environ)
+    try:
+        os.makedirs(root, exist_ok=True)
+        fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log", dir=root)
+    except OSError:
+        fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log")
+    kept = False  # whether the console's file is in the run's log directory (else it is removed at the end)
     env = dict(os.environ, ROS_MASTER_URI=master_uri)
     # its own session: the terminal's signals are the view's, which passes the stop on (one Ctrl-C, not two)
     with os.fdopen(fd, "wb") as out:
         proc = subprocess.Popen([sys.executable, "-m", "launcher"] + args, stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+                                stdin=subprocess.DEVNULL, env=env, start_new_session=True,
+                                preexec_fn=_stop_with_parent())
 
     def stop_launch() -> None:
         if proc.poll() is None:
@@ -442,13 +475,21 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
         uri = _wait_for_launch(proc, master_uri)
         if uri is not None:
             try:
-                run_view(uri, launch_proc=proc)
+                info = client.status(uri)
+                if info.get("log_dir"):
+                    moved = os.path.join(info["log_dir"], CONSOLE_NAME)
+                    try:
+                        os.rename(console_path, moved)
+                        console_path, kept = moved, True
+                    except OSError:  # (another file system: the file stays where it is until the end)
+                        pass
+                run_view(uri, launch_proc=proc, note="the launch's console: %s (q stops the launch)" % console_path)
             except client.ToolError as e:
                 sys.stderr.write("launch --ui: %s\n" % e)
             except KeyboardInterrupt:  # (a SIGINT from outside the terminal's keys: the same stop)
                 pass
             if proc.poll() is None:
-                sys.stderr.write("stopping the launch (its output: %s) ...\n" % console_path)
+                sys.stderr.write("stopping the launch (its console: %s) ...\n" % console_path)
                 sys.stderr.flush()
                 stop_launch()
         while True:
@@ -462,6 +503,13 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
             signal.signal(sig, handler)
     # the launch's last words (all of them when it ended before the view could attach: a load error)
     sys.stdout.write(_tail(console_path, 20 if uri is not None else None))
+    if kept:
+        sys.stdout.write("the launch's console: %s\n" % console_path)
+    else:
+        try:
+            os.unlink(console_path)
+        except OSError:
+            pass
     sys.stdout.flush()
     return status if status >= 0 else 128 - status
 

@@ -54,15 +54,20 @@ class Tmux:
         subprocess.run(self.base + ["new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command, ";",
                                     "set-option", "-t", "t", "remain-on-exit", "on"], check=True)
 
-    def screen(self) -> str:
-        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"], capture_output=True, text=True,
-                              check=True).stdout
+    def screen(self, joined: bool = False) -> str:
+        """What the pane shows (`joined`: a line the terminal wrapped is one line)."""
+        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"] + (["-J"] if joined else []),
+                              capture_output=True, text=True, check=True).stdout
 
     def keys(self, *keys: str) -> None:
         subprocess.run(self.base + ["send-keys", "-t", "t"] + list(keys), check=True)
 
     def resize(self, cols: int, rows: int) -> None:
         subprocess.run(self.base + ["resize-window", "-t", "t", "-x", str(cols), "-y", str(rows)], check=True)
+
+    def pane_pid(self) -> int:
+        return int(subprocess.run(self.base + ["display-message", "-p", "-t", "t", "#{pane_pid}"], capture_output=True,
+                                  text=True, check=True).stdout)
 
     def pane_dead(self) -> bool:
         out = subprocess.run(self.base + ["display-message", "-p", "-t", "t", "#{pane_dead}"], capture_output=True,
@@ -164,9 +169,16 @@ def test_launch_ui_shows_steers_and_stops_a_launch_of_rospy_nodes(tmp_path, tmux
     tmux.wait_screen(lambda s: any(line.startswith("\u2500\u2500 output") and len(line.rstrip()) == 100
                                    for line in s.splitlines()), "the view redrawn at 100 columns")
     pids = [n["pid"] for n in status(env).values()]
+    log_dir = json.loads(tool(env, "status", "--json").stdout)["log_dir"]
+    console = os.path.join(log_dir, "launch-console.log")
+    assert os.path.exists(console)  # (the launch's console, in its run's log directory)
     tmux.keys("q")  # = Ctrl-C: the launch's orderly stop
     tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
     assert not any(pid_alive(p) for p in pids)
+    # the view said where the console is; it holds the launch's lines, to its end
+    assert "the launch's console: %s" % console in tmux.screen(joined=True)
+    text = open(console).read()
+    assert "started roslaunch server" in text and "shutting down processing monitor" in text
 
 
 def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path, tmux, env):
@@ -234,3 +246,28 @@ def test_a_closed_terminal_stops_the_launch_as_ctrl_c_does(tmp_path, tmux, env):
     tmux.close()  # (the terminal's end: SIGHUP to the view; the launch runs in a session of its own)
     until(lambda: not pid_alive(pid), 30, 0.1, what="the node stopped with the launch")
     assert not status(env)
+
+
+def test_a_killed_view_stops_its_launch_and_an_attached_one_does_not(tmp_path, tmux, env):
+    """`launch --ui`'s launch is the view's child: the view's death (SIGKILL: nothing could pass a stop on)
+    stops it as Ctrl-C does. `launcher ui` only looks at a launch: its death changes nothing."""
+    launch = write_launch(str(tmp_path), '<node pkg="ui_tests" type="sleeper" name="s"/>')
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"))
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/s"), "/s running")
+    pid, launch_pid = running_pid(screen, "/s"), json.loads(tool(env, "status", "--json").stdout)["pid"]
+    os.kill(tmux.pane_pid(), signal.SIGKILL)
+    until(lambda: not pid_alive(pid) and not pid_alive(launch_pid), 30, 0.1, what="the launch stopped in order")
+    assert not status(env)
+    tmux.close()
+
+    lp = Launcher([launch], env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[s-\d+\]: started", 60)
+        pid = until(lambda: status(env).get("/s", {}).get("pid"), 30, 0.2, what="/s running")
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
+        tmux.wait_screen(lambda s: running_pid(s, "/s") == pid, "/s running in the attached view")
+        os.kill(tmux.pane_pid(), signal.SIGKILL)
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+        assert lp.proc.poll() is None and pid_alive(pid) and status(env)["/s"]["pid"] == pid
+    finally:
+        lp.close()
