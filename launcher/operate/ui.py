@@ -172,12 +172,16 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     def title() -> list:
         return [("class:title", state.title().ljust(size()[1]))]
 
+    def rows() -> list:
+        return state.table_rows(table_height(), time.time(), size()[1])
+
     def header() -> list:
-        return [("class:header", state.table_header(time.time()))]
+        rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
+        return [("class:header", state.table_header(time.time())[:size()[1]])]
 
     def table() -> list:
         out: list = []
-        rows = state.table_rows(table_height(), time.time())
+        rows = state.table_rows(table_height(), time.time(), size()[1])
         for i, (text, style, selected) in enumerate(rows):
             cls = "class:state.%s" % style if style else ""
             if selected:

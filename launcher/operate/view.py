@@ -51,6 +51,8 @@ class ViewState:
         self.node_output: list[str] = []  # the selected node's recent output, in NODE_OUTPUT mode
         self.message = ""  # the answer to the operator's last action
         self.seq = 0  # the last change of the stream applied
+        self.header: list[str] = list(status_columns.HEADER)  # the table's header as the last rows were fitted
+        self.sep = "  "
 
     # ---- fed by the launch ---------------------------------------------------------------------------
 
@@ -156,9 +158,10 @@ class ViewState:
         end = len(lines) - self.scroll
         return lines[max(0, end - height):end]
 
-    def table_rows(self, height: int, now: float) -> list[tuple[str, str, bool]]:
+    def table_rows(self, height: int, now: float, width: int = 0) -> list[tuple[str, str, bool]]:
         """(row text, the state's style, selected) of the visible nodes, `height` rows at most, scrolled so that
-        the selection shows. The columns are `launcher status`'s (operate/status.row), in its widths."""
+        the selection shows. The columns are `launcher status`'s (operate/status.row); in `width` columns
+        (0: no limit) they are fitted as `fit_columns` does, every column kept."""
         shown = self.visible()
         if height <= 0 or not shown:
             return []
@@ -171,25 +174,24 @@ class ViewState:
         self.table_top = max(0, min(self.table_top, len(shown) - height))
         window = shown[self.table_top:self.table_top + height]
         rows = [status_columns.row(self._with_uptime(self.nodes[name], now)) for name in window]
-        widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(status_columns.HEADER)]
-        self.widths = widths
+        self.header, rows, sep = fit_columns(status_columns.HEADER, rows, width - len(MARK) if width else 0)
+        self.sep = sep
         out = []
         for name, r in zip(window, rows):
             node = self.nodes[name]
             # ("> ": the selection shows without colours too)
-            text = ("> " if name == self.selected else "  ") + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip()
+            text = ("> " if name == self.selected else MARK) + sep.join(r).rstrip()
             if node.get("over_limit"):
-                text += "  OVER " + ",".join(sorted(node["over_limit"]))
+                text += " OVER " + ",".join(sorted(node["over_limit"]))
             if name in self.muted:
-                text += "  (muted)"
-            out.append((text, "red" if node.get("over_limit") else STATE_STYLE.get(node["state"], ""),
-                        name == self.selected))
+                text += " (muted)"
+            out.append((text[:width] if width else text,
+                        "red" if node.get("over_limit") else STATE_STYLE.get(node["state"], ""), name == self.selected))
         return out
 
     def table_header(self, now: float) -> str:
         """The column names in the widths of the rows under them (table_rows first)."""
-        widths = getattr(self, "widths", [len(h) for h in status_columns.HEADER])
-        return "  " + "  ".join(h.ljust(w) for h, w in zip(status_columns.HEADER, widths)).rstrip()
+        return MARK + self.sep.join(self.header).rstrip()
 
     def title(self) -> str:
         shown, total = len(self.visible()), len(self.nodes)
@@ -205,6 +207,53 @@ class ViewState:
         if node.get("state") == "running" and node.get("started_at"):
             return dict(node, uptime=max(0.0, now - node["started_at"]))
         return dict(node, uptime=None)
+
+
+MARK = "  "  # before a row: "> " for the selected one
+SHORT_HEADER = {"UPTIME": "UP", "RESTARTS": "RST", "LAST EXIT": "EXIT"}
+NAME_MIN = 10  # the node column is shrunk no further (the columns after it are then cut at the edge)
+HOST_MAX = 12  # a host's name is cut to this when the row would not fit otherwise
+
+
+def fit_columns(header: tuple[str, ...], rows: list[tuple[str, ...]], width: int
+                ) -> tuple[list[str], list[list[str]], str]:
+    """(header, rows, separator): the cells padded to their column's width and, when the table is wider than
+    `width` (0: no limit), fitted without dropping a column (80 columns hold them all): one space between
+    columns, then short names for the wide headers, then a host cut to HOST_MAX, then the node names
+    abbreviated from the left (`…` and their end, the part that tells nodes apart) down to NAME_MIN."""
+    header, cells = list(header), [list(r) for r in rows]
+
+    def widths() -> list[int]:
+        return [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(header)]
+
+    def total(sep: str) -> int:
+        return sum(widths()) + len(sep) * (len(header) - 1)
+
+    sep = "  "
+    if width and total(sep) > width:
+        sep = " "
+        for step in ("headers", "host", "name"):
+            if total(sep) <= width:
+                break
+            if step == "headers":
+                header = [SHORT_HEADER.get(h, h) for h in header]
+            elif step == "host":
+                for r in cells:
+                    r[-1] = cut_right(r[-1], HOST_MAX)
+            else:
+                room = max(NAME_MIN, width - (total(sep) - widths()[0]))
+                for r in cells:
+                    r[0] = cut_left(r[0], room)
+    w = widths()
+    return ([h.ljust(n) for h, n in zip(header, w)], [[c.ljust(n) for c, n in zip(r, w)] for r in cells], sep)
+
+
+def cut_left(text: str, n: int) -> str:
+    return text if len(text) <= n else "\u2026" + text[len(text) - n + 1:]
+
+
+def cut_right(text: str, n: int) -> str:
+    return text if len(text) <= n else text[:n - 1] + "\u2026"
 
 
 def change_text(c: dict[str, Any]) -> str:

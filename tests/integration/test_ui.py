@@ -196,16 +196,36 @@ def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path
         lp.close()
 
 
-def test_thirty_nodes_scroll_in_80x24(tmp_path, tmux, env):
+def test_thirty_nodes_scroll_in_80x24_with_every_column_and_follow_resizes(tmp_path, tmux, env):
+    long = "/a_rather_long_namespace/and_a_long_node_name"
     launch = write_launch(str(tmp_path), "".join(
-        '<node pkg="ui_tests" type="sleeper" name="n%02d"/>\n' % i for i in range(30)))
+        '<node pkg="ui_tests" type="sleeper" name="n%02d"/>\n' % i for i in range(30)) +
+        '<group ns="%s"><node pkg="ui_tests" type="sleeper" name="%s"/></group>' % tuple(long[1:].split("/")))
     tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"), 80, 24)
     screen = tmux.wait_screen(lambda s: running_pid(s, "/n00"), "the first rows")
     assert row(screen, "/n29") is None  # (not all fit)
     assert all(len(line) <= 80 for line in screen.splitlines()) and len(screen.splitlines()) <= 24
-    tmux.keys(*["j"] * 29)
-    screen = tmux.wait_screen(lambda s: running_pid(s, "/n29"), "the last row scrolled into view")
+
+    def every_column(screen: str, names: list[str]) -> bool:
+        # name state pid uptime restarts last-exit cpu rss host: nine cells, the host last
+        rows = [row(screen, n) for n in names]
+        return all(r and len(r) == 9 and r[-1] == "localhost" for r in rows)
+    header = next(line for line in screen.splitlines() if line.split()[:2] == ["NODE", "STATE"])
+    assert header.split()[-1] == "HOST"
+    tmux.wait_screen(lambda s: every_column(s, ["/n%02d" % i for i in range(5)]), "every column of the rows")
+    tmux.keys(*["j"] * 30)
+
+    def abbreviated(s: str) -> str | None:
+        return next((c[0] for line in s.splitlines() for c in [line.split()[1:] if line.startswith(">") else []]
+                     if c and c[0].startswith("\u2026") and long.endswith(c[0][1:])), None)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/n29") and abbreviated(s), "the last rows scrolled into view")
     assert row(screen, "/n00") is None
+    assert every_column(screen, ["/n29", abbreviated(screen)])
+    tmux.resize(150, 24)  # the whole name, the long headers
+    tmux.wait_screen(lambda s: running_pid(s, long) and "RESTARTS" in s, "the full name at 150 columns")
+    tmux.resize(80, 24)
+    tmux.wait_screen(lambda s: abbreviated(s) and "RESTARTS" not in s and every_column(s, ["/n29"]),
+                     "abbreviated again at 80 columns")
     tmux.keys("C-c")
     tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
 

@@ -125,3 +125,22 @@ def test_samples_fill_cpu_and_rss_of_running_nodes_only():
     v.samples({"/a": [0.5, 2 * 1000 * 1000]})
     rows = [r[0].split() for r in v.table_rows(5, T0)]
     assert rows[0][-3:-1] == ["50%", "2MB"] and rows[1][-3:-1] == ["-", "-"]
+
+
+def test_rows_fit_80_columns_with_every_column_and_follow_the_width():
+    long = "/a_rather_long_namespace/and_a_long_node_name"
+    v = view(node(long, pid=4194301, cpu=1.25, rss=1_500_000_000, restarts=12),
+             node("/b", "respawning", None, exit_signal=9, host="robot-arm-controller.example.org"))
+    rows = v.table_rows(10, T0 + 86399, 80)
+    header = v.table_header(T0)
+    assert all(len(text) <= 80 for text, _, _ in rows) and len(header) <= 80
+    assert header.split() == ["NODE", "STATE", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
+    a, b = rows[0][0].split(), rows[1][0].split()
+    assert a[1].startswith("\u2026") and long.endswith(a[1][1:]) and len(a[1]) >= 10  # (the name's end)
+    assert a[2:] == ["running", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
+    assert b[:6] == ["/b", "respawning", "-", "-", "0", "SIGKILL"]
+    assert b[-1].startswith("robot-arm-") and b[-1].endswith("\u2026")  # (a long host cut, still there)
+    # wide enough: nothing shortened, the header's own words
+    rows = v.table_rows(10, T0 + 86399, 200)
+    assert rows[0][0].split()[1] == long and "robot-arm-controller.example.org" in rows[1][0]
+    assert "RESTARTS" in v.table_header(T0)
