@@ -31,7 +31,7 @@ from typing import Any, Callable
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
 from launcher.model import token as run_token
-from launcher.operate.view import HELP, NODE_OUTPUT, Line, ViewState
+from launcher.operate.view import HELP, HISTORY, NODE_OUTPUT, Line, ViewState, cut_left
 from launcher.workspace.roshome import log_root
 
 POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)
@@ -59,6 +59,15 @@ def recent_output(uri: str, node: str) -> str:
     """The end of a node's output (its -stdout.log), as the launch's server reads it."""
     answer = json.loads(call(uri, "launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
     return answer["output"].get(node, "")
+
+
+def past_samples(uri: str) -> dict[str, list]:
+    """The samples the launch kept of each node ({node: [[time, cpu, rss], ...]}): a view attaching late
+    starts its history with them. {} from a launch that keeps none (an older launcher)."""
+    try:
+        return json.loads(call(uri, "launcher_samples", True))
+    except (OSError, XmlRpcError, Fault, ValueError):
+        return {}
 
 
 def terminal_ok() -> bool:
@@ -155,6 +164,7 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     state = ViewState()
     info = client.status(uri)
     state.load(info)
+    state.past_samples(past_samples(uri))
     if note:
         state.lines.append(Line("launch", note, "state"))
     filtering = [False]
@@ -198,7 +208,14 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
                 else "output%s" % (" (%d muted)" % len(state.muted) if state.muted else ""))
         if state.scroll:
             what += "  [scrolled back %d lines; End follows]" % state.scroll
-        return [("class:rule", ("\u2500\u2500 %s " % what).ljust(size()[1], "\u2500"))]
+        cols = size()[1]
+        left = "\u2500\u2500 %s " % what
+        # the selected node's CPU over the last minute, at the right end (when there is room)
+        spark = state.spark(state.selected, min(HISTORY, cols // 4)) if state.selected else ""
+        right = " %s cpu %s \u2500\u2500" % (cut_left(state.selected, 16), spark) if spark else ""
+        if len(left) + len(right) > cols:
+            right = ""
+        return [("class:rule", left.ljust(cols - len(right), "\u2500") + right)]
 
     def output() -> list:
         rows, cols = size()

@@ -20,6 +20,9 @@ STATE_STYLE = {"running": "green", "waiting": "yellow", "respawning": "yellow", 
                "exited": "grey", "stopped": "grey"}
 NODE_OUTPUT = "node"  # the pane shows the selected node's recent output (its log), not every node's
 ALL_OUTPUT = "all"
+HISTORY = 60  # CPU samples kept per node for its sparkline (a minute at the 1 s refresh)
+SPARK = "\u2581\u2582\u2583\u2584\u2585\u2586\u2587\u2588"
+SPARK_MIN_TOP = 0.05  # cores: the sparkline's top at least this, so an idle node's noise stays flat
 HELP = "\u2191\u2193 node  s/t/r stop/start/restart  S/T all  / filter  m mute  o log  q quit"
 
 
@@ -51,6 +54,7 @@ class ViewState:
         self.node_output: list[str] = []  # the selected node's recent output, in NODE_OUTPUT mode
         self.message = ""  # the answer to the operator's last action
         self.seq = 0  # the last change of the stream applied
+        self.history: dict[str, collections.deque] = {}  # node -> its CPU samples (cores; None: not running)
         self.header: list[str] = list(status_columns.HEADER)  # the table's header as the last rows were fitted
         self.sep = "  "
 
@@ -84,10 +88,26 @@ class ViewState:
             self.lines.append(Line(node["name"], change_text(c), "state"))
 
     def samples(self, samples: dict[str, list]) -> None:
-        """CPU (cores) and RSS (bytes) of the running nodes (`launcher_samples`)."""
+        """CPU (cores) and RSS (bytes) of the running nodes (`launcher_samples`); each node's CPU history too."""
         for name, node in self.nodes.items():
             cpu_rss = samples.get(name)
             node["cpu"], node["rss"] = cpu_rss if cpu_rss else (None, None)
+            self.history.setdefault(name, collections.deque(maxlen=HISTORY)).append(node["cpu"])
+
+    def past_samples(self, history: dict[str, list]) -> None:
+        """The samples the launch kept before the view attached (`launcher_samples(true)`: [time, cpu, rss]
+        lists), put before any the view took itself."""
+        for name, kept in history.items():
+            if name in self.nodes:
+                mine = self.history.get(name, ())
+                self.history[name] = collections.deque([s[1] for s in kept] + list(mine), maxlen=HISTORY)
+
+    def spark(self, name: str, width: int) -> str:
+        """A node's CPU over its last `width` samples as block characters (a space where it did not run)."""
+        values = list(self.history.get(name, ()))[-width:] if width > 0 else []
+        top = max([SPARK_MIN_TOP] + [v for v in values if v is not None])
+        return "".join(" " if v is None else SPARK[min(len(SPARK) - 1, int(v / top * (len(SPARK) - 1) + 0.5))]
+                       for v in values)
 
     def output(self, node: str, text: str) -> None:
         """A piece of a node's output: whole lines go to the pane, a line's start waits for its end."""

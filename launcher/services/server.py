@@ -11,7 +11,8 @@ Added calls: `launcher_status` (the run and every node's state as one JSON
 text: a 500-node status must cost the launcher little), `launcher_changes`
 (the fleet's changes after a sequence number, waiting for one: a long poll), and
 `launcher_samples` (each running node's CPU and RSS, what a live view redraws
-every second), `launcher_output` (the nodes' output from their
+every second; or the last minute of them, what a view attaching late starts its
+sparklines with), `launcher_output` (the nodes' output from their
 `-stdout.log` files after the offsets a reader has: a long poll too, so a view
 on another machine shows output from files it cannot read), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)`, which are
@@ -232,11 +233,18 @@ class LaunchServer:
                                              separators=(",", ":"), default=str)]
         return changes()
 
-    def launcher_samples(self) -> list:
+    def launcher_samples(self, history: Any = False) -> list:
         """[1, text, JSON {node: [cpu (cores), rss (bytes)]}] of the running nodes with a sample: the columns
-        that change without a state change, a few bytes a node rather than the whole status."""
+        that change without a state change, a few bytes a node rather than the whole status. With `history`
+        true, the samples the fleet keeps of each node (its last HISTORY, a minute at the default period),
+        JSON {node: [[time, cpu, rss], ...]}: a view that attaches late draws its sparklines at once."""
         fleet = self.run.fleet
-        samples = {s.name: [s.cpu, s.rss] for s in fleet if s.cpu is not None} if fleet is not None else {}
+        if fleet is None:
+            return [1, "samples", "{}"]
+        if history:
+            kept = {s.name: [[round(t, 2), cpu, rss] for t, cpu, rss in s.history] for s in fleet if s.history}
+            return [1, "samples", json.dumps(kept, separators=(",", ":"))]
+        samples = {s.name: [s.cpu, s.rss] for s in fleet if s.cpu is not None}
         return [1, "samples", json.dumps(samples, separators=(",", ":"))]
 
     def _output_paths(self) -> dict[str, str]:

@@ -291,3 +291,29 @@ def test_a_killed_view_stops_its_launch_and_an_attached_one_does_not(tmp_path, t
         assert lp.proc.poll() is None and pid_alive(pid) and status(env)["/s"]["pid"] == pid
     finally:
         lp.close()
+
+
+def kept_samples(env: dict, name: str) -> int:
+    """How many samples of `name` the launch keeps (launcher_samples(true), through its server)."""
+    import xmlrpc.client
+    uri = json.loads(tool(env, "status", "--json").stdout or "{}").get("uri")
+    if not uri:
+        return 0
+    code, _msg, text = xmlrpc.client.ServerProxy(uri).launcher_samples(True)
+    return len(json.loads(text).get(name, [])) if code == 1 else 0
+
+
+def test_launcher_ui_attached_late_shows_the_cpu_history_at_once(tmp_path, tmux, env):
+    lp = Launcher([write_launch(str(tmp_path), '<node pkg="ui_tests" type="ticker" name="alpha"/>')], env,
+                  str(tmp_path))
+    try:
+        until(lambda: kept_samples(env, "/alpha") >= 8, 60, 0.5, what="8 samples kept by the launch")
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
+        # the first screen with the selected node's sparkline: the launch's samples, not only the view's own
+        screen = tmux.wait_screen(lambda s: re.search(r"/alpha cpu [\u2581-\u2588 ]+ \u2500", s), "the sparkline")
+        bars = re.search(r"/alpha cpu ([\u2581-\u2588 ]+) \u2500", screen).group(1)
+        assert len(bars) >= 8, screen
+        tmux.keys("q")
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+    finally:
+        lp.close()

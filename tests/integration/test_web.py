@@ -150,3 +150,44 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
         assert {n["name"]: n["state"] for n in status(env)["nodes"]}["/listener"] == "running"
     finally:
         lp.close()
+
+
+def test_a_page_of_launcher_web_attached_late_draws_the_last_minute_at_once(tmp_path, browser):
+    """`launcher web` started beside a launch that has run a while: the sparklines start with the samples the
+    launch kept, not empty."""
+    import xmlrpc.client
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener})
+    env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
+    lp = Launcher([write_launch(str(tmp_path), '<node pkg="web_tests" type="listener" name="listener"/>')], env,
+                  str(tmp_path))
+    web = None
+    try:
+        uri = until(lambda: status(env).get("uri"), 60, 0.2, what="the launch's server")
+
+        def kept() -> int:
+            code, _msg, text = xmlrpc.client.ServerProxy(uri).launcher_samples(True)
+            return len(json.loads(text).get("/listener", []))
+        until(lambda: kept() >= 8, 60, 0.5, what="8 samples kept by the launch")
+        port = free_port()
+        web = subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "web", str(port)], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        from selenium.webdriver.common.by import By
+
+        def listening() -> bool:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                return True
+            except OSError:
+                return False
+        until(listening, 30, 0.1, what="the page server")
+        browser.get("http://127.0.0.1:%d/" % port)
+        # the first drawing of the row: the CPU line (the first polyline) has the kept samples' points
+        points = until(lambda: (lambda p: p if p else None)(browser.execute_script(
+            "const p = document.querySelector(\"tr[data-node='/listener'] svg polyline\");"
+            "return p ? p.getAttribute('points').split(' ').length : 0;")), 10, 0.05, what="the sparkline")
+        assert points >= 8
+    finally:
+        if web is not None:
+            web.terminate()
+            web.wait(10)
+        lp.close()

@@ -99,3 +99,15 @@ def test_address_is_loopback_unless_given_and_samples_round_to_what_shows():
     assert parse_address("[::1]:8080") == ("::1", 8080)
     assert round_sample(0.01234, 33_345_678) == [0.012, 33_300_000]
     assert round_sample(None, None) == [None, None]
+
+
+def test_samples_with_history_are_what_the_fleet_kept(tmp_path):
+    server, fleet = make_server(tmp_path)
+    fleet.nodes["/a"].state = "running"
+    for i in range(3):
+        fleet.sample("/a", 0.1 * i, 1000 + i)
+    code, _msg, text = server.launcher_samples(True)
+    kept = json.loads(text)
+    assert code == 1 and list(kept) == ["/a"] and [s[1:] for s in kept["/a"]] == [[0.0, 1000], [0.1, 1001],
+                                                                                  [0.2, 1002]]
+    assert json.loads(server.launcher_samples()[2]) == {"/a": [0.2, 1002]}  # (without: the last sample only)

@@ -144,3 +144,15 @@ def test_rows_fit_80_columns_with_every_column_and_follow_the_width():
     rows = v.table_rows(10, T0 + 86399, 200)
     assert rows[0][0].split()[1] == long and "robot-arm-controller.example.org" in rows[1][0]
     assert "RESTARTS" in v.table_header(T0)
+
+
+def test_a_late_view_starts_its_sparkline_with_the_samples_the_launch_kept():
+    v = view(node("/a"), node("/b"))
+    assert v.spark("/a", 20) == ""
+    v.past_samples({"/a": [[T0 + i, 0.1 * i, 1000] for i in range(10)], "/gone": [[T0, 0.5, 1]]})
+    v.samples({"/a": [1.0, 1000]})  # (then the view's own)
+    line = v.spark("/a", 20)
+    assert len(line) == 11 and line[0] == "\u2581" and line[-1] == "\u2588"
+    assert list(line[:10]) == sorted(line[:10])  # (rising as the samples did)
+    assert v.spark("/a", 4) == line[-4:] and v.spark("/b", 20) == " "  # (/b: no sample, not running)
+    assert "/gone" not in v.history
