@@ -48,11 +48,12 @@ def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
     return value
 
 
-def new_output(uri: str, offsets: dict[str, int]) -> dict[str, str]:
-    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: node -> text."""
+def new_output(uri: str, offsets: dict[str, int]) -> tuple[dict[str, str], list[list[str]]]:
+    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: (node -> text,
+    [[node, level, text], ...] the WARN/ERROR/FATAL lines of output="log" nodes from /rosout)."""
     answer = json.loads(call(uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
     offsets.update(answer["offsets"])
-    return answer["output"]
+    return answer["output"], answer.get("log") or []
 
 
 def recent_output(uri: str, node: str) -> str:
@@ -127,9 +128,14 @@ class Feed:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            output = new_output(self.uri, offsets)
-            if output:
-                self.post(lambda: [self.state.output(node, text) for node, text in output.items()])
+            output, log = new_output(self.uri, offsets)
+            if output or log:
+                def show() -> None:
+                    for node, text in output.items():
+                        self.state.output(node, text)
+                    for node, level, text in log:
+                        self.state.warning(node, level, text)
+                self.post(show)
         self._loop(body)
 
 
@@ -220,7 +226,9 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     def output() -> list:
         rows, cols = size()
         height = max(1, rows - 4 - table_height())
-        return [("", "\n".join(line[:cols] for line in state.output_rows(height)))]
+        entries = state.output_entries(height)
+        return [("class:level.%s" % style if style else "", line[:cols] + ("\n" if i < len(entries) - 1 else ""))
+                for i, (line, style) in enumerate(entries)]
 
     def help_line() -> list:
         if filtering[0]:
@@ -344,7 +352,8 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     style = Style.from_dict({"title": "reverse bold", "header": "bold", "rule": "ansiblue", "help": "ansicyan",
                              "message": "ansiyellow bold", "dim": "ansibrightblack",
                              "state.green": "ansigreen", "state.yellow": "ansiyellow", "state.red": "ansired bold",
-                             "state.grey": "ansibrightblack"})
+                             "state.grey": "ansibrightblack", "level.warn": "ansiyellow", "level.error": "ansired",
+                             "level.fatal": "ansired bold reverse"})
     # (refresh_interval: the uptimes tick; mouse off: the terminal's own selection keeps working)
     app: Any = Application(layout=layout, key_bindings=kb, style=style, full_screen=True, refresh_interval=1.0)
 

@@ -18,6 +18,7 @@ from launcher.operate import status as status_columns
 OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
 STATE_STYLE = {"running": "green", "waiting": "yellow", "respawning": "yellow", "hung": "red", "fatal": "red",
                "exited": "grey", "stopped": "grey"}
+LEVEL_STYLE = {"WARN": "warn", "ERROR": "error", "FATAL": "fatal"}  # a /rosout line's colour (operate/ui.py)
 NODE_OUTPUT = "node"  # the pane shows the selected node's recent output (its log), not every node's
 ALL_OUTPUT = "all"
 HISTORY = 60  # CPU samples kept per node for its sparkline (a minute at the 1 s refresh)
@@ -34,7 +35,8 @@ class Line:
     def __init__(self, node: str, text: str, kind: str = "output"):
         self.node = node
         self.text = text
-        self.kind = kind  # "output" (the node's) or "state" (a change the view saw)
+        # "output" (the node's), "state" (a change the view saw), or a /rosout line's level (WARN, ERROR, FATAL)
+        self.kind = kind
 
 
 class ViewState:
@@ -120,6 +122,13 @@ class ViewState:
         if self.scroll:  # (the operator reads back: what they read stays in place)
             self.scroll = min(self.scroll + len(done), max(0, len(self.lines) - 1))
 
+    def warning(self, node: str, level: str, text: str) -> None:
+        """A WARN, ERROR or FATAL line of an output="log" node, from /rosout: tagged with its level."""
+        for line in text.split("\n"):
+            self.lines.append(Line(node, "%s %s" % (level, line), level))
+        if self.scroll:
+            self.scroll = min(self.scroll + 1, max(0, len(self.lines) - 1))
+
     # ---- the operator's keys -----------------------------------------------------------------------------
 
     def visible(self) -> list[str]:
@@ -168,13 +177,22 @@ class ViewState:
     # ---- what is drawn -------------------------------------------------------------------------------------
 
     def shown_lines(self) -> list[str]:
+        return [text for text, _ in self.shown_entries()]
+
+    def shown_entries(self) -> list[tuple[str, str]]:
+        """The pane's lines with their style (a /rosout line's level's, else '')."""
         if self.mode == NODE_OUTPUT:
-            return self.node_output
-        return ["[%s] %s" % (line.node, line.text) for line in self.lines if line.node not in self.muted]
+            return [(text, "") for text in self.node_output]
+        return [("[%s] %s" % (line.node, line.text), LEVEL_STYLE.get(line.kind, "")) for line in self.lines
+                if line.node not in self.muted]
 
     def output_rows(self, height: int) -> list[str]:
         """The pane's lines, `height` of them at most, ending `scroll` lines before the newest."""
-        lines = self.shown_lines()
+        return [text for text, _ in self.output_entries(height)]
+
+    def output_entries(self, height: int) -> list[tuple[str, str]]:
+        """output_rows with each line's style."""
+        lines = self.shown_entries()
         end = len(lines) - self.scroll
         return lines[max(0, end - height):end]
 

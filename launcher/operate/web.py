@@ -149,9 +149,9 @@ class Hub:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            output = reader.new_output(self.uri, offsets)
-            if output:
-                self.broadcast({"type": "output", "output": output})
+            output, log = reader.new_output(self.uri, offsets)
+            if output or log:
+                self.broadcast({"type": "output", "output": output, "log": log})
         self._loop(body)
 
     def recent_output(self, node: str) -> str:

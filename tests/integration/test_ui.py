@@ -29,6 +29,17 @@ while not rospy.is_shutdown():
     rospy.sleep(0.3)
 """
 Sleeper = "#!/bin/sh\nexec sleep 1000\n"
+Warner = """#!/usr/bin/python3
+import rospy
+rospy.init_node("warner")
+n = 0
+while not rospy.is_shutdown():
+    n += 1
+    rospy.loginfo("tick %d", n)
+    rospy.logwarn("careful %d", n)
+    rospy.logerr("broken %d", n)
+    rospy.sleep(0.3)
+"""
 
 
 @pytest.fixture
@@ -54,10 +65,10 @@ class Tmux:
         subprocess.run(self.base + ["new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command, ";",
                                     "set-option", "-t", "t", "remain-on-exit", "on"], check=True)
 
-    def screen(self, joined: bool = False) -> str:
-        """What the pane shows (`joined`: a line the terminal wrapped is one line)."""
-        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"] + (["-J"] if joined else []),
-                              capture_output=True, text=True, check=True).stdout
+    def screen(self, joined: bool = False, escapes: bool = False) -> str:
+        """What the pane shows (`joined`: a line the terminal wrapped is one line; `escapes`: with colours)."""
+        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"] + (["-J"] if joined else []) +
+                              (["-e"] if escapes else []), capture_output=True, text=True, check=True).stdout
 
     def keys(self, *keys: str) -> None:
         subprocess.run(self.base + ["send-keys", "-t", "t"] + list(keys), check=True)
@@ -112,14 +123,14 @@ def status(env: dict) -> dict:
 
 @pytest.fixture
 def env(tmp_path):
-    make_package(str(tmp_path / "pkgs"), "ui_tests", {"ticker": Ticker, "sleeper": Sleeper})
+    make_package(str(tmp_path / "pkgs"), "ui_tests", {"ticker": Ticker, "sleeper": Sleeper, "warner": Warner})
     e = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
     return e
 
 
 THREE = """
   <node pkg="ui_tests" type="ticker" name="alpha" output="screen" respawn="true"/>
-  <node pkg="ui_tests" type="ticker" name="beta"/>
+  <node pkg="ui_tests" type="warner" name="beta"/>
   <group ns="g"><node pkg="ui_tests" type="ticker" name="gamma" respawn="true"/></group>
 """
 
@@ -137,9 +148,16 @@ def steer_and_watch(tmux: Tmux, env: dict) -> None:
         status(env)), 30, 0.2, what="status")
     for n in names:
         assert running_pid(screen, n) == st[n]["pid"]
-    # the output pane: a screen node's and a log node's lines, tagged
-    tmux.wait_screen(lambda s: re.search(r"\[/alpha\] .*tick \d+", s) and re.search(r"\[/beta\] .*tick \d+", s),
-                     "tagged output of both nodes")
+    # the output pane: a screen node's lines, and an output="log" node's WARN and ERROR lines from /rosout
+    # (its INFO lines stay in its log file, as under roslaunch), each tagged with the node and the level
+    screen = tmux.wait_screen(lambda s: re.search(r"\[/alpha\] .*tick \d+", s) and re.search(
+        r"^\[/beta\] WARN careful \d+", s, re.M) and re.search(r"^\[/beta\] ERROR broken \d+", s, re.M),
+        "tagged output of both nodes")
+    assert not re.search(r"\[/beta\].*tick", screen)
+    # in the level's colour (tmux's escapes: 33 yellow, 31 red)
+    coloured = tmux.screen(escapes=True)
+    assert re.search(r"\x1b\[[0-9;]*33[0-9;]*m\[/beta\] WARN careful", coloured)
+    assert re.search(r"\x1b\[[0-9;]*31[0-9;]*m\[/beta\] ERROR broken", coloured)
     # select /beta (the second row) and stop it, then start it: a new pid
     tmux.keys("j")
     tmux.wait_screen(lambda s: any(line.split()[:2] == [">", "/beta"] for line in s.splitlines() if line.split()),
@@ -251,7 +269,7 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmu
         assert b"no terminal" in ui.stderr.read()
         # a terminal that cannot draw (TERM=dumb): the same plain lines
         tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="dumb"))
-        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] .*tick \d+", s),
+        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] ERROR broken \d+", s),
                                   "plain lines under TERM=dumb")
         assert "\u2500\u2500 output" not in screen  # (no full-screen view)
     finally:

@@ -12,21 +12,24 @@ import pytest
 
 from launcher.net.xmlrpc import Fault
 from launcher.services import server as server_mod
+from launcher.services.rosouttail import RosoutTail
 from launcher.services.server import LaunchServer
 from launcher.operate.web import allowed_host, parse_address, round_sample
 from launcher.fleet.state import Fleet
 
 
-def make_server(tmp_path, names=("/a", "/b")):
+def make_server(tmp_path, names=("/a", "/b"), log_nodes=(), warnings=None):
     fleet = Fleet()
     specs = {}
     for name in names:
         fleet.add(name)
-        specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])))
+        specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])),
+                                      output="log" if name in log_nodes else "screen")
     # (the run as the server reads it: through its supervisor here, through `nodes.spec` in the RunView that
     # main's runservices brings; both are given so that this test holds on either side of that merge)
     supervisor = SimpleNamespace(node=lambda n: SimpleNamespace(spec=specs[n]) if n in specs else None)
-    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get))
+    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get),
+                          warnings=warnings)
     return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), fleet
 
 
@@ -66,6 +69,49 @@ def test_a_waiting_output_call_answers_when_a_node_writes(tmp_path, monkeypatch)
         return await asyncio.wait_for(call, 5)
     code, _msg, text = asyncio.run(scenario())
     assert json.loads(text)["output"] == {"/a": "after\n"}  # (what came after the call, not before)
+
+
+def test_log_nodes_give_their_rosout_warnings_not_their_file(tmp_path):
+    tail = RosoutTail()
+    server, _ = make_server(tmp_path, ("/screen", "/quiet"), log_nodes=("/quiet",), warnings=tail)
+    (tmp_path / "quiet-stdout.log").write_text("info line\n")
+    tail.add(4, "/quiet", "before the reader came")
+    first = output(server, {})
+    assert first == {"offsets": {"/screen": 0, "@rosout": 1}, "output": {}, "log": []}
+    with open(tmp_path / "quiet-stdout.log", "a") as f:
+        f.write("[INFO] more info\n[WARN] careful\n")
+    tail.add(4, "/quiet", "careful")
+    tail.add(8, "/quiet", "broken")
+    tail.add(16, "/screen", "its own file has it")  # (a screen node's lines are in its output already)
+    tail.add(4, "/elsewhere", "a node of another launch")
+    second = output(server, first["offsets"])
+    assert second["log"] == [["/quiet", "WARN", "careful"], ["/quiet", "ERROR", "broken"]]
+    assert second["output"] == {} and second["offsets"]["@rosout"] == 5
+    # its file on request (the view's recent output): read as any node's
+    assert output(server, {"/quiet": -15})["output"] == {"/quiet": "[WARN] careful\n"}
+
+
+def test_a_waiting_output_call_answers_when_a_warning_comes(tmp_path, monkeypatch):
+    monkeypatch.setattr(server_mod, "OUTPUT_CHECK_S", 0.01)
+    tail = RosoutTail()
+    server, _ = make_server(tmp_path, ("/a",), log_nodes=("/a",), warnings=tail)
+
+    async def scenario():
+        call = asyncio.ensure_future(server.launcher_output("{}", 30))
+        await asyncio.sleep(0.05)
+        assert not call.done()
+        tail.add(8, "/a", "oops")
+        return await asyncio.wait_for(call, 5)
+    code, _msg, text = asyncio.run(scenario())
+    assert json.loads(text)["log"] == [["/a", "ERROR", "oops"]]
+
+
+def test_the_tail_keeps_the_newest():
+    tail = RosoutTail(kept=3)
+    for i in range(5):
+        tail.add(4, "/a", str(i))
+    assert tail.since(0) == [("/a", "WARN", "2"), ("/a", "WARN", "3"), ("/a", "WARN", "4")]
+    assert tail.since(3) == [("/a", "WARN", "3"), ("/a", "WARN", "4")] and tail.since(5) == []
 
 
 def test_bad_output_arguments_are_a_fault(tmp_path):
