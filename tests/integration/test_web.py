@@ -33,6 +33,14 @@ rospy.init_node("listener")
 rospy.Subscriber("chatter", String, lambda m: None)
 rospy.spin()
 """
+Warner = """#!/usr/bin/python3
+import rospy
+rospy.init_node("warner")
+while not rospy.is_shutdown():
+    rospy.loginfo("fine")
+    rospy.logerr("broken")
+    rospy.sleep(0.3)
+"""
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
@@ -73,12 +81,13 @@ def status(env: dict) -> dict:
 
 
 def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strangers(tmp_path, browser):
-    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener})
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener, "warner": Warner})
     env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
     port = free_port()
     lp = Launcher(["--web", str(port), write_launch(str(tmp_path), """
       <node pkg="web_tests" type="talker" name="talker"/>
       <node pkg="web_tests" type="listener" name="listener"/>
+      <node pkg="web_tests" type="warner" name="warner"/>
     """)], env, str(tmp_path))
     try:
         lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
@@ -94,6 +103,10 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
             return cells[0].text if cells else ""
         until(lambda: all(page_pid(n) == str(pids[n]) for n in names), 30, 0.2, what="every row with its pid")
         assert "127.0.0.1:%d" % port in browser.find_element(By.ID, "bound").text
+        # an output="log" node's ERROR lines from /rosout, tagged and in their level's colour; not its INFO
+        until(lambda: any(e.text.startswith("[/warner] ERROR broken") for e in browser.find_elements(
+            By.CSS_SELECTOR, "#output span.level-ERROR")), 30, 0.2, what="the log node's ERROR line, coloured")
+        assert "fine" not in browser.find_element(By.ID, "output").text
         # restart /talker with the token: asked once, kept in the tab
         with open(info["token_file"]) as f:
             token = f.read().strip()
