@@ -83,6 +83,12 @@ def _bytes(value: Any) -> bytes:
 _LEVEL_TEXT = {k: v.decode() for k, v in _LEVEL_NAMES.items()}
 
 
+def peek_level(payload: bytes) -> int:
+    """A serialized Log's level without decoding it: after the header's seq, stamp and frame_id."""
+    at = 16 + int.from_bytes(payload[12:16], "little")
+    return payload[at] if len(payload) > at else 0
+
+
 def _text(value: Any) -> str:
     return value if isinstance(value, str) else _bytes(value).decode("utf-8", "replace")
 
@@ -405,8 +411,8 @@ class Rosout:
     def _on_log(self, payload: bytes, link: PublisherLink) -> None:
         self.received += 1
         self._agg.publish(payload)
-        if self.file is None and not self.warning_listeners:
-            return
+        if self.file is None and (not self.warning_listeners or peek_level(payload) < WARN):
+            return  # (nothing to decode it for)
         try:
             ts = self._types()
         except Exception:  # rosbags unusable: nothing can be decoded (said once, by _unusable)
