@@ -186,7 +186,7 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
         return max(1, min(len(state.visible()) or 1, (rows - 4) // 2))
 
     def title() -> list:
-        return [("class:title", state.title().ljust(size()[1]))]
+        return [("class:title", state.title(size()[1]).ljust(size()[1]))]
 
     def rows() -> list:
         return state.table_rows(table_height(), time.time(), size()[1])

@@ -231,13 +231,17 @@ class ViewState:
         """The column names in the widths of the rows under them (table_rows first)."""
         return MARK + self.sep.join(self.header).rstrip()
 
-    def title(self) -> str:
+    def title(self, width: int = 0) -> str:
+        """The launch, its run id, how many nodes run (and the filter); in `width` columns (0: no limit) the
+        run id goes first (a uuid: the counts matter more at a glance)."""
         shown, total = len(self.visible()), len(self.nodes)
         running = sum(1 for n in self.nodes.values() if n["state"] == "running")
-        text = "launch %s  run %s  %d/%d running" % (self.info.get("uri", "?"), self.info.get("run_id", "?"),
-                                                   running, total)
+        counts = "%d/%d running" % (running, total)
         if self.filter:
-            text += "  filter [%s]: %d shown" % (self.filter, shown)
+            counts += "  filter [%s]: %d shown" % (self.filter, shown)
+        text = "launch %s  run %s  %s" % (self.info.get("uri", "?"), self.info.get("run_id", "?"), counts)
+        if width and len(text) > width:
+            text = "launch %s  %s" % (self.info.get("uri", "?"), counts)
         return text
 
     @staticmethod

@@ -156,3 +156,12 @@ def test_a_late_view_starts_its_sparkline_with_the_samples_the_launch_kept():
     assert list(line[:10]) == sorted(line[:10])  # (rising as the samples did)
     assert v.spark("/a", 4) == line[-4:] and v.spark("/b", 20) == " "  # (/b: no sample, not running)
     assert "/gone" not in v.history
+
+
+def test_the_title_leaves_out_the_run_id_when_narrow():
+    v = ViewState()
+    v.load({"uri": "http://127.0.0.1:35315/", "run_id": "147fb780-e92a-11f1-9e20-02fc00000001",
+            "nodes": [node("/a"), node("/b", "stopped", None)]})
+    assert v.title() == "launch http://127.0.0.1:35315/  run 147fb780-e92a-11f1-9e20-02fc00000001  1/2 running"
+    assert v.title(80) == "launch http://127.0.0.1:35315/  1/2 running"
+    assert v.title(120) == v.title()
