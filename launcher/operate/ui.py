@@ -171,8 +171,8 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     info = client.status(uri)
     state.load(info)
     state.past_samples(past_samples(uri))
-    if note:
-        state.lines.append(Line("launch", note, "state"))
+    for line in note.splitlines():
+        state.lines.append(Line("launch", line, "state"))
     filtering = [False]
 
     def size() -> tuple[int, int]:
@@ -513,7 +513,9 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
                         console_path, kept = moved, True
                     except OSError:  # (another file system: the file stays where it is until the end)
                         pass
-                run_view(uri, launch_proc=proc, note="the launch's console: %s (q stops the launch)" % console_path)
+                # (the directory on a line of its own: an 80-column pane shows it whole)
+                where = (os.path.dirname(console_path) + os.sep, os.path.basename(console_path))
+                run_view(uri, launch_proc=proc, note="q stops the launch; its console is %s in\n%s" % where[::-1])
             except client.ToolError as e:
                 sys.stderr.write("launch --ui: %s\n" % e)
             except KeyboardInterrupt:  # (a SIGINT from outside the terminal's keys: the same stop)

@@ -290,9 +290,14 @@ def test_a_killed_view_stops_its_launch_and_an_attached_one_does_not(tmp_path, t
     """`launch --ui`'s launch is the view's child: the view's death (SIGKILL: nothing could pass a stop on)
     stops it as Ctrl-C does. `launcher ui` only looks at a launch: its death changes nothing."""
     launch = write_launch(str(tmp_path), '<node pkg="ui_tests" type="sleeper" name="s"/>')
-    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"))
+    # (wide: the test's log directory is a long path; ~/.ros/log/RUN_ID/ fits in 80 columns)
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"), 160, 24)
     screen = tmux.wait_screen(lambda s: running_pid(s, "/s"), "/s running")
-    pid, launch_pid = running_pid(screen, "/s"), json.loads(tool(env, "status", "--json").stdout)["pid"]
+    info = json.loads(tool(env, "status", "--json").stdout)
+    pid, launch_pid = running_pid(screen, "/s"), info["pid"]
+    # where the launch's console goes
+    assert "[launch] q stops the launch; its console is launch-console.log in\n[launch] %s/\n" % info["log_dir"] \
+        in screen, screen
     os.kill(tmux.pane_pid(), signal.SIGKILL)
     until(lambda: not pid_alive(pid) and not pid_alive(launch_pid), 30, 0.1, what="the launch stopped in order")
     assert not status(env)
