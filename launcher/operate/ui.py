@@ -154,7 +154,7 @@ def read_token(info: dict[str, Any], path: str | None = None) -> str:
 def run_view(uri: str, on_quit: Callable[[], None] | None = None,
              launch_proc: subprocess.Popen | None = None, token_file: str | None = None, note: str = "") -> None:
     """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends); `note`
-    is the output pane's first line."""
+    is the output pane's first lines."""
     try:
         from prompt_toolkit.application import Application
     except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
@@ -188,16 +188,16 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     def title() -> list:
         return [("class:title", state.title(size()[1]).ljust(size()[1]))]
 
-    def rows() -> list:
+    def fitted_rows() -> list:
         return state.table_rows(table_height(), time.time(), size()[1])
 
     def header() -> list:
-        rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
+        fitted_rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
         return [("class:header", state.table_header(time.time())[:size()[1]])]
 
     def table() -> list:
         out: list = []
-        rows = state.table_rows(table_height(), time.time(), size()[1])
+        rows = fitted_rows()
         for i, (text, style, selected) in enumerate(rows):
             cls = "class:state.%s" % style if style else ""
             if selected:
