@@ -258,15 +258,22 @@ class LaunchServer:
                 paths[status.name] = (spec.stdout_path, spec.output != "screen")
         return paths
 
-    def _log_node(self, name: str) -> bool:
-        spec = self._spec(name)
-        return spec is not None and spec.output != "screen"
+    def _warnings_of(self) -> Any:
+        """Whose /rosout warnings a view gets: this machine's output="log" nodes, and the other machines'
+        nodes (their output files are there; /rosout is the one way their warnings reach the view)."""
+        remote = set(self.run.nodes.remote_names())
+
+        def shown(name: str) -> bool:
+            spec = self._spec(name)
+            return spec.output != "screen" if spec is not None else name in remote
+        return shown
 
     def launcher_output(self, offsets: Any, timeout: Any = 0.0) -> Any:
         """The nodes' new output: `offsets` is JSON {node: offset in its -stdout.log}; a node left out is
         read from its end (only what comes next), a negative offset -N gives its last N bytes first.
         Nodes with output="log" are the exception, as under roslaunch (their file is their log): left out,
-        they are not followed, and their WARN, ERROR and FATAL lines from /rosout come instead, after the
+        they are not followed, and their WARN, ERROR and FATAL lines from /rosout come instead (those of
+        the other machines' nodes too), after the
         number given as "@rosout" (left out: from now). Waits up to `timeout` seconds (at most
         CHANGES_WAIT_MAX_S) while there is none. [1, text, JSON {"offsets": {node: the next offset, "@rosout":
         the next number}, "output": {node: text}, "log": [[node, level, text], ...]}] (the offsets of every
@@ -308,7 +315,10 @@ class LaunchServer:
                 nexts[name] = at
             log: list = []
             if tail is not None:
-                log = [list(line) for line in tail.since(asked[ROSOUT_KEY]) if self._log_node(line[0])]
+                lines = tail.since(asked[ROSOUT_KEY])
+                if lines:
+                    shown = self._warnings_of()
+                    log = [list(line) for line in lines if shown(line[0])]
                 nexts[ROSOUT_KEY] = tail.seq
             return nexts, output, log
 

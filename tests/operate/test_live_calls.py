@@ -18,7 +18,7 @@ from launcher.operate.web import allowed_host, parse_address, round_sample
 from launcher.fleet.state import Fleet
 
 
-def make_server(tmp_path, names=("/a", "/b"), log_nodes=(), warnings=None):
+def make_server(tmp_path, names=("/a", "/b"), log_nodes=(), warnings=None, remote=()):
     fleet = Fleet()
     specs = {}
     for name in names:
@@ -28,8 +28,8 @@ def make_server(tmp_path, names=("/a", "/b"), log_nodes=(), warnings=None):
     # (the run as the server reads it: through its supervisor here, through `nodes.spec` in the RunView that
     # main's runservices brings; both are given so that this test holds on either side of that merge)
     supervisor = SimpleNamespace(node=lambda n: SimpleNamespace(spec=specs[n]) if n in specs else None)
-    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get),
-                          warnings=warnings)
+    nodes = SimpleNamespace(spec=specs.get, remote_names=lambda: list(remote))
+    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=nodes, warnings=warnings)
     return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), fleet
 
 
@@ -73,7 +73,8 @@ def test_a_waiting_output_call_answers_when_a_node_writes(tmp_path, monkeypatch)
 
 def test_log_nodes_give_their_rosout_warnings_not_their_file(tmp_path):
     tail = RosoutTail()
-    server, _ = make_server(tmp_path, ("/screen", "/quiet"), log_nodes=("/quiet",), warnings=tail)
+    server, _ = make_server(tmp_path, ("/screen", "/quiet"), log_nodes=("/quiet",), warnings=tail,
+                            remote=("/far",))
     (tmp_path / "quiet-stdout.log").write_text("info line\n")
     tail.add(4, "/quiet", "before the reader came")
     first = output(server, {})
@@ -84,9 +85,11 @@ def test_log_nodes_give_their_rosout_warnings_not_their_file(tmp_path):
     tail.add(8, "/quiet", "broken")
     tail.add(16, "/screen", "its own file has it")  # (a screen node's lines are in its output already)
     tail.add(4, "/elsewhere", "a node of another launch")
+    tail.add(8, "/far", "on another machine")  # (its file is there: /rosout is how its warnings come)
     second = output(server, first["offsets"])
-    assert second["log"] == [["/quiet", "WARN", "careful"], ["/quiet", "ERROR", "broken"]]
-    assert second["output"] == {} and second["offsets"]["@rosout"] == 5
+    assert second["log"] == [["/quiet", "WARN", "careful"], ["/quiet", "ERROR", "broken"],
+                             ["/far", "ERROR", "on another machine"]]
+    assert second["output"] == {} and second["offsets"]["@rosout"] == 6
     # its file on request (the view's recent output): read as any node's
     assert output(server, {"/quiet": -15})["output"] == {"/quiet": "[WARN] careful\n"}
 
