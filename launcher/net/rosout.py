@@ -6,7 +6,7 @@ import asyncio
 import logging
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, BinaryIO
 
 from launcher.net.slave import SlaveNode, default_host
@@ -21,6 +21,7 @@ MAX_FILE_SIZE = 100 * 1024 * 1024
 MAX_BACKUPS = 10
 
 _LEVEL_NAMES = {1: b"DEBUG", 2: b"INFO", 4: b"WARN", 8: b"ERROR", 16: b"FATAL"}
+WARN = 4  # rosgraph_msgs/Log's level: this and above (ERROR, FATAL) go to warning_listeners
 
 # The only messages rosout speaks, as in their .msg files: the type store is built from these
 # alone (~3 ms) rather than from rosbags' whole Noetic store (~100 ms at every launch's start).
@@ -80,6 +81,16 @@ def _bytes(value: Any) -> bytes:
 
 
 _LEVEL_TEXT = {k: v.decode() for k, v in _LEVEL_NAMES.items()}
+
+
+def peek_level(payload: bytes) -> int:
+    """A serialized Log's level without decoding it: after the header's seq, stamp and frame_id."""
+    at = 16 + int.from_bytes(payload[12:16], "little")
+    return payload[at] if len(payload) > at else 0
+
+
+def _text(value: Any) -> str:
+    return value if isinstance(value, str) else _bytes(value).decode("utf-8", "replace")
 
 
 def format_log_line(msg: Any, omit_topics: bool = False) -> bytes:
@@ -267,6 +278,8 @@ class Rosout:
         self._agg: Any = None
         self._flush_pending = False
         self._watch: asyncio.Task | None = None
+        # called with (level, node name, text) of each WARN, ERROR or FATAL message (the live views' tail)
+        self.warning_listeners: list[Callable[[int, str, str], None]] = []
 
     @property
     def log_path(self) -> str | None:
@@ -398,8 +411,8 @@ class Rosout:
     def _on_log(self, payload: bytes, link: PublisherLink) -> None:
         self.received += 1
         self._agg.publish(payload)
-        if self.file is None:
-            return
+        if self.file is None and (not self.warning_listeners or peek_level(payload) < WARN):
+            return  # (nothing to decode it for)
         try:
             ts = self._types()
         except Exception:  # rosbags unusable: nothing can be decoded (said once, by _unusable)
@@ -414,6 +427,12 @@ class Rosout:
                 self.undecodable += 1
                 log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
                 return
+        if msg.level >= WARN and self.warning_listeners:
+            name, text = _text(msg.name), _text(msg.msg)
+            for listener in self.warning_listeners:
+                listener(msg.level, name, text)
+        if self.file is None:
+            return
         self.file.write(format_log_line(msg, self.omit_topics))
         if not self._flush_pending:
             # One flush per burst of messages, not per line: same durability as rosout.cpp's

@@ -15,6 +15,8 @@ terminal (or with TERM=dumb) the view says so and prints plain lines.
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
 import json
 import os
 import signal
@@ -29,7 +31,8 @@ from typing import Any, Callable
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
 from launcher.model import token as run_token
-from launcher.operate.view import HELP, NODE_OUTPUT, ViewState
+from launcher.operate.view import HELP, HISTORY, NODE_OUTPUT, Line, ViewState, cut_left
+from launcher.workspace.roshome import log_root
 
 POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)
 SAMPLE_PERIOD_S = 1.0  # the CPU/RSS columns' refresh
@@ -45,17 +48,27 @@ def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
     return value
 
 
-def new_output(uri: str, offsets: dict[str, int]) -> dict[str, str]:
-    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: node -> text."""
+def new_output(uri: str, offsets: dict[str, int]) -> tuple[dict[str, str], list[list[str]]]:
+    """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: (node -> text,
+    [[node, level, text], ...] the WARN/ERROR/FATAL lines of output="log" nodes from /rosout)."""
     answer = json.loads(call(uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
     offsets.update(answer["offsets"])
-    return answer["output"]
+    return answer["output"], answer.get("log") or []
 
 
 def recent_output(uri: str, node: str) -> str:
     """The end of a node's output (its -stdout.log), as the launch's server reads it."""
     answer = json.loads(call(uri, "launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
     return answer["output"].get(node, "")
+
+
+def past_samples(uri: str) -> dict[str, list]:
+    """The samples the launch kept of each node ({node: [[time, cpu, rss], ...]}): a view attaching late
+    starts its history with them. {} from a launch that keeps none (an older launcher)."""
+    try:
+        return json.loads(call(uri, "launcher_samples", True))
+    except (OSError, XmlRpcError, Fault, ValueError):
+        return {}
 
 
 def terminal_ok() -> bool:
@@ -115,9 +128,14 @@ class Feed:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            output = new_output(self.uri, offsets)
-            if output:
-                self.post(lambda: [self.state.output(node, text) for node, text in output.items()])
+            output, log = new_output(self.uri, offsets)
+            if output or log:
+                def show() -> None:
+                    for node, text in output.items():
+                        self.state.output(node, text)
+                    for node, level, text in log:
+                        self.state.warning(node, level, text)
+                self.post(show)
         self._loop(body)
 
 
@@ -134,8 +152,9 @@ def read_token(info: dict[str, Any], path: str | None = None) -> str:
 
 
 def run_view(uri: str, on_quit: Callable[[], None] | None = None,
-             launch_proc: subprocess.Popen | None = None, token_file: str | None = None) -> None:
-    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends)."""
+             launch_proc: subprocess.Popen | None = None, token_file: str | None = None, note: str = "") -> None:
+    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends); `note`
+    is the output pane's first lines."""
     try:
         from prompt_toolkit.application import Application
     except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
@@ -151,6 +170,9 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     state = ViewState()
     info = client.status(uri)
     state.load(info)
+    state.past_samples(past_samples(uri))
+    for line in note.splitlines():
+        state.lines.append(Line("launch", line, "state"))
     filtering = [False]
 
     def size() -> tuple[int, int]:
@@ -164,14 +186,18 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
         return max(1, min(len(state.visible()) or 1, (rows - 4) // 2))
 
     def title() -> list:
-        return [("class:title", state.title().ljust(size()[1]))]
+        return [("class:title", state.title(size()[1]).ljust(size()[1]))]
+
+    def fitted_rows() -> list:
+        return state.table_rows(table_height(), time.time(), size()[1])
 
     def header() -> list:
-        return [("class:header", state.table_header(time.time()))]
+        fitted_rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
+        return [("class:header", state.table_header(time.time())[:size()[1]])]
 
     def table() -> list:
         out: list = []
-        rows = state.table_rows(table_height(), time.time())
+        rows = fitted_rows()
         for i, (text, style, selected) in enumerate(rows):
             cls = "class:state.%s" % style if style else ""
             if selected:
@@ -188,12 +214,21 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
                 else "output%s" % (" (%d muted)" % len(state.muted) if state.muted else ""))
         if state.scroll:
             what += "  [scrolled back %d lines; End follows]" % state.scroll
-        return [("class:rule", ("\u2500\u2500 %s " % what).ljust(size()[1], "\u2500"))]
+        cols = size()[1]
+        left = "\u2500\u2500 %s " % what
+        # the selected node's CPU over the last minute, at the right end (when there is room)
+        spark = state.spark(state.selected, min(HISTORY, cols // 4)) if state.selected else ""
+        right = " %s cpu %s \u2500\u2500" % (cut_left(state.selected, 16), spark) if spark else ""
+        if len(left) + len(right) > cols:
+            right = ""
+        return [("class:rule", left.ljust(cols - len(right), "\u2500") + right)]
 
     def output() -> list:
         rows, cols = size()
         height = max(1, rows - 4 - table_height())
-        return [("", "\n".join(line[:cols] for line in state.output_rows(height)))]
+        entries = state.output_entries(height)
+        return [("class:level.%s" % style if style else "", line[:cols] + ("\n" if i < len(entries) - 1 else ""))
+                for i, (line, style) in enumerate(entries)]
 
     def help_line() -> list:
         if filtering[0]:
@@ -339,7 +374,8 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
     style = Style.from_dict({"title": "reverse bold", "header": "bold", "rule": "ansiblue", "help": "ansicyan",
                              "message": "ansiyellow bold", "dim": "ansibrightblack",
                              "state.green": "ansigreen", "state.yellow": "ansiyellow", "state.red": "ansired bold",
-                             "state.grey": "ansibrightblack"})
+                             "state.grey": "ansibrightblack", "level.warn": "ansiyellow", "level.error": "ansired",
+                             "level.fatal": "ansired bold reverse"})
     # (refresh_interval: the uptimes tick; mouse off: the terminal's own selection keeps working)
     app: Any = Application(layout=layout, key_bindings=kb, style=style, full_screen=True, refresh_interval=1.0)
 
@@ -443,15 +479,42 @@ def main(argv: list[str]) -> int:
 
 # ---- `launch --ui` -----------------------------------------------------------------------------------------
 
+PR_SET_PDEATHSIG = 1
+CONSOLE_NAME = "launch-console.log"  # the launch's console under --ui, in its run's log directory
+
+
+def _stop_with_parent() -> Callable[[], None]:
+    """A preexec_fn: the child gets SIGINT (its orderly stop, as at Ctrl-C) when the view that started it dies,
+    SIGKILL included; else a launch would run on with nobody in front of it and no terminal to stop it from."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)  # (loaded before the fork)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGINT, 0, 0, 0)
+        if os.getppid() != parent:  # (the view died before the line above: nothing has started yet)
+            os._exit(1)
+    return preexec
+
+
 def launch_with_view(args: list[str], master_uri: str) -> int:
-    """`launch ARGS` as a child process (its console to a file), the view in front; quitting the view stops
-    the launch as Ctrl-C does and waits for its end. Returns the launch's exit status."""
-    fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log")
+    """`launch ARGS` as a child process (its console to a file that ends up in the run's log directory), the
+    view in front; quitting the view stops the launch as Ctrl-C does and waits for its end, and so does the
+    view's death (SIGKILL too). Returns the launch's exit status."""
+    # the console's file starts in the log root (the run's directory is named once the launch has its run id)
+    # so that moving it there is a rename on the same file system, which the launch writing it does not notice
+    root = log_root(os.environ)
+    try:
+        os.makedirs(root, exist_ok=True)
+        fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log", dir=root)
+    except OSError:
+        fd, console_path = tempfile.mkstemp(prefix="launch-ui-", suffix=".log")
+    kept = False  # whether the console's file is in the run's log directory (else it is removed at the end)
     env = dict(os.environ, ROS_MASTER_URI=master_uri)
     # its own session: the terminal's signals are the view's, which passes the stop on (one Ctrl-C, not two)
     with os.fdopen(fd, "wb") as out:
         proc = subprocess.Popen([sys.executable, "-m", "launcher"] + args, stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+                                stdin=subprocess.DEVNULL, env=env, start_new_session=True,
+                                preexec_fn=_stop_with_parent())
 
     def stop_launch() -> None:
         if proc.poll() is None:
@@ -464,13 +527,23 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
         uri = _wait_for_launch(proc, master_uri)
         if uri is not None:
             try:
-                run_view(uri, launch_proc=proc)
+                info = client.status(uri)
+                if info.get("log_dir"):
+                    moved = os.path.join(info["log_dir"], CONSOLE_NAME)
+                    try:
+                        os.rename(console_path, moved)
+                        console_path, kept = moved, True
+                    except OSError:  # (another file system: the file stays where it is until the end)
+                        pass
+                # (the directory on a line of its own: an 80-column pane shows it whole)
+                where = (os.path.dirname(console_path) + os.sep, os.path.basename(console_path))
+                run_view(uri, launch_proc=proc, note="q stops the launch; its console is %s in\n%s" % where[::-1])
             except client.ToolError as e:
                 sys.stderr.write("launch --ui: %s\n" % e)
             except KeyboardInterrupt:  # (a SIGINT from outside the terminal's keys: the same stop)
                 pass
             if proc.poll() is None:
-                sys.stderr.write("stopping the launch (its output: %s) ...\n" % console_path)
+                sys.stderr.write("stopping the launch (its console: %s) ...\n" % console_path)
                 sys.stderr.flush()
                 stop_launch()
         while True:
@@ -484,6 +557,13 @@ def launch_with_view(args: list[str], master_uri: str) -> int:
             signal.signal(sig, handler)
     # the launch's last words (all of them when it ended before the view could attach: a load error)
     sys.stdout.write(_tail(console_path, 20 if uri is not None else None))
+    if kept:
+        sys.stdout.write("the launch's console: %s\n" % console_path)
+    else:
+        try:
+            os.unlink(console_path)
+        except OSError:
+            pass
     sys.stdout.flush()
     return status if status >= 0 else 128 - status
 

@@ -65,7 +65,9 @@ class Hub:
         self.clients: list[queue.Queue] = []
         self.sent: dict[str, list] = {}  # the samples the pages have
         # each node's samples over the last minute, as a new page's sparklines start (then it keeps its own)
-        self.history: dict[str, collections.deque] = {}
+        self.history: dict[str, collections.deque] = {
+            name: collections.deque((round_sample(cpu, rss) for _t, cpu, rss in kept), maxlen=HISTORY)
+            for name, kept in reader.past_samples(uri).items()}  # (what the launch kept: full from the start)
         self.gone = threading.Event()
 
     def start(self) -> None:
@@ -147,9 +149,9 @@ class Hub:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            output = reader.new_output(self.uri, offsets)
-            if output:
-                self.broadcast({"type": "output", "output": output})
+            output, log = reader.new_output(self.uri, offsets)
+            if output or log:
+                self.broadcast({"type": "output", "output": output, "log": log})
         self._loop(body)
 
     def recent_output(self, node: str) -> str:

@@ -11,9 +11,11 @@ Added calls: `launcher_status` (the run and every node's state as one JSON
 text: a 500-node status must cost the launcher little), `launcher_changes`
 (the fleet's changes after a sequence number, waiting for one: a long poll), and
 `launcher_samples` (each running node's CPU and RSS, what a live view redraws
-every second), `launcher_output` (the nodes' output from their
-`-stdout.log` files after the offsets a reader has: a long poll too, so a view
-on another machine shows output from files it cannot read), and
+every second; or the last minute of them, what a view attaching late starts its
+sparklines with), `launcher_output` (the nodes' output from their
+`-stdout.log` files after the offsets a reader has, and for output="log" nodes
+their WARN/ERROR/FATAL lines from /rosout: a long poll too, so a view on
+another machine shows output from files it cannot read), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)` and
 `launcher_reload(token, args, dry_run)` (the launch's files read again and the
 difference applied, run/reload.py), which are refused with a fault unless
@@ -40,6 +42,7 @@ from launcher.fleet import processes
 from launcher.fleet.state import EVENTS_FILE, LOCAL_HOST
 
 OUTPUT_CHECK_S = 0.5  # how often a waiting launcher_output looks at the files' sizes (a node writes its own file)
+ROSOUT_KEY = "@rosout"  # in launcher_output's offsets: the /rosout warnings' number (no node name has an "@")
 OUTPUT_MAX_BYTES = 64 * 1024  # of one node's output in one answer (a reader asks again for the rest)
 CHANGES_WAIT_MAX_S = 60.0  # a long poll's longest wait (the client's call timeout must be longer)
 STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
@@ -234,43 +237,71 @@ class LaunchServer:
                                              separators=(",", ":"), default=str)]
         return changes()
 
-    def launcher_samples(self) -> list:
+    def launcher_samples(self, history: Any = False) -> list:
         """[1, text, JSON {node: [cpu (cores), rss (bytes)]}] of the running nodes with a sample: the columns
-        that change without a state change, a few bytes a node rather than the whole status."""
+        that change without a state change, a few bytes a node rather than the whole status. With `history`
+        true, the samples the fleet keeps of each node (its last HISTORY, a minute at the default period),
+        JSON {node: [[time, cpu, rss], ...]}: a view that attaches late draws its sparklines at once."""
         fleet = self.run.fleet
-        samples = {s.name: [s.cpu, s.rss] for s in fleet if s.cpu is not None} if fleet is not None else {}
+        if fleet is None:
+            return [1, "samples", "{}"]
+        if history:
+            kept = {s.name: [[round(t, 2), cpu, rss] for t, cpu, rss in s.history] for s in fleet if s.history}
+            return [1, "samples", json.dumps(kept, separators=(",", ":"))]
+        samples = {s.name: [s.cpu, s.rss] for s in fleet if s.cpu is not None}
         return [1, "samples", json.dumps(samples, separators=(",", ":"))]
 
-    def _output_paths(self) -> dict[str, str]:
+    def _output_paths(self) -> dict[str, tuple[str, bool]]:
+        """node -> (its -stdout.log, whether its output goes to that file only: output="log")."""
         paths = {}
         for status in self._local():
             spec = self._spec(status.name)
             if spec is not None and spec.stdout_path:
-                paths[status.name] = spec.stdout_path
+                paths[status.name] = (spec.stdout_path, spec.output != "screen")
         return paths
+
+    def _warnings_of(self) -> Any:
+        """Whose /rosout warnings a view gets: this machine's output="log" nodes, and the other machines'
+        nodes (their output files are there; /rosout is the one way their warnings reach the view)."""
+        remote = set(self.run.nodes.remote_names())
+
+        def shown(name: str) -> bool:
+            spec = self._spec(name)
+            return spec.output != "screen" if spec is not None else name in remote
+        return shown
 
     def launcher_output(self, offsets: Any, timeout: Any = 0.0) -> Any:
         """The nodes' new output: `offsets` is JSON {node: offset in its -stdout.log}; a node left out is
         read from its end (only what comes next), a negative offset -N gives its last N bytes first.
-        Waits up to `timeout` seconds (at most CHANGES_WAIT_MAX_S) while there is none. [1, text, JSON
-        {"offsets": {node: the next offset}, "output": {node: text}}] (every node's offset, the output of those
-        that wrote; a file shorter than its offset was rotated and is read from its start)."""
+        Nodes with output="log" are the exception, as under roslaunch (their file is their log): left out,
+        they are not followed, and their WARN, ERROR and FATAL lines from /rosout come instead (those of
+        the other machines' nodes too), after the
+        number given as "@rosout" (left out: from now). Waits up to `timeout` seconds (at most
+        CHANGES_WAIT_MAX_S) while there is none. [1, text, JSON {"offsets": {node: the next offset, "@rosout":
+        the next number}, "output": {node: text}, "log": [[node, level, text], ...]}] (the offsets of every
+        node followed, the output of those that wrote; a file shorter than its offset was rotated and is
+        read from its start). Without our rosout (a master found running), every node's file is followed."""
         try:
             asked = json.loads(offsets) if isinstance(offsets, str) else None
         except ValueError:
             asked = None
         if not isinstance(asked, dict) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_output(offsets: JSON {node: offset}, timeout: seconds)")
+        tail = getattr(self.run, "warnings", None)
+        if tail is not None and not isinstance(asked.get(ROSOUT_KEY), int):
+            asked[ROSOUT_KEY] = tail.seq
 
-        def read() -> tuple[dict, dict]:
+        def read() -> tuple[dict, dict, list]:
             nexts, output = {}, {}
-            for name, path in self._output_paths().items():
+            for name, (path, log_only) in self._output_paths().items():
+                at = asked.get(name)
+                if log_only and tail is not None and not isinstance(at, int):
+                    continue  # (its warnings come from /rosout)
                 try:
                     size = os.stat(path).st_size
                 except OSError:
                     nexts[name] = 0
                     continue
-                at = asked.get(name)
                 if not isinstance(at, int):
                     at = size
                 elif at < 0:
@@ -284,18 +315,28 @@ class LaunchServer:
                     at += len(data)
                     output[name] = data.decode("utf-8", "replace")
                 nexts[name] = at
-            return nexts, output
+            log: list = []
+            if tail is not None:
+                lines = tail.since(asked[ROSOUT_KEY])
+                if lines:
+                    shown = self._warnings_of()
+                    log = [list(line) for line in lines if shown(line[0])]
+                nexts[ROSOUT_KEY] = tail.seq
+            return nexts, output, log
 
         async def wait() -> list:
             # (the files are written by the nodes themselves: their sizes are looked at, a stat a node
             # every OUTPUT_CHECK_S, only while a reader waits)
             deadline = time.monotonic() + min(float(timeout), CHANGES_WAIT_MAX_S)
-            nexts, output = read()
-            while not output and time.monotonic() < deadline:
+            nexts, output, log = read()
+            while not output and not log and time.monotonic() < deadline:
                 asked.update(nexts)  # (a node first read from its end is read on from there)
                 await asyncio.sleep(min(OUTPUT_CHECK_S, max(0.0, deadline - time.monotonic())))
-                nexts, output = read()
-            return [1, "output", json.dumps({"offsets": nexts, "output": output}, separators=(",", ":"))]
+                nexts, output, log = read()
+            answer = {"offsets": nexts, "output": output}
+            if tail is not None:
+                answer["log"] = log
+            return [1, "output", json.dumps(answer, separators=(",", ":"))]
         return wait()
 
     def _check_token(self, verb: str, given_token: Any) -> None:

@@ -12,6 +12,7 @@ from typing import Any
 from launcher.model.errors import LaunchError
 from launcher.net.rosout import Rosout
 from launcher.services.diagnostics import Diagnostics
+from launcher.services.rosouttail import RosoutTail
 from launcher.services.server import LaunchServer
 from launcher.output import console
 from launcher.output.logdir import watch_log_disk
@@ -58,6 +59,11 @@ class RunView:
         if self._rosout is not None and self._rosout.rosout is not None:
             core.append(["rosout-1", 1])
         return core
+
+    @property
+    def warnings(self) -> Any:
+        """The recent WARN/ERROR/FATAL lines of /rosout (services.rosouttail.RosoutTail), None without our rosout."""
+        return self._rosout.tail if self._rosout is not None and self._rosout.rosout is not None else None
 
     def unresponsive(self) -> list[dict]:
         """The nodes our master cannot reach (its callbacks time out or are refused)."""
@@ -120,6 +126,7 @@ class RosoutService:
         self.log = log
         self.environ = environ
         self.rosout: Rosout | None = None
+        self.tail = RosoutTail()  # its warnings, for the live views (launcher_output)
 
     @property
     def processes(self) -> int:
@@ -138,6 +145,7 @@ class RosoutService:
             except Exception:  # noqa: BLE001
                 pass
             return
+        rosout.warning_listeners.append(self.tail.add)
         self.rosout = rosout
         console.printlog("started core service [/rosout]")
 

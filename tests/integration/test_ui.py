@@ -29,6 +29,17 @@ while not rospy.is_shutdown():
     rospy.sleep(0.3)
 """
 Sleeper = "#!/bin/sh\nexec sleep 1000\n"
+Warner = """#!/usr/bin/python3
+import rospy
+rospy.init_node("warner")
+n = 0
+while not rospy.is_shutdown():
+    n += 1
+    rospy.loginfo("tick %d", n)
+    rospy.logwarn("careful %d", n)
+    rospy.logerr("broken %d", n)
+    rospy.sleep(0.3)
+"""
 
 
 @pytest.fixture
@@ -54,15 +65,20 @@ class Tmux:
         subprocess.run(self.base + ["new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command, ";",
                                     "set-option", "-t", "t", "remain-on-exit", "on"], check=True)
 
-    def screen(self) -> str:
-        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"], capture_output=True, text=True,
-                              check=True).stdout
+    def screen(self, joined: bool = False, escapes: bool = False) -> str:
+        """What the pane shows (`joined`: a line the terminal wrapped is one line; `escapes`: with colours)."""
+        return subprocess.run(self.base + ["capture-pane", "-p", "-t", "t"] + (["-J"] if joined else []) +
+                              (["-e"] if escapes else []), capture_output=True, text=True, check=True).stdout
 
     def keys(self, *keys: str) -> None:
         subprocess.run(self.base + ["send-keys", "-t", "t"] + list(keys), check=True)
 
     def resize(self, cols: int, rows: int) -> None:
         subprocess.run(self.base + ["resize-window", "-t", "t", "-x", str(cols), "-y", str(rows)], check=True)
+
+    def pane_pid(self) -> int:
+        return int(subprocess.run(self.base + ["display-message", "-p", "-t", "t", "#{pane_pid}"], capture_output=True,
+                                  text=True, check=True).stdout)
 
     def pane_dead(self) -> bool:
         out = subprocess.run(self.base + ["display-message", "-p", "-t", "t", "#{pane_dead}"], capture_output=True,
@@ -107,14 +123,14 @@ def status(env: dict) -> dict:
 
 @pytest.fixture
 def env(tmp_path):
-    make_package(str(tmp_path / "pkgs"), "ui_tests", {"ticker": Ticker, "sleeper": Sleeper})
+    make_package(str(tmp_path / "pkgs"), "ui_tests", {"ticker": Ticker, "sleeper": Sleeper, "warner": Warner})
     e = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
     return e
 
 
 THREE = """
   <node pkg="ui_tests" type="ticker" name="alpha" output="screen" respawn="true"/>
-  <node pkg="ui_tests" type="ticker" name="beta"/>
+  <node pkg="ui_tests" type="warner" name="beta"/>
   <group ns="g"><node pkg="ui_tests" type="ticker" name="gamma" respawn="true"/></group>
 """
 
@@ -132,9 +148,16 @@ def steer_and_watch(tmux: Tmux, env: dict) -> None:
         status(env)), 30, 0.2, what="status")
     for n in names:
         assert running_pid(screen, n) == st[n]["pid"]
-    # the output pane: a screen node's and a log node's lines, tagged
-    tmux.wait_screen(lambda s: re.search(r"\[/alpha\] .*tick \d+", s) and re.search(r"\[/beta\] .*tick \d+", s),
-                     "tagged output of both nodes")
+    # the output pane: a screen node's lines, and an output="log" node's WARN and ERROR lines from /rosout
+    # (its INFO lines stay in its log file, as under roslaunch), each tagged with the node and the level
+    screen = tmux.wait_screen(lambda s: re.search(r"\[/alpha\] .*tick \d+", s) and re.search(
+        r"^\[/beta\] WARN careful \d+", s, re.M) and re.search(r"^\[/beta\] ERROR broken \d+", s, re.M),
+        "tagged output of both nodes")
+    assert not re.search(r"\[/beta\].*tick", screen)
+    # in the level's colour (tmux's escapes: 33 yellow, 31 red)
+    coloured = tmux.screen(escapes=True)
+    assert re.search(r"\x1b\[[0-9;]*33[0-9;]*m\[/beta\] WARN careful", coloured)
+    assert re.search(r"\x1b\[[0-9;]*31[0-9;]*m\[/beta\] ERROR broken", coloured)
     # select /beta (the second row) and stop it, then start it: a new pid
     tmux.keys("j")
     tmux.wait_screen(lambda s: any(line.split()[:2] == [">", "/beta"] for line in s.splitlines() if line.split()),
@@ -164,9 +187,16 @@ def test_launch_ui_shows_steers_and_stops_a_launch_of_rospy_nodes(tmp_path, tmux
     tmux.wait_screen(lambda s: any(line.startswith("\u2500\u2500 output") and len(line.rstrip()) == 100
                                    for line in s.splitlines()), "the view redrawn at 100 columns")
     pids = [n["pid"] for n in status(env).values()]
+    log_dir = json.loads(tool(env, "status", "--json").stdout)["log_dir"]
+    console = os.path.join(log_dir, "launch-console.log")
+    assert os.path.exists(console)  # (the launch's console, in its run's log directory)
     tmux.keys("q")  # = Ctrl-C: the launch's orderly stop
     tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
     assert not any(pid_alive(p) for p in pids)
+    # the view said where the console is; it holds the launch's lines, to its end
+    assert "the launch's console: %s" % console in tmux.screen(joined=True)
+    text = open(console).read()
+    assert "started roslaunch server" in text and "shutting down processing monitor" in text
 
 
 def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path, tmux, env):
@@ -184,16 +214,36 @@ def test_launcher_ui_attaches_to_a_running_launch_and_leaves_it_running(tmp_path
         lp.close()
 
 
-def test_thirty_nodes_scroll_in_80x24(tmp_path, tmux, env):
+def test_thirty_nodes_scroll_in_80x24_with_every_column_and_follow_resizes(tmp_path, tmux, env):
+    long = "/a_rather_long_namespace/and_a_long_node_name"
     launch = write_launch(str(tmp_path), "".join(
-        '<node pkg="ui_tests" type="sleeper" name="n%02d"/>\n' % i for i in range(30)))
+        '<node pkg="ui_tests" type="sleeper" name="n%02d"/>\n' % i for i in range(30)) +
+        '<group ns="%s"><node pkg="ui_tests" type="sleeper" name="%s"/></group>' % tuple(long[1:].split("/")))
     tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"), 80, 24)
     screen = tmux.wait_screen(lambda s: running_pid(s, "/n00"), "the first rows")
     assert row(screen, "/n29") is None  # (not all fit)
     assert all(len(line) <= 80 for line in screen.splitlines()) and len(screen.splitlines()) <= 24
-    tmux.keys(*["j"] * 29)
-    screen = tmux.wait_screen(lambda s: running_pid(s, "/n29"), "the last row scrolled into view")
+
+    def every_column(screen: str, names: list[str]) -> bool:
+        # name state pid uptime restarts last-exit cpu rss host: nine cells, the host last
+        rows = [row(screen, n) for n in names]
+        return all(r and len(r) == 9 and r[-1] == "localhost" for r in rows)
+    header = next(line for line in screen.splitlines() if line.split()[:2] == ["NODE", "STATE"])
+    assert header.split()[-1] == "HOST"
+    tmux.wait_screen(lambda s: every_column(s, ["/n%02d" % i for i in range(5)]), "every column of the rows")
+    tmux.keys(*["j"] * 30)
+
+    def abbreviated(s: str) -> str | None:
+        return next((c[0] for line in s.splitlines() for c in [line.split()[1:] if line.startswith(">") else []]
+                     if c and c[0].startswith("\u2026") and long.endswith(c[0][1:])), None)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/n29") and abbreviated(s), "the last rows scrolled into view")
     assert row(screen, "/n00") is None
+    assert every_column(screen, ["/n29", abbreviated(screen)])
+    tmux.resize(150, 24)  # the whole name, the long headers
+    tmux.wait_screen(lambda s: running_pid(s, long) and "RESTARTS" in s, "the full name at 150 columns")
+    tmux.resize(80, 24)
+    tmux.wait_screen(lambda s: abbreviated(s) and "RESTARTS" not in s and every_column(s, ["/n29"]),
+                     "abbreviated again at 80 columns")
     tmux.keys("C-c")
     tmux.wait_screen(lambda s: tmux.pane_dead(), "the launch ended")
 
@@ -219,7 +269,7 @@ def test_without_a_terminal_both_say_so_and_print_plain_lines(tmp_path, env, tmu
         assert b"no terminal" in ui.stderr.read()
         # a terminal that cannot draw (TERM=dumb): the same plain lines
         tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="dumb"))
-        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] .*tick \d+", s),
+        screen = tmux.wait_screen(lambda s: "TERM=dumb" in s and re.search(r"\[/beta\] ERROR broken \d+", s),
                                   "plain lines under TERM=dumb")
         assert "\u2500\u2500 output" not in screen  # (no full-screen view)
     finally:
@@ -256,5 +306,61 @@ def test_the_reload_key_applies_the_changed_files(tmp_path, tmux, env):
         screen = tmux.wait_screen(lambda s: running_pid(s, "/beta") not in (None, before["/beta"]),
                                   "/beta running anew")
         assert running_pid(screen, "/alpha") == before["/alpha"] and running_pid(screen, "/g/gamma") == before["/g/gamma"]
+    finally:
+        lp.close()
+
+
+def test_a_killed_view_stops_its_launch_and_an_attached_one_does_not(tmp_path, tmux, env):
+    """`launch --ui`'s launch is the view's child: the view's death (SIGKILL: nothing could pass a stop on)
+    stops it as Ctrl-C does. `launcher ui` only looks at a launch: its death changes nothing."""
+    launch = write_launch(str(tmp_path), '<node pkg="ui_tests" type="sleeper" name="s"/>')
+    # (wide: the test's log directory is a long path; ~/.ros/log/RUN_ID/ fits in 80 columns)
+    tmux.start([sys.executable, "-m", "launcher", "--ui", launch], dict(env, TERM="xterm"), 160, 24)
+    screen = tmux.wait_screen(lambda s: running_pid(s, "/s"), "/s running")
+    info = json.loads(tool(env, "status", "--json").stdout)
+    pid, launch_pid = running_pid(screen, "/s"), info["pid"]
+    # where the launch's console goes
+    assert "[launch] q stops the launch; its console is launch-console.log in\n[launch] %s/\n" % info["log_dir"] \
+        in screen, screen
+    os.kill(tmux.pane_pid(), signal.SIGKILL)
+    until(lambda: not pid_alive(pid) and not pid_alive(launch_pid), 30, 0.1, what="the launch stopped in order")
+    assert not status(env)
+    tmux.close()
+
+    lp = Launcher([launch], env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[s-\d+\]: started", 60)
+        pid = until(lambda: status(env).get("/s", {}).get("pid"), 30, 0.2, what="/s running")
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
+        tmux.wait_screen(lambda s: running_pid(s, "/s") == pid, "/s running in the attached view")
+        os.kill(tmux.pane_pid(), signal.SIGKILL)
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+        assert lp.proc.poll() is None and pid_alive(pid) and status(env)["/s"]["pid"] == pid
+    finally:
+        lp.close()
+
+
+def kept_samples(env: dict, name: str) -> int:
+    """How many samples of `name` the launch keeps (launcher_samples(true), through its server)."""
+    import xmlrpc.client
+    uri = json.loads(tool(env, "status", "--json").stdout or "{}").get("uri")
+    if not uri:
+        return 0
+    code, _msg, text = xmlrpc.client.ServerProxy(uri).launcher_samples(True)
+    return len(json.loads(text).get(name, [])) if code == 1 else 0
+
+
+def test_launcher_ui_attached_late_shows_the_cpu_history_at_once(tmp_path, tmux, env):
+    lp = Launcher([write_launch(str(tmp_path), '<node pkg="ui_tests" type="ticker" name="alpha"/>')], env,
+                  str(tmp_path))
+    try:
+        until(lambda: kept_samples(env, "/alpha") >= 8, 60, 0.5, what="8 samples kept by the launch")
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"))
+        # the first screen with the selected node's sparkline: the launch's samples, not only the view's own
+        screen = tmux.wait_screen(lambda s: re.search(r"/alpha cpu [\u2581-\u2588 ]+ \u2500", s), "the sparkline")
+        bars = re.search(r"/alpha cpu ([\u2581-\u2588 ]+) \u2500", screen).group(1)
+        assert len(bars) >= 8, screen
+        tmux.keys("q")
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
     finally:
         lp.close()

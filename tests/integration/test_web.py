@@ -33,6 +33,14 @@ rospy.init_node("listener")
 rospy.Subscriber("chatter", String, lambda m: None)
 rospy.spin()
 """
+Warner = """#!/usr/bin/python3
+import rospy
+rospy.init_node("warner")
+while not rospy.is_shutdown():
+    rospy.loginfo("fine")
+    rospy.logerr("broken")
+    rospy.sleep(0.3)
+"""
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
@@ -73,12 +81,13 @@ def status(env: dict) -> dict:
 
 
 def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strangers(tmp_path, browser):
-    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener})
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener, "warner": Warner})
     env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
     port = free_port()
     lp = Launcher(["--web", str(port), write_launch(str(tmp_path), """
       <node pkg="web_tests" type="talker" name="talker"/>
       <node pkg="web_tests" type="listener" name="listener"/>
+      <node pkg="web_tests" type="warner" name="warner"/>
     """)], env, str(tmp_path))
     try:
         lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
@@ -94,6 +103,10 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
             return cells[0].text if cells else ""
         until(lambda: all(page_pid(n) == str(pids[n]) for n in names), 30, 0.2, what="every row with its pid")
         assert "127.0.0.1:%d" % port in browser.find_element(By.ID, "bound").text
+        # an output="log" node's ERROR lines from /rosout, tagged and in their level's colour; not its INFO
+        until(lambda: any(e.text.startswith("[/warner] ERROR broken") for e in browser.find_elements(
+            By.CSS_SELECTOR, "#output span.level-ERROR")), 30, 0.2, what="the log node's ERROR line, coloured")
+        assert "fine" not in browser.find_element(By.ID, "output").text
         # restart /talker with the token: asked once, kept in the tab
         with open(info["token_file"]) as f:
             token = f.read().strip()
@@ -183,4 +196,45 @@ def test_the_reload_button_applies_the_changed_files(tmp_path, browser):
         until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener']"), 30, 0.2,
               what="the new node's row in the page")
     finally:
+        lp.close()
+
+
+def test_a_page_of_launcher_web_attached_late_draws_the_last_minute_at_once(tmp_path, browser):
+    """`launcher web` started beside a launch that has run a while: the sparklines start with the samples the
+    launch kept, not empty."""
+    import xmlrpc.client
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener})
+    env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
+    lp = Launcher([write_launch(str(tmp_path), '<node pkg="web_tests" type="listener" name="listener"/>')], env,
+                  str(tmp_path))
+    web = None
+    try:
+        uri = until(lambda: status(env).get("uri"), 60, 0.2, what="the launch's server")
+
+        def kept() -> int:
+            code, _msg, text = xmlrpc.client.ServerProxy(uri).launcher_samples(True)
+            return len(json.loads(text).get("/listener", []))
+        until(lambda: kept() >= 8, 60, 0.5, what="8 samples kept by the launch")
+        port = free_port()
+        web = subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "web", str(port)], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        from selenium.webdriver.common.by import By
+
+        def listening() -> bool:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                return True
+            except OSError:
+                return False
+        until(listening, 30, 0.1, what="the page server")
+        browser.get("http://127.0.0.1:%d/" % port)
+        # the first drawing of the row: the CPU line (the first polyline) has the kept samples' points
+        points = until(lambda: (lambda p: p if p else None)(browser.execute_script(
+            "const p = document.querySelector(\"tr[data-node='/listener'] svg polyline\");"
+            "return p ? p.getAttribute('points').split(' ').length : 0;")), 10, 0.05, what="the sparkline")
+        assert points >= 8
+    finally:
+        if web is not None:
+            web.terminate()
+            web.wait(10)
         lp.close()

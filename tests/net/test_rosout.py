@@ -192,3 +192,12 @@ def test_without_rosbags_rosout_says_so_once_and_no_traceback(tmp_path):
     text = err.read_text()
     assert text.count("rosout cannot decode") == 1
     assert "Traceback" not in text and "never retrieved" not in text, text
+
+
+def test_a_serialized_logs_level_is_read_without_decoding_it(typestore):
+    from launcher.net.rosout import peek_level
+    for level in (1, 2, 4, 8, 16):
+        msg = _log(typestore, level=level)
+        msg.header.frame_id = "a frame id"
+        assert peek_level(bytes(typestore.serialize_ros1(msg, "rosgraph_msgs/msg/Log"))) == level
+    assert peek_level(b"") == 0

@@ -12,21 +12,24 @@ import pytest
 
 from launcher.net.xmlrpc import Fault
 from launcher.services import server as server_mod
+from launcher.services.rosouttail import RosoutTail
 from launcher.services.server import LaunchServer
 from launcher.operate.web import allowed_host, parse_address, round_sample
 from launcher.fleet.state import Fleet
 
 
-def make_server(tmp_path, names=("/a", "/b")):
+def make_server(tmp_path, names=("/a", "/b"), log_nodes=(), warnings=None, remote=()):
     fleet = Fleet()
     specs = {}
     for name in names:
         fleet.add(name)
-        specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])))
+        specs[name] = SimpleNamespace(stdout_path=str(tmp_path / ("%s-stdout.log" % name[1:])),
+                                      output="log" if name in log_nodes else "screen")
     # (the run as the server reads it: through its supervisor here, through `nodes.spec` in the RunView that
     # main's runservices brings; both are given so that this test holds on either side of that merge)
     supervisor = SimpleNamespace(node=lambda n: SimpleNamespace(spec=specs[n]) if n in specs else None)
-    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=SimpleNamespace(spec=specs.get))
+    nodes = SimpleNamespace(spec=specs.get, remote_names=lambda: list(remote))
+    run = SimpleNamespace(fleet=fleet, supervisor=supervisor, remote=None, nodes=nodes, warnings=warnings)
     return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), fleet
 
 
@@ -68,6 +71,52 @@ def test_a_waiting_output_call_answers_when_a_node_writes(tmp_path, monkeypatch)
     assert json.loads(text)["output"] == {"/a": "after\n"}  # (what came after the call, not before)
 
 
+def test_log_nodes_give_their_rosout_warnings_not_their_file(tmp_path):
+    tail = RosoutTail()
+    server, _ = make_server(tmp_path, ("/screen", "/quiet"), log_nodes=("/quiet",), warnings=tail,
+                            remote=("/far",))
+    (tmp_path / "quiet-stdout.log").write_text("info line\n")
+    tail.add(4, "/quiet", "before the reader came")
+    first = output(server, {})
+    assert first == {"offsets": {"/screen": 0, "@rosout": 1}, "output": {}, "log": []}
+    with open(tmp_path / "quiet-stdout.log", "a") as f:
+        f.write("[INFO] more info\n[WARN] careful\n")
+    tail.add(4, "/quiet", "careful")
+    tail.add(8, "/quiet", "broken")
+    tail.add(16, "/screen", "its own file has it")  # (a screen node's lines are in its output already)
+    tail.add(4, "/elsewhere", "a node of another launch")
+    tail.add(8, "/far", "on another machine")  # (its file is there: /rosout is how its warnings come)
+    second = output(server, first["offsets"])
+    assert second["log"] == [["/quiet", "WARN", "careful"], ["/quiet", "ERROR", "broken"],
+                             ["/far", "ERROR", "on another machine"]]
+    assert second["output"] == {} and second["offsets"]["@rosout"] == 6
+    # its file on request (the view's recent output): read as any node's
+    assert output(server, {"/quiet": -15})["output"] == {"/quiet": "[WARN] careful\n"}
+
+
+def test_a_waiting_output_call_answers_when_a_warning_comes(tmp_path, monkeypatch):
+    monkeypatch.setattr(server_mod, "OUTPUT_CHECK_S", 0.01)
+    tail = RosoutTail()
+    server, _ = make_server(tmp_path, ("/a",), log_nodes=("/a",), warnings=tail)
+
+    async def scenario():
+        call = asyncio.ensure_future(server.launcher_output("{}", 30))
+        await asyncio.sleep(0.05)
+        assert not call.done()
+        tail.add(8, "/a", "oops")
+        return await asyncio.wait_for(call, 5)
+    code, _msg, text = asyncio.run(scenario())
+    assert json.loads(text)["log"] == [["/a", "ERROR", "oops"]]
+
+
+def test_the_tail_keeps_the_newest():
+    tail = RosoutTail(kept=3)
+    for i in range(5):
+        tail.add(4, "/a", str(i))
+    assert tail.since(0) == [("/a", "WARN", "2"), ("/a", "WARN", "3"), ("/a", "WARN", "4")]
+    assert tail.since(3) == [("/a", "WARN", "3"), ("/a", "WARN", "4")] and tail.since(5) == []
+
+
 def test_bad_output_arguments_are_a_fault(tmp_path):
     server, _ = make_server(tmp_path)
     for args in (("[]", 0), ("{}", -1), ("not json", 0), (5, 0)):
@@ -99,3 +148,15 @@ def test_address_is_loopback_unless_given_and_samples_round_to_what_shows():
     assert parse_address("[::1]:8080") == ("::1", 8080)
     assert round_sample(0.01234, 33_345_678) == [0.012, 33_300_000]
     assert round_sample(None, None) == [None, None]
+
+
+def test_samples_with_history_are_what_the_fleet_kept(tmp_path):
+    server, fleet = make_server(tmp_path)
+    fleet.nodes["/a"].state = "running"
+    for i in range(3):
+        fleet.sample("/a", 0.1 * i, 1000 + i)
+    code, _msg, text = server.launcher_samples(True)
+    kept = json.loads(text)
+    assert code == 1 and list(kept) == ["/a"] and [s[1:] for s in kept["/a"]] == [[0.0, 1000], [0.1, 1001],
+                                                                                  [0.2, 1002]]
+    assert json.loads(server.launcher_samples()[2]) == {"/a": [0.2, 1002]}  # (without: the last sample only)

@@ -125,3 +125,43 @@ def test_samples_fill_cpu_and_rss_of_running_nodes_only():
     v.samples({"/a": [0.5, 2 * 1000 * 1000]})
     rows = [r[0].split() for r in v.table_rows(5, T0)]
     assert rows[0][-3:-1] == ["50%", "2MB"] and rows[1][-3:-1] == ["-", "-"]
+
+
+def test_rows_fit_80_columns_with_every_column_and_follow_the_width():
+    long = "/a_rather_long_namespace/and_a_long_node_name"
+    v = view(node(long, pid=4194301, cpu=1.25, rss=1_500_000_000, restarts=12),
+             node("/b", "respawning", None, exit_signal=9, host="robot-arm-controller.example.org"))
+    rows = v.table_rows(10, T0 + 86399, 80)
+    header = v.table_header(T0)
+    assert all(len(text) <= 80 for text, _, _ in rows) and len(header) <= 80
+    assert header.split() == ["NODE", "STATE", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
+    a, b = rows[0][0].split(), rows[1][0].split()
+    assert a[1].startswith("\u2026") and long.endswith(a[1][1:]) and len(a[1]) >= 10  # (the name's end)
+    assert a[2:] == ["running", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
+    assert b[:6] == ["/b", "respawning", "-", "-", "0", "SIGKILL"]
+    assert b[-1].startswith("robot-arm-") and b[-1].endswith("\u2026")  # (a long host cut, still there)
+    # wide enough: nothing shortened, the header's own words
+    rows = v.table_rows(10, T0 + 86399, 200)
+    assert rows[0][0].split()[1] == long and "robot-arm-controller.example.org" in rows[1][0]
+    assert "RESTARTS" in v.table_header(T0)
+
+
+def test_a_late_view_starts_its_sparkline_with_the_samples_the_launch_kept():
+    v = view(node("/a"), node("/b"))
+    assert v.spark("/a", 20) == ""
+    v.past_samples({"/a": [[T0 + i, 0.1 * i, 1000] for i in range(10)], "/gone": [[T0, 0.5, 1]]})
+    v.samples({"/a": [1.0, 1000]})  # (then the view's own)
+    line = v.spark("/a", 20)
+    assert len(line) == 11 and line[0] == "\u2581" and line[-1] == "\u2588"
+    assert list(line[:10]) == sorted(line[:10])  # (rising as the samples did)
+    assert v.spark("/a", 4) == line[-4:] and v.spark("/b", 20) == " "  # (/b: no sample, not running)
+    assert "/gone" not in v.history
+
+
+def test_the_title_leaves_out_the_run_id_when_narrow():
+    v = ViewState()
+    v.load({"uri": "http://127.0.0.1:35315/", "run_id": "147fb780-e92a-11f1-9e20-02fc00000001",
+            "nodes": [node("/a"), node("/b", "stopped", None)]})
+    assert v.title() == "launch http://127.0.0.1:35315/  run 147fb780-e92a-11f1-9e20-02fc00000001  1/2 running"
+    assert v.title(80) == "launch http://127.0.0.1:35315/  1/2 running"
+    assert v.title(120) == v.title()

@@ -4,7 +4,7 @@ const nodes = new Map();      // name -> the node's fields (as launcher status -
 const sparks = new Map();     // name -> [[cpu, rss], ...], the last minute
 const HISTORY = 60;
 const SIGNALS = {1: "SIGHUP", 2: "SIGINT", 6: "SIGABRT", 9: "SIGKILL", 11: "SIGSEGV", 15: "SIGTERM"};
-const liveLines = [];
+const liveLines = [];          // [text, level ("" or WARN, ERROR, FATAL: a /rosout line of an output="log" node)]
 let shownNode = null;         // whose recent output the pane shows (null: every node's, live)
 
 const $ = (id) => document.getElementById(id);
@@ -72,14 +72,22 @@ function draw(name) {
   tr.querySelector("svg").innerHTML = spark(h.map((s) => s[0]), 0.05, "#c60") + spark(h.map((s) => s[1]), 0, "#06c");
 }
 
-function addOutput(name, chunk) {
-  for (const line of chunk.split("\n")) if (line) liveLines.push("[" + name + "] " + line);
+function addOutput(name, chunk, level = "") {
+  for (const line of chunk.split("\n")) if (line) liveLines.push(["[" + name + "] " + (level ? level + " " : "") + line, level]);
   if (liveLines.length > 2000) liveLines.splice(0, liveLines.length - 2000);
   if (shownNode === null) {
     const pre = $("output"), atEnd = pre.scrollTop + pre.clientHeight >= pre.scrollHeight - 4;
-    pre.textContent = liveLines.join("\n");
+    showLive();
     if (atEnd) pre.scrollTop = pre.scrollHeight;
   }
+}
+function showLive() {  // every node's lines, a /rosout line in its level's colour
+  $("output").replaceChildren(...liveLines.map(([t, level]) => {
+    const span = document.createElement("span");
+    span.textContent = t + "\n";
+    if (level) span.className = "level-" + level;
+    return span;
+  }));
 }
 
 function handle(ev) {
@@ -107,6 +115,7 @@ function handle(ev) {
     }
   } else if (ev.type === "output") {
     for (const [name, chunk] of Object.entries(ev.output)) addOutput(name, chunk);
+    for (const [name, level, line] of ev.log || []) addOutput(name, line, level);
   } else if (ev.type === "gone") {
     $("message").textContent = "the launch has ended";
   }
@@ -150,7 +159,7 @@ async function showOutput(name) {
   if (shownNode === name) {
     shownNode = null;
     $("output-title").textContent = "output";
-    $("output").textContent = liveLines.join("\n");
+    showLive();
     return;
   }
   shownNode = name;
