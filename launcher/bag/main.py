@@ -93,8 +93,13 @@ def info_main(argv: list[str]) -> int:
 
     p = argparse.ArgumentParser(prog="launcher bag info", description="Summarize the contents of bags (rosbag info).")
     p.add_argument("bags", nargs="+", metavar="BAG")
+    p.add_argument("-y", "--yaml", action="store_true", help="print information in YAML format")
+    p.add_argument("-k", "--key", help="print information on the given key (-y's names: duration, topics[0].type)")
+    p.add_argument("--freq", action="store_true", help="display topic message frequency statistics")
     o = p.parse_args(argv)
-    return info.main(o.bags)
+    if o.key and not o.yaml:
+        p.error("you can only specify key when printing in YAML format")
+    return info.main(o.bags, o.yaml, o.key, o.freq)
 
 
 def reindex_main(argv: list[str]) -> int:
