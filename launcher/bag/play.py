@@ -47,8 +47,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="suppress console output")
     p.add_argument("-i", "--immediate", action="store_true", help="play back all messages without waiting")
     p.add_argument("--pause", action="store_true", help="start in paused mode (space toggles, s steps)")
-    p.add_argument("--queue", type=int, default=100, metavar="SIZE", help="(rosbag's outgoing queue; ours is unbounded "
-                   "up to 16 MB per subscriber)")
+    p.add_argument("--queue", type=int, default=100, metavar="SIZE", help="messages waiting for each subscriber's "
+                   "socket, per topic, the oldest dropped past it (0: unbounded; default 100)")
     p.add_argument("--hz", type=float, default=100.0, help="publish /clock at this frequency (default 100)")
     p.add_argument("-d", "--delay", type=float, default=0.2, metavar="SEC", help="sleep SEC after every advertise")
     p.add_argument("-r", "--rate", type=float, default=1.0, metavar="FACTOR", help="multiply the publish rate")
@@ -96,7 +96,7 @@ class Player:
                 if pub is None:
                     mtype = TopicType(ros1_type(conn.msgtype), conn.digest, conn.msgdef.data)
                     latch = getattr(conn.ext, "latching", None) == 1
-                    pub = await self.node.advertise(topic, mtype, latch=latch)
+                    pub = await self.node.advertise(topic, mtype, latch=latch, queue_size=self.opts.queue)
                     by_topic[topic] = pub
                     if self.opts.delay > 0:
                         await asyncio.sleep(self.opts.delay)
@@ -211,9 +211,7 @@ class Player:
         """Wait (a little) until what was published has left for every subscriber."""
         deadline = time.monotonic() + FLUSH_S
         while time.monotonic() < deadline:
-            pending = [l for p in self.node.publications.values() for l in p.links
-                       if l.conn.transport is not None and l.conn.transport.get_write_buffer_size()]
-            if not pending:
+            if not any(l.pending for p in self.node.publications.values() for l in p.links):
                 return
             await asyncio.sleep(0.005)
 
@@ -277,6 +275,8 @@ def main(argv: list[str]) -> int:
         p.error("you must specify at least 1 bag file to play back")
     if opts.rate <= 0:
         p.error("--rate must be greater than 0")
+    if opts.queue < 0:
+        p.error("--queue must be 0 (unbounded) or more")
     readers = []
     try:
         for path in bags:

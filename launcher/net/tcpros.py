@@ -7,6 +7,7 @@ import asyncio
 import logging
 import socket
 import struct
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -372,6 +373,9 @@ class Publication:
     mtype: TopicType
     callerid: str
     latch: bool = False
+    # roscpp's publisher queue: messages per subscriber waiting for its socket, the oldest dropped past it
+    # (0: unbounded); None: no queue of ours, a subscriber MAX_WRITE_BACKLOG bytes behind loses new messages
+    queue_size: int | None = None
     links: list[SubscriberLink] = field(default_factory=list)
     messages_published: int = 0
     last: bytes | None = None
@@ -416,6 +420,8 @@ class InboundConnection(asyncio.Protocol):
         self.bytes_sent = 0
         self.messages_sent = 0
         self.drops = 0
+        self.link: SubscriberLink | None = None
+        self.writing_paused = False       # asyncio's flow control: the socket and our buffer are full
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
@@ -480,7 +486,8 @@ class InboundConnection(asyncio.Protocol):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.transport.write(encode_header(reply))
         self.publication = pub
-        link = SubscriberLink(self, header["callerid"])
+        link = SubscriberLink(self, header["callerid"], pub.queue_size)
+        self.link = link
         pub.links.append(link)
         if pub.latch and pub.last is not None:
             link.send(pub.last)
@@ -508,26 +515,59 @@ class InboundConnection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self._forget()
 
+    def pause_writing(self) -> None:
+        self.writing_paused = True
+
+    def resume_writing(self) -> None:
+        self.writing_paused = False
+        if self.link is not None:
+            self.link.flush()
+
 
 class SubscriberLink:
-    """One subscriber connected to one of our publications."""
+    """One subscriber connected to one of our publications. With a queue size, frames wait in `outbox` while the
+    connection's writing is paused (as in roscpp's publisher queue: the oldest dropped when it is full)."""
 
-    __slots__ = ("conn", "callerid")
+    __slots__ = ("conn", "callerid", "queue_size", "outbox")
 
-    def __init__(self, conn: InboundConnection, callerid: str):
+    def __init__(self, conn: InboundConnection, callerid: str, queue_size: int | None = None):
         self.conn = conn
         self.callerid = callerid
+        self.queue_size = queue_size
+        self.outbox: deque[bytes] = deque()
 
     def send(self, frame: bytes) -> None:
         transport = self.conn.transport
         if transport is None or transport.is_closing():
             return
-        if transport.get_write_buffer_size() > MAX_WRITE_BACKLOG:
+        if self.queue_size is not None:
+            if self.conn.writing_paused or self.outbox:
+                if self.queue_size and len(self.outbox) >= self.queue_size:
+                    self.outbox.popleft()
+                    self.conn.drops += 1
+                self.outbox.append(frame)
+                return
+        elif transport.get_write_buffer_size() > MAX_WRITE_BACKLOG:
             self.conn.drops += 1
             return
+        self._write(transport, frame)
+
+    def _write(self, transport: asyncio.Transport, frame: bytes) -> None:
         transport.write(frame)
         self.conn.bytes_sent += len(frame)
         self.conn.messages_sent += 1
+
+    def flush(self) -> None:
+        """Hand the outbox to the socket while it takes it."""
+        transport = self.conn.transport
+        while self.outbox and not self.conn.writing_paused and transport is not None and not transport.is_closing():
+            self._write(transport, self.outbox.popleft())
+
+    @property
+    def pending(self) -> bool:
+        """Something not yet on its way to the subscriber (in the outbox, or in the transport's buffer)."""
+        transport = self.conn.transport
+        return bool(self.outbox) or (transport is not None and bool(transport.get_write_buffer_size()))
 
     @property
     def id(self) -> int:
