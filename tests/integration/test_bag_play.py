@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import pty
+import re
 import signal
 import socket
 import subprocess
@@ -202,3 +204,61 @@ def test_queue_keeps_the_newest_messages_for_a_stalled_subscriber(tmp_path, grap
     got = [int(f[4:16].split()[1]) for f in frames[1:]]  # (frames[0]: the player's header)
     assert got[-3:] == [count - 3, count - 2, count - 1], got
     assert len(got) < count // 2 and got == sorted(got), got
+
+
+def short_bag(path: str, count: int = 20) -> str:
+    writer = Writer(path)
+    writer.open()
+    conn = writer.add_connection("/chatter", "std_msgs/msg/String", msgdef="string data\n",
+                                 md5sum="992ce8a1687cec8c8bd883ec73ca41d1", callerid="/talker")
+    for n in range(count):
+        data = b"m %d" % n
+        writer.write(conn, 10**18 + n * 10**7, len(data).to_bytes(4, "little") + data)
+    writer.close()
+    return path
+
+
+def said(out: str) -> str:
+    """A player's stdout without what differs by design: the time in its log line, roscpp's colour codes, and the
+    status lines (each written between two carriage returns)."""
+    out = re.sub(r"\x1b\[0m", "", out)
+    out = re.sub(r"^\[ INFO\] \[\d+\.\d+\]", "[ INFO] [T]", out, flags=re.M)
+    return re.sub(r"\r[^\r]*\r", "", out)
+
+
+def test_said_as_rosbag_play_says_it(tmp_path, graph):
+    env, procs = graph
+    bag = short_bag(str(tmp_path / "short.bag"))
+    for args in ([], ["-q"], ["-d", "0.5"], ["-q", "-d", "0"]):
+        # (bytes: text mode would make each carriage return a newline)
+        theirs = subprocess.run(["/usr/lib/rosbag/play", *args, bag], env=env, capture_output=True, timeout=60)
+        ours = subprocess.run(bag_argv("play", *args, bag), env=our_env(env), capture_output=True, timeout=60)
+        assert theirs.returncode == ours.returncode == 0, (theirs.stderr, ours.stderr)
+        assert said(ours.stdout.decode()) == said(theirs.stdout.decode()), args
+        assert b"Bag Time" not in ours.stdout  # a pipe: no status line (rosbag writes it there too)
+
+
+def test_status_line_on_a_terminal_only(tmp_path, graph):
+    env, procs = graph
+    bag = short_bag(str(tmp_path / "short.bag"))
+    for args, status in (([], True), (["-q"], False)):
+        leader, follower = pty.openpty()
+        player = subprocess.Popen(bag_argv("play", *args, bag), env=our_env(env), stdin=subprocess.DEVNULL,
+                                  stdout=follower, stderr=subprocess.DEVNULL, start_new_session=True)
+        os.close(follower)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # EIO: the player closed its end
+                break
+            if not chunk:
+                break
+            out += chunk
+        os.close(leader)
+        assert player.wait(30) == 0
+        line = re.search(rb"\r \[RUNNING\]  Bag Time: +(\d+\.\d{6})   Duration: (\d+\.\d{6}) / 0\.190000 +\r", out)
+        assert bool(line) == status, out
+        if status:
+            assert float(line.group(1)) >= 1e9 and 0 <= float(line.group(2)) <= 0.19
+        assert out.replace(b"\r\n", b"\n").endswith(b"\nDone.\n"), out
