@@ -28,7 +28,8 @@ from io import BytesIO
 from typing import Any, NamedTuple
 
 from rosbags.rosbag1 import Writer
-from rosbags.rosbag1.writer import MAXSIZE, WriteChunk
+from rosbags.rosbag1.reader import RecordType
+from rosbags.rosbag1.writer import MAXSIZE, Header, WriteChunk, serialize_time, serialize_uint32
 
 from launcher.model import names
 from launcher.bag import rosargs
@@ -149,6 +150,7 @@ class BagFile:
         self.path = path
         self.active = active
         self.writer = Writer(active)
+        self.compressed = compression != "none"
         if compression != "none":
             self.writer.set_compression(Writer.CompressionFormat[compression.upper()])
         self.writer.chunk_threshold = chunk_size
@@ -174,12 +176,47 @@ class BagFile:
             self.connections[key] = conn
         return conn
 
-    def write(self, conn: Any, stamp_ns: int, payload: bytes) -> None:
-        chunks = len(self.writer.chunks)
-        self.writer.write(conn, stamp_ns, payload)
+    def write(self, conn: Any, stamp_ns: int, payload: bytes | bytearray) -> None:
+        writer = self.writer
+        chunks = len(writer.chunks)
+        if not self.compressed and len(payload) >= writer.chunk_threshold and not writer.chunks[-1].data.tell():
+            self._write_chunk_of_one(conn, stamp_ns, payload)
+        else:
+            writer.write(conn, stamp_ns, payload)
         self.messages += 1
-        if len(self.writer.chunks) != chunks:  # a chunk was completed: to the disk with it
+        if len(writer.chunks) != chunks:  # a chunk was completed: to the disk with it
             self.disk.flush()
+
+    def _write_chunk_of_one(self, conn: Any, stamp_ns: int, payload: bytes | bytearray) -> None:
+        """A message as large as a chunk, as a chunk of its own: the records rosbags' writer writes for it
+        (chunk, message, index), but the message goes straight to the disk, not copied into the chunk's
+        buffer and out again (for megabyte messages those copies and their fresh pages were most of the cost)."""
+        writer, disk = self.writer, self.disk
+        record = BytesIO()
+        header = Header()
+        header.set_uint32("conn", conn.id)
+        header.set_time("time", stamp_ns)
+        header.write(record, RecordType.MSGDATA)
+        record.write(serialize_uint32(len(payload)))
+        head = record.getvalue()
+        chunk = writer.chunks[-1]
+        chunk.pos = disk.tell()
+        header = Header()
+        header.set_string("compression", "none")
+        header.set_uint32("size", len(head) + len(payload))
+        header.write(disk, RecordType.CHUNK)
+        disk.write(serialize_uint32(len(head) + len(payload)) + head)
+        disk.write(payload)
+        index = Header()
+        index.set_uint32("ver", 1)
+        index.set_uint32("conn", conn.id)
+        index.set_uint32("count", 1)
+        index.write(disk, RecordType.IDXDATA)
+        disk.write(serialize_uint32(12) + serialize_time(stamp_ns) + serialize_uint32(0))
+        chunk.start = chunk.end = stamp_ns
+        chunk.connections[conn.id].append((stamp_ns, 0))
+        chunk.data.close()
+        writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
 
     @property
     def size(self) -> int:
