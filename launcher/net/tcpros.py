@@ -167,7 +167,7 @@ class FrameReader:
     @property
     def pending(self) -> int:
         """Bytes received that do not yet make a whole frame."""
-        return self._fill + (self._got if self._body is not None else 0)
+        return self._fill + (4 + self._got if self._body is not None else 0)
 
 
 def encode_service_response(ok: bool, payload: bytes) -> bytes:
