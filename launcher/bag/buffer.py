@@ -35,18 +35,21 @@ class Buffer:
         self.total_dropped = 0
         self.warned_at: float | None = None
         self.closed = False
-        self._ready = threading.Condition(threading.Lock())
+        self._lock = threading.Lock()
+        self._ready = threading.Condition(self._lock)
+        self._waiting = False             # the writer waits in take: only then is it woken (most puts find it busy)
 
     def put(self, item: Queued, now: float) -> int:
         """Queue `item`; the number of messages dropped to make room that are to be warned of now (else 0)."""
-        with self._ready:
+        with self._lock:
             self.items.append(item)
             self.size += len(item.payload)
             while self.limit and self.size > self.limit:
                 self.size -= len(self.items.popleft().payload)
                 self.dropped += 1
                 self.total_dropped += 1
-            self._ready.notify()
+            if self._waiting:
+                self._ready.notify()
             if self.dropped and (self.warned_at is None or now > self.warned_at + WARN_EVERY_S):
                 self.warned_at = now
                 dropped, self.dropped = self.dropped, 0
@@ -55,9 +58,11 @@ class Buffer:
 
     def take(self) -> list[Queued]:
         """The oldest queued messages (at least one, about BATCH_BYTES), waiting for one; [] once closed and empty."""
-        with self._ready:
+        with self._lock:
             while not self.items and not self.closed:
+                self._waiting = True
                 self._ready.wait()
+                self._waiting = False
             items: list[Queued] = []
             taken = 0
             while self.items and taken < BATCH_BYTES:
@@ -68,7 +73,7 @@ class Buffer:
             return items
 
     def close(self) -> None:
-        with self._ready:
+        with self._lock:
             self.closed = True
             self._ready.notify()
 
