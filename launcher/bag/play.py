@@ -49,7 +49,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--pause", action="store_true", help="start in paused mode (space toggles, s steps)")
     p.add_argument("--queue", type=int, default=100, metavar="SIZE", help="messages waiting for each subscriber's "
                    "socket, per topic, the oldest dropped past it (0: unbounded; default 100)")
-    p.add_argument("--hz", type=float, default=100.0, help="publish /clock at this frequency (default 100)")
+    p.add_argument("--hz", type=float, default=None, help="publish /clock at this frequency (default 100)")
     p.add_argument("-d", "--delay", type=float, default=0.2, metavar="SEC", help="sleep SEC after advertising the topics")
     p.add_argument("-r", "--rate", type=float, default=1.0, metavar="FACTOR", help="multiply the publish rate")
     p.add_argument("-s", "--start", type=float, default=0.0, metavar="SEC", help="start SEC seconds into the bags")
@@ -291,6 +291,11 @@ def main(argv: list[str]) -> int:
         p.error("--rate must be greater than 0")
     if opts.queue < 0:
         p.error("--queue must be 0 (unbounded) or more")
+    if opts.hz is not None and not opts.clock:
+        # (rosbag play ignores it silently; a launch file's habit, so a warning, not an error)
+        print("[ WARN] --hz %g has no effect without --clock" % opts.hz, file=sys.stderr, flush=True)
+    if opts.hz is None:
+        opts.hz = 100.0
     readers = []
     try:
         for path in bags:

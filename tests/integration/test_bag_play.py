@@ -262,3 +262,11 @@ def test_status_line_on_a_terminal_only(tmp_path, graph):
         if status:
             assert float(line.group(1)) >= 1e9 and 0 <= float(line.group(2)) <= 0.19
         assert out.replace(b"\r\n", b"\n").endswith(b"\nDone.\n"), out
+
+
+def test_hz_without_clock_is_said_to_do_nothing(tmp_path, graph):
+    env, _ = graph
+    bag = short_bag(str(tmp_path / "short.bag"), 2)
+    out = subprocess.run(bag_argv("play", "-q", "-d", "0", "--hz", "50", bag), env=our_env(env), capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0 and "--hz 50 has no effect without --clock" in out.stderr, out.stderr
