@@ -18,7 +18,7 @@ class Queued(NamedTuple):
     topic: str
     header: dict[str, str]
     stamp_ns: int
-    payload: bytes
+    payload: bytes | bytearray
 
 
 class Buffer:

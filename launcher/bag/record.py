@@ -323,7 +323,7 @@ class Recorder:
         self.loop.call_soon_threadsafe(self.done.set)  # (called by the writer thread too)
 
     # ------------------------------------------------------------------ messages
-    def on_message(self, payload: bytes, link: PublisherLink) -> None:
+    def on_message(self, payload: bytes | bytearray, link: PublisherLink) -> None:
         if self.failed:
             return
         topic = link.topic
