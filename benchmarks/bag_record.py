@@ -11,7 +11,11 @@ play: a bag of 1 topic at 1 kHz (exact 1 ms stamps) played by each player to a r
 notes each arrival's wall time; the timing error of message i is (arrival_i - arrival_0) - (stamp_i - stamp_0).
 Reported: p50/p99/max of |error| in ms.
 
-    python3 benchmarks/bag_record.py [--seconds 10] [--play-seconds 5] [--only record|play]
+    python3 benchmarks/bag_record.py [--seconds 10] [--play-seconds 5] [--only record|play] [--load small|large]
+                                     [--abba] [--ours DIR]
+
+--abba runs each load's recorders as reference, ours, ours, reference (a drift of the machine's load cancels
+out) and gives the ratio of the sums; --ours DIR takes "ours" from another checkout (before/after a change).
 """
 
 from __future__ import annotations
@@ -80,8 +84,10 @@ def count_messages(path: str) -> dict[str, int]:
         return {t: i.msgcount for t, i in reader.topics.items()}
 
 
-def record_run(kind: str, tmp: str, talker: str, nodes: int, rate: float, seconds: float, pad: int) -> tuple:
+def record_run(kind: str, tmp: str, talker: str, nodes: int, rate: float, seconds: float, pad: int,
+               ours: str = ROOT) -> tuple:
     graph = Graph(tmp)
+    graph.env["PYTHONPATH"] = ours
     bag = os.path.join(tmp, "%s-%d-%d.bag" % (kind, nodes, pad))
     topics = ["/load%d" % i for i in range(nodes)]
     argv = ([sys.executable, "-m", "launcher.bag", "record"] if kind == "ours" else [REFERENCE_RECORD])
@@ -148,17 +154,24 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--play-seconds", type=float, default=5.0)
     ap.add_argument("--only", choices=("record", "play"), help="run one half")
+    ap.add_argument("--load", choices=("small", "large"), help="record one load only")
+    ap.add_argument("--abba", action="store_true", help="record: reference, ours, ours, reference")
+    ap.add_argument("--ours", default=ROOT, help="the checkout whose recorder is ours (default: this one)")
     o = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bagbench-")
     talker = compile_roscpp("bag_talker.cpp", os.path.join(tmp, "talker"))
     listener = compile_roscpp("bag_listener.cpp", os.path.join(tmp, "listener"))
-    loads = (("5 x 2000 small msg/s", 5, 2000.0, 0), ("30 msg/s of 1 MB", 1, 30.0, 1 << 20))
-    for label, nodes, rate, pad in loads if o.only != "play" else ():
-        results = {}
-        for kind in ("reference", "ours"):
-            results[kind] = record_run(kind, tmp, talker, nodes, rate, o.seconds, pad)
-            print("record %-22s %-9s lost %6d  cpu %6.2f s" % (label, kind, *results[kind]), flush=True)
-        print("record %-22s cpu ratio ours/rosbag: %.2f" % (label, results["ours"][1] / max(results["reference"][1], 1e-6)))
+    loads = {"small": ("5 x 2000 small msg/s", 5, 2000.0, 0), "large": ("30 msg/s of 1 MB", 1, 30.0, 1 << 20)}
+    order = ("reference", "ours", "ours", "reference") if o.abba else ("reference", "ours")
+    for key, (label, nodes, rate, pad) in loads.items() if o.only != "play" else ():
+        if o.load and key != o.load:
+            continue
+        cpu = {"reference": 0.0, "ours": 0.0}
+        for kind in order:
+            lost, seconds = record_run(kind, tmp, talker, nodes, rate, o.seconds, pad, o.ours)
+            cpu[kind] += seconds
+            print("record %-22s %-9s lost %6d  cpu %6.2f s" % (label, kind, lost, seconds), flush=True)
+        print("record %-22s cpu ratio ours/rosbag: %.2f" % (label, cpu["ours"] / max(cpu["reference"], 1e-6)))
     bag = play_bag(tmp, o.play_seconds)
     for kind in ("reference", "ours") if o.only != "record" else ():
         errors = play_run(kind, tmp, listener, bag, int(o.play_seconds * 1000))

@@ -1,14 +1,17 @@
-"""`bag info`: rosbag info's summary of a bag (path, span, size, counts, compression, types, topics)."""
+"""`bag info`: rosbag info's summary of a bag, as text, as YAML (`-y`), one key of that YAML (`-k`), with each
+topic's median frequency (`--freq`)."""
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
+import yaml
 from rosbags.rosbag1 import Reader, ReaderError
-from rosbags.rosbag1.reader import decompressors
+from rosbags.rosbag1.reader import Header, RecordType
 
 from launcher.bag import reindex
 from launcher.bag.msgtypes import ros1_type
@@ -42,21 +45,117 @@ def _recoverable(path: str) -> str:
             "writes them into an indexed bag)" % (known, len(conns), stop, path))
 
 
+class Compression(NamedTuple):
+    kind: str                     # none, lz4, bz2
+    chunks: int
+    compressed: int               # bytes on the disk
+    uncompressed: int             # bytes of records
+
+
+class TopicInfo(NamedTuple):
+    topic: str
+    datatype: str                 # that of the topic's first connection, as rosbag says it
+    messages: int
+    connections: int
+    frequency: float | None       # Hz: 1 / the median period (--freq only)
+
+
+class BagInfo(NamedTuple):
+    """What rosbag info says of a bag: the same numbers, computed the same way (seconds as floats from
+    secs + nsecs / 1e9, so that the %.6f of the YAML agrees to the last digit)."""
+    path: str
+    size: int
+    indexed: bool                 # False: no chunks (rosbag prints only path, version and size then)
+    start: float
+    end: float
+    messages: int
+    chunks: int
+    compressions: list[Compression]   # most chunks first
+    types: list[tuple[str, str]]      # (type, md5sum), sorted
+    topics: list[TopicInfo]           # sorted by topic
+
+
+def _sec(ns: int) -> float:
+    return float(ns // 1_000_000_000) + float(ns % 1_000_000_000) / 1e9
+
+
+def _median(values: list[float]) -> float:
+    ordered = sorted(values)
+    half = len(ordered) // 2
+    return ordered[half] if len(ordered) % 2 else float(ordered[half - 1] + ordered[half]) / 2
+
+
+def _chunk_sizes(reader: Reader) -> list[tuple[str, int, int]]:
+    """(compression, compressed size, uncompressed size) of each chunk, from the chunk records' headers
+    (rosbags keeps the compressed size only)."""
+    sizes = []
+    bio = reader.bio
+    for info in reader.chunk_infos:
+        bio.seek(info.pos)
+        header = Header.read(bio, RecordType.CHUNK)
+        sizes.append((header.get_string("compression"), reader.chunks[info.pos].datasize, header.get_uint32("size")))
+    return sizes
+
+
+def bag_info(path: str, reader: Reader, freq: bool = False) -> BagInfo:
+    """The facts of one open bag; `freq`: each topic's median frequency from its index (rosbag info --freq)."""
+    size = os.path.getsize(path)
+    chunk_infos = reader.chunk_infos
+    if not chunk_infos:
+        return BagInfo(path, size, False, 0.0, 0.0, 0, 0, [], [], [])
+    # as rosbag: the first chunk's start and the last chunk's end (rosbags' end_time is one past it)
+    start, end = _sec(chunk_infos[0].start_time), _sec(chunk_infos[-1].end_time - 1)
+    messages = sum(sum(c.connection_counts.values()) for c in chunk_infos)
+    by_kind: dict[str, list[int]] = {}
+    for kind, compressed, uncompressed in _chunk_sizes(reader):
+        total = by_kind.setdefault(kind, [0, 0, 0])
+        total[0] += 1
+        total[1] += compressed
+        total[2] += uncompressed
+    # rosbag orders them by (count, name), most first
+    compressions = [Compression(k, *v) for k, v in sorted(by_kind.items(), key=lambda kv: (kv[1][0], kv[0]),
+                                                          reverse=True)]
+    datatypes: dict[str, str] = {}
+    for conn in reader.connections:
+        datatypes.setdefault(ros1_type(conn.msgtype), conn.digest)
+    topics = []
+    for topic in sorted({c.topic for c in reader.connections}):
+        conns = [c for c in reader.connections if c.topic == topic]
+        count = sum(ci.connection_counts.get(c.id, 0) for c in conns for ci in chunk_infos)
+        frequency = None
+        if freq:
+            stamps = [_sec(i.time) for i in sorted(i for c in conns for i in reader.indexes.get(c.id, []))]
+            if len(stamps) > 1:
+                period = _median([b - a for a, b in zip(stamps, stamps[1:])])
+                frequency = 1.0 / period if period > 0.0 else None
+        topics.append(TopicInfo(topic, ros1_type(conns[0].msgtype), count, len(conns), frequency))
+    return BagInfo(path, size, True, start, end, messages, len(chunk_infos), compressions, sorted(datatypes.items()),
+                   topics)
+
+
 def human_size(size: float) -> str:
-    for suffix in ("B", "KB", "MB", "GB", "TB"):
-        if size < 1024.0 or suffix == "TB":
-            return "%.1f %s" % (size, suffix) if suffix != "B" else "%d B" % size
+    """rosbag's sizes: KB at least."""
+    for suffix in ("KB", "MB", "GB", "TB", "PB", "EB", "ZB", "YB"):
         size /= 1024.0
-    return "%.1f TB" % size
+        if size < 1024.0:
+            return "%.1f %s" % (size, suffix)
+    return "-"
 
 
-def _stamp(ns: int) -> str:
-    secs = ns / 1e9
-    return "%s.%s (%.2f)" % (time.strftime("%b %d %Y %H:%M:%S", time.localtime(secs)), ("%.2f" % secs)[-2:], secs)
+def human_frequency(freq: float) -> str:
+    for suffix in ("Hz", "kHz", "MHz", "GHz", "THz", "PHz", "EHz", "ZHz", "YHz"):
+        if freq < 1000.0:
+            return "%.1f %s" % (freq, suffix)
+        freq /= 1000.0
+    return "-"
 
 
-def _duration(ns: int) -> str:
-    duration = ns / 1e9
+def _stamp(secs: float) -> str:
+    return "%s%s (%.2f)" % (time.strftime("%b %d %Y %H:%M:%S", time.localtime(secs)),
+                           ("%.2f" % (secs - int(secs)))[1:], secs)
+
+
+def _duration(duration: float) -> str:
     secs = duration % 60
     mins = int(duration / 60)
     hrs = int(mins / 60)
@@ -67,51 +166,135 @@ def _duration(ns: int) -> str:
     return "%.1fs" % duration
 
 
-def summary(path: str, reader: Any) -> str:
-    """rosbag info's text for one open bag."""
-    lines = ["path:        %s" % path, "version:     2.0"]
-    topics = reader.topics
-    count = sum(t.msgcount for t in topics.values())
-    if count:
-        lines += ["duration:    %s" % _duration(reader.end_time - reader.start_time),
-                  "start:       %s" % _stamp(reader.start_time),
-                  "end:         %s" % _stamp(reader.end_time)]
-    lines.append("size:        %s" % human_size(os.path.getsize(path)))
-    lines.append("messages:    %d" % count)
-    names = {fn: name for name, fn in decompressors.items()}
-    kinds = [names.get(c.decompressor, "?") for c in reader.chunks.values()]
-    compressed = [k for k in kinds if k != "none"]
-    kind = compressed[0] if compressed else "none"
-    lines.append("compression: %s [%d/%d chunks]" % (kind, len(compressed) if compressed else len(kinds), len(kinds)))
-    types = sorted({(ros1_type(c.msgtype), c.digest) for c in reader.connections})
-    width = max((len(t) for t, _ in types), default=0)
-    for i, (mtype, md5) in enumerate(types):
-        lines.append("%s%-*s [%s]" % ("types:       " if i == 0 else " " * 13, width, mtype, md5))
-    twidth = max((len(t) for t in topics), default=0)
-    cwidth = max((len(str(t.msgcount)) for t in topics.values()), default=0)
-    dwidth = max((len(ros1_type(t.msgtype or "")) for t in topics.values()), default=0)
-    for i, (topic, t) in enumerate(sorted(topics.items())):
-        line = "%s%-*s   %*d %s    : %-*s" % ("topics:      " if i == 0 else " " * 13, twidth, topic, cwidth, t.msgcount,
-                                            "msgs" if t.msgcount > 1 else "msg ", dwidth, ros1_type(t.msgtype or "*"))
-        if len(t.connections) > 1:
-            line += " (%d connections)" % len(t.connections)
-        lines.append(line)
-    return "\n".join(lines)
+def text(info: BagInfo) -> str:
+    """rosbag info's text."""
+    rows = [("path", info.path), ("version", "2.0")]
+    if not info.indexed:
+        rows.append(("size", human_size(info.size)))
+        return _columns(rows)
+    duration = info.end - info.start
+    rows += [("duration", _duration(duration)), ("start", _stamp(info.start)), ("end", _stamp(info.end)),
+             ("size", human_size(info.size)), ("messages", str(info.messages))]
+    rows.append(("compression", ", ".join(
+        "%s [%d/%d chunks]" % (c.kind, c.chunks, info.chunks) if c.kind == "none" else
+        "%s [%d/%d chunks; %.2f%%]" % (c.kind, c.chunks, info.chunks, 100.0 * c.compressed / c.uncompressed)
+        for c in info.compressions)))
+    if any(c.kind != "none" for c in info.compressions):
+        whole = _human_pair(sum(c.uncompressed for c in info.compressions),
+                            sum(c.compressed for c in info.compressions), duration)
+        rows += [("uncompressed", whole[0]), ("compressed", whole[1])]
+    type_width = max(len(t) for t, _ in info.types)
+    rows += [("types" if i == 0 else "", "%-*s [%s]" % (type_width, t, md5)) for i, (t, md5) in enumerate(info.types)]
+    topic_width = max(len(t.topic) for t in info.topics)
+    count_width = max(len("%d" % t.messages) for t in info.topics)
+    freq_width = max((len(human_frequency(t.frequency)) for t in info.topics if t.frequency is not None), default=0)
+    for i, t in enumerate(info.topics):
+        line = "%-*s   %*d %s" % (topic_width, t.topic, count_width, t.messages, "msgs" if t.messages > 1 else "msg ")
+        line += (" @ %*s" % (freq_width, human_frequency(t.frequency)) if t.frequency is not None
+                 else "   %*s" % (freq_width, ""))
+        line += " : %-*s" % (type_width, t.datatype)
+        if t.connections > 1:
+            line += " (%d connections)" % t.connections
+        rows.append(("topics" if i == 0 else "", line))
+    return _columns(rows)
 
 
-def main(paths: list[str]) -> int:
+def _human_pair(uncompressed: int, compressed: int, duration: float) -> tuple[str, str]:
+    """rosbag's 'uncompressed' and 'compressed' rows: sizes (and rates) aligned with each other."""
+    sizes = human_size(uncompressed), human_size(compressed)
+    width = max(len(s) for s in sizes)
+    if duration <= 0:
+        return "%*s" % (width, sizes[0]), "%*s" % (width, sizes[1])
+    rates = human_size(uncompressed / duration), human_size(compressed / duration)
+    rate_width = max(len(r) for r in rates)
+    return ("%*s @ %*s/s" % (width, sizes[0], rate_width, rates[0]),
+            "%*s @ %*s/s (%.2f%%)" % (width, sizes[1], rate_width, rates[1], 100.0 * compressed / uncompressed))
+
+
+def _columns(rows: list[tuple[str, str]]) -> str:
+    width = max(len(field) for field, _ in rows) + 1
+    # (rosbag strips the end of the whole text only: the other lines keep their padding)
+    return "\n".join("%-*s %s" % (width, field + ":" if field else "", value) for field, value in rows).rstrip()
+
+
+def yaml_text(info: BagInfo) -> str:
+    """rosbag info -y: the same facts as YAML, in rosbag's words and order."""
+    lines = ["path: %s" % info.path, "version: 2.0"]
+    if not info.indexed:
+        return "\n".join(lines + ["size: %d" % info.size, "indexed: False"]) + "\n"
+    lines += ["duration: %.6f" % (info.end - info.start), "start: %.6f" % info.start, "end: %.6f" % info.end,
+              "size: %d" % info.size, "messages: %d" % info.messages, "indexed: True",
+              "compression: %s" % info.compressions[0].kind]
+    if any(c.kind != "none" for c in info.compressions):
+        lines += ["uncompressed: %d" % sum(c.uncompressed for c in info.compressions),
+                  "compressed: %d" % sum(c.compressed for c in info.compressions)]
+    lines.append("types:")
+    for datatype, md5 in info.types:
+        lines += ["    - type: %s" % datatype, "      md5: %s" % md5]
+    lines.append("topics:")
+    for t in info.topics:
+        lines += ["    - topic: %s" % t.topic, "      type: %s" % t.datatype, "      messages: %d" % t.messages]
+        if t.connections > 1:
+            lines.append("      connections: %d" % t.connections)
+        if t.frequency is not None:
+            lines.append("      frequency: %.4f" % t.frequency)
+    return "\n".join(lines) + "\n"
+
+
+class UnknownKey(Exception):
+    """A -k key that names nothing in the YAML."""
+
+
+_KEY = re.compile(r"[A-Za-z_]\w*(?:\.[A-Za-z_]\w*|\[-?\d+\])*")
+_STEP = re.compile(r"([A-Za-z_]\w*)|\[(-?\d+)\]")
+
+
+def key_text(yaml_doc: str, key: str) -> str:
+    """rosbag info -y -k KEY: the value at KEY (`duration`, `topics`, `topics[0].type`: names and indexes, where
+    rosbag evaluates any Python expression), printed as rosbag prints it: a scalar as Python writes the value YAML
+    read, a list an item per `- `, a map a field per line."""
+    if not _KEY.fullmatch(key):
+        raise UnknownKey(key)
+    value: Any = yaml.safe_load(yaml_doc)
+    for step in _STEP.finditer(key):
+        try:
+            value = value[step.group(1)] if step.group(1) else value[int(step.group(2))]
+        except (KeyError, IndexError, TypeError):
+            raise UnknownKey(key) from None
+    return _key_value(value)
+
+
+def _key_value(value: Any, indent: int = 0) -> str:
+    pad = "  " * indent
+    if isinstance(value, list):
+        return "".join("%s- %s\n" % (pad, _key_value(item, indent + 1)) for item in value)
+    if isinstance(value, dict):
+        return ("\n" + pad).join("%s: %s" % (k, v) for k, v in value.items())
+    return pad + str(value)
+
+
+def main(paths: list[str], as_yaml: bool = False, key: str | None = None, freq: bool = False) -> int:
     status = 0
     for i, path in enumerate(paths):
         try:
             reader = open_bag(path)
         except BagError as exc:
             print("ERROR %s" % exc, file=sys.stderr)
-            status = 1
-            continue
+            return 1  # as rosbag info: the bags after a bad one are not read
         try:
-            if i:
-                print("---")
-            print(summary(path, reader))
+            info = bag_info(path, reader, freq)
         finally:
             reader.close()
+        if not as_yaml:
+            print(text(info))
+        elif not key:  # (as rosbag: -k '' is the whole YAML)
+            print(yaml_text(info))
+        else:
+            try:
+                print(key_text(yaml_text(info), key))
+            except UnknownKey:
+                print('Error getting key "%s"' % key, file=sys.stderr)
+                status = 1
+        if i < len(paths) - 1:
+            print("---")
     return status

@@ -43,8 +43,8 @@ def record_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=0, metavar="SIZE", help="record a bag of maximum size SIZE MB")
     p.add_argument("--duration", type=_duration, default=0.0, help="record a bag of maximum duration (s, m or h)")
     p.add_argument("-b", "--buffsize", type=int, default=256, metavar="SIZE",
-                   help="rosbag's input queue in MB: accepted, without effect here (messages are written as they "
-                        "arrive; a full disk ends the recording)")
+                   help="the buffer of messages waiting for the disk, in MB (default 256; 0: unbounded); when it "
+                        "is full, the oldest are dropped with a warning")
     p.add_argument("--chunksize", type=int, default=768, metavar="SIZE", help="chunk size in KB")
     p.add_argument("-l", "--limit", type=int, default=0, metavar="NUM", help="only record NUM messages on each topic")
     p.add_argument("--node", help="record all topics subscribed to by a specific node")
@@ -69,6 +69,8 @@ def record_main(argv: list[str]) -> int:
             _regex_or_exit(p, topic)
     if not (o.all or o.topics or o.node):
         p.error("you must specify a topic name, -a or --node")
+    if o.buffsize < 0 or o.chunksize <= 0:
+        p.error("-b/--buffsize must be 0 (unbounded) or more, and --chunksize more than 0")
     if (o.size or o.duration or o.max_splits) and not o.split:
         p.error("--size, --duration and --max-splits need --split")
     opts = record.RecordOptions(
@@ -93,8 +95,13 @@ def info_main(argv: list[str]) -> int:
 
     p = argparse.ArgumentParser(prog="launcher bag info", description="Summarize the contents of bags (rosbag info).")
     p.add_argument("bags", nargs="+", metavar="BAG")
+    p.add_argument("-y", "--yaml", action="store_true", help="print information in YAML format")
+    p.add_argument("-k", "--key", help="print information on the given key (-y's names: duration, topics[0].type)")
+    p.add_argument("--freq", action="store_true", help="display topic message frequency statistics")
     o = p.parse_args(argv)
-    return info.main(o.bags)
+    if o.key and not o.yaml:
+        p.error("you can only specify key when printing in YAML format")
+    return info.main(o.bags, o.yaml, o.key, o.freq)
 
 
 def reindex_main(argv: list[str]) -> int:

@@ -47,10 +47,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="suppress console output")
     p.add_argument("-i", "--immediate", action="store_true", help="play back all messages without waiting")
     p.add_argument("--pause", action="store_true", help="start in paused mode (space toggles, s steps)")
-    p.add_argument("--queue", type=int, default=100, metavar="SIZE", help="(rosbag's outgoing queue; ours is unbounded "
-                   "up to 16 MB per subscriber)")
-    p.add_argument("--hz", type=float, default=100.0, help="publish /clock at this frequency (default 100)")
-    p.add_argument("-d", "--delay", type=float, default=0.2, metavar="SEC", help="sleep SEC after every advertise")
+    p.add_argument("--queue", type=int, default=100, metavar="SIZE", help="messages waiting for each subscriber's "
+                   "socket, per topic, the oldest dropped past it (0: unbounded; default 100)")
+    p.add_argument("--hz", type=float, default=None, help="publish /clock at this frequency (default 100)")
+    p.add_argument("-d", "--delay", type=float, default=0.2, metavar="SEC", help="sleep SEC after advertising the topics")
     p.add_argument("-r", "--rate", type=float, default=1.0, metavar="FACTOR", help="multiply the publish rate")
     p.add_argument("-s", "--start", type=float, default=0.0, metavar="SEC", help="start SEC seconds into the bags")
     p.add_argument("-u", "--duration", type=float, default=None, metavar="SEC", help="play only SEC seconds")
@@ -61,6 +61,12 @@ def parser() -> argparse.ArgumentParser:
                    help="wait for at least one subscriber on each topic before publishing")
     p.add_argument("--clock", action="store_true", help="publish the clock time")
     return p
+
+
+def say(text: str, end: str = "\n") -> None:
+    """A line of rosbag play's on stdout, at once (a launch's log shows it as it comes)."""
+    sys.stdout.write(text + end)
+    sys.stdout.flush()
 
 
 def clock_payload(stamp_ns: int) -> bytes:
@@ -83,6 +89,11 @@ class Player:
         self.resumed = asyncio.Event()
         self.published = 0
         self._progress_at = 0.0
+        # rosbag's status line, rewritten in place: on a terminal only (in a pipe or a log it is noise)
+        self.status_line = not opts.quiet and sys.stdout.isatty()
+        self.now = 0              # the bag time played up to (ns)
+        self.first = 0            # the bag time of the first message played, and of the last to play
+        self.last = 0
 
     async def advertise(self) -> None:
         wanted = {names.canonicalize_name(t) for t in self.opts.topics}
@@ -96,13 +107,16 @@ class Player:
                 if pub is None:
                     mtype = TopicType(ros1_type(conn.msgtype), conn.digest, conn.msgdef.data)
                     latch = getattr(conn.ext, "latching", None) == 1
-                    pub = await self.node.advertise(topic, mtype, latch=latch)
+                    pub = await self.node.advertise(topic, mtype, latch=latch, queue_size=self.opts.queue)
                     by_topic[topic] = pub
-                    if self.opts.delay > 0:
-                        await asyncio.sleep(self.opts.delay)
                 self.pubs[(i, conn.id)] = pub
         if self.opts.clock:
             self.clock = await self.node.advertise(CLOCK_TOPIC, CLOCK_TYPE)
+        # as rosbag play: one sleep after all the advertising, and its words whether quiet or not
+        say("Waiting %g seconds after advertising topics..." % self.opts.delay, end="")
+        if self.opts.delay > 0:
+            await asyncio.sleep(self.opts.delay)
+        say(" done.\n\nHit space to toggle paused, or 's' to step.")
 
     def _messages(self, start: int, stop: int | None) -> Iterator[tuple[int, int, Any, bytes]]:
         """(time, reader, connection, data) of every message to play, in time order over all bags."""
@@ -129,11 +143,13 @@ class Player:
             time.sleep(delay)
 
     async def _wait_subscribers(self) -> None:
+        say("Waiting for subscribers.")
         pubs = {id(p): p for p in self.pubs.values()}.values()
         while not self.stop.is_set() and any(not p.links for p in pubs):
             await self._sleep_until(time.monotonic() + 0.01)
+        say("Finished waiting for subscribers.")
 
-    async def play_once(self, bag_start: int, start: int, stop: int | None) -> None:
+    async def play_once(self, start: int, stop: int | None) -> None:
         rate = self.opts.rate
         wall0 = time.monotonic()
         tick = 1.0 / self.opts.hz if self.opts.hz > 0 else 0.01
@@ -143,6 +159,7 @@ class Player:
                 # playback starts with the first message, not with the bag's start, as rosbag's does
                 wall0 = time.monotonic() - (stamp - start) / 1e9 / rate
                 first = False
+                self.first = self.now = stamp
             if self.stop.is_set():
                 return
             if self.paused:
@@ -162,7 +179,8 @@ class Player:
                 self.clock.publish(clock_payload(stamp))
             self.pubs[(i, conn.id)].publish(data)
             self.published += 1
-            self._progress(stamp, bag_start, stop)
+            self.now = stamp
+            self._progress()
             if self.step:
                 self.step = False
                 self.paused = True
@@ -180,22 +198,17 @@ class Player:
             resumed.cancel()
 
     def _status(self, what: str) -> None:
-        if not self.opts.quiet:
+        """rosbag play's status line: the bag time played up to, and how far into the played span."""
+        if self.status_line:
             sys.stdout.write("\r [%s]  Bag Time: %13.6f   Duration: %.6f / %.6f               \r" % (
-                what, 0.0, 0.0, 0.0))
+                what, self.now / 1e9, (self.now - self.first) / 1e9, (self.last - self.first) / 1e9))
             sys.stdout.flush()
 
-    def _progress(self, stamp: int, bag_start: int, stop: int | None) -> None:
-        if self.opts.quiet:
-            return
+    def _progress(self) -> None:
         now = time.monotonic()
-        if now - self._progress_at < 1.0 / PROGRESS_HZ:
-            return
-        self._progress_at = now
-        end = stop if stop is not None else max(r.end_time for r in self.readers)
-        sys.stdout.write("\r [RUNNING]  Bag Time: %13.6f   Duration: %.6f / %.6f               \r" % (
-            stamp / 1e9, (stamp - bag_start) / 1e9, (end - bag_start) / 1e9))
-        sys.stdout.flush()
+        if self.status_line and now - self._progress_at >= 1.0 / PROGRESS_HZ:
+            self._progress_at = now
+            self._status("RUNNING")
 
     def on_key(self) -> None:
         key = os.read(sys.stdin.fileno(), 1).decode("ascii", "replace")
@@ -211,9 +224,7 @@ class Player:
         """Wait (a little) until what was published has left for every subscriber."""
         deadline = time.monotonic() + FLUSH_S
         while time.monotonic() < deadline:
-            pending = [l for p in self.node.publications.values() for l in p.links
-                       if l.conn.transport is not None and l.conn.transport.get_write_buffer_size()]
-            if not pending:
+            if not any(l.pending for p in self.node.publications.values() for l in p.links):
                 return
             await asyncio.sleep(0.005)
 
@@ -224,14 +235,15 @@ class Player:
         bag_start = min(r.start_time for r in self.readers)
         start = bag_start + int(self.opts.start * 1e9)
         stop = start + int(self.opts.duration * 1e9) if self.opts.duration is not None else None
+        end = max(r.end_time for r in self.readers) - 1  # (rosbags' end_time is one past the last message)
+        self.last = end if stop is None else min(stop, end)
         while not self.stop.is_set():
-            await self.play_once(bag_start, start, stop)
+            await self.play_once(start, stop)
             if not self.opts.loop:
                 break
         await self.flush()
-        if not self.opts.quiet:
-            sys.stdout.write("\nDone.\n")
-            sys.stdout.flush()
+        # (rosbag's last line: Done. at the end of the bag, an empty one when stopped)
+        say("" if self.stop.is_set() else "\nDone.")
         if self.opts.keep_alive:
             await self.stop.wait()
         return 0
@@ -247,6 +259,8 @@ async def play(opts: argparse.Namespace, readers: list[Any], ros: rosargs.RosArg
         loop.add_signal_handler(sig, player.stop.set)
     shutdown = loop.create_task(node.shutdown_requested.wait())
     shutdown.add_done_callback(lambda _: player.stop.set())
+    if not opts.quiet:
+        say("")
     keys = not opts.quiet and sys.stdin is not None and sys.stdin.isatty()
     saved = None
     if keys:
@@ -254,8 +268,6 @@ async def play(opts: argparse.Namespace, readers: list[Any], ros: rosargs.RosArg
         saved = termios.tcgetattr(sys.stdin.fileno())
         tty.setcbreak(sys.stdin.fileno())
         loop.add_reader(sys.stdin.fileno(), player.on_key)
-        if not opts.quiet:
-            print("Hit space to toggle paused, or 's' to step.", flush=True)
     try:
         return await player.run()
     finally:
@@ -277,9 +289,17 @@ def main(argv: list[str]) -> int:
         p.error("you must specify at least 1 bag file to play back")
     if opts.rate <= 0:
         p.error("--rate must be greater than 0")
+    if opts.queue < 0:
+        p.error("--queue must be 0 (unbounded) or more")
+    if opts.hz is not None and not opts.clock:
+        # (rosbag play ignores it silently; a launch file's habit, so a warning, not an error)
+        print("[ WARN] --hz %g has no effect without --clock" % opts.hz, file=sys.stderr, flush=True)
+    if opts.hz is None:
+        opts.hz = 100.0
     readers = []
     try:
         for path in bags:
+            say("[ INFO] [%.9f]: Opening %s" % (time.time(), path))
             readers.append(open_bag(path))
     except BagError as exc:
         print("ERROR %s" % exc, file=sys.stderr)

@@ -4,6 +4,11 @@ The type, md5sum and full definition of each topic come from its publishers'
 TCPROS connection headers (we subscribe with md5sum `*`, as rosbag's
 ShapeShifter does), so no message package is needed. A bag is written under
 rosbag's `NAME.bag.active` and renamed to `NAME.bag` once closed and indexed.
+
+As in rosbag, messages are taken from the sockets on one side (the asyncio
+loop) and written on the other (a writer thread, which owns the open bag while
+it runs), through a buffer of `-b` MB whose oldest messages are dropped when it
+is full: a slow disk costs the oldest messages, not the reading of the sockets.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import logging
 import os
 import re
 import signal
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
@@ -22,10 +28,12 @@ from io import BytesIO
 from typing import Any, NamedTuple
 
 from rosbags.rosbag1 import Writer
-from rosbags.rosbag1.writer import MAXSIZE, WriteChunk
+from rosbags.rosbag1.reader import RecordType
+from rosbags.rosbag1.writer import MAXSIZE, Header, WriteChunk, serialize_time, serialize_uint32
 
 from launcher.model import names
 from launcher.bag import rosargs
+from launcher.bag.buffer import Buffer, Queued
 from launcher.bag.msgtypes import rosbags_type
 from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import ANY_MD5, PublisherLink, TopicType
@@ -142,6 +150,7 @@ class BagFile:
         self.path = path
         self.active = active
         self.writer = Writer(active)
+        self.compressed = compression != "none"
         if compression != "none":
             self.writer.set_compression(Writer.CompressionFormat[compression.upper()])
         self.writer.chunk_threshold = chunk_size
@@ -167,12 +176,47 @@ class BagFile:
             self.connections[key] = conn
         return conn
 
-    def write(self, conn: Any, stamp_ns: int, payload: bytes) -> None:
-        chunks = len(self.writer.chunks)
-        self.writer.write(conn, stamp_ns, payload)
+    def write(self, conn: Any, stamp_ns: int, payload: bytes | bytearray) -> None:
+        writer = self.writer
+        chunks = len(writer.chunks)
+        if not self.compressed and len(payload) >= writer.chunk_threshold and not writer.chunks[-1].data.tell():
+            self._write_chunk_of_one(conn, stamp_ns, payload)
+        else:
+            writer.write(conn, stamp_ns, payload)
         self.messages += 1
-        if len(self.writer.chunks) != chunks:  # a chunk was completed: to the disk with it
+        if len(writer.chunks) != chunks:  # a chunk was completed: to the disk with it
             self.disk.flush()
+
+    def _write_chunk_of_one(self, conn: Any, stamp_ns: int, payload: bytes | bytearray) -> None:
+        """A message as large as a chunk, as a chunk of its own: the records rosbags' writer writes for it
+        (chunk, message, index), but the message goes straight to the disk, not copied into the chunk's
+        buffer and out again (for megabyte messages those copies and their fresh pages were most of the cost)."""
+        writer, disk = self.writer, self.disk
+        record = BytesIO()
+        header = Header()
+        header.set_uint32("conn", conn.id)
+        header.set_time("time", stamp_ns)
+        header.write(record, RecordType.MSGDATA)
+        record.write(serialize_uint32(len(payload)))
+        head = record.getvalue()
+        chunk = writer.chunks[-1]
+        chunk.pos = disk.tell()
+        header = Header()
+        header.set_string("compression", "none")
+        header.set_uint32("size", len(head) + len(payload))
+        header.write(disk, RecordType.CHUNK)
+        disk.write(serialize_uint32(len(head) + len(payload)) + head)
+        disk.write(payload)
+        index = Header()
+        index.set_uint32("ver", 1)
+        index.set_uint32("conn", conn.id)
+        index.set_uint32("count", 1)
+        index.write(disk, RecordType.IDXDATA)
+        disk.write(serialize_uint32(12) + serialize_time(stamp_ns) + serialize_uint32(0))
+        chunk.start = chunk.end = stamp_ns
+        chunk.connections[conn.id].append((stamp_ns, 0))
+        chunk.data.close()
+        writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
 
     @property
     def size(self) -> int:
@@ -224,6 +268,9 @@ class Recorder:
         self.full: set[str] = set()        # topics that reached -l
         self.failed: str | None = None
         self.done = asyncio.Event()
+        self.loop = asyncio.get_running_loop()
+        self.buffer = Buffer(opts.buffer_size)
+        self.writer: threading.Thread | None = None
 
     # ------------------------------------------------------------------ bags
     def _open(self) -> None:
@@ -273,12 +320,11 @@ class Recorder:
         if self.failed is None:
             self.failed = why
             self.say("[ERROR] [%.9f]: %s" % (time.time(), why))
-        self.done.set()
+        self.loop.call_soon_threadsafe(self.done.set)  # (called by the writer thread too)
 
     # ------------------------------------------------------------------ messages
-    def on_message(self, payload: bytes, link: PublisherLink) -> None:
-        bag = self.bag
-        if bag is None:
+    def on_message(self, payload: bytes | bytearray, link: PublisherLink) -> None:
+        if self.failed:
             return
         topic = link.topic
         if self.opts.limit:
@@ -286,22 +332,48 @@ class Recorder:
             if count >= self.opts.limit:
                 return
             self.counts[topic] = count + 1
+        # stamped when received, as rosbag does
+        dropped = self.buffer.put(Queued(topic, link.header or {}, time.time_ns(), payload), time.monotonic())
+        if dropped:
+            self.say("[ WARN] [%.9f]: rosbag record buffer exceeded.  Dropping oldest queued message. (%d dropped: "
+                     "the disk is slower than the topics; -b sets the buffer, %d MB)"
+                     % (time.time(), dropped, self.opts.buffer_size >> 20))
+        if self.opts.limit and self.counts[topic] >= self.opts.limit:
+            self._topic_full(topic)
+
+    def _write_loop(self) -> None:
+        """The writer thread: buffered messages into the bag until the buffer is closed and empty, or a failure."""
+        try:
+            while not self.failed and (batch := self.buffer.take()):
+                for item in batch:
+                    if self.failed:
+                        return
+                    self._write(item)
+        except Exception as exc:  # never a silent end of the writing while the loop goes on receiving
+            log.exception("writing the bag")
+            self._fail("writing the bag: %s" % exc)
+
+    def _write(self, item: Queued) -> None:
+        bag = self.bag
+        if bag is None:
+            return
         # As rosbag: the message that finds the bag full or old enough opens the next one.
         if self.opts.split and (
                 (self.opts.size and bag.size >= self.opts.size)
                 or (self.opts.duration and time.monotonic() - bag.started >= self.opts.duration)):
-            self._split()
+            try:
+                self._split()
+            except OSError as exc:
+                self._fail("opening the next bag: %s" % exc)
+                return
             bag = self.bag
             if bag is None:
                 return
         try:
-            bag.write(bag.connection(topic, link.header or {}), time.time_ns(), payload)
+            bag.write(bag.connection(item.topic, item.header), item.stamp_ns, item.payload)
         except OSError as exc:
             self.bag = None
             self._failed_write(bag, exc)
-            return
-        if self.opts.limit and self.counts[topic] >= self.opts.limit:
-            self._topic_full(topic)
 
     def _topic_full(self, topic: str) -> None:
         self.full.add(topic)
@@ -359,6 +431,8 @@ class Recorder:
         except (OSError, ValueError) as exc:
             self.say("[ERROR] [%.9f]: cannot open the bag: %s" % (time.time(), exc))
             return 1
+        self.writer = threading.Thread(target=self._write_loop, name="bag writer", daemon=True)
+        self.writer.start()
         for topic in self.opts.topics:
             await self._subscribe(topic)
         poller = None
@@ -373,6 +447,12 @@ class Recorder:
         # What the kernel already holds for us belongs in the bag: read it, then close.
         for sub in list(self.node.subscriptions.values()):
             await sub.drain()
+        # ...and what the buffer holds (rosbag's writer too empties its queue before it closes the bag)
+        self.buffer.close()
+        await asyncio.to_thread(self.writer.join)
+        if self.buffer.total_dropped:
+            self.say("[ WARN] [%.9f]: %d messages were dropped: the buffer (-b %d MB) was full"
+                     % (time.time(), self.buffer.total_dropped, self.opts.buffer_size >> 20))
         self._close()
         return 1 if self.failed else 0
 

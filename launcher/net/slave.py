@@ -147,9 +147,10 @@ class SlaveNode:
             raise RuntimeError("master refused %s%r: %s" % (method, params, status))
         return value
 
-    async def advertise(self, topic: str, mtype: TopicType, *, latch: bool = False) -> Publication:
-        """Publish `topic` and register it with the master."""
-        pub = Publication(topic, mtype, self.name, latch=latch)
+    async def advertise(self, topic: str, mtype: TopicType, *, latch: bool = False,
+                        queue_size: int | None = None) -> Publication:
+        """Publish `topic` and register it with the master; `queue_size`: see Publication."""
+        pub = Publication(topic, mtype, self.name, latch=latch, queue_size=queue_size)
         self.publications[topic] = pub
         await self._master("registerPublisher", topic, mtype.name, self.uri)
         return pub

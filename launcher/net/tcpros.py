@@ -7,6 +7,7 @@ import asyncio
 import logging
 import socket
 import struct
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -153,6 +154,69 @@ class FrameCounter:
             self._skip = size
 
 
+class FrameReader:
+    """Frames read in place, for asyncio's BufferedProtocol: the socket is read into `get_buffer()`, then
+    `received(n)` says how much came. A frame larger than the scratch buffer is read straight into a
+    bytearray of its own, which is handed on as the frame (one copy, the kernel's: megabyte messages
+    are not copied again); smaller frames are cut from the scratch buffer as bytes."""
+
+    __slots__ = ("limit", "_scratch", "_view", "_fill", "_body", "_got")
+
+    SCRATCH = 64 * 1024
+
+    def __init__(self, limit: int = MAX_MESSAGE_SIZE):
+        self.limit = limit
+        self._scratch = bytearray(self.SCRATCH)
+        self._view = memoryview(self._scratch)
+        self._fill = 0                          # bytes in the scratch buffer
+        self._body: bytearray | None = None     # a large frame being read, and how much of it came
+        self._got = 0
+
+    def get_buffer(self) -> memoryview:
+        if self._body is not None:
+            return memoryview(self._body)[self._got:]
+        return self._view[self._fill:]
+
+    def received(self, n: int) -> list[bytes | bytearray]:
+        """The frames completed by `n` more bytes, oldest first; raises TcprosError on an absurd length."""
+        if self._body is not None:
+            self._got += n
+            if self._got < len(self._body):
+                return []
+            body, self._body = self._body, None
+            return [body]
+        self._fill += n
+        frames: list[bytes | bytearray] = []
+        buf, pos, fill = self._scratch, 0, self._fill
+        while fill - pos >= 4:
+            (size,) = _LEN.unpack_from(buf, pos)
+            if size > self.limit:
+                raise TcprosError("frame of %d bytes exceeds the %d byte limit" % (size, self.limit))
+            if fill - pos - 4 >= size:
+                frames.append(bytes(self._view[pos + 4:pos + 4 + size]))
+                pos += 4 + size
+            elif size > self.SCRATCH - 4:
+                # too big for the scratch buffer: the rest of it is read into its own bytearray
+                body = bytearray(size)
+                self._got = fill - pos - 4
+                body[:self._got] = self._view[pos + 4:fill]
+                self._body = body
+                pos = fill
+                break
+            else:
+                break
+        if pos:
+            rest = fill - pos
+            buf[:rest] = buf[pos:fill]  # (the start of a frame still coming: at most a scratch buffer)
+            self._fill = rest
+        return frames
+
+    @property
+    def pending(self) -> int:
+        """Bytes received that do not yet make a whole frame."""
+        return self._fill + (4 + self._got if self._body is not None else 0)
+
+
 def encode_service_response(ok: bool, payload: bytes) -> bytes:
     """A service reply: one ok byte, then the response (or the error text) framed."""
     return (b"\x01" if ok else b"\x00") + encode_frame(payload)
@@ -211,7 +275,7 @@ class PublisherLinkState:
         self.publisher_uri = publisher_uri
         self.phase = HEADER
         self.header: dict[str, str] | None = None
-        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.reader = FrameReader(MAX_HEADER_SIZE)
         self.bytes_received = 0
         self.messages_received = 0
         self.opened_at = now
@@ -226,11 +290,28 @@ class PublisherLinkState:
     def receive(self, data: bytes, now: float) -> list[tuple[str, Any]]:
         """What `data` brings, in order: ("header", dict), ("message", payload), or ("failed", why), after
         which nothing more is read."""
+        out: list[tuple[str, Any]] = []
+        view = memoryview(data)
+        pos = 0
+        while pos < len(view) and self.phase != FAILED:
+            buf = self.get_buffer()
+            n = min(len(buf), len(view) - pos)
+            buf[:n] = view[pos:pos + n]
+            pos += n
+            out += self.received(n, now)
+        return out
+
+    def get_buffer(self) -> memoryview:
+        """Where the next bytes from the socket go (see FrameReader)."""
+        return self.reader.get_buffer()
+
+    def received(self, n: int, now: float) -> list[tuple[str, Any]]:
+        """What `n` more bytes in get_buffer() bring: as `receive`."""
         if self.phase == FAILED:
             return []
-        self.bytes_received += len(data)
+        self.bytes_received += n
         try:
-            frames = self.decoder.feed(data)
+            frames = self.reader.received(n)
         except TcprosError as exc:
             return [self._failed("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))]
         out: list[tuple[str, Any]] = []
@@ -262,7 +343,7 @@ class PublisherLinkState:
                 self.publisher_uri, self.topic, header.get("type", "?"), theirs, self.mtype.name, self.mtype.md5sum))
         self.header = header
         self.phase = MESSAGES
-        self.decoder.limit = MAX_MESSAGE_SIZE
+        self.reader.limit = MAX_MESSAGE_SIZE
         return ("header", header)
 
     def _failed(self, why: str) -> tuple[str, Any]:
@@ -317,11 +398,12 @@ class InboundState:
                 header.get("probe") == "1")
 
 
-class PublisherLink(asyncio.Protocol):
-    """Our connection, as a subscriber, to one publisher of a topic: the asyncio side of a PublisherLinkState."""
+class PublisherLink(asyncio.BufferedProtocol):
+    """Our connection, as a subscriber, to one publisher of a topic: the asyncio side of a PublisherLinkState
+    (a buffered protocol: the socket is read into the state's buffers, a large message straight into its own)."""
 
     def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str,
-                 on_message: Callable[[bytes, PublisherLink], None],
+                 on_message: Callable[[bytes | bytearray, PublisherLink], None],
                  on_close: Callable[[PublisherLink], None]):
         self.loop = asyncio.get_running_loop()
         self.state = PublisherLinkState(topic, mtype, callerid, publisher_uri, self.loop.time())
@@ -355,8 +437,17 @@ class PublisherLink(asyncio.Protocol):
         self.info = transport_info(transport.get_extra_info("socket"))
         transport.write(self.state.request())  # type: ignore[attr-defined]
 
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self.state.get_buffer()
+
+    def buffer_updated(self, nbytes: int) -> None:
+        self._deliver(self.state.received(nbytes, self.loop.time()))
+
     def data_received(self, data: bytes) -> None:
-        for kind, value in self.state.receive(data, self.loop.time()):
+        self._deliver(self.state.receive(data, self.loop.time()))
+
+    def _deliver(self, events: list[tuple[str, Any]]) -> None:
+        for kind, value in events:
             if kind == "message":
                 try:
                     self.on_message(value, self)
@@ -502,6 +593,9 @@ class Publication:
     mtype: TopicType
     callerid: str
     latch: bool = False
+    # roscpp's publisher queue: messages per subscriber waiting for its socket, the oldest dropped past it
+    # (0: unbounded); None: no queue of ours, a subscriber MAX_WRITE_BACKLOG bytes behind loses new messages
+    queue_size: int | None = None
     links: list[SubscriberLink] = field(default_factory=list)
     messages_published: int = 0
     last: bytes | None = None
@@ -546,6 +640,8 @@ class InboundConnection(asyncio.Protocol):
         self.bytes_sent = 0
         self.messages_sent = 0
         self.drops = 0
+        self.link: SubscriberLink | None = None
+        self.writing_paused = False       # asyncio's flow control: the socket and our buffer are full
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
@@ -610,7 +706,8 @@ class InboundConnection(asyncio.Protocol):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.transport.write(encode_header(reply))
         self.publication = pub
-        link = SubscriberLink(self, header["callerid"])
+        link = SubscriberLink(self, header["callerid"], pub.queue_size)
+        self.link = link
         pub.links.append(link)
         if pub.latch and pub.last is not None:
             link.send(pub.last)
@@ -638,26 +735,59 @@ class InboundConnection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self._forget()
 
+    def pause_writing(self) -> None:
+        self.writing_paused = True
+
+    def resume_writing(self) -> None:
+        self.writing_paused = False
+        if self.link is not None:
+            self.link.flush()
+
 
 class SubscriberLink:
-    """One subscriber connected to one of our publications."""
+    """One subscriber connected to one of our publications. With a queue size, frames wait in `outbox` while the
+    connection's writing is paused (as in roscpp's publisher queue: the oldest dropped when it is full)."""
 
-    __slots__ = ("conn", "callerid")
+    __slots__ = ("conn", "callerid", "queue_size", "outbox")
 
-    def __init__(self, conn: InboundConnection, callerid: str):
+    def __init__(self, conn: InboundConnection, callerid: str, queue_size: int | None = None):
         self.conn = conn
         self.callerid = callerid
+        self.queue_size = queue_size
+        self.outbox: deque[bytes] = deque()
 
     def send(self, frame: bytes) -> None:
         transport = self.conn.transport
         if transport is None or transport.is_closing():
             return
-        if transport.get_write_buffer_size() > MAX_WRITE_BACKLOG:
+        if self.queue_size is not None:
+            if self.conn.writing_paused or self.outbox:
+                if self.queue_size and len(self.outbox) >= self.queue_size:
+                    self.outbox.popleft()
+                    self.conn.drops += 1
+                self.outbox.append(frame)
+                return
+        elif transport.get_write_buffer_size() > MAX_WRITE_BACKLOG:
             self.conn.drops += 1
             return
+        self._write(transport, frame)
+
+    def _write(self, transport: asyncio.Transport, frame: bytes) -> None:
         transport.write(frame)
         self.conn.bytes_sent += len(frame)
         self.conn.messages_sent += 1
+
+    def flush(self) -> None:
+        """Hand the outbox to the socket while it takes it."""
+        transport = self.conn.transport
+        while self.outbox and not self.conn.writing_paused and transport is not None and not transport.is_closing():
+            self._write(transport, self.outbox.popleft())
+
+    @property
+    def pending(self) -> bool:
+        """Something not yet on its way to the subscriber (in the outbox, or in the transport's buffer)."""
+        transport = self.conn.transport
+        return bool(self.outbox) or (transport is not None and bool(transport.get_write_buffer_size()))
 
     @property
     def id(self) -> int:

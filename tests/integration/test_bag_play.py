@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import os
+import pty
+import re
 import signal
+import socket
 import subprocess
+import threading
+import xmlrpc.client
 
 import pytest
+from rosbags.rosbag1 import Writer
 
 from bagparts import graph_env, ROS_PYTHON, bag_argv, debian_read, listeners, our_env, talkers
 from helpers import Procs, until
 from running import RosMaster
+
+from launcher.net.tcpros import FrameDecoder, encode_header
 
 COUNT = 50
 
@@ -159,3 +167,106 @@ def test_start_and_duration_play_a_slice(tmp_path, graph):
     got = [int(line.split()[1]) for line in lines(out)]
     # about 20 of the 50, from about the 10th: contiguous, none of the bag's first or last ones
     assert got == list(range(got[0], got[0] + len(got))) and 5 <= got[0] <= 15 and 12 <= len(got) <= 28, got
+
+
+def test_queue_keeps_the_newest_messages_for_a_stalled_subscriber(tmp_path, graph):
+    # --queue 3 (roscpp's publisher queue): a subscriber that stops reading gets, once it reads again, what
+    # its socket held and then the newest three; the oldest queued ones were dropped, never the newest
+    env, procs = graph
+    bag, count = str(tmp_path / "big.bag"), 200
+    writer = Writer(bag)
+    writer.open()
+    conn = writer.add_connection("/big", "std_msgs/msg/String", msgdef="string data\n",
+                                 md5sum="992ce8a1687cec8c8bd883ec73ca41d1", callerid="/talker")
+    for n in range(count):
+        data = ("m %d " % n).ljust(200_000, "x").encode()
+        writer.write(conn, 10**18 + n * 10**6, len(data).to_bytes(4, "little") + data)
+    writer.close()
+    player = procs.start(bag_argv("play", "-i", "--queue", "3", "--wait-for-subscribers", "-k", bag,
+                                  "__name:=player"), env=our_env(env), stdout=subprocess.PIPE, text=True)
+    master = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])
+    uri = until(lambda: master.lookupNode("/test", "/player")[2] or None, 30, what="the player registered")
+    until(lambda: "/big" in [t for t, _ in master.getPublishedTopics("/test", "")[2]], 30, what="/big advertised")
+    _, _, (_, host, port) = xmlrpc.client.ServerProxy(uri).requestTopic("/test", "/big", [["TCPROS"]])
+    sub = socket.socket()
+    sub.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 65536)  # a small window: the player soon has to queue
+    sub.connect((host, port))
+    sub.sendall(encode_header({"callerid": "/stalled", "topic": "/big", "md5sum": "*",
+                               "type": "std_msgs/String", "tcp_nodelay": "1"}))
+    done = threading.Event()
+    threading.Thread(target=lambda: [done.set() for line in player.stdout if "Done." in line], daemon=True).start()
+    assert done.wait(60), "the player never finished"  # every message published while we did not read
+    sub.settimeout(30)
+    decoder, frames, last = FrameDecoder(), [], b"m %d " % (count - 1)
+    while not frames or not frames[-1][4:].startswith(last):  # (a frame: the string's length, then it)
+        frames += decoder.feed(sub.recv(1 << 20))
+    sub.close()
+    got = [int(f[4:16].split()[1]) for f in frames[1:]]  # (frames[0]: the player's header)
+    assert got[-3:] == [count - 3, count - 2, count - 1], got
+    assert len(got) < count // 2 and got == sorted(got), got
+
+
+def short_bag(path: str, count: int = 20) -> str:
+    writer = Writer(path)
+    writer.open()
+    conn = writer.add_connection("/chatter", "std_msgs/msg/String", msgdef="string data\n",
+                                 md5sum="992ce8a1687cec8c8bd883ec73ca41d1", callerid="/talker")
+    for n in range(count):
+        data = b"m %d" % n
+        writer.write(conn, 10**18 + n * 10**7, len(data).to_bytes(4, "little") + data)
+    writer.close()
+    return path
+
+
+def said(out: str) -> str:
+    """A player's stdout without what differs by design: the time in its log line, roscpp's colour codes, and the
+    status lines (each written between two carriage returns)."""
+    out = re.sub(r"\x1b\[0m", "", out)
+    out = re.sub(r"^\[ INFO\] \[\d+\.\d+\]", "[ INFO] [T]", out, flags=re.M)
+    return re.sub(r"\r[^\r]*\r", "", out)
+
+
+def test_said_as_rosbag_play_says_it(tmp_path, graph):
+    env, procs = graph
+    bag = short_bag(str(tmp_path / "short.bag"))
+    for args in ([], ["-q"], ["-d", "0.5"], ["-q", "-d", "0"]):
+        # (bytes: text mode would make each carriage return a newline)
+        theirs = subprocess.run(["/usr/lib/rosbag/play", *args, bag], env=env, capture_output=True, timeout=60)
+        ours = subprocess.run(bag_argv("play", *args, bag), env=our_env(env), capture_output=True, timeout=60)
+        assert theirs.returncode == ours.returncode == 0, (theirs.stderr, ours.stderr)
+        assert said(ours.stdout.decode()) == said(theirs.stdout.decode()), args
+        assert b"Bag Time" not in ours.stdout  # a pipe: no status line (rosbag writes it there too)
+
+
+def test_status_line_on_a_terminal_only(tmp_path, graph):
+    env, procs = graph
+    bag = short_bag(str(tmp_path / "short.bag"))
+    for args, status in (([], True), (["-q"], False)):
+        leader, follower = pty.openpty()
+        player = subprocess.Popen(bag_argv("play", *args, bag), env=our_env(env), stdin=subprocess.DEVNULL,
+                                  stdout=follower, stderr=subprocess.DEVNULL, start_new_session=True)
+        os.close(follower)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # EIO: the player closed its end
+                break
+            if not chunk:
+                break
+            out += chunk
+        os.close(leader)
+        assert player.wait(30) == 0
+        line = re.search(rb"\r \[RUNNING\]  Bag Time: +(\d+\.\d{6})   Duration: (\d+\.\d{6}) / 0\.190000 +\r", out)
+        assert bool(line) == status, out
+        if status:
+            assert float(line.group(1)) >= 1e9 and 0 <= float(line.group(2)) <= 0.19
+        assert out.replace(b"\r\n", b"\n").endswith(b"\nDone.\n"), out
+
+
+def test_hz_without_clock_is_said_to_do_nothing(tmp_path, graph):
+    env, _ = graph
+    bag = short_bag(str(tmp_path / "short.bag"), 2)
+    out = subprocess.run(bag_argv("play", "-q", "-d", "0", "--hz", "50", bag), env=our_env(env), capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0 and "--hz 50 has no effect without --clock" in out.stderr, out.stderr

@@ -6,12 +6,16 @@ import glob
 import os
 import signal
 import subprocess
+import threading
 
 import pytest
 
-from bagparts import MOUNT_NS, bag_argv, debian_read, graph_env, listeners, mount_ns_missing, our_env, talkers
-from helpers import Procs, until
+from bagparts import MOUNT_NS, bag_argv, debian_env, debian_read, graph_env, listeners, mount_ns_missing, our_env, talkers
+from helpers import ROOT, Procs, until
 from running import RosMaster
+
+from launcher.bag import buffer, record
+from launcher.bag import main as bag_main
 
 COUNT = 40
 
@@ -173,3 +177,51 @@ def test_node_records_what_a_node_subscribes_to(tmp_path, graph):
     read = debian_read(bag, env)
     assert set(read["topics"]) == {"/wanted"}, read["topics"]
     assert [d for _, d in read["messages"]] == ["w %d" % n for n in range(20)]
+
+
+def test_full_buffer_drops_the_oldest_messages(tmp_path, graph, monkeypatch, capsys):
+    # -b 1: while the disk is stalled (the bag's writes held until everything was received), the buffer keeps
+    # the newest megabyte and drops the oldest, with rosbag's warning; the writer then writes what it kept.
+    # In this process (the disk is a patched BagFile.write); master, talker and sockets are real.
+    env, procs, talk = graph
+    bag = str(tmp_path / "buffered.bag")
+    count, pad = 40, 100_000
+    gate = threading.Event()
+    write, close = record.BagFile.write, buffer.Buffer.close
+
+    def stalled_write(self, *args):
+        assert gate.wait(60), "the buffer was never closed"
+        return write(self, *args)
+
+    def open_gate(self):  # the recorder has all it will receive: let the disk go
+        gate.set()
+        close(self)
+
+    monkeypatch.setattr(record.BagFile, "write", stalled_write)
+    monkeypatch.setattr(buffer.Buffer, "close", open_gate)
+    procs.start(talk["roscpp"] + ["/chatter", "m", str(count), "100", "1", str(pad)])
+    argv = ["record", "-O", bag, "-b", "1", "-l", str(count), "/chatter", "__master:=" + env["ROS_MASTER_URI"],
+            "__ip:=127.0.0.1"]
+    assert bag_main.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "rosbag record buffer exceeded.  Dropping oldest queued message." in out, out
+    read = debian_read(bag, env)
+    data = [d.rstrip("x") for _, d in read["messages"]]
+    # the first message (taken by the writer before the stall), then the newest ten that fit in 1 MB
+    kept = (1 << 20) // (pad + 4)  # (a payload: its length, then the string)
+    assert data == ["m 0"] + ["m %d" % n for n in range(count - kept, count)], data
+
+
+def test_chunk_sized_messages_are_what_debian_rosbag_reads(tmp_path, ros_env, monkeypatch):
+    # (each written as a chunk of its own, straight to the disk: Debian's reader and rosbag check agree)
+    monkeypatch.syspath_prepend(os.path.join(ROOT, "tests", "bag"))
+    from test_bagfile import mixed_bag
+
+    bag = str(tmp_path / "mixed.bag")
+    written = mixed_bag(bag)
+    env = debian_env(dict(os.environ))
+    read = debian_read(bag, env)
+    assert read["topics"] == {"/big": ["std_msgs/String", 26], "/small": ["std_msgs/String", 14]}
+    assert [(t, d) for t, d in read["messages"]] == [(t, p[4:].decode()) for t, _, p in written]
+    check = subprocess.run(["rosbag", "check", bag], env=env, capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0 and "Bag file does not need any migrations" in check.stdout, check

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from launcher.net.tcpros import (WATCH_LOWAT, FrameCounter, FrameDecoder, InboundConnection, Publication, PublisherLink,
+from launcher.net.tcpros import (WATCH_LOWAT, FrameCounter, FrameDecoder, FrameReader, InboundConnection, Publication, PublisherLink,
                              ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
                              decode_header, encode_frame, encode_header, transport_info, watch_publisher)
 
@@ -102,6 +102,43 @@ def test_the_frame_counter_counts_what_the_decoder_splits_however_the_stream_is_
 def test_the_frame_counter_refuses_an_absurd_length():
     with pytest.raises(TcprosError, match="exceeds"):
         FrameCounter(limit=100).feed(struct.pack("<I", 101))
+
+
+def read_in_place(reader: FrameReader, stream: bytes, cuts: list[int]) -> list:
+    """As asyncio's BufferedProtocol: each piece copied into get_buffer() (as recv_into would), then received()."""
+    got: list = []
+    last = 0
+    for cut in cuts + [len(stream)]:
+        while last < cut:
+            buf = reader.get_buffer()
+            assert len(buf) > 0
+            n = min(len(buf), cut - last)
+            buf[:n] = stream[last:last + n]
+            last += n
+            got += reader.received(n)
+    return got
+
+
+@given(st.lists(st.sampled_from([0, 1, 3, 100, FrameReader.SCRATCH - 4, FrameReader.SCRATCH - 3, 200_000]),
+                max_size=8), st.data())
+def test_frames_read_in_place_survive_any_split(sizes, data):
+    payloads = [bytes([i % 251]) * size for i, size in enumerate(sizes)]
+    stream = b"".join(encode_frame(p) for p in payloads)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=10)))
+    reader = FrameReader()
+    got = read_in_place(reader, stream, cuts)
+    assert [bytes(g) for g in got] == payloads and reader.pending == 0
+    # a frame larger than the scratch buffer is handed on as the buffer it was read into
+    assert all(isinstance(g, bytearray) == (len(g) > FrameReader.SCRATCH - 4) for g in got)
+
+
+def test_frame_read_in_place_waits_for_the_rest_and_refuses_absurd_lengths():
+    reader = FrameReader()
+    frame = encode_frame(b"y" * 100_000)
+    assert read_in_place(reader, frame[:70_000], []) == [] and reader.pending == 70_000
+    assert read_in_place(reader, frame[70_000:] + frame[:2], []) == [b"y" * 100_000] and reader.pending == 2
+    with pytest.raises(TcprosError, match="exceeds"):
+        read_in_place(FrameReader(limit=1000), struct.pack("<I", 0xFFFFFFF0) + b"xx", [])
 
 
 def test_transport_info_has_rosnode_info_shape():
