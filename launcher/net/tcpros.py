@@ -106,12 +106,6 @@ class FrameDecoder:
         """Bytes received that do not yet make a whole frame."""
         return len(self._buf)
 
-    def take_pending(self) -> bytes:
-        """The bytes of the incomplete frame, handed on (to a FrameCounter) and forgotten here."""
-        rest = bytes(self._buf)
-        self._buf.clear()
-        return rest
-
 
 class FrameCounter:
     """Counts the length-prefixed frames of a byte stream without keeping their bytes: a watcher that only
@@ -215,6 +209,16 @@ class FrameReader:
     def pending(self) -> int:
         """Bytes received that do not yet make a whole frame."""
         return self._fill + (4 + self._got if self._body is not None else 0)
+
+    def take_pending(self) -> bytes:
+        """The bytes of the incomplete frame, its length first, handed on (to a FrameCounter) and forgotten here."""
+        if self._body is not None:
+            rest = _LEN.pack(len(self._body)) + bytes(self._body[:self._got])
+            self._body, self._got = None, 0
+        else:
+            rest = bytes(self._view[:self._fill])
+        self._fill = 0
+        return rest
 
 
 def encode_service_response(ok: bool, payload: bytes) -> bytes:
@@ -574,7 +578,7 @@ async def watch_publisher(host: str, port: int, topic: str, callerid: str, publi
                     raise TcprosError(value)
                 early += what == "message"
         counter = FrameCounter()
-        early += counter.feed(state.decoder.take_pending())
+        early += counter.feed(state.reader.take_pending())
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, WATCH_LOWAT)
     except BaseException:
         sock.close()

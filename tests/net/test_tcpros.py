@@ -324,3 +324,14 @@ def test_inbound_connections_are_forgotten_when_closed():
         await until_async(lambda: not server.connections, 5)
         await server.stop()
     asyncio.run(main())
+
+
+@pytest.mark.parametrize("cut", [2, 10, 70_000])
+def test_what_a_reader_holds_after_the_header_is_counted_by_the_watch(cut):
+    """A watch reads the handshake with a FrameReader, then counts frames: what the reader holds of a frame
+    (a small one in its scratch buffer, a large one in its own) goes on to the counter whole."""
+    stream = encode_frame(b"y" * 100_000) + encode_frame(b"z" * 5)
+    reader = FrameReader()
+    assert read_in_place(reader, stream[:cut], []) == []
+    counter = FrameCounter()
+    assert counter.feed(reader.take_pending()) + counter.feed(stream[cut:]) == 2 and reader.pending == 0
