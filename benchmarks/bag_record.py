@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -35,15 +34,10 @@ sys.path[:0] = [os.path.join(ROOT, "tests"), os.path.join(ROOT, "tests", "integr
 
 from running import compile_roscpp  # noqa: E402  (the tests' roscpp build, cached by content)
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+from common import ROS_PATH, free_port  # (this folder is on the path of a script run from it)
+
 REFERENCE_RECORD = "/usr/lib/rosbag/record"
 REFERENCE_PLAY = "/usr/lib/rosbag/play"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond, timeout: float, what: str) -> None:

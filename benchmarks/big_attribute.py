@@ -29,8 +29,9 @@ import tempfile
 import threading
 import time
 
+from common import ROS_PATH  # (this folder is on the path of a script run from it)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
 
 VALUES = {
     "plain": lambda n: "x" * n,

@@ -31,14 +31,10 @@ import time
 import urllib.parse
 import xmlrpc.client
 
+from common import free_port  # (this folder is on the path of a script run from it)
+
 MIX = {"getParam": 30, "setParam": 15, "hasParam": 5, "registerPublisher": 10, "unregisterPublisher": 5,
        "lookupNode": 15, "getSystemState": 10, "getPid": 5, "getParamNames": 5}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class RawClient:

@@ -33,14 +33,9 @@ import xmlrpc.client
 
 import psutil
 
+from common import free_port  # (this folder is on the path of a script run from it)
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def make_launch(tmp: str, n: int) -> str:

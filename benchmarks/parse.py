@@ -29,10 +29,11 @@ import sys
 import tempfile
 import time
 
+from common import ROS_PATH  # (this folder is on the path of a script run from it)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 DEFAULT_BENCH_DIR = os.path.join(REPO, "..", "shared", "bench")
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
 
 
 def our_command() -> list[str]:

@@ -33,15 +33,10 @@ import tempfile
 import time
 import xmlrpc.client
 
+from common import free_port  # (this folder is on the path of a script run from it)
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED_BENCH = os.path.normpath(os.path.join(REPO, "..", "shared", "bench"))
-
-
-def free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def tiny_node(dest: str) -> None:

@@ -52,7 +52,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 from testhosts import TestHosts  # noqa: E402
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+from common import ROS_PATH  # (this folder is on the path of a script run from it)
+
 NODE_CPP = """#include <ros/ros.h>
 int main(int argc, char** argv) { ros::init(argc, argv, "bench_node"); ros::NodeHandle nh; ros::spin(); return 0; }
 """

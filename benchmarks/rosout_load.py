@@ -21,7 +21,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -30,9 +29,10 @@ import xmlrpc.client
 
 import psutil
 
+from common import ROS_PATH, free_port  # (this folder is on the path of a script run from it)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
 REFERENCE_ROSOUT = "/usr/lib/rosout/rosout"
 
 
@@ -52,12 +52,6 @@ def compile_logger(build: str) -> str:
     exe = os.path.join(build, "cpp_logger")
     subprocess.run(["g++", "-O2", "-o", exe, src] + flags, check=True)
     return exe
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond, timeout: float, what: str):

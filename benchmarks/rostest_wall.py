@@ -22,8 +22,9 @@ import sys
 import tempfile
 import time
 
+from common import ROS_PATH  # (this folder is on the path of a script run from it)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
 PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>benchtest</name><version>0.0.1</version>'
                '<description>d</description><maintainer email="m@example.com">m</maintainer>'
                '<license>BSD</license></package>\n')

@@ -22,14 +22,14 @@ import re
 import select
 import shlex
 import signal
-import socket
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+from common import ROS_PATH, free_port  # (this folder is on the path of a script run from it)
+
 LINE = "[ INFO] [1700000000.000000000]: a typical log line, padded to eighty characters...."
 FLOOD = """#!/bin/sh
 while [ ! -e "$GO" ]; do sleep 0.02; done
@@ -39,12 +39,6 @@ echo FLOOD-END
 PACKAGE_XML = ('<?xml version="1.0"?>\n<package format="2"><name>bench_screen</name><version>0.0.1</version>'
                '<description>bench</description><maintainer email="b@example.com">b</maintainer>'
                '<license>BSD</license></package>\n')
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cpu_seconds(pid: int) -> float:

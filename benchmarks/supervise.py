@@ -23,7 +23,8 @@ import subprocess
 import sys
 import tempfile
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+from common import ROS_PATH  # (this folder is on the path of a script run from it)
+
 # the project's shared driver, beside the checkout
 SHARED_BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "bench",
                             "bench.py")

@@ -25,7 +25,6 @@ import argparse
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -38,15 +37,10 @@ sys.path[:0] = [os.path.join(ROOT, "tests"), os.path.join(ROOT, "tests", "integr
 
 from running import compile_roscpp, make_package  # noqa: E402  (the tests' roscpp build and package maker)
 
-ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"
+from common import ROS_PATH, free_port  # (this folder is on the path of a script run from it)
+
 SMALL = 10
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(cond, timeout: float, what: str) -> None:
