@@ -195,7 +195,7 @@ class ResourceMonitor:
         if policy.memory_limit is not None:
             over = rss > policy.memory_limit
             self._limit(proc, "memory_limit", policy.memory_limit, over, "uses %s of memory, %s its limit of %s"
-                        % (format_size(rss), "over" if over else "under", format_size(policy.memory_limit)))
+                        % (format_size(rss, measured=True), "over" if over else "under", format_size(policy.memory_limit)))
         if policy.cpu_limit is not None:
             over = cpu > policy.cpu_limit
             self._limit(proc, "cpu_limit", policy.cpu_limit, over, "uses %.2f CPU cores, %s its limit of %g"

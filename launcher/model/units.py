@@ -34,12 +34,13 @@ def parse_size(text: str) -> int:
     return int(whole or 0) * scale + int(fraction or 0) * scale // 10 ** len(fraction)
 
 
-def format_size(n: float) -> str:
+def format_size(n: float, measured: bool = False) -> str:
     """Bytes for people, in units `parse_size` reads back: exactly in the largest unit that gives the size to a tenth
     (100000000 -> 100MB, 2**30 -> 1GiB, 1.5 * 2**30 -> 1.5GiB), else to a tenth of a decimal unit (612345678 ->
-    612.3MB)."""
+    612.3MB). A `measured` size (a process's RSS, free space) is only ever the latter: memory comes in 4 KiB pages,
+    and 33624064 is more readable as 33.6MB than as the exact 32836KiB."""
     n = int(n)
-    for scale, unit in _UNITS:
+    for scale, unit in () if measured else _UNITS:
         if n >= scale and n * 10 % scale == 0:
             return _tenths(n * 10 // scale) + unit
     for scale, unit in _UNITS:

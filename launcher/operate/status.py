@@ -77,7 +77,7 @@ def row(n: dict[str, Any]) -> tuple[str, ...]:
     return (n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
             duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
             "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
-            "-" if n.get("rss") is None or not running else format_size(n["rss"]), n.get("host", ""))
+            "-" if n.get("rss") is None or not running else format_size(n["rss"], measured=True), n.get("host", ""))
 
 
 def node_table(nodes: list[dict[str, Any]]) -> str:

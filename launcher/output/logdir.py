@@ -104,7 +104,7 @@ def disk_space_warning(root: str) -> str | None:
         return None
     if du.free < LOW_DISK_BYTES or du.free < du.total * LOW_DISK_FRACTION:
         return ("WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
-                % (root, format_size(du.free), format_size(du.total)))
+                % (root, format_size(du.free, measured=True), format_size(du.total, measured=True)))
     return None
 
 

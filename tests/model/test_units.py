@@ -69,3 +69,10 @@ def test_default_log_check_threshold_is_roslaunchs_2_to_the_30_and_keeps_its_wor
     assert plan.log_threshold == logdir.DEFAULT_THRESHOLD == 2**30
     assert plan.log_max_size == 100_000_000  # the default --log-max-size, 100MB
     assert _plan(tmp_path, ["--log-check-threshold", "1GB"]).log_threshold == 10**9
+
+
+def test_a_measured_size_is_never_an_exact_binary_unit():
+    """A process's RSS is a number of 4 KiB pages: shown to a tenth of a decimal unit, as the web page does."""
+    assert format_size(8209 * 4096) == "32836KiB"
+    assert format_size(8209 * 4096, measured=True) == "33.6MB"
+    assert format_size(100_000_000, measured=True) == "100MB" and format_size(512, measured=True) == "512B"

@@ -20,7 +20,7 @@ def node(name: str, state: str, **kw) -> dict:
 def test_a_node_that_does_not_run_shows_no_pid_cpu_or_rss(state):
     """The state model keeps the last sample of a run that ended: it is no node's use now."""
     rows = table({"nodes": [node("/a", "running", cpu=0.25, uptime=5.0), node("/b", state, cpu=0.5)]}).splitlines()[1:]
-    assert rows[1].split() == ["/a", "running", "123", "5s", "0", "-", "25%", "31MiB", "localhost"]
+    assert rows[1].split() == ["/a", "running", "123", "5s", "0", "-", "25%", "32.5MB", "localhost"]
     assert rows[2].split() == ["/b", state, "-", "-", "0", "-", "-", "-", "localhost"]
 
 
