@@ -55,72 +55,77 @@ def stop_roscore(proc: subprocess.Popen) -> None:
         proc.wait(30)
 
 
-def test_a_restarted_roscore_gets_the_parameters_and_the_nodes_again(tmp_path, ros_env):
-    port = free_port()
-    env = run_env(str(tmp_path), port, str(tmp_path))
-    tool_env = dict(env, PATH=ROS_PATH, ROS_LOG_DIR=str(tmp_path / "corelog"))
-    core = roscore(tool_env, port)
-    lp = None
+class Beside:
+    """Debian's roscore on a free port (`core`, restarted by a test) and a launch of BODY that found it (`lp`)."""
+
+    def __init__(self, tmp_path):
+        self.tmp_path = tmp_path
+        self.port = free_port()
+        self.env = run_env(str(tmp_path), self.port, str(tmp_path))
+        self.tool_env = dict(self.env, PATH=ROS_PATH, ROS_LOG_DIR=str(tmp_path / "corelog"))
+        self.core = roscore(self.tool_env, self.port)
+        self.lp = None
+
+    def start_launch(self) -> None:
+        until(lambda: master_up(self.port), 30, what="roscore up")
+        until(lambda: "/rosout" in self.nodes(), 30, what="roscore's rosout")
+        self.lp = Launcher([write_launch(str(self.tmp_path), BODY)],
+                           dict(self.env, PATH=ROS_PATH + ":" + self.env["PATH"]), str(self.tmp_path))
+        until(lambda: {"/talker", "/listener"} <= set(self.nodes()), 60, 0.2, what="the nodes registered")
+
+    def nodes(self) -> list[str]:
+        return ros_tool(self.tool_env, "rosnode", "list").split()
+
+    def close(self) -> None:
+        if self.lp is not None:
+            self.lp.close()
+        stop_roscore(self.core)
+
+
+@pytest.fixture
+def beside(tmp_path, ros_env):
+    b = Beside(tmp_path)
     try:
-        until(lambda: master_up(port), 30, what="roscore up")
-        until(lambda: "/rosout" in ros_tool(tool_env, "rosnode", "list").split(), 30, what="roscore's rosout")
-        lp = Launcher([write_launch(str(tmp_path), BODY)], dict(env, PATH=ROS_PATH + ":" + env["PATH"]),
-                      str(tmp_path))
-
-        def nodes() -> list[str]:
-            return ros_tool(tool_env, "rosnode", "list").split()
-        until(lambda: {"/talker", "/listener"} <= set(nodes()), 60, 0.2, what="the nodes registered")
-        before = lp.started_pids()
-
-        kill_roscore(core, port)
-        core = roscore(tool_env, port)
-        until(lambda: master_up(port), 30, what="roscore up again")
-        until(lambda: ros_tool(tool_env, "rosparam", "get", "/watched/greeting").strip() == "hello", 30, 0.2,
-              what="the launch's parameters back")
-        assert ros_tool(tool_env, "rosparam", "get", "/watched/list").split() == ["-", "1", "-", "2", "-", "3"]
-        until(lambda: {"/talker", "/listener"} <= set(nodes()), 30, 0.2, what="the nodes registered again")
-        info = ros_tool(tool_env, "rostopic", "info", "/chatter")
-        assert "/talker" in info and "/listener" in info, info
-        after = lp.started_pids()
-        assert len(before) == 2 and all(after[name] != pid for name, pid in before.items()), (before, after)
-        lp.wait_output(r"the master at \S+ restarted .*restarting the 2 node\(s\) that were registered with it: "
-                       r"/listener, /talker")
-        events_file = next(os.path.join(root, f) for root, _, files in os.walk(tmp_path / "log")
-                           for f in files if f == "launcher-events.jsonl")
-        with open(events_file) as f:
-            events = [json.loads(line) for line in f]
-        restarted = [e for e in events if e.get("event") == "master_restarted"]
-        assert restarted and restarted[0]["nodes"] == ["/listener", "/talker"], events
+        b.start_launch()
+        yield b
     finally:
-        if lp is not None:
-            lp.close()
-        stop_roscore(core)
+        b.close()
 
 
-def test_a_master_that_stops_answering_and_comes_back_unchanged_restarts_nothing(tmp_path, ros_env):
-    port = free_port()
-    env = run_env(str(tmp_path), port, str(tmp_path))
-    tool_env = dict(env, PATH=ROS_PATH, ROS_LOG_DIR=str(tmp_path / "corelog"))
-    core = roscore(tool_env, port)
-    lp = None
+def test_a_restarted_roscore_gets_the_parameters_and_the_nodes_again(tmp_path, beside):
+    port, tool_env, lp = beside.port, beside.tool_env, beside.lp
+    before = lp.started_pids()
+
+    kill_roscore(beside.core, port)
+    beside.core = roscore(tool_env, port)
+    until(lambda: master_up(port), 30, what="roscore up again")
+    until(lambda: ros_tool(tool_env, "rosparam", "get", "/watched/greeting").strip() == "hello", 30, 0.2,
+          what="the launch's parameters back")
+    assert ros_tool(tool_env, "rosparam", "get", "/watched/list").split() == ["-", "1", "-", "2", "-", "3"]
+    until(lambda: {"/talker", "/listener"} <= set(beside.nodes()), 30, 0.2, what="the nodes registered again")
+    info = ros_tool(tool_env, "rostopic", "info", "/chatter")
+    assert "/talker" in info and "/listener" in info, info
+    after = lp.started_pids()
+    assert len(before) == 2 and all(after[name] != pid for name, pid in before.items()), (before, after)
+    lp.wait_output(r"the master at \S+ restarted .*restarting the 2 node\(s\) that were registered with it: "
+                   r"/listener, /talker")
+    events_file = next(os.path.join(root, f) for root, _, files in os.walk(tmp_path / "log")
+                       for f in files if f == "launcher-events.jsonl")
+    with open(events_file) as f:
+        events = [json.loads(line) for line in f]
+    restarted = [e for e in events if e.get("event") == "master_restarted"]
+    assert restarted and restarted[0]["nodes"] == ["/listener", "/talker"], events
+
+
+def test_a_master_that_stops_answering_and_comes_back_unchanged_restarts_nothing(beside):
+    lp = beside.lp
+    before = lp.started_pids()
+    master_pid = master_proxy(beside.port).getPid("/test")[2]
+    os.kill(master_pid, signal.SIGSTOP)  # silent, not gone
     try:
-        until(lambda: master_up(port), 30, what="roscore up")
-        until(lambda: "/rosout" in ros_tool(tool_env, "rosnode", "list").split(), 30, what="roscore's rosout")
-        lp = Launcher([write_launch(str(tmp_path), BODY)], dict(env, PATH=ROS_PATH + ":" + env["PATH"]),
-                      str(tmp_path))
-        until(lambda: {"/talker", "/listener"} <= set(ros_tool(tool_env, "rosnode", "list").split()), 60, 0.2,
-              what="the nodes registered")
-        before = lp.started_pids()
-        master_pid = master_proxy(port).getPid("/test")[2]
-        os.kill(master_pid, signal.SIGSTOP)  # silent, not gone
-        try:
-            lp.wait_output(r"WARNING: the master at \S+ does not answer", 20, stream="stderr")
-        finally:
-            os.kill(master_pid, signal.SIGCONT)
-        lp.wait_output(r"the master at \S+ answers again", 20)
-        assert lp.started_pids() == before
-        assert "restarted" not in lp.stdout
+        lp.wait_output(r"WARNING: the master at \S+ does not answer", 20, stream="stderr")
     finally:
-        if lp is not None:
-            lp.close()
-        stop_roscore(core)
+        os.kill(master_pid, signal.SIGCONT)
+    lp.wait_output(r"the master at \S+ answers again", 20)
+    assert lp.started_pids() == before
+    assert "restarted" not in lp.stdout
