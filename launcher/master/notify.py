@@ -18,11 +18,10 @@ import time
 from typing import Any, Callable
 from urllib.parse import urlsplit
 
-import psutil
-
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.outbox import Callback, Outbox, Unreachable
 from launcher.net import xmlrpc
+from launcher.net.allow import own_addresses
 from launcher.net.open_files import callback_cap
 
 log = logging.getLogger("launcher.master")
@@ -70,20 +69,22 @@ def replaced_process(pid: int | None, started: float | None, registered_at: floa
     return None
 
 
-_local_hosts: set[str] = set()
+_own_addresses: list = []  # this machine's interface addresses, read at the first check (net.allow)
 
 
 def is_this_host(api: str) -> bool:
     """Whether `api`'s host is this machine (loopback, this host's name or one of its addresses): only
     then does /proc say what a pid there is. No lookup by name: this runs on the master's loop."""
-    if not _local_hosts:
-        _local_hosts.update({"localhost", socket.gethostname()})
-        _local_hosts.update(a.address for addrs in psutil.net_if_addrs().values() for a in addrs)
     host = urlsplit(api).hostname or ""
+    if host in ("localhost", socket.gethostname()):
+        return True
     try:
-        return ipaddress.ip_address(host).is_loopback or host in _local_hosts
+        ip = ipaddress.ip_address(host.split("%", 1)[0])
     except ValueError:
-        return host in _local_hosts
+        return False  # another name: not looked up
+    if not _own_addresses:
+        _own_addresses.extend(own_addresses())
+    return ip.is_loopback or any(ip in net for net in _own_addresses)
 
 
 def _pid_of(result: Any) -> int | None:
