@@ -74,6 +74,13 @@ def clock_payload(stamp_ns: int) -> bytes:
     return _TIME.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
 
 
+
+def _definition(conn: Any) -> str:
+    """A connection's message definition: rosbags 0.11 keeps it in `.data`, 0.9 (the newest for Python 3.8 and 3.9)
+    as the text itself."""
+    msgdef = conn.msgdef
+    return msgdef if isinstance(msgdef, str) else msgdef.data
+
 class Player:
     """Plays open bag readers through `node`'s publications."""
 
@@ -106,7 +113,7 @@ class Player:
                 topic = self.remaps.get(conn.topic, conn.topic)
                 pub = by_topic.get(topic)
                 if pub is None:
-                    mtype = TopicType(ros1_type(conn.msgtype), conn.digest, conn.msgdef.data)
+                    mtype = TopicType(ros1_type(conn.msgtype), conn.digest, _definition(conn))
                     latch = getattr(conn.ext, "latching", None) == 1
                     pub = await self.node.advertise(topic, mtype, latch=latch, queue_size=self.opts.queue)
                     by_topic[topic] = pub
