@@ -766,10 +766,11 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
     finally:
         _stop(proc)
     r = tool(env, "status")
-    # one line on stdout says so (status 3: nothing of ours runs); stderr, that the master did not answer
+    # one line on stdout says so (status 3: nothing of ours runs); stderr, in one line, why no launch was read
+    # (its master gone, or still going with roslaunch's key on it)
     assert r.returncode == 3 and re.fullmatch(r"the last run, [-\w]+, is roslaunch's \(or roscore's\), not a run of "
                                               r"`launch`: it has no launcher-events.jsonl, .*\n", r.stdout), r.stdout
-    assert r.stderr.startswith("launcher: cannot reach the master at") and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("launcher: ") and r.stderr.count("\n") == 1, r.stderr
 
 
 Crasher = "#!/bin/sh\nsleep 0.5\nexit 3\n"
