@@ -223,7 +223,8 @@ class LaunchServer:
         """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
         seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
         instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
-        older changes were dropped (read the status again), "changes": [as in the events file]}]."""
+        older changes were dropped (read the status again), "changes": [as in the events file; the steps it
+        leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
         fleet = self.run.fleet
