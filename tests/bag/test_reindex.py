@@ -66,7 +66,7 @@ def test_active_bag_reindexed_beside_it(tmp_path):
         recording.write(conn, 10**18 + n * 10**7, string("m %d" % n))
     recording.abort()
     assert not os.path.exists(str(tmp_path / "run.bag"))
-    target, count, stop = reindex.reindex(active)
+    target, count, stop, skipped = reindex.reindex(active)
     assert target == str(tmp_path / "run.bag") and 0 < count <= COUNT
     with Reader(target) as reader:
         assert [bytes(d[4:]).decode() for _, _, d in reader.messages()] == ["m %d" % n for n in range(count)]
