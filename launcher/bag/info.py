@@ -29,13 +29,15 @@ def warn(line: str) -> None:
 
 
 def _recoverable(path: str) -> str:
-    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag)."""
+    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag, or nothing)."""
     try:
-        conns, known, stop = reindex.count(path)
+        conns, known, _ = reindex.count(path)
     except (reindex.ReindexError, OSError):
         return ""
-    return (" (%d messages on %d connections can still be read, up to %s: 'launcher bag reindex %s' "
-            "writes them into an indexed bag)" % (known, conns, stop, path))
+    if not known:
+        return ""
+    return (" ('launcher bag reindex %s' can still read %d messages on %d connection%s of it into an indexed bag)"
+            % (path, known, conns, "" if conns == 1 else "s"))
 
 
 class Compression(NamedTuple):

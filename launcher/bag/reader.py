@@ -321,15 +321,10 @@ class Bag:
             n = len(self.connections) + len(infos)
             what = ("connection record %d of %d in the index" % (n + 1, conn_count) if n < conn_count else
                     "chunk info %d of %d in the index" % (n - conn_count + 1, chunk_count))
-            try:
-                rec = file.record(pos, file.size, what)
-            except Damage as exc:
-                if pos == index_pos:
-                    raise Damage("the bag header's index_pos %d points at no index: %s" % (index_pos, exc)) from None
-                raise
+            rec = file.record(pos, file.size, what)
             wanted = OP_CONNECTION if n < conn_count else OP_CHUNK_INFO
             if rec.op != wanted:
-                if pos == index_pos:
+                if pos == index_pos and rec.op not in (OP_CONNECTION, OP_CHUNK_INFO):
                     raise Damage("the bag header's index_pos %d points at a %s (op %d), not at the index"
                                  % (index_pos, OP_NAMES.get(rec.op, "record of unknown kind"), rec.op))
                 raise Damage("%s, but its index holds a %s (op %d) at byte %d where %s was expected"
@@ -347,6 +342,13 @@ class Bag:
         if len(self.connections) + len(infos) < conn_count + chunk_count:
             raise Damage("%s, but its index (bytes %d to %d) holds %d connection records and %d chunk infos"
                          % (want, index_pos, file.size, len(self.connections), len(infos)))
+        if pos < file.size:
+            try:
+                more = file.record(pos, file.size, "")
+            except Damage:
+                more = None
+            if more is not None and more.op in (OP_CONNECTION, OP_CHUNK_INFO):
+                raise Damage("%s, but its index holds more: a %s at byte %d" % (want, OP_NAMES[more.op], pos))
         self.trailing = file.size - pos
         self.chunks = self._chunks(infos, ids)
 
@@ -417,9 +419,12 @@ class Bag:
                     raise Damage("%s: connection %d, which the chunk info does not list (or lists once)"
                                  % (what, cid))
                 seen.add(cid)
-                if count != counts[cid] or irec.datasize != count * _ENTRY.size:
-                    raise Damage("%s: %d entries in %d bytes where the chunk info says %d messages"
-                                 % (what, count, irec.datasize, counts[cid]))
+                if count != counts[cid]:
+                    raise Damage("%s: %d messages of connection %d where the chunk info says %d"
+                                 % (what, count, cid, counts[cid]))
+                if irec.datasize != count * _ENTRY.size:
+                    raise Damage("%s: %d bytes for %d entries (%d expected)"
+                                 % (what, irec.datasize, count, count * _ENTRY.size))
                 for secs, nsecs, offset in _ENTRY.iter_unpack(self.file.read(irec.datapos, irec.datasize)):
                     t = secs * NSEC + nsecs
                     if nsecs >= NSEC or not start <= t <= end or offset >= size:

@@ -22,8 +22,9 @@ from launcher.bag.reader import (MAGIC, OP_BAG_HEADER, OP_CHUNK, OP_CONNECTION, 
                                  decompress, fields, uint)
 
 _TIME = struct.Struct("<II")
-# rosbag's bag header record is padded to this size: a damaged one is stepped over to the first chunk
-BAG_HEADER_SIZE = 4096
+# Where the first chunk starts in a bag of rosbags' (its bag header record padded to 4096 bytes) and of rosbag's (the
+# header and data of its bag header record padded to 4096): a damaged bag header is stepped over to these.
+FIRST_CHUNK = (len(MAGIC) + 4096, len(MAGIC) + 4104)
 
 
 class ReindexError(Exception):
@@ -46,15 +47,17 @@ class Walk:
             if file.size < len(MAGIC) or file.read(0, len(MAGIC)) != MAGIC:
                 raise ReindexError("%s: not a ROS bag (no '#ROSBAG V2.0' line)" % self.path)
             pos = len(MAGIC)
+            retries = list(FIRST_CHUNK)
             while pos < file.size:
                 try:
                     rec = file.record(pos, file.size, "the record")
                 except Damage as exc:
-                    if pos == len(MAGIC) and file.size > len(MAGIC) + BAG_HEADER_SIZE:
-                        pos += BAG_HEADER_SIZE  # a damaged bag header: the chunks after it may still be whole
+                    if pos in (len(MAGIC), *FIRST_CHUNK) and retries:
+                        pos = retries.pop(0)  # a damaged bag header: the chunks after it may still be whole
                         continue
                     self.stop = "byte %d of %d (%s)" % (pos, file.size, exc)
                     return
+                retries = []
                 if rec.op == OP_CHUNK:
                     yield from self._chunk(file, rec)
                 elif rec.op == OP_CONNECTION:
