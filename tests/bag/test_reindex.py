@@ -46,7 +46,7 @@ def test_truncated_bag_is_named_and_recovered(tmp_path):
     for cmd in ("info", "play"):
         out = bag(cmd, path)
         assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
-        assert path in out.stderr and "can still be read" in out.stderr and "launcher bag reindex" in out.stderr
+        assert path in out.stderr and "can still read" in out.stderr and "launcher bag reindex" in out.stderr
     fixed = bag("reindex", path)
     assert fixed.returncode == 0, fixed.stderr
     assert os.path.exists(str(tmp_path / "cut.orig.bag"))  # as rosbag reindex: the original is kept
