@@ -82,7 +82,8 @@ def _median(values: list[float]) -> float:
 
 def bag_info(path: str, bag: Bag, freq: bool = False) -> BagInfo:
     """The facts of one open bag; `freq`: each topic's median frequency from its index (rosbag info --freq).
-    A damaged chunk's messages are counted as its chunk info says (as rosbag's); its sizes are not known."""
+    A damaged chunk's messages are counted as its chunk info says (as rosbag's); its sizes and compression as its
+    record says, if that could be read."""
     size = bag.size
     chunks = bag.chunks
     if not chunks:
@@ -92,8 +93,8 @@ def bag_info(path: str, bag: Bag, freq: bool = False) -> BagInfo:
     messages = sum(sum(c.counts.values()) for c in chunks)
     by_kind: dict[str, list[int]] = {}
     for chunk in chunks:
-        if chunk.damage:
-            continue
+        if not chunk.compression or not chunk.size:
+            continue  # a damaged chunk whose record could not be read: nothing to say of its sizes
         total = by_kind.setdefault(chunk.compression, [0, 0, 0])
         total[0] += 1
         total[1] += chunk.datasize
@@ -215,7 +216,7 @@ def yaml_text(info: BagInfo) -> str:
         return "\n".join(lines + ["size: %d" % info.size, "indexed: False"]) + "\n"
     lines += ["duration: %.6f" % (info.end - info.start), "start: %.6f" % info.start, "end: %.6f" % info.end,
               "size: %d" % info.size, "messages: %d" % info.messages, "indexed: True",
-              "compression: %s" % info.compressions[0].kind]
+              "compression: %s" % (info.compressions[0].kind if info.compressions else "unknown")]
     if any(c.kind != "none" for c in info.compressions):
         lines += ["uncompressed: %d" % sum(c.uncompressed for c in info.compressions),
                   "compressed: %d" % sum(c.compressed for c in info.compressions)]

@@ -86,7 +86,7 @@ class Chunk(NamedTuple):
     start: int                # ns, the first and last message's times (the chunk info's)
     end: int
     counts: dict              # connection id -> messages (the chunk info's)
-    compression: str
+    compression: str          # "" where its record could not be read
     size: int                 # uncompressed bytes (the chunk header's)
     datapos: int
     datasize: int             # compressed bytes on the disk
@@ -278,7 +278,7 @@ class Bag:
 
     def warnings(self) -> list[str]:
         """What is wrong with a bag that can still be read, a line each."""
-        out = ["%s: %s: its %d messages are left out" % (self.path, c.damage, sum(c.counts.values()))
+        out = ["%s: %s: %s left out" % (self.path, c.damage, _its_messages(c))
                for c in self.damaged()]
         if self.trailing:
             out.append("%s: %d bytes after the index at its end are no part of the bag"
@@ -393,9 +393,10 @@ class Bag:
         try:
             rec = self.file.record(pos, limit, "its record", limit_what)
             _expect(rec, OP_CHUNK, "its record")
-            compression = text(rec.header, "compression", "its record")
+            kind = text(rec.header, "compression", "its record")
             size = uint(rec.header, "size", 4, "its record")
-            datapos, datasize = rec.datapos, rec.datasize
+            # (known together or not at all: info counts the sizes of a chunk whose record was read)
+            compression, datapos, datasize = kind, rec.datapos, rec.datasize
             if compression not in COMPRESSIONS:
                 raise Damage("unknown compression %r" % compression)
             if compression == "none" and datasize != size:
@@ -469,8 +470,8 @@ class Bag:
                     self._current = (number, self._load(chunk))
                 except Damage as exc:
                     bad.add(number)
-                    warn("%s: chunk %d of %d at byte %d: %s: its %d messages are left out"
-                         % (self.path, number, len(self.chunks), chunk.pos, exc, sum(chunk.counts.values())))
+                    warn("%s: chunk %d of %d at byte %d: %s: %s left out"
+                         % (self.path, number, len(self.chunks), chunk.pos, exc, _its_messages(chunk)))
                     continue
             view, where = self._current[1]
             dpos, dlen = where[offset]
@@ -497,6 +498,11 @@ class Bag:
                              % (what, conn, time, cid, t))
             where[offset] = (rec.datapos, rec.datasize)
         return data, where
+
+
+def _its_messages(chunk: Chunk) -> str:
+    count = sum(chunk.counts.values())
+    return "its message is" if count == 1 else "its %d messages are" % count
 
 
 def _record_in(view: bytes, pos: int, what: str) -> Record:

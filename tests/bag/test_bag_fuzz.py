@@ -26,7 +26,7 @@ from launcher.bag.reader import Bag
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SEED = 37
-# mutants of each base bag, by kind: 6 base bags x 25 = 150 mutants, 300 runs of info and play
+# mutants of each base bag, by kind: 6 base bags x 25 = 150 mutants, 450 runs of info, info -y --freq and play
 PER_KIND = {"truncated": 5, "flipped": 6, "field4": 6, "bag_header": 3, "compression": 2, "header_length": 3}
 ADDRESS_SPACE = 2 << 30
 LIMIT_S = 10.0
@@ -182,12 +182,12 @@ def test_fuzz_info_and_play(base_bags, master, tmp_path):
     folder = tmp_path / "mutants"
     folder.mkdir()
     mutants = make_mutants(base_bags, folder)
-    jobs = [argv for _, _, path in mutants for argv in (["info", path], PLAY + [path])]
+    jobs = [argv for _, _, path in mutants for argv in (["info", path], ["info", "-y", "--freq", path], PLAY + [path])]
     results = run_bag(jobs, master, tmp_path)
     problems = []
     failed = warned = 0
-    for (kind, what, path), pair in zip(mutants, zip(results[::2], results[1::2])):
-        for result in pair:
+    for (kind, what, path), runs in zip(mutants, zip(results[::3], results[1::3], results[2::3])):
+        for result in runs:
             problems += ["%s (%s): %s" % (kind, what, p) for p in problems_of(result, path)]
             failed += result["code"] == 1
             warned += result["code"] == 0 and "[ WARN]" in result["err"]

@@ -25,7 +25,7 @@ def bag(request, tmp_path_factory) -> str:
 
 def test_reads_as_rosbags_does(bag):
     with Reader(bag) as theirs:
-        want = [(c.topic, c.msgtype.replace("/msg/", "/"), c.digest, c.msgdef.data, c.ext.callerid, c.ext.latching,
+        want = [(c.topic, c.msgtype.replace("/msg/", "/"), c.digest, getattr(c.msgdef, "data", c.msgdef), c.ext.callerid, c.ext.latching,
                  t, bytes(d)) for c, t, d in theirs.messages()]
         start, end, chunks = theirs.start_time, theirs.end_time - 1, len(theirs.chunk_infos)
     with Bag(bag) as ours:
