@@ -24,6 +24,7 @@ from __future__ import annotations
 import bisect
 import bz2
 import os
+import re
 import struct
 from collections.abc import Callable, Iterator
 from typing import BinaryIO, NamedTuple, Optional
@@ -50,6 +51,9 @@ _U64 = struct.Struct("<Q")
 _TIME = struct.Struct("<II")
 _ENTRY = struct.Struct("<III")    # an index record's entry: secs, nsecs, offset in the chunk
 _COUNT = struct.Struct("<II")     # a chunk info's entry: connection id, messages
+# A message data record's header as every writer makes it: op, conn and time, each once, in any order.
+_MESSAGE_HEADER = re.compile(rb"(?:(\x04\x00\x00\x00op=\x02)|\x09\x00\x00\x00conn=(.{4})|\x0d\x00\x00\x00time=(.{8})){3}",
+                             re.DOTALL)
 
 
 class BagError(Exception):
@@ -123,6 +127,11 @@ def uint(header: dict, name: str, size: int, what: str) -> int:
     if len(value) != size:
         raise Damage("%s: its '%s' field has %d bytes where %d were expected" % (what, name, len(value), size))
     return int.from_bytes(value, "little")
+
+
+def _time(value: bytes) -> int:
+    secs, nsecs = _TIME.unpack(value)
+    return secs * NSEC + nsecs if nsecs < NSEC else -1
 
 
 def stamp(header: dict, name: str, what: str) -> int:
@@ -483,7 +492,19 @@ class Bag:
         data = (self.file.read(chunk.datapos, chunk.datasize) if chunk.compression == "none" else
                 decompress(chunk.compression, self.file, chunk.datapos, chunk.datasize, chunk.size))
         where = {}
+        size = len(data)
         for t, cid, offset in chunk.entries:
+            # the usual message record (op, conn and time, once each, in any order) checked at once; any other
+            # shape, or a connection or time other than the index's, is looked at field by field below
+            hlen = _U32.unpack_from(data, offset)[0] if offset + 4 <= size else size
+            end = offset + 8 + hlen
+            usual = _MESSAGE_HEADER.fullmatch(data, offset + 4, end - 4) if end <= size else None
+            if usual and usual.group(1) and usual.group(2) and usual.group(3):
+                dlen = _U32.unpack_from(data, end - 4)[0]
+                if (end + dlen <= size and int.from_bytes(usual.group(2), "little") == cid
+                        and _time(usual.group(3)) == t):
+                    where[offset] = (end, dlen)
+                    continue
             what = "the message at offset %d" % offset
             pos = offset
             while True:  # (a writer may point at the connection record before a message: skipped, as rosbags does)

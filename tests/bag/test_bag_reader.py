@@ -105,3 +105,27 @@ def test_not_a_bag_and_missing(tmp_path):
     junk.write_bytes(b"#ROSBAG")
     with pytest.raises(BagError, match="truncated at byte 7, inside the '#ROSBAG V2.0' line"):
         Bag(str(junk))
+
+
+def test_a_message_unlike_its_index_entry_leaves_its_chunk_out(tmp_path):
+    """A message record whose time (or connection) is not what the index says: found when its chunk is read."""
+    path = str(tmp_path / "plain.bag")
+    rosbags_bag(path, "none")
+    with open(path, "rb") as f:
+        data = bytearray(f.read())
+    chunk = [r for r in bagmutants.records(bytes(data), len(bagmutants.MAGIC), len(data)) if r.op == 5][2]
+    message = next(r for r in bagmutants.records(bytes(data), chunk.datapos, chunk.end) if r.op == 2)
+    pos, value = message.fields["time"]
+    bagmutants.put32(data, pos, int.from_bytes(value[:4], "little") + 1)
+    with open(path, "wb") as f:
+        f.write(data)
+    warnings = []
+    with Bag(path) as b:
+        assert not b.warnings()  # (the index is whole: nothing to see until the chunk is read)
+        count = sum(1 for _ in b.messages(warn=warnings.append))
+        lost = sum(b.chunks[2].counts.values())
+        total = sum(sum(c.counts.values()) for c in b.chunks)
+    offset = message.pos - chunk.datapos
+    assert len(warnings) == 1 and count == total - lost, warnings
+    assert ("chunk 3 of %d at byte %d: the message at offset %d: connection " % (len(b.chunks), chunk.pos, offset)
+            in warnings[0] and "where the index says connection" in warnings[0]), warnings
