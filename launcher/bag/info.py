@@ -3,6 +3,7 @@ topic's median frequency (`--freq`)."""
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 import time
@@ -12,6 +13,9 @@ import yaml
 
 from launcher.bag import reindex
 from launcher.bag.reader import Bag, BagError
+
+# The largest damaged bag whose recoverable messages an error counts (a walk of the whole file).
+COUNT_LIMIT = 256 << 20
 
 
 def open_bag(path: str) -> Bag:
@@ -29,8 +33,11 @@ def warn(line: str) -> None:
 
 
 def _recoverable(path: str) -> str:
-    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag, or nothing)."""
+    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag, or nothing). A bag
+    larger than COUNT_LIMIT is not walked for the count (minutes, for an error message)."""
     try:
+        if os.path.getsize(path) > COUNT_LIMIT:
+            return " ('launcher bag reindex %s' can still read what its whole chunks hold into an indexed bag)" % path
         conns, known, _ = reindex.count(path)
     except (reindex.ReindexError, OSError):
         return ""

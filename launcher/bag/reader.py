@@ -47,13 +47,12 @@ NSEC = 1_000_000_000
 NEVER = 2 ** 63 - 1
 
 _U32 = struct.Struct("<I")
-_U64 = struct.Struct("<Q")
 _TIME = struct.Struct("<II")
 _ENTRY = struct.Struct("<III")    # an index record's entry: secs, nsecs, offset in the chunk
 _COUNT = struct.Struct("<II")     # a chunk info's entry: connection id, messages
 # A message data record's header as every writer makes it: op, conn and time, each once, in any order.
-_MESSAGE_HEADER = re.compile(rb"(?:(\x04\x00\x00\x00op=\x02)|\x09\x00\x00\x00conn=(.{4})|\x0d\x00\x00\x00time=(.{8})){3}",
-                             re.DOTALL)
+_MESSAGE_HEADER = re.compile(
+    rb"(?:(\x04\x00\x00\x00op=\x02)|\x09\x00\x00\x00conn=(.{4})|\x0d\x00\x00\x00time=(.{8})){3}", re.DOTALL)
 
 
 class BagError(Exception):
@@ -258,6 +257,7 @@ class Bag:
             self.f.close()
             raise BagError("%s: %s" % (path, exc.strerror or exc)) from None
         self._current: tuple = (None, None)      # (chunk number, its records), one chunk at a time
+        self._bad: set = set()                   # chunks found damaged when read (said once, not at every loop)
 
     def close(self) -> None:
         self.f.close()
@@ -468,7 +468,7 @@ class Bag:
         """(time ns, connection, data) of each message in time order; a chunk found damaged when it is read is
         left out (`warn` says so) and the rest read on."""
         by_id = {c.id: c for c in self.connections}
-        bad: set = set()
+        bad = self._bad
         for t, number, offset, cid in self.index(connections, start, stop):
             if number in bad:
                 continue

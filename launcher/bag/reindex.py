@@ -75,6 +75,8 @@ class Walk:
             kind = rec.header.get("compression", b"").decode("ascii", "replace")
             size = uint(rec.header, "size", 4, what)
             if kind == "none":
+                if rec.datasize != size:  # (a length lied about is not read: the other says how long it is)
+                    raise Damage("uncompressed, but %d bytes where its header says %d" % (rec.datasize, size))
                 data = file.read(rec.datapos, rec.datasize)
             elif kind in ("bz2", "lz4"):
                 data = decompress(kind, file, rec.datapos, rec.datasize, size)

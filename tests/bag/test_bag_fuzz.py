@@ -1,8 +1,8 @@
 """The bag fuzz (issue 37): seeded mutants of bags written by rosbags and by Debian's rosbag (uncompressed, bz2, lz4)
-of each kind the hostile-input round used, given to `launcher bag info` and `launcher bag play -i -q` under a 2 GiB
-address-space limit and 10 s each: no traceback, no internal error, no run over 10 s, and each failing run's last
-line names the bag and says what was wrong; a test per kind checks the words; every bag truncated after its header
-is reindexed into a readable bag, holding every message of the chunks before the cut."""
+of each kind the hostile-input round used, given to `launcher bag info`, `launcher bag play -i -q` (and reindex)
+under a 2 GiB address-space limit and 10 s each: no traceback, no internal error, no run over 10 s, and each failing
+run's last line names the bag and says what was wrong; a test per kind checks the words; every bag truncated after
+its header is reindexed into a readable bag, holding every message of the chunks before the cut."""
 
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ from launcher.bag.reader import Bag
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SEED = 37
-# mutants of each base bag, by kind: 6 base bags x 25 = 150 mutants, 450 runs of info, info -y --freq and play
+# mutants of each base bag, by kind: 6 base bags x 25 = 150 mutants, 600 runs of info, info -y --freq, play and
+# reindex
 PER_KIND = {"truncated": 5, "flipped": 6, "field4": 6, "bag_header": 3, "compression": 2, "header_length": 3}
 ADDRESS_SPACE = 2 << 30
 LIMIT_S = 10.0
@@ -182,15 +183,26 @@ def test_fuzz_info_and_play(base_bags, master, tmp_path):
     folder = tmp_path / "mutants"
     folder.mkdir()
     mutants = make_mutants(base_bags, folder)
-    jobs = [argv for _, _, path in mutants for argv in (["info", path], ["info", "-y", "--freq", path], PLAY + [path])]
+    reindexed = tmp_path / "reindexed"
+    reindexed.mkdir()
+    commands = [["info"], ["info", "-y", "--freq"], PLAY, ["reindex", "--output-dir", str(reindexed)]]
+    jobs = [argv + [path] for _, _, path in mutants for argv in commands]
     results = run_bag(jobs, master, tmp_path)
     problems = []
     failed = warned = 0
-    for (kind, what, path), runs in zip(mutants, zip(results[::3], results[1::3], results[2::3])):
+    for (kind, what, path), runs in zip(mutants, zip(*(results[i::len(commands)] for i in range(len(commands))))):
         for result in runs:
             problems += ["%s (%s): %s" % (kind, what, p) for p in problems_of(result, path)]
             failed += result["code"] == 1
             warned += result["code"] == 0 and "[ WARN]" in result["err"]
+        if runs[-1]["code"] == 0:  # what reindex wrote: a whole bag, to us and to rosbags
+            fixed = str(reindexed / os.path.basename(path))
+            with Bag(fixed) as bag:
+                ours = sum(1 for _ in bag.messages(warn=problems.append))
+                problems += bag.warnings()
+            with Reader(fixed) as reader:
+                if sum(1 for _ in reader.messages()) != ours:
+                    problems.append("%s: rosbags reads another number of messages than %d" % (fixed, ours))
     print("bag fuzz: %d mutants, %d runs: %d failed cleanly, %d ran with a warning, %d ran clean; %.1f s"
           % (len(mutants), len(results), failed, warned, len(results) - failed - warned,
              sum(r["seconds"] for r in results)))

@@ -25,8 +25,9 @@ def bag(request, tmp_path_factory) -> str:
 
 def test_reads_as_rosbags_does(bag):
     with Reader(bag) as theirs:
-        want = [(c.topic, c.msgtype.replace("/msg/", "/"), c.digest, getattr(c.msgdef, "data", c.msgdef), c.ext.callerid, c.ext.latching,
-                 t, bytes(d)) for c, t, d in theirs.messages()]
+        # (rosbags 0.9's msgdef is a str, 0.10's on a MessageDefinition)
+        want = [(c.topic, c.msgtype.replace("/msg/", "/"), c.digest, getattr(c.msgdef, "data", c.msgdef),
+                 c.ext.callerid, c.ext.latching, t, bytes(d)) for c, t, d in theirs.messages()]
         start, end, chunks = theirs.start_time, theirs.end_time - 1, len(theirs.chunk_infos)
     with Bag(bag) as ours:
         got = [(c.topic, c.type, c.md5sum, c.msgdef, c.callerid, c.latching, t, bytes(d))
