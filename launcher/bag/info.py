@@ -95,8 +95,9 @@ def bag_info(path: str, bag: Bag, freq: bool = False) -> BagInfo:
     chunks = bag.chunks
     if not chunks:
         return BagInfo(path, size, False, 0.0, 0.0, 0, 0, [], [], [])
-    # as rosbag: the first chunk's start and the last chunk's end
-    start, end = _sec(chunks[0].start), _sec(chunks[-1].end)
+    # as rosbag: the first chunk's start and the last chunk's end (of those whose chunk info could be read)
+    timed = [c for c in chunks if c.start <= c.end]
+    start, end = (_sec(timed[0].start), _sec(timed[-1].end)) if timed else (0.0, 0.0)
     messages = sum(sum(c.counts.values()) for c in chunks)
     by_kind: dict[str, list[int]] = {}
     for chunk in chunks:

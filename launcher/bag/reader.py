@@ -85,7 +85,7 @@ class Connection(NamedTuple):
 class Chunk(NamedTuple):
     """A chunk, from its chunk info in the index and its own record; `damage` says why it cannot be read."""
     number: int               # 1-based, in the index's order
-    pos: int
+    pos: int                  # 0, and start NEVER, end -1, counts {}: its chunk info was damaged
     start: int                # ns, the first and last message's times (the chunk info's)
     end: int
     counts: dict              # connection id -> messages (the chunk info's)
@@ -222,7 +222,7 @@ def connection(rec: Record, data: bytes, what: str) -> Connection:
         raise Damage("%s: topic %r is not a legal ROS name" % (what, topic))
     conn = fields(data, "%s's connection header" % what)
     mtype = text(conn, "type", what)
-    if mtype.count("/") != 1 or not all(names.is_legal_base_name(p) for p in mtype.split("/")):
+    if not re.fullmatch(r"[\w.-]+/\w+", mtype):
         raise Damage("%s: message type %r is not pkg/Name" % (what, mtype))
     md5sum = text(conn, "md5sum", what)
     if md5sum != "*" and (len(md5sum) != 32 or any(c not in "0123456789abcdef" for c in md5sum)):
@@ -230,7 +230,7 @@ def connection(rec: Record, data: bytes, what: str) -> Connection:
     latching = text(conn, "latching", what, required=False)
     return Connection(cid, names.canonicalize_name(topic), mtype, md5sum, text(conn, "message_definition", what),
                       text(conn, "callerid", what, required=False),
-                      int(latching) if latching and latching.isdigit() else None)
+                      int(latching) if latching and re.fullmatch("[0-9]{1,9}", latching) else None)
 
 
 class Bag:
@@ -311,7 +311,7 @@ class Bag:
         chunk_count = uint(rec.header, "chunk_count", 4, what)
         encryptor = text(rec.header, "encryptor", what, required=False)
         if encryptor:
-            raise NotABag("encrypted (%s): not supported" % encryptor)
+            raise NotABag("encrypted (%r): not supported" % encryptor)
         self.header_end = rec.end
         if index_pos == 0:
             raise Damage("not indexed (a recording that did not end: the bag header has no index_pos)")
@@ -362,37 +362,49 @@ class Bag:
         self.chunks = self._chunks(infos, ids)
 
     def _chunks(self, infos: list, ids: set) -> list[Chunk]:
+        """Each chunk info's chunk. A chunk info that makes no sense loses its chunk only (its messages unknown):
+        the others still say where theirs are."""
         parsed = []
         for n, (rec, data) in enumerate(infos, 1):
             what = "chunk info %d of %d (byte %d)" % (n, len(infos), rec.pos)
-            if uint(rec.header, "ver", 4, what) != 1:
-                raise Damage("%s: version %d (only 1 is known)" % (what, uint(rec.header, "ver", 4, what)))
-            pos = uint(rec.header, "chunk_pos", 8, what)
-            start, end = stamp(rec.header, "start_time", what), stamp(rec.header, "end_time", what)
-            count = uint(rec.header, "count", 4, what)
-            if count == 0:
-                raise Damage("%s: a chunk of no connections" % what)
-            if len(data) != count * _COUNT.size:
-                raise Damage("%s: %d bytes of counts for %d connections (%d expected)"
-                             % (what, len(data), count, count * _COUNT.size))
-            counts = {}
-            for cid, messages in _COUNT.iter_unpack(data):
-                if cid not in ids:
-                    raise Damage("%s: connection %d, which the index does not have" % (what, cid))
-                counts[cid] = messages
-            if start > end:
-                raise Damage("%s: it starts (%d ns) after it ends (%d ns)" % (what, start, end))
-            if not self.header_end <= pos < self.index_pos:
-                raise Damage("%s: its chunk at byte %d is outside the chunks (bytes %d to %d)"
-                             % (what, pos, self.header_end, self.index_pos))
-            parsed.append((n, pos, start, end, counts))
+            try:
+                parsed.append((n, *self._chunk_info(rec, data, ids, what), None))
+            except Damage as exc:
+                parsed.append((n, 0, NEVER, -1, {}, str(exc)))
         # a chunk is read up to the next chunk's start (or the index's): none may run into another
-        starts = sorted({p[1] for p in parsed} | {self.index_pos})
+        starts = sorted({p[1] for p in parsed if not p[5]} | {self.index_pos})
         chunks = []
-        for n, pos, start, end, counts in parsed:
+        for n, pos, start, end, counts, damage in parsed:
+            if damage:
+                chunks.append(Chunk(n, pos, start, end, counts, "", 0, 0, 0, [], damage))
+                continue
             limit = starts[bisect.bisect_right(starts, pos)]
             chunks.append(self._chunk(n, len(parsed), pos, limit, start, end, counts))
         return chunks
+
+    def _chunk_info(self, rec: Record, data: bytes, ids: set, what: str) -> tuple:
+        """(chunk position, start, end, {connection id: messages}) of a chunk info record."""
+        if uint(rec.header, "ver", 4, what) != 1:
+            raise Damage("%s: version %d (only 1 is known)" % (what, uint(rec.header, "ver", 4, what)))
+        pos = uint(rec.header, "chunk_pos", 8, what)
+        start, end = stamp(rec.header, "start_time", what), stamp(rec.header, "end_time", what)
+        count = uint(rec.header, "count", 4, what)
+        if count == 0:
+            raise Damage("%s: a chunk of no connections" % what)
+        if len(data) != count * _COUNT.size:
+            raise Damage("%s: %d bytes of counts for %d connections (%d expected)"
+                         % (what, len(data), count, count * _COUNT.size))
+        counts = {}
+        for cid, messages in _COUNT.iter_unpack(data):
+            if cid not in ids:
+                raise Damage("%s: connection %d, which the index does not have" % (what, cid))
+            counts[cid] = messages
+        if start > end:
+            raise Damage("%s: it starts (%d ns) after it ends (%d ns)" % (what, start, end))
+        if not self.header_end <= pos < self.index_pos:
+            raise Damage("%s: its chunk at byte %d is outside the chunks (bytes %d to %d)"
+                         % (what, pos, self.header_end, self.index_pos))
+        return pos, start, end, counts
 
     def _chunk(self, n: int, total: int, pos: int, limit: int, start: int, end: int, counts: dict) -> Chunk:
         """A chunk's record and its index records, checked against its chunk info; a damaged chunk says why."""
@@ -523,6 +535,8 @@ class Bag:
 
 def _its_messages(chunk: Chunk) -> str:
     count = sum(chunk.counts.values())
+    if not chunk.counts:  # (its chunk info was what was damaged)
+        return "its messages are"
     return "its message is" if count == 1 else "its %d messages are" % count
 
 
