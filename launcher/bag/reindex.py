@@ -18,8 +18,8 @@ from typing import Optional
 from rosbags.rosbag1 import Writer
 
 from launcher.bag.msgtypes import rosbags_type
-from launcher.bag.reader import (MAGIC, OP_BAG_HEADER, OP_CHUNK, OP_CONNECTION, OP_MSG_DATA, Damage, File, _record_in,
-                                 decompress, fields, uint)
+from launcher.bag.reader import (MAGIC, OP_BAG_HEADER, OP_CHUNK, OP_CONNECTION, OP_MSG_DATA, Connection, Damage, File,
+                                 Record, _record_in, connection, decompress, uint)
 
 _TIME = struct.Struct("<II")
 # Where the first chunk starts in a bag of rosbags' (its bag header record padded to 4096 bytes) and of rosbag's (the
@@ -32,7 +32,7 @@ class ReindexError(Exception):
 
 
 class Walk:
-    """The records of a bag, one at a time from its start: (kind, connection id, fields or time, data). Nothing is
+    """The records of a bag, one at a time from its start: (kind, connection id, Connection or time, data). Nothing is
     held but the record at hand (a chunk: its records, decompressed). `stop` says what ended the walk; `skipped`,
     the chunks left out on the way (their record whole, their data damaged)."""
 
@@ -107,13 +107,13 @@ class Walk:
 
 
 def _connection(header: dict, data: bytes) -> Optional[tuple]:
-    if len(header.get("conn", b"")) != 4:
-        return None
+    """A connection record, checked as the reader checks the index's: a damaged copy is passed over (another copy,
+    in a later chunk or in the index, may be whole)."""
     try:
-        conn = dict(fields(data, "a connection header"), topic=header.get("topic", b""))
+        conn = connection(Record(0, header, OP_CONNECTION, 0, len(data)), data, "a connection record")
     except Damage:
         return None
-    return OP_CONNECTION, int.from_bytes(header["conn"], "little"), conn, b""
+    return OP_CONNECTION, conn.id, conn, b""
 
 
 def count(path: str) -> tuple[int, int, str]:
@@ -139,10 +139,10 @@ def reindex(path: str, output_dir: str | None = None) -> tuple[str, int, str, li
     messages, where the walk stopped, the chunks left out). Two walks: the connections first (the index at the end
     holds them all, even those whose chunk is lost), then the messages. A bag reindexed in place keeps its original
     as NAME.orig.bag, as rosbag's does."""
-    conns: dict[int, dict] = {}
-    for kind, cid, header, _ in Walk(path):
+    conns: dict[int, Connection] = {}
+    for kind, cid, conn, _ in Walk(path):
         if kind == OP_CONNECTION:
-            conns.setdefault(cid, header)
+            conns.setdefault(cid, conn)
     target = output_path(path, output_dir)
     source = path
     if os.path.abspath(target) == os.path.abspath(path):
@@ -154,25 +154,32 @@ def reindex(path: str, output_dir: str | None = None) -> tuple[str, int, str, li
     writer = Writer(target)
     writer.open()
     made = {}
+    same: dict[Connection, object] = {}
+    lost: dict[int, int] = {}
     written = 0
     walk = Walk(source)
     for kind, cid, stamp, data in walk:
-        header = conns.get(cid)
-        if kind != OP_MSG_DATA or header is None:
-            continue  # a connection, or a message whose connection record was lost with the damage
-        conn = made.get(cid)
-        if conn is None:
-            latching = header.get("latching", b"").decode("ascii", "replace")
-            text = {k: header.get(k, b"").decode("utf-8", "replace") for k in
-                    ("topic", "type", "md5sum", "message_definition", "callerid")}
-            conn = made[cid] = writer.add_connection(
-                text["topic"], rosbags_type(text["type"]), msgdef=text["message_definition"], md5sum=text["md5sum"],
-                callerid=text["callerid"] if "callerid" in header else None,
-                latching=int(latching) if latching.isdigit() else None)
-        writer.write(conn, stamp, data)
+        if kind != OP_MSG_DATA:
+            continue
+        conn = conns.get(cid)
+        if conn is None:  # its connection record lost with the damage (or every copy of it damaged)
+            lost[cid] = lost.get(cid, 0) + 1
+            continue
+        out = made.get(cid)
+        if out is None:
+            # (two ids of the same connection, one of them damaged, are one connection: rosbags' writer takes a
+            # connection once)
+            key = conn._replace(id=0)
+            out = made[cid] = same.get(key) or writer.add_connection(
+                conn.topic, rosbags_type(conn.type), msgdef=conn.msgdef, md5sum=conn.md5sum,
+                callerid=conn.callerid, latching=conn.latching)
+            same[key] = out
+        writer.write(out, stamp, data)
         written += 1
     writer.close()
-    return target, written, walk.stop, walk.skipped
+    skipped = walk.skipped + ["%d message%s of connection %d, whose connection record is lost or damaged"
+                              % (n, "" if n == 1 else "s", cid) for cid, n in sorted(lost.items())]
+    return target, written, walk.stop, skipped
 
 
 def main(paths: list[str], output_dir: str | None = None) -> int:
