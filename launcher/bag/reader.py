@@ -218,7 +218,7 @@ def connection(rec: Record, data: bytes, what: str) -> Connection:
     """A connection record: the ids and topic of its header, the type, md5sum and definition of its data."""
     cid = uint(rec.header, "conn", 4, what)
     topic = text(rec.header, "topic", what)
-    if not names.is_legal_name(topic) or not topic:
+    if not topic or not names.is_legal_name(names.canonicalize_name(topic)):  # ('/a//b' is '/a/b', as rosbags says)
         raise Damage("%s: topic %r is not a legal ROS name" % (what, topic))
     conn = fields(data, "%s's connection header" % what)
     mtype = text(conn, "type", what)
