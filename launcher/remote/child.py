@@ -27,6 +27,7 @@ import stat
 import tempfile
 from typing import Any
 
+from launcher import compat
 from launcher.model.errors import LaunchError
 from launcher.net.slave import default_host
 from launcher.net.xmlrpc import Fault, call
@@ -82,11 +83,11 @@ class Child:
         self.log = RunLog(self.environ)
         self.fleet: Fleet | None = None
         self.supervisor: Supervisor | None = None
-        self.stop = asyncio.Event()
+        self.stop = compat.Event()
         self.session_ended = False  # the parent is gone (see SESSION_END_GRACE_S)
         self._stopping: asyncio.Future | None = None  # the nodes' stop, once begun
         self._kill_timer: asyncio.TimerHandle | None = None
-        self._to_parent: asyncio.Queue = asyncio.Queue()
+        self._to_parent: asyncio.Queue = compat.Queue()
         self._number = 0  # process numbering, as a roslaunch child's: talker-1, listener-2, ...
 
     async def main(self) -> int:
