@@ -674,7 +674,7 @@ DAEMON_SCRIPT = "sleep %d & sleep %d &\n"
 JOBS_SLEEP_S, DAEMON_SLEEP_S = 1000, 2000  # + the host's index: each node's jobs told apart by their command line
 # who runs the nodes of the other machines: (the parent, the child)
 PARENT_AND_CHILD = [("ours", "ours"), ("ours", "debian"), ("debian", "ours")]
-CUT_RUNS = 20  # cuts in a row (each pass cuts both hosts)
+CUT_RUNS = 20  # cuts in a row (each pass cuts every host of four_hosts)
 
 
 def jobs_left(host) -> list[str]:
@@ -684,25 +684,30 @@ def jobs_left(host) -> list[str]:
     return [line for line in host.process_lines() if any(n in line for n in needles)]
 
 
-def start_jobs(tmp_path, hosts: TestHosts, launched, parent: str, child: str):
+def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str):
     """A launch with the two shell-script nodes on each host, under `parent` and `child`, once their jobs run
     and the daemon's leader has gone: a function that kills the parent (SIGKILL) and what it started here."""
-    nodes = ""
-    for host in hosts.hosts:
+    machines, nodes = "", ""
+    loaders = our_child_loaders(tmp_path, hosts) if child == "ours" else [h.env_loader for h in hosts.hosts]
+    for host, loader in zip(hosts.hosts, loaders):
+        machines += '  <machine name="m%d" address="%s" env-loader="%s"/>\n' % (host.index, host.address, loader)
         for name, text, sleep in (("jobs", JOBS_SCRIPT, JOBS_SLEEP_S), ("daemon", DAEMON_SCRIPT, DAEMON_SLEEP_S)):
             script = os.path.join(str(tmp_path), "%s-%d.sh" % (name, host.index))
             with open(script, "w") as f:
                 f.write(text % (sleep + host.index, sleep + host.index))
-            nodes += ('<node machine="%s" pkg="rostopic" type="rostopic" name="%s%d" args="list" '
-                      'launch-prefix="sh %s"/>\n' % (("one", "two")[host.index - 1], name, host.index, script))
+            nodes += ('<node machine="m%d" pkg="rostopic" type="rostopic" name="%s%d" args="list" '
+                      'launch-prefix="sh %s"/>\n' % (host.index, name, host.index, script))
+    path = os.path.join(str(tmp_path), "jobs.launch")
+    with open(path, "w") as f:
+        f.write("<launch>\n%s%s</launch>\n" % (machines, nodes))
     output = lambda: ""  # noqa: E731
     if parent == "ours":
-        la, _ = launched(nodes, child=child)
+        env = run_env(tmp_path, hosts, **({"LAUNCHER_REMOTE_PROGRAM": "launch"} if child == "ours" else {}))
+        la = Launcher([path], env, str(tmp_path))
         proc = la.proc
         output = lambda: la.stdout + la.stderr  # noqa: E731
     else:
         env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
-        path = launch_file(tmp_path, hosts, nodes, loaders=our_child_loaders(tmp_path, hosts))
         proc = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 start_new_session=True)
 
@@ -715,6 +720,8 @@ def start_jobs(tmp_path, hosts: TestHosts, launched, parent: str, child: str):
                 os.kill(pid, signal.SIGKILL)
             except OSError:
                 pass
+        if parent == "ours":
+            la.close()
 
     def running(host) -> bool:
         jobs, daemon = "sleep %d" % (JOBS_SLEEP_S + host.index), "sleep %d" % (DAEMON_SLEEP_S + host.index)
@@ -766,19 +773,33 @@ def restore_hosts(hosts: TestHosts) -> None:
                 pass
 
 
-@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
-def test_sigkill_of_the_parent_leaves_nothing_of_a_shell_script_node(tmp_path, hosts, launched, parent, child):
-    kill = start_jobs(tmp_path, hosts, launched, parent, child)
-    kill()
-    all_gone_within(hosts, NO_ORPHAN_S, "nothing of the nodes left %g s after their parent's SIGKILL" % NO_ORPHAN_S)
+@pytest.fixture(scope="module")
+def four_hosts(ros_env, ros_part_missing):
+    """More hosts for the cuts in a row: each pass cuts all of them (their sessions are apart)."""
+    why = TestHosts.unavailable()
+    if why:
+        ros_part_missing(why)
+    with TestHosts(4) as th:
+        yield th
 
 
 @pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
-def test_a_cut_link_leaves_nothing_of_a_shell_script_node_20_runs_in_a_row(tmp_path, hosts, launched, parent,
-                                                                           child):
+def test_sigkill_of_the_parent_leaves_nothing_of_a_shell_script_node(tmp_path, hosts, parent, child):
+    try:
+        kill = start_jobs(tmp_path, hosts, parent, child)
+        kill()
+        all_gone_within(hosts, NO_ORPHAN_S, "nothing of the nodes left %g s after their parent's SIGKILL"
+                        % NO_ORPHAN_S)
+    finally:
+        restore_hosts(hosts)
+
+
+@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
+def test_a_cut_link_leaves_nothing_of_a_shell_script_node_20_runs_in_a_row(tmp_path, four_hosts, parent, child):
+    hosts = four_hosts
     took = []
     for run in range(0, CUT_RUNS, len(hosts.hosts)):
-        kill = start_jobs(tmp_path, hosts, launched, parent, child)
+        kill = start_jobs(tmp_path, hosts, parent, child)
         try:
             for host in hosts.hosts:
                 host.cut()
