@@ -684,9 +684,10 @@ def jobs_left(host) -> list[str]:
     return [line for line in host.process_lines() if any(n in line for n in needles)]
 
 
-def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str):
-    """A launch with the two shell-script nodes on each host, under `parent` and `child`, once their jobs run
-    and the daemon's leader has gone: a function that kills the parent (SIGKILL) and what it started here."""
+def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str, args: tuple[str, ...] = ()):
+    """A launch with the two shell-script nodes on each host, under `parent` and `child` (given `args`), once
+    their jobs run and the daemon's leader has gone: a function that kills the parent (SIGKILL, or the signal
+    given) and what it started here."""
     machines, nodes = "", ""
     loaders = our_child_loaders(tmp_path, hosts) if child == "ours" else [h.env_loader for h in hosts.hosts]
     for host, loader in zip(hosts.hosts, loaders):
@@ -703,25 +704,31 @@ def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str):
     output = lambda: ""  # noqa: E731
     if parent == "ours":
         env = run_env(tmp_path, hosts, **({"LAUNCHER_REMOTE_PROGRAM": "launch"} if child == "ours" else {}))
-        la = Launcher([path], env, str(tmp_path))
+        la = Launcher([path, *args], env, str(tmp_path))
         proc = la.proc
         output = lambda: la.stdout + la.stderr  # noqa: E731
     else:
         env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
-        proc = subprocess.Popen(["roslaunch", path], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        proc = subprocess.Popen(["roslaunch", path, *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 start_new_session=True)
 
-    def kill() -> None:
+    def kill(sig: int = signal.SIGKILL) -> None:
         local = descendants(proc.pid) if parent == "debian" else set()  # Debian's master and rosout
-        proc.kill()
-        proc.wait()
-        for pid in local:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
-        if parent == "ours":
-            la.close()
+        proc.send_signal(sig)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            raise AssertionError("the %s parent did not end within 60 s of signal %d" % (parent, sig)) from None
+        finally:
+            for pid in local:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except OSError:
+                    pass
+            if parent == "ours":
+                la.close()
 
     def running(host) -> bool:
         jobs, daemon = "sleep %d" % (JOBS_SLEEP_S + host.index), "sleep %d" % (DAEMON_SLEEP_S + host.index)
@@ -795,6 +802,20 @@ def test_sigkill_of_the_parent_leaves_nothing_of_a_shell_script_node(tmp_path, h
 
 
 @pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
+def test_an_orderly_stop_leaves_nothing_of_a_shell_script_node(tmp_path, hosts, parent, child):
+    """Ctrl-C of the parent: the child's stop (SIGINT, SIGTERM after --sigint-timeout to a group whose leader
+    is gone too) under ours; under Debian's child, which waits for each node's leader only, the watch loop's
+    sweep after the child's end."""
+    try:
+        kill = start_jobs(tmp_path, hosts, parent, child, ("--sigint-timeout", "1", "--sigterm-timeout", "1"))
+        kill(signal.SIGINT)
+        all_gone_within(hosts, NO_ORPHAN_S, "nothing of the nodes left %g s after their parent's orderly end"
+                        % NO_ORPHAN_S)
+    finally:
+        restore_hosts(hosts)
+
+
+@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
 def test_a_cut_link_leaves_nothing_of_a_shell_script_node_20_runs_in_a_row(tmp_path, four_hosts, parent, child):
     hosts = four_hosts
     took = []
@@ -809,3 +830,4 @@ def test_a_cut_link_leaves_nothing_of_a_shell_script_node_20_runs_in_a_row(tmp_p
             kill()
             restore_hosts(hosts)
     print("%s parent, %s child: the nodes gone %.2f-%.2f s after the cut" % (parent, child, min(took), max(took)))
+
