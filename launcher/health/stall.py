@@ -167,21 +167,21 @@ class PublisherWatch:
         self.retry = tcpros.PublisherRetry()
         self.link: tcpros.CountingLink | None = None
         self.task: asyncio.Task | None = None
-        self.due: float | None = 0.0       # no attempt before then; None: none in this run
+        self.timer: asyncio.TimerHandle | None = None   # the next attempt after a connection ended
+        self.given_up = False                           # refused: none in this run
         self.closed = False
 
     def check(self) -> None:
-        """At each verdict: count what came (a quiet topic's messages wait under the socket's low-water mark),
-        or open the connection once it is due."""
-        link = self.link
-        if link is not None:
-            link.drain()
-            if not link.closed:
-                return
-            self.link = None
-            self._ended(link.ending or tcpros.ENDED, link.state.opened_at if link.state else self.loop.time(),
-                        link.why)
-        if self.task is None and self.due is not None and self.loop.time() >= self.due:
+        """At each verdict: count what came (a quiet topic's messages wait under the socket's low-water mark), or
+        ask for the topic if nothing is under way."""
+        if self.link is not None:
+            self.link.drain()
+        elif self.task is None and self.timer is None and not self.given_up:
+            self._open_soon()
+
+    def _open_soon(self) -> None:
+        self.timer = None
+        if not self.closed and self.task is None:
             self.task = self.loop.create_task(self._open())
 
     async def _open(self) -> None:
@@ -195,7 +195,8 @@ class PublisherWatch:
             if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
                 return  # (not published yet: asked again at the next verdict)
             link = await tcpros.watch_publisher(proto[1] or urllib.parse.urlsplit(self.uri).hostname, int(proto[2]),
-                                                self.topic, CALLER_ID, self.uri, self._messages, timeout=self.timeout)
+                                                self.topic, CALLER_ID, self.uri, self._messages, timeout=self.timeout,
+                                                on_close=self._closed)
             if self.closed:
                 link.close()
             else:
@@ -211,19 +212,29 @@ class PublisherWatch:
     def _messages(self, count: int) -> None:
         self.watch.messages(count, self.loop.time())
 
+    def _closed(self, link: tcpros.CountingLink) -> None:
+        if link is self.link:
+            self.link = None
+        assert link.state is not None
+        self._ended(link.ending or tcpros.ENDED, link.state.opened_at, link.why)
+
     def _ended(self, how: str, opened_at: float, why: str, quiet: bool = False) -> None:
         if self.closed or how == tcpros.CLOSED:
             return
         now = self.loop.time()
-        self.due = self.retry.ended(how, opened_at, now)
-        if self.due is None:
+        due = self.retry.ended(how, opened_at, now)
+        if due is None:
+            self.given_up = True
             what = "%s; dropping the connection, not watched again until the node starts again" % why
         else:
-            what = "%s; dropping the connection, trying again in %g s" % (why, self.due - now)
+            self.timer = self.loop.call_at(due, self._open_soon)
+            what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
         log.log(logging.DEBUG if quiet or how == tcpros.ENDED else logging.WARNING, "%s", what)
 
     def close(self) -> None:
         self.closed = True
+        if self.timer is not None:
+            self.timer.cancel()
         if self.task is not None:
             self.task.cancel()
         if self.link is not None:

@@ -688,12 +688,13 @@ class CountingLink:
     Once it is closed, `ending` and `why` say how (as PublisherLinkState's)."""
 
     def __init__(self, sock: socket.socket, counter: FrameCounter, on_messages: Callable[[int], None],
-                 state: PublisherLinkState | None = None):
+                 state: PublisherLinkState | None = None, on_close: Callable[[CountingLink], None] | None = None):
         self.loop = asyncio.get_running_loop()
         self.sock = sock
         self.counter = counter
         self.on_messages = on_messages
         self.state = state
+        self.on_close = on_close
         self.closed = False
         self.ending: str | None = None
         self.why = ""
@@ -730,6 +731,8 @@ class CountingLink:
             who = self.state.publisher + " on " + self.state.topic if self.state is not None else str(self.sock)
             self.ending, self.why = ending, "%s: %s" % (who, what)
             self._release()
+            if self.on_close is not None:
+                self.on_close(self)
 
     def close(self) -> None:
         self._close(CLOSED, "closed by us")
@@ -741,7 +744,8 @@ class CountingLink:
 
 
 async def watch_publisher(host: str, port: int, topic: str, callerid: str, publisher_uri: str,
-                          on_messages: Callable[[int], None], *, timeout: float = 10.0) -> CountingLink:
+                          on_messages: Callable[[int], None], *, timeout: float = 10.0,
+                          on_close: Callable[[CountingLink], None] | None = None) -> CountingLink:
     """A CountingLink to a publisher's TCPROS server, any type, once its header has come: the connection within
     `timeout`, the header by HANDSHAKE_TIMEOUT_S; TcprosError(why, ending) if the publisher failed it."""
     loop = asyncio.get_running_loop()
@@ -774,7 +778,7 @@ async def watch_publisher(host: str, port: int, topic: str, callerid: str, publi
     except BaseException:
         sock.close()
         raise
-    link = CountingLink(sock, counter, on_messages, state)
+    link = CountingLink(sock, counter, on_messages, state, on_close)
     if early:
         on_messages(early)
     return link
