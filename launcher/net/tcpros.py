@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import mmap
 import re
 import socket
 import struct
@@ -168,30 +167,23 @@ class FrameCounter:
             self._skip = self._size = size
 
 
-# A frame up to this size is given its whole buffer at once (a camera image: one allocation, then only the
-# kernel's copy); a larger one an anonymous mapping, whose pages cost memory only as the frame's bytes come:
-# a length a peer claims is never trusted for memory (roscpp's `new uint8_t[len]` is untouched likewise).
-EAGER_FRAME = 1 << 20
-
-
-def frame_buffer(size: int) -> bytearray | mmap.mmap:
-    """A writable buffer of `size` bytes for one frame's body."""
-    if size <= EAGER_FRAME:
-        return bytearray(size)
-    try:
-        return mmap.mmap(-1, size)
-    except (OSError, ValueError) as exc:  # an address-space limit (RLIMIT_AS)
-        raise TcprosError("no room for a frame of %d bytes: %s" % (size, exc)) from None
+# A frame's length is trusted for memory only as far as its bytes bear it out: a large frame's buffer is
+# FIRST_BODY bytes at first, then TRUST_FACTOR times what has come (at most the frame), a new buffer taking over
+# what the last one holds (copies of a seventh of the frame in all). A camera image of 1-4 MB: one or two
+# buffers; a peer that announces 900 MB and sends 100 kB holds 1 MiB. (roscpp's `new uint8_t[len]` is lazy
+# likewise: its pages are taken as the bytes come.)
+FIRST_BODY = 1 << 20
+TRUST_FACTOR = 16
 
 
 class FrameReader:
     """Frames read in place, for asyncio's BufferedProtocol: the socket is read into `get_buffer()`, then
     `received(n)` says how much came. A frame larger than the scratch buffer is read straight into a
-    buffer of its own (`frame_buffer`: a bytearray, or past EAGER_FRAME an mmap), which is handed on as the
-    frame (one copy, the kernel's: megabyte messages are not copied again); smaller frames are cut from the
-    scratch buffer as bytes."""
+    bytearray of its own (grown as its bytes come: see TRUST_FACTOR), which is handed on as the frame (the
+    kernel's copy: megabyte messages are not copied again); smaller frames are cut from the scratch buffer as
+    bytes."""
 
-    __slots__ = ("limit", "failure", "_scratch", "_view", "_fill", "_body", "_got")
+    __slots__ = ("limit", "failure", "_scratch", "_view", "_fill", "_body", "_size", "_got")
 
     SCRATCH = 64 * 1024
 
@@ -201,12 +193,18 @@ class FrameReader:
         self._scratch = bytearray(self.SCRATCH)
         self._view = memoryview(self._scratch)
         self._fill = 0                          # bytes in the scratch buffer
-        self._body: bytearray | None = None     # a large frame being read, and how much of it came
+        self._body: bytearray | None = None     # a large frame being read: its buffer so far, its size,
+        self._size = 0                          # and how much of it came
         self._got = 0
 
     def get_buffer(self) -> memoryview:
-        if self._body is not None:
-            return memoryview(self._body)[self._got:]
+        body = self._body
+        if body is not None:
+            if self._got == len(body):  # full, and the frame is not: a buffer of TRUST_FACTOR times what came
+                grown = bytearray(min(self._size, TRUST_FACTOR * self._got))
+                grown[:self._got] = body
+                self._body = body = grown
+            return memoryview(body)[self._got:]
         return self._view[self._fill:]
 
     def received(self, n: int) -> list[bytes | bytearray]:
@@ -216,7 +214,7 @@ class FrameReader:
             raise self.failure
         if self._body is not None:
             self._got += n
-            if self._got < len(self._body):
+            if self._got < self._size:
                 return []
             body, self._body = self._body, None
             return [body]
@@ -235,10 +233,10 @@ class FrameReader:
                 pos += 4 + size
             elif size > self.SCRATCH - 4:
                 # too big for the scratch buffer: the rest of it is read into a buffer of its own
-                body = frame_buffer(size)
                 self._got = fill - pos - 4
-                body[:self._got] = self._view[pos + 4:fill]
-                self._body = body
+                self._size = size
+                self._body = bytearray(min(size, max(FIRST_BODY, self._got)))
+                self._body[:self._got] = self._view[pos + 4:fill]
                 pos = fill
                 break
             else:
@@ -254,10 +252,15 @@ class FrameReader:
         """Bytes received that do not yet make a whole frame."""
         return self._fill + (4 + self._got if self._body is not None else 0)
 
+    @property
+    def held(self) -> int:
+        """Bytes of memory the frame being read holds (its buffer so far)."""
+        return len(self._body) if self._body is not None else 0
+
     def partial(self) -> str:
         """The frame cut short if the stream ended now, in words ("" at a frame's boundary)."""
         if self._body is not None:
-            return "%d of its %d bytes" % (self._got, len(self._body))
+            return "%d of its %d bytes" % (self._got, self._size)
         if self._fill >= 4:
             (size,) = _LEN.unpack_from(self._scratch, 0)
             return "%d of its %d bytes" % (self._fill - 4, size)
@@ -268,7 +271,7 @@ class FrameReader:
     def take_pending(self) -> bytes:
         """The bytes of the incomplete frame, its length first, handed on (to a FrameCounter) and forgotten here."""
         if self._body is not None:
-            rest = _LEN.pack(len(self._body)) + bytes(self._body[:self._got])
+            rest = _LEN.pack(self._size) + bytes(self._body[:self._got])
             self._body, self._got = None, 0
         else:
             rest = bytes(self._view[:self._fill])
