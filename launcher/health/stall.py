@@ -154,9 +154,10 @@ class StallWatch:
 
 class PublisherWatch:
     """The watch's connection to a node's own publisher of one topic, opened in the background (a verdict never
-    waits for a handshake). A node that does not publish the topic yet is asked again at the next verdict; a
-    connection that ended is tried again as tcpros.PublisherRetry says (a refusal or a header of no message type:
-    not in this run of the node), each lie one warning line naming the publisher and the topic."""
+    waits for a handshake). A node that does not publish the topic yet, or whose port does not answer, is asked
+    again at the next verdict; a connection that ended is tried again as tcpros.PublisherRetry says (a refusal or
+    a header of no message type: not in this run of the node), each lie one warning line naming the publisher and
+    the topic."""
 
     def __init__(self, uri: str, topic: str, watch: TopicWatch, timeout: float):
         self.loop = asyncio.get_running_loop()
@@ -203,9 +204,9 @@ class PublisherWatch:
                 self.link = link
         except tcpros.TcprosError as exc:
             self._ended(exc.ending, opened, str(exc))
-        except (OSError, asyncio.TimeoutError, ValueError, TypeError) as exc:  # (the node went, most likely)
-            self._ended(tcpros.BROKEN, opened, "cannot connect to publisher %s of %s: %s" % (self.uri, self.topic,
-                                                                                          exc), quiet=True)
+        except (OSError, asyncio.TimeoutError, ValueError, TypeError) as exc:
+            # no connection at all (a node starting under load, or going): no lie, asked again at the next verdict
+            log.debug("cannot connect to publisher %s of %s: %s", self.uri, self.topic, exc)
         finally:
             self.task = None
 
@@ -218,7 +219,7 @@ class PublisherWatch:
         assert link.state is not None
         self._ended(link.ending or tcpros.ENDED, link.state.opened_at, link.why)
 
-    def _ended(self, how: str, opened_at: float, why: str, quiet: bool = False) -> None:
+    def _ended(self, how: str, opened_at: float, why: str) -> None:
         if self.closed or how == tcpros.CLOSED:
             return
         now = self.loop.time()
@@ -229,7 +230,7 @@ class PublisherWatch:
         else:
             self.timer = self.loop.call_at(due, self._open_soon)
             what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
-        log.log(logging.DEBUG if quiet or how == tcpros.ENDED else logging.WARNING, "%s", what)
+        log.log(logging.DEBUG if how == tcpros.ENDED else logging.WARNING, "%s", what)
 
     def close(self) -> None:
         self.closed = True

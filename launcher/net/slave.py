@@ -67,7 +67,7 @@ class Subscription:
             if retry is None:
                 self.retries[uri] = PublisherRetry()
                 self._start(uri)
-            elif retry.listed() and not additive:
+            elif not additive and retry.listed():
                 self._start(uri)
 
     def _forget(self, uri: str) -> None:
