@@ -169,7 +169,7 @@ class FrameCounter:
 
 # A frame's length is trusted for memory only as far as its bytes bear it out: a large frame's buffer is
 # FIRST_BODY bytes at first, then TRUST_FACTOR times what has come (at most the frame), a new buffer taking over
-# what the last one holds (copies of a seventh of the frame in all). A camera image of 1-4 MB: one or two
+# what the last one holds (copies of a fifteenth of the frame in all). A camera image of 1-4 MB: one or two
 # buffers; a peer that announces 900 MB and sends 100 kB holds 1 MiB. (roscpp's `new uint8_t[len]` is lazy
 # likewise: its pages are taken as the bytes come.)
 FIRST_BODY = 1 << 20
