@@ -42,6 +42,7 @@ from typing import Callable, Iterable, NamedTuple
 from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
+from launcher.model.units import format_size
 
 WAITING = "waiting"
 RUNNING = "running"
@@ -53,8 +54,8 @@ STALLED = "stalled"
 STOPPED = "stopped"
 STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 
-EVENTS_FILE = "launcher-events.jsonl"
-LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+EVENTS_FILE = "launcher-events.jsonl"  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends
 RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
@@ -122,20 +123,14 @@ class Change(NamedTuple):
     line: dict  # the change as the events file writes it
 
 
-def size_text(n: float) -> str:
-    """Bytes in words: 612.0 MB."""
-    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
-        if n >= scale:
-            return "%.1f %s" % (n / scale, unit)
-    return "%d B" % n
-
-
 def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
-    """The limits a node is over, each with the value it has now: "memory_limit 500.0 MB (uses 612.0 MB)"."""
+    """The limits a node is over, each with the value it has now: "memory_limit 500MB (uses 612.3MB)" (sizes as
+    the README's units rule writes them: the limit as given, the measured use in decimal units)."""
     parts = []
     for limit, maximum in sorted(over_limit.items()):
         if limit == "memory_limit":
-            parts.append("memory_limit %s (uses %s)" % (size_text(maximum), "?" if rss is None else size_text(rss)))
+            parts.append("memory_limit %s (uses %s)" % (format_size(maximum),
+                                                        "?" if rss is None else format_size(rss, measured=True)))
         else:
             parts.append("%s %g cores (uses %s)" % (limit, maximum, "?" if cpu is None else "%.2f" % cpu))
     return ", ".join(parts)

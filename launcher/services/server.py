@@ -59,7 +59,7 @@ class RunView(Protocol):
     """What the server sees of its run (`launcher.services.servers.RunView`): its nodes, its identity, its core."""
 
     nodes: Any  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
-    fleet: Any  # every node's state (process/state.Fleet), None before the nodes are started
+    fleet: Any  # every node's state (fleet.state.Fleet), None before the nodes are started
     run_id: str
     master_uri: str
     log_dir: str

@@ -340,11 +340,11 @@ def test_over_a_limit_shows_in_status_events_and_diagnostics(tmp_path, pkgs):
         table = tool(env, "status").stdout.splitlines()
         assert table[1].split()[-2:] == ["OVER", "LIMIT"]
         row = [line for line in table if line.startswith("/holder ")][0]
-        assert re.search(r"memory_limit 32\.0 MB \(uses \d+\.\d MB\)$", row), table
+        assert re.search(r"memory_limit 32MiB \(uses \d+(\.\d)?MB\)$", row), table
         assert [line for line in table if line.startswith("/a ")][0].endswith(" -")
         out = _diagnostics(env)
-        assert re.search(r'level: 1\s+name: "/holder"\s+message: "running, over memory_limit 32\.0 MB '
-                         r'\(uses \d+\.\d MB\)"', out), out
+        assert re.search(r'level: 1\s+name: "/holder"\s+message: "running, over memory_limit 32MiB '
+                         r'\(uses \d+(\.\d)?MB\)"', out), out
         assert re.search(r'key: "memory_limit"\s+value: "33554432"', out), out
         (tmp_path / "ready" / "release").touch()
         until(lambda: status(env)["/holder"]["over_limit"] == {}, 60, 0.2, what="holder back under its limit")
