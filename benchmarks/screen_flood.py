@@ -24,6 +24,17 @@ to a file, write the terminal): what the kernel's pty work alone costs.
 
 Under roslaunch the node writes to the terminal itself (its CPU is the node's);
 roslaunch's rosmaster/rosout are separate processes and not counted.
+
+Measured 11-27 on the shared 2-core VM (load 8-12), CPU%@rate, one node, 20 s:
+roslaunch 0.4; before (main 0da1a3f) 36.1, with `launcher ui` 30.1, 1 line lost
+and 2 broken (a launcher line put in the middle of a node's); after 21.6, with
+`launcher ui` 25.7, none lost, out of order or broken, 400 MB relayed as read and
+0 line by line; the C floor 18.3, all of it the kernel's (its tty layer: a read of
+a pty gives 4 KiB; splice(2) pty -> pipe -> terminal with tee(2) to the file
+measured no cheaper). Of ours, the user part is 5 and the system part 16.5.
+Two nodes, 10 s: broken lines roslaunch 10,367 (its nodes' writes cut lines),
+before 34,519, after 0. `--journal` (every byte line by line): before 42.8,
+after 32.4.
 """
 
 from __future__ import annotations
