@@ -32,6 +32,8 @@ and 2 broken (a launcher line put in the middle of a node's); after 21.6, with
 0 line by line; the C floor 18.3, all of it the kernel's (its tty layer: a read of
 a pty gives 4 KiB; splice(2) pty -> pipe -> terminal with tee(2) to the file
 measured no cheaper). Of ours, the user part is 5 and the system part 16.5.
+A second run (2 reps, no view): roslaunch 0.3/0.2, before 28.8/25.3 (1 lost,
+1-2 broken), after 23.5/22.5 (none), the floor 22.6/23.2.
 Two nodes, 10 s: broken lines roslaunch 10,367 (its nodes' writes cut lines),
 before 34,519, after 0. `--journal` (every byte line by line): before 42.8,
 after 32.4.
