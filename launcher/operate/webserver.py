@@ -38,7 +38,7 @@ IDLE_TIMEOUT_S = 60.0  # a keep-alive connection without a request for this long
 MAX_CONNECTIONS = 1024  # at once, event streams included (fewer under a low open-file limit)
 MAX_HEADER_SIZE = 8 * 1024
 MAX_BODY_SIZE = 64 * 1024  # a POST's body (a node pattern)
-STREAM_BUFFER = 64 * 1024  # an event stream's unsent bytes past which it is dropped (past its first event)
+STREAM_BUFFER = 64 * 1024  # an event stream's unsent bytes past which it is dropped (beyond its first event's size)
 STREAM_SNDBUF = 32 * 1024  # the kernel's send buffer of an event stream: a client that does not read shows soon
 TRIM_AFTER_S = 1.0  # after clients leave, the C heap's free pages are given back this much later (at most so often)
 
@@ -91,9 +91,11 @@ class EventStream:
     """One client's event stream, as its source sees it: `send` writes an event at once, or drops a client that
     has left STREAM_BUFFER bytes unread."""
 
-    def __init__(self, connection: "_Connection"):
+    def __init__(self, connection: "_Connection", first: int = 0):
         self._connection = connection
         self.open = True
+        # (a large launch's first event, the whole table, may still be on its way when the next one comes)
+        self.bound = STREAM_BUFFER + first
 
     def send(self, data: bytes) -> bool:
         """Write `data`; False once the stream is closed (dropped now, or before)."""
@@ -102,7 +104,7 @@ class EventStream:
         if not self.open or transport is None or connection.closing:
             self.open = False
             return False
-        if transport.get_write_buffer_size() > STREAM_BUFFER:
+        if transport.get_write_buffer_size() > self.bound:
             self.open = False
             connection.drop()  # (the bytes it did not read are freed now, not when it reads them)
             return False
@@ -233,8 +235,10 @@ class _Connection(asyncio.Protocol):
                 self.busy.add_done_callback(lambda task, keep=event.keep_alive: self._done(task, keep))
 
     def _done(self, task: asyncio.Future, keep_alive: bool) -> None:
-        if task is not self.busy:
-            return  # (cancelled at connection_lost)
+        if task is not self.busy:  # (the client left: cancelled at connection_lost, or done just before)
+            if not task.cancelled():
+                task.exception()  # (retrieved: nobody waits for it)
+            return
         self.busy = None
         if task.cancelled():
             return
@@ -271,7 +275,7 @@ class _Connection(asyncio.Protocol):
             except OSError:
                 pass
         transport.write(format_head(200, "text/event-stream", None, False, self.server.headers) + reply.first)
-        self.stream = EventStream(self)
+        self.stream = EventStream(self, len(reply.first))
         self.detach = reply.detach
         self.reader = None  # type: ignore[assignment]  # (what a stream's client sends is not read into memory)
         reply.attach(self.stream)
