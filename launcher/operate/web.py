@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import collections
+import functools
 import ipaddress
 import json
 import os
@@ -206,6 +207,12 @@ class Hub:
             return await call(self.uri, method, *params, timeout=CONTROL_TIMEOUT_S)
 
 
+@functools.lru_cache(maxsize=None)
+def own_names() -> tuple:
+    """This machine's names, looked up once (getfqdn asks the resolver: never on each request)."""
+    return ("localhost", socket.gethostname().lower(), socket.getfqdn().lower())
+
+
 def allowed_host(host: str, port: int, bound: str) -> bool:
     """Whether a request's Host header names this server: by an address literal, `localhost` or this machine's
     name, with our port. A name that merely resolves here (DNS rebinding) does not."""
@@ -213,12 +220,10 @@ def allowed_host(host: str, port: int, bound: str) -> bool:
     if not sep or p != str(port) or not name:
         return False
     name = name.strip("[]").lower()
-    if name in ("localhost", socket.gethostname().lower(), socket.getfqdn().lower()):
-        return True
     try:
         ipaddress.ip_address(name)
     except ValueError:
-        return False
+        return name in own_names()
     return True
 
 
@@ -384,6 +389,7 @@ def serve(uri: str, address: str, parent: int | None = None) -> int:
     host, port = parse_address(address)
     raise_open_file_limit()  # (each client is a file: the connection cap follows the limit)
     hub = Hub(uri, client.status(uri), reader.past_samples(uri))
+    own_names()  # (before the loop runs: the resolver is never asked on it)
     try:
         asyncio.run(_serve(hub, host, port, parent))
     except OSError as e:

@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
+import gc
 import logging
+import os
 import socket
 import struct
 from http import HTTPStatus
@@ -40,6 +42,9 @@ MAX_HEADER_SIZE = 8 * 1024
 MAX_BODY_SIZE = 64 * 1024  # a POST's body (a node pattern)
 STREAM_BUFFER = 64 * 1024  # an event stream's unsent bytes past which it is dropped (beyond its first event's size)
 STREAM_SNDBUF = 32 * 1024  # the kernel's send buffer of an event stream: a client that does not read shows soon
+LISTEN_BACKLOG = 1024  # connections the kernel holds for us while we are busy (a flood's bursts)
+ACCEPT_BATCH = 64  # accepted per turn of the loop, before they are made (the cap may be passed by this, for a moment)
+ACCEPT_BACKOFF_S = 0.5  # no accepting for this long after accept() failed (out of files)
 TRIM_AFTER_S = 1.0  # after clients leave, the C heap's free pages are given back this much later (at most so often)
 
 
@@ -133,12 +138,9 @@ class _Connection(asyncio.Protocol):
     # -- asyncio's callbacks ---------------------------------------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
-        server = self.server
-        if len(server.connections) >= server.max_connections and not server.evict():
-            self.closing = True  # every connection is a stream or awaits a reply: the newcomer waits its turn
-            transport.abort()  # type: ignore[attr-defined]
-            return
+        server = self.server  # (room was made for it at accept)
         server.connections.add(self)
+        server._most = max(server._most, len(server.connections))
         server.fresh[self] = None
         now = server.loop.time()
         self.last_activity = self.partial_since = now  # (its first head is due within the header deadline)
@@ -352,16 +354,25 @@ class PageServer:
         self.fresh: dict[_Connection, None] = {}  # those without a whole request yet, oldest first
         self.loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
         self._server: Any = None
+        self._listeners: list[socket.socket] = []
+        self._accepting = 0  # accepted, not made yet
+        self._accept_failures: set = set()  # the errnos already said
         self._trim = _malloc_trim()
+        self._most = 0  # the most connections held since the last trim
         self._trimming: asyncio.TimerHandle | None = None
 
     def left(self) -> None:
-        """A connection closed: its memory goes back to the system soon (once for many that leave together)."""
-        if self._trim is not None and self._trimming is None and self.loop is not None:
+        """A connection closed: once the server holds half as many as it did at most since the last trim, their
+        memory goes back to the system soon (once for many that leave together; not while a flood churns at
+        the cap, where it would be used again at once)."""
+        if (self._trim is not None and self._trimming is None and self.loop is not None
+                and len(self.connections) <= self._most // 2):
             self._trimming = self.loop.call_later(TRIM_AFTER_S, self._trimmed)
 
     def _trimmed(self) -> None:
         self._trimming = None
+        self._most = len(self.connections)
+        gc.collect()  # (what the clients left in reference cycles is freed now, not at some later collection)
         self._trim()  # type: ignore[misc]
 
     def evict(self) -> bool:
@@ -380,13 +391,58 @@ class PageServer:
 
     async def start(self) -> None:
         """Listen (OSError when the address is taken); `port` is then the one bound."""
-        self.loop = asyncio.get_running_loop()
-        self._server = await self.loop.create_server(lambda: _Connection(self), self.host, self.port,
-                                                     reuse_address=True, backlog=1024)
+        self.loop = loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: _Connection(self), self.host, self.port, reuse_address=True,
+                                                backlog=LISTEN_BACKLOG, start_serving=False)
+        # asyncio binds; the accepting is ours (as net.xmlrpc_server's): room is made under the cap before a
+        # connection is accepted, not after (asyncio accepts a whole backlog before it makes any), and running
+        # out of files backs off with one line, not a traceback per attempt
+        for bound in self._server.sockets:
+            listener = socket.socket(fileno=os.dup(bound.fileno()))
+            listener.setblocking(False)
+            listener.listen(LISTEN_BACKLOG)
+            self._listeners.append(listener)
+            loop.add_reader(listener.fileno(), self._accept, listener)
         self.port = self._server.sockets[0].getsockname()[1]
+
+    def _accept(self, listener: socket.socket) -> None:
+        loop = self.loop
+        for _ in range(ACCEPT_BATCH):
+            try:
+                conn, _addr = listener.accept()
+            except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+                return
+            except OSError as e:  # (out of files: the clients wait in the backlog meanwhile)
+                if e.errno not in self._accept_failures:
+                    self._accept_failures.add(e.errno)
+                    log.warning("the page server on port %d: accept() failed (%s); new connections wait",
+                                self.port, e.strerror)
+                loop.remove_reader(listener.fileno())
+                loop.call_later(ACCEPT_BACKOFF_S, self._resume_accepting, listener)
+                return
+            if len(self.connections) + self._accepting >= self.max_connections and not self.evict():
+                conn.close()  # every connection is a stream or awaits a reply: the newcomer waits its turn
+                continue
+            conn.setblocking(False)
+            self._accepting += 1
+            task = loop.create_task(loop.connect_accepted_socket(lambda: _Connection(self), conn))
+            task.add_done_callback(lambda t, c=conn: self._made(t, c))
+
+    def _made(self, task: asyncio.Future, conn: socket.socket) -> None:
+        self._accepting -= 1
+        if task.cancelled() or task.exception() is not None:  # (reset meanwhile, or the server stopping)
+            conn.close()
+
+    def _resume_accepting(self, listener: socket.socket) -> None:
+        if listener in self._listeners:
+            self.loop.add_reader(listener.fileno(), self._accept, listener)
 
     async def stop(self) -> None:
         """Stop listening; every connection closed once what was written to it is sent (a page's last event)."""
+        for listener in self._listeners:
+            self.loop.remove_reader(listener.fileno())
+            listener.close()
+        self._listeners = []
         if self._server is not None:
             self._server.close()
         for connection in list(self.connections):
