@@ -8,7 +8,8 @@ rosbag's `NAME.bag.active` and renamed to `NAME.bag` once closed and indexed.
 As in rosbag, messages are taken from the sockets on one side (the asyncio
 loop) and written on the other (a writer thread, which owns the open bag while
 it runs), through a buffer of `-b` MB whose oldest messages are dropped when it
-is full: a slow disk costs the oldest messages, not the reading of the sockets.
+is full: a slow disk costs the oldest messages (of the topic holding the most of
+the buffer: bag/buffer.py), not the reading of the sockets nor a connection.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from typing import Any, NamedTuple
 
 from rosbags.rosbag1 import Writer
 from rosbags.rosbag1.reader import RecordType
-from rosbags.rosbag1.writer import MAXSIZE, Header, WriteChunk, serialize_time, serialize_uint32
+from rosbags.rosbag1.writer import Header, WriteChunk, serialize_time, serialize_uint32
 
+from launcher import compat
+from launcher.compat import to_thread
 from launcher.model import names
 from launcher.bag import rosargs
 from launcher.bag.buffer import Buffer, Queued
@@ -143,6 +146,12 @@ class DiskFile:
             os.close(self.fd)
 
 
+def _new_chunk() -> WriteChunk:
+    """An empty chunk as rosbags' writer starts one: its start time above any stamp, lowered by the first
+    message (rosbags' own constant for it is 2**64 in 0.9, MAXSIZE in 0.11; any value past every stamp will do)."""
+    return WriteChunk(BytesIO(), -1, 2**63 - 1, 0, defaultdict(list))
+
+
 class BagFile:
     """One bag being written: its connections (one per topic and publisher header) and its size."""
 
@@ -216,7 +225,7 @@ class BagFile:
         chunk.start = chunk.end = stamp_ns
         chunk.connections[conn.id].append((stamp_ns, 0))
         chunk.data.close()
-        writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
+        writer.chunks.append(_new_chunk())
 
     @property
     def size(self) -> int:
@@ -235,7 +244,7 @@ class BagFile:
         try:
             self.disk.cut()
             writer.chunks = [c for c in writer.chunks if c.pos != -1 and c.pos < self.disk.synced]
-            writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
+            writer.chunks.append(_new_chunk())
             writer.close()
             os.rename(self.active, self.path)
             return True
@@ -267,7 +276,7 @@ class Recorder:
         self.counts: dict[str, int] = {}   # per topic, for -l
         self.full: set[str] = set()        # topics that reached -l
         self.failed: str | None = None
-        self.done = asyncio.Event()
+        self.done = compat.Event()
         self.loop = asyncio.get_running_loop()
         self.buffer = Buffer(opts.buffer_size)
         self.writer: threading.Thread | None = None
@@ -357,10 +366,13 @@ class Recorder:
         bag = self.bag
         if bag is None:
             return
-        # As rosbag: the message that finds the bag full or old enough opens the next one.
-        if self.opts.split and (
-                (self.opts.size and bag.size >= self.opts.size)
-                or (self.opts.duration and time.monotonic() - bag.started >= self.opts.duration)):
+        # As rosbag: the message that finds the bag full or old enough opens the next one, or, without --split,
+        # ends the recording (`--duration 30` alone records 30 s).
+        if (self.opts.size and bag.size >= self.opts.size) or (
+                self.opts.duration and time.monotonic() - bag.started >= self.opts.duration):
+            if not self.opts.split:
+                self.loop.call_soon_threadsafe(self.done.set)
+                return
             try:
                 self._split()
             except OSError as exc:
@@ -444,12 +456,15 @@ class Recorder:
         shutdown.cancel()
         if poller is not None:
             poller.cancel()
-        # What the kernel already holds for us belongs in the bag: read it, then close.
+        # What the kernel already holds for us belongs in the bag: read it, then close (a publisher faster than
+        # the disk would otherwise keep the writer from ever finding the buffer empty).
         for sub in list(self.node.subscriptions.values()):
             await sub.drain()
+        for sub in list(self.node.subscriptions.values()):
+            sub.close()
         # ...and what the buffer holds (rosbag's writer too empties its queue before it closes the bag)
         self.buffer.close()
-        await asyncio.to_thread(self.writer.join)
+        await to_thread(self.writer.join)
         if self.buffer.total_dropped:
             self.say("[ WARN] [%.9f]: %d messages were dropped: the buffer (-b %d MB) was full"
                      % (time.time(), self.buffer.total_dropped, self.opts.buffer_size >> 20))

@@ -39,6 +39,7 @@ import json
 import time
 from typing import Callable, Iterable, NamedTuple
 
+from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
 
@@ -66,7 +67,7 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit")
+                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -80,6 +81,11 @@ class NodeStatus:
         self.spawn_count = 0  # runs started
         self.exit_code: int | None = None  # the last run's exit code, if it exited
         self.exit_signal: int | None = None  # the signal that ended the last run, if one did
+        # how the last run that ended did end, and when (wall clock): kept while the node runs again, when
+        # exit_code and exit_signal (the current run's) are None again (why does it keep restarting?)
+        self.last_exit_code: int | None = None
+        self.last_exit_signal: int | None = None
+        self.last_exit_at: float | None = None
         self.next_start: float | None = None  # when respawning
         self.reason = ""  # why the last change happened, in words
         self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
@@ -99,7 +105,8 @@ class NodeStatus:
                 "phase": self.phase, "pid": self.pid, "started_at": self.started_at, "uptime": self.uptime(),
                 "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
-                "rss": self.rss, "over_limit": dict(self.over_limit)}
+                "rss": self.rss, "over_limit": dict(self.over_limit), "last_exit_code": self.last_exit_code,
+                "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at}
 
 
 class Change(NamedTuple):
@@ -134,6 +141,13 @@ def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | 
     return ", ".join(parts)
 
 
+def run_ended(before: tuple, after: tuple) -> bool:
+    """Whether a node's (exit_code, exit_signal) going from `before` to `after` is a run's end: a run clears
+    them when it starts, and its end sets them (a view of the change stream or of the events file keeps
+    `last_exit_*` by the same rule)."""
+    return after != (None, None) and after != before
+
+
 def visible(change: Change) -> bool:
     """Is this a change a reader of the events file sees? (Internal steps, e.g. running -> stopping, or
     pending -> launching, are not written: the outside's states and their fields are the file's.)"""
@@ -163,7 +177,7 @@ class Fleet:
         self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
-        self.done = asyncio.Event()
+        self.done = compat.Event()
         # the launch's exit status when a node ended it: a required node's own exit code (128 + the
         # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
         self.exit_status = 0
@@ -240,6 +254,8 @@ class Fleet:
         status.started_at = None if r.started is None or r.spawn_count == 0 else wall + r.started
         status.restarts = r.restarts
         status.spawn_count = r.spawn_count
+        if run_ended((status.exit_code, status.exit_signal), (r.exit_code, r.exit_signal)):
+            status.last_exit_code, status.last_exit_signal, status.last_exit_at = r.exit_code, r.exit_signal, wall + now
         status.exit_code, status.exit_signal = r.exit_code, r.exit_signal
         status.next_start = None if r.next_start is None else wall + r.next_start
         status.reason = r.reason
@@ -261,18 +277,19 @@ class Fleet:
     # ---- the change stream, for readers outside -----------------------------------------------------------
 
     def changes_since(self, seq: int) -> tuple[list[dict], bool]:
-        """The changes after `seq`, as the events file has them, and whether they are all there (False:
-        older ones were dropped; a reader should read the status again)."""
+        """The changes after `seq`, as the events file has them (a step it leaves out, such as running ->
+        stopping, marked `"internal": true`: a view that shows the file's lines skips it), and whether they
+        are all there (False: older ones were dropped; a reader should read the status again)."""
         changes = [c for c in self.changes if c.seq > seq]
         complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
-        return [c.line for c in changes], complete
+        return [c.line if visible(c) else dict(c.line, internal=True) for c in changes], complete
 
     async def wait_change(self, seq: int, timeout: float) -> None:
         """Return when there is a change after `seq`, or after `timeout` seconds."""
         if self.seq > seq:
             return
         if self._changed is None:
-            self._changed = asyncio.Event()
+            self._changed = compat.Event()
         self._changed.clear()
         try:
             await asyncio.wait_for(self._changed.wait(), timeout)

@@ -34,7 +34,13 @@ def describe(event: dict) -> str:
     if "node" not in event and event.get("event"):  # an event of the run, not a node's (launch_ended)
         return " ".join([when, str(event["event"]).replace("_", " ")] + (
             ["(%s)" % event["reason"]] if event.get("reason") else []))
-    parts = [when, event.get("node", "?")]
+    return "%s %s %s" % (when, event.get("node", "?"), words(event))
+
+
+def words(event: dict) -> str:
+    """A node's change in words, after its name: "running pid 21006 restarts 1 (started by operator)" (the
+    live view's output pane says each change so too)."""
+    parts = []
     if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
         parts.append("on %s" % event["host"])
     parts.append(event.get("state", "?"))
@@ -56,7 +62,7 @@ def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     info, last = client.live_or_last(opts, client.status)
     if last is not None:
-        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.write(last.ended_line() + "\n")
         sys.stderr.flush()
         opts.follow = False  # (nothing more will come)
         path = last.events_file()

@@ -30,10 +30,10 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import sys
 import time
 from typing import Any, Protocol
 
+from launcher.compat import orig_argv
 from launcher.master import advertised_host
 from launcher.net.slave import bind_address
 from launcher.net.xmlrpc import Fault, encode_value
@@ -146,7 +146,7 @@ class LaunchServer:
         with a fault: it hands os.environ, not a dict, to the XML-RPC marshaller.)
         """
         master = process_name == "master"
-        return {"spawn_count": 1, "args": list(getattr(sys, "orig_argv", sys.argv)), "env": dict(os.environ),
+        return {"spawn_count": 1, "args": orig_argv(), "env": dict(os.environ),
                 "package": "rosmaster" if master else "rosout", "name": process_name, "alive": True,
                 "respawn": False, "respawn_delay": 0.0, "required": master, "pid": os.getpid(),
                 "run_id": self.run.run_id, "log_output": not master}
@@ -223,7 +223,8 @@ class LaunchServer:
         """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
         seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
         instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
-        older changes were dropped (read the status again), "changes": [as in the events file]}]."""
+        older changes were dropped (read the status again), "changes": [as in the events file; the steps it
+        leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
         fleet = self.run.fleet

@@ -310,3 +310,36 @@ def test_the_events_file_ends_with_the_launchs_end(tmp_path):
     lines = [json.loads(line) for line in path.read_text().splitlines()]
     assert [(e.get("state"), e.get("phase")) for e in lines[:-1]] == [("running", "running"), ("stopped", "stopped")]
     assert lines[-1]["event"] == state.LAUNCH_ENDED and lines[-1]["reason"] == "stopped by SIGINT"
+    # the long poll serves every change; those the file leaves out are marked internal
+    served = [(c["phase"], c.get("internal", False)) for c in fleet.changes_since(0)[0]]
+    assert served == [(m.STARTING, True), (m.RUNNING, False), (m.STOPPING, True), (m.STOPPED, False)]
+
+
+def test_the_last_exit_is_kept_while_the_node_runs_again():
+    """exit_code is the current run's (None while it runs); last_exit_* the last run that ended, with its time."""
+    import time
+
+    from launcher.fleet import state
+    clock = [10.0]
+    fleet = state.Fleet(clock=lambda: clock[0])
+    fleet.add("/crasher", process="crasher-1", rules=Rules(respawn=True, respawn_delay=0.5))
+    node = fleet.nodes["/crasher"]
+    assert (node.last_exit_code, node.last_exit_signal, node.last_exit_at) == (None, None, None)
+    fleet.apply("/crasher", Event(m.START))
+    fleet.apply("/crasher", Event(m.SPAWNED, pid=5))
+    before = time.time()
+    fleet.apply("/crasher", Event(m.EXITED_, exit_code=3))
+    ended_at = node.last_exit_at
+    assert before <= ended_at <= time.time() and (node.exit_code, node.last_exit_code) == (3, 3)
+    clock[0] = 11.0
+    fleet.apply("/crasher", Event(m.DUE))
+    fleet.apply("/crasher", Event(m.SPAWNED, pid=6))
+    d = node.as_dict()
+    assert (d["state"], d["exit_code"], d["last_exit_code"], d["last_exit_signal"], d["last_exit_at"]) == (
+        "running", None, 3, None, ended_at)
+    fleet.apply("/crasher", Event(m.STOP))
+    fleet.apply("/crasher", Event(m.EXITED_, exit_signal=2))  # (its end while being stopped)
+    fleet.apply("/crasher", Event(m.DOWN))
+    d = node.as_dict()
+    assert (d["state"], d["exit_signal"], d["last_exit_code"], d["last_exit_signal"]) == ("stopped", 2, None, 2)
+    assert d["last_exit_at"] > ended_at

@@ -611,4 +611,31 @@ def run_under_load(tmp_path) -> None:
         if web is not None:
             web.terminate()
             web.wait(10)
+def test_the_pages_last_exit_shows_while_a_crash_looping_node_runs_again(tmp_path, browser):
+    """A node exiting 3 every 0.5 s under respawn: its row's LAST EXIT reads `code 3` in every sample, while it
+    runs again too; so does a page opened later (its first event, the snapshot, carries the last exit)."""
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"crasher": "#!/bin/sh\nsleep 0.5\nexit 3\n"})
+    env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
+    port = free_port()
+    lp = Launcher(["--web", str(port), write_launch(str(tmp_path), '<node pkg="web_tests" type="crasher" '
+                                                    'name="crasher" respawn="true"/>')], env, str(tmp_path))
+    try:
+        lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
+        from selenium.webdriver.common.by import By
+        browser.get("http://127.0.0.1:%d/" % port)
+
+        def cell(name: str) -> str:
+            cells = browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/crasher'] td.%s" % name)
+            return cells[0].text if cells else ""
+        until(lambda: cell("restarts") not in ("", "0"), 60, 0.2, what="the crasher restarted in the page")
+        for page in range(2):
+            states = set()
+            for _ in range(6):
+                assert cell("exit") == "code 3", (cell("state"), cell("exit"))
+                states.add(cell("state"))
+                time.sleep(0.3)  # (samples 0.3 s apart)
+            assert "running" in states, states
+            browser.get("http://127.0.0.1:%d/" % port)  # (a page opened later)
+            until(lambda: cell("exit") != "", 30, 0.2, what="the row in a new page")
+    finally:
         lp.close()
