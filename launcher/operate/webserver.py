@@ -12,8 +12,11 @@ has not sent a whole request yet (a slow one), else of the one idle longest.
 An event stream (server-sent events) is written to without waiting: a client
 that does not read lets its unsent bytes grow, and past STREAM_BUFFER it is
 dropped (its page reconnects and starts over), so a stream costs at most that
-much. What a request gets is the caller's `handle(request)`: a `Reply`, an
-awaitable of one, or a `StreamReply`.
+much. The accepting is ours, so that room is made under the cap before a
+connection is taken. Once half the connections have gone, what they used is
+handed back to the system (a collection, then glibc's malloc_trim). What a
+request gets is the caller's `handle(request)`: a `Reply`, an awaitable of
+one, or a `StreamReply`.
 """
 
 from __future__ import annotations
