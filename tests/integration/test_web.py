@@ -523,10 +523,12 @@ def test_the_page_server_stays_bounded_under_3000_slow_connections_and_500_strea
 
 
 def run_under_load(tmp_path) -> None:
-    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "chatty": Chatty})
+    make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "chatty": Chatty,
+                                                       "idle": "#!/bin/sh\nexec sleep 100000\n"})
     env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
     lp = Launcher([write_launch(str(tmp_path), '<node pkg="web_tests" type="talker" name="talker"/>'
-                                               '<node pkg="web_tests" type="chatty" name="chatty" output="screen"/>')],
+                                               '<node pkg="web_tests" type="chatty" name="chatty" output="screen"/>'
+                                               '<node pkg="web_tests" type="idle" name="idle"/>')],
                   env, str(tmp_path))
     web = good = None
     try:
@@ -572,6 +574,7 @@ def run_under_load(tmp_path) -> None:
                            len(outs), time.time() - (outs[-1] if outs else 0)))
                 at_full += slow.opened >= 3000
                 rounds += 1
+                started = time.monotonic()
                 for path in pages:
                     took, answer = timed_get(port, path)
                     assert answer.startswith(b"HTTP/1.1 200"), (path, answer[:200])
@@ -579,16 +582,18 @@ def run_under_load(tmp_path) -> None:
                 threads.append(proc_status(web.pid, "Threads"))
                 files.append(len(os.listdir("/proc/%d/fd" % web.pid)))
                 rss_peak = max(rss_peak, proc_status(web.pid, "VmRSS"))
-                # a change (a restart of /talker) reaches the good client within 2 s of happening
+                # a change (a restart of /idle, a node that is cheap to start) reaches the good client within 2 s of
+                # happening
                 seen = len(good.events)
-                code, msg, _names = xmlrpc.client.ServerProxy(info["uri"]).restart_nodes(token, "/talker")
+                code, msg, _names = xmlrpc.client.ServerProxy(info["uri"]).restart_nodes(token, "/idle")
                 assert code == 1, msg
                 arrived = until(lambda: [(t, c) for t, e in good.events[seen:] if e["type"] == "changes"
-                                         for c in e["changes"] if c["node"] == "/talker" and c["state"] == "running"],
+                                         for c in e["changes"] if c["node"] == "/idle" and c["state"] == "running"],
                                 10, 0.05, what="the restart's change at the good client")
                 for t, change in arrived:
                     assert t - change["time"] < 2.0, (t, change)
                 threads.append(proc_status(web.pid, "Threads"))
+                time.sleep(max(0.0, started + 0.5 - time.monotonic()))  # (a round at most every 0.5 s)
             print("%d rounds, %d streams that never read dropped by the server; pages' slowest answers %s, threads "
                   "%s, open files %s, RSS %d kB at the start, at most %d kB under load; the server's CPU %.1f s"
                   % (rounds, streams.dropped, {p: round(t, 3) for p, t in slowest.items()}, max(threads), max(files),
@@ -611,6 +616,9 @@ def run_under_load(tmp_path) -> None:
         if web is not None:
             web.terminate()
             web.wait(10)
+        lp.close()
+
+
 def test_the_pages_last_exit_shows_while_a_crash_looping_node_runs_again(tmp_path, browser):
     """A node exiting 3 every 0.5 s under respawn: its row's LAST EXIT reads `code 3` in every sample, while it
     runs again too; so does a page opened later (its first event, the snapshot, carries the last exit)."""
