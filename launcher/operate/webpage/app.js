@@ -142,6 +142,18 @@ setInterval(() => {
   }
 }, 1000);
 
+// The address `launcher web` printed on its terminal carries the run's token in its fragment (#token=...: a
+// fragment never reaches a server or a Referer): kept in this tab, and taken out of the address bar (and history).
+function takeToken() {
+  const m = /(?:^#|&)token=([^&]*)/.exec(location.hash);
+  if (!m) return;
+  const t = decodeURIComponent(m[1]).trim();
+  if (t) sessionStorage.setItem("launcher-token", t);
+  const rest = location.hash.slice(1).split("&").filter((p) => !p.startsWith("token=")).join("&");
+  history.replaceState(null, "", location.pathname + location.search + (rest ? "#" + rest : ""));
+}
+takeToken();
+
 function token() {
   let t = sessionStorage.getItem("launcher-token");
   if (!t) {
