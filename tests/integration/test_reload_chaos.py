@@ -19,8 +19,8 @@ import time
 import pytest
 import yaml
 
-from helpers import ROS_PATH, free_port, pid_alive, until
-from running import Launcher, compile_roscpp, make_package, ros_env
+from helpers import ROS_PATH, free_port, until
+from running import Launcher, compile_roscpp, make_package, node_processes, ros_env
 from test_reload import RUN_TIME, flatten
 
 pytestmark = pytest.mark.integration
@@ -91,20 +91,7 @@ class Chaos:
     def processes(self) -> dict[str, list[int]]:
         """The launch's live node processes (found in /proc by their __log:= in this test's log directory): node
         name -> pids (two: a node running twice)."""
-        log_dir = self.env["ROS_LOG_DIR"]
-        found: dict[str, list[int]] = {}
-        for entry in os.listdir("/proc"):
-            if not entry.isdigit():
-                continue
-            try:
-                with open("/proc/%s/cmdline" % entry, "rb") as f:
-                    argv = f.read().decode(errors="replace").split("\0")
-            except OSError:
-                continue
-            names = [a[len("__name:="):] for a in argv if a.startswith("__name:=")]
-            if names and any(a.startswith("__log:=" + log_dir) for a in argv) and pid_alive(int(entry)):
-                found.setdefault(names[0], []).append(int(entry))
-        return found
+        return node_processes(self.env["ROS_LOG_DIR"])
 
 
 class Killer(threading.Thread):
