@@ -66,7 +66,7 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit")
+                 "over_limit", "registered", "uri")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -88,6 +88,10 @@ class NodeStatus:
         self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
         # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
         self.over_limit: dict[str, float] = {}
+        # its current run is registered with the master, at this XML-RPC URI ("running" says that a process
+        # runs; a ROS node is up once it is registered too)
+        self.registered = False
+        self.uri = ""
 
     def uptime(self, now: float | None = None) -> float | None:
         if self.state != RUNNING or self.started_at is None:
@@ -99,7 +103,7 @@ class NodeStatus:
                 "phase": self.phase, "pid": self.pid, "started_at": self.started_at, "uptime": self.uptime(),
                 "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
-                "rss": self.rss, "over_limit": dict(self.over_limit)}
+                "rss": self.rss, "over_limit": dict(self.over_limit), "registered": self.registered, "uri": self.uri}
 
 
 class Change(NamedTuple):
@@ -143,7 +147,8 @@ def visible(change: Change) -> bool:
     return (machine.PUBLIC[old.state] != machine.PUBLIC[new.state] or old.pid != new.pid
             or old.spawn_count != new.spawn_count or old.exit_code != new.exit_code
             or old.exit_signal != new.exit_signal or old.over_limit != new.over_limit
-            or old.failures != new.failures or (old.reason != new.reason and new.reason != ""))
+            or old.failures != new.failures or (old.reason != new.reason and new.reason != "")
+            or old.registered != new.registered or old.uri != new.uri)
 
 
 class Fleet:
@@ -230,6 +235,12 @@ class Fleet:
             self._check_all_dead()
         return actions
 
+    def registration(self, name: str, uri: str, present: bool) -> None:
+        """The master's word about a node's current run (health/registration.py): registered at `uri`, or that
+        registration gone. No runner is needed: the machine answers these with no action."""
+        if name in self.records:
+            self.apply(name, Event(machine.REGISTERED if present else machine.UNREGISTERED, uri=uri))
+
     def _mirror(self, r: Record, now: float) -> NodeStatus:
         status = self.nodes[r.name]
         wall = time.time() - now  # this clock's zero on the wall clock
@@ -245,6 +256,7 @@ class Fleet:
         status.reason = r.reason
         status.failures = r.failures
         status.over_limit = dict(r.over_limit)
+        status.registered, status.uri = r.registered, r.uri
         if status.state != RUNNING:
             status.cpu = status.rss = None  # (a stopped node uses nothing: no stale sample)
         return status
@@ -342,7 +354,7 @@ class Fleet:
         return {"seq": seq, "time": round(when, 6), "node": r.name, "host": r.host, "state": status.state,
                 "phase": r.state, "pid": r.pid, "exit_code": r.exit_code, "exit_signal": r.exit_signal,
                 "restarts": r.restarts, "failures": r.failures, "next_start": status.next_start,
-                "over_limit": dict(r.over_limit), "reason": r.reason}
+                "over_limit": dict(r.over_limit), "reason": r.reason, "registered": r.registered, "uri": r.uri}
 
     def _write(self, change: Change) -> None:
         if self._events is None:

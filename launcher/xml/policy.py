@@ -212,6 +212,7 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "watch_window": ("watch_window", _seconds(positive=True)),
     "on_stall": ("on_stall", _choice("restart", "warn")),
     "bind_to": ("bind_to", _node_name),
+    "registers": ("registers", _bool),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),

@@ -14,30 +14,30 @@ from launcher.fleet.machine import Action, Event, Record, Rules
 EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
           m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
           m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED, m.BOUND_ENDED, m.BOUND_STARTED,
-          m.RELOAD_STOP, m.RENEW, m.RULES]
+          m.RELOAD_STOP, m.RENEW, m.RULES, m.REGISTERED, m.UNREGISTERED]
 SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
          "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
          "fat": m.FATAL, "stp": m.STOPPED, "det": m.DETACHED}
 # For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
 # "!": a runner's bug (InvalidTransition); else the state after the event.
-#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 MATRIX = """
-new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new
-wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai
-hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel
-sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta
-pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen
-lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !     stp   !     lau
-run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -     sto   !     run
-hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     hun
-stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     stl
-sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -     -     !     sto
-res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -     stp   !     res
-los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     los
-exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   exi
-fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   fat
-stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -     -     new   stp
-det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta   stp   new   det
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new   -     -
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai   -     -
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel   -     -
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !     stp   !     lau   lau   -
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -     sto   !     run   run   -
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     hun   hun   -
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     stl   stl   -
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -     -     !     sto   sto   -
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -     stp   !     res   -     -
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     los   -     -
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   exi   -     -
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   fat   -     -
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -     -     new   stp   -     -
+det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta   stp   new   det   -     -
 """
 RULES = Rules(respawn=True)
 
@@ -310,3 +310,31 @@ def test_the_events_file_ends_with_the_launchs_end(tmp_path):
     lines = [json.loads(line) for line in path.read_text().splitlines()]
     assert [(e.get("state"), e.get("phase")) for e in lines[:-1]] == [("running", "running"), ("stopped", "stopped")]
     assert lines[-1]["event"] == state.LAUNCH_ENDED and lines[-1]["reason"] == "stopped by SIGINT"
+
+
+def test_a_registration_is_the_current_runs_and_goes_with_it():
+    r = record_in(m.RUNNING)
+    r, actions = m.step(r, Event(m.REGISTERED, uri="http://h:1/"), 10.0)
+    assert (r.state, r.registered, r.uri, actions) == (m.RUNNING, True, "http://h:1/", [])
+    assert m.step(r, Event(m.REGISTERED, uri="http://h:1/"), 10.1) == (r, [])  # (said twice: no change)
+    # the registration of another URI going (an earlier run's, purged late) leaves this one
+    assert m.step(r, Event(m.UNREGISTERED, uri="http://h:9/"), 10.2) == (r, [])
+    gone, _ = m.step(r, Event(m.UNREGISTERED, uri="http://h:1/"), 10.3)
+    assert (gone.registered, gone.uri) == (False, "")
+    # a run that ends is registered no more; its next run is not until it registers in turn
+    ended, _ = m.step(r, Event(m.EXITED_, exit_code=1), 11.0)
+    assert (ended.state, ended.registered, ended.uri) == (m.RESPAWNING, False, "")
+    assert m.step(ended, Event(m.REGISTERED, uri="http://h:1/"), 11.1) == (ended, [])  # a late word: ignored
+    again, _ = m.step(r._replace(state=m.RUNNING), Event(m.SPAWNED, pid=7), 12.0)
+    assert (again.pid, again.registered, again.uri) == (7, False, "")
+    stopped, _ = m.step(r._replace(state=m.STOPPING), Event(m.DOWN), 12.0)
+    assert (stopped.state, stopped.registered) == (m.STOPPED, False)
+
+
+def test_a_remote_run_may_register_before_its_child_says_it_runs():
+    r = record_in(m.LAUNCHING, Rules(remote=True))
+    r, _ = m.step(r, Event(m.REGISTERED, uri="http://other:1/"), 10.0)
+    r, _ = m.step(r, Event(m.SPAWNED, pid=9, process="n-1"), 10.1)
+    assert (r.state, r.registered, r.uri) == (m.RUNNING, True, "http://other:1/")
+    lost, _ = m.step(r, Event(m.LINK_LOST, reason="cut"), 11.0)
+    assert (lost.state, lost.registered) == (m.LOST, False)
