@@ -1,6 +1,8 @@
 """`launcher status [--json] [--watch]`: every node of a running launch, one line each.
 
-Columns: node, state, pid, uptime, restarts, last exit (code or signal),
+Columns: node, state, whether its run is registered with the master (REG: a
+process runs, "running", and a ROS node is up once it is registered too), pid,
+uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
 (memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
 its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
@@ -66,7 +68,14 @@ def table(info: dict[str, Any]) -> str:
     return text
 
 
-HEADER = ("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
+HEADER = ("NODE", "STATE", "REG", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
+
+
+def registered(n: dict[str, Any]) -> str:
+    """The REG column: a running node's run registered with the master ("yes"), or not yet ("no")."""
+    if n["state"] not in ("running", "stalled", "hung"):
+        return "-"
+    return "yes" if n.get("registered") else "no"
 
 
 def row(n: dict[str, Any]) -> tuple[str, ...]:
@@ -74,7 +83,7 @@ def row(n: dict[str, Any]) -> tuple[str, ...]:
     # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
     # keeps the last sample of a run that ended)
     running = n["state"] == "running"
-    return (n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
+    return (n["name"], n["state"], registered(n), str(n["pid"]) if n.get("pid") and running else "-",
             duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
             "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
             "-" if n.get("rss") is None or not running else format_size(n["rss"], measured=True), n.get("host", ""))

@@ -79,7 +79,7 @@ class ViewState:
                 continue
             was_running, old_pid = node.get("state") == "running", node.get("pid")
             for key in ("state", "pid", "exit_code", "exit_signal", "restarts", "failures", "next_start",
-                        "over_limit", "reason", "phase"):
+                        "over_limit", "reason", "phase", "registered", "uri"):
                 if key in c:
                     node[key] = c[key]
             if node["state"] == "running" and (not was_running or node.get("pid") != old_pid):
@@ -303,6 +303,8 @@ def change_text(c: dict[str, Any]) -> str:
     parts = [c.get("state", "?")]
     if c.get("state") == "running" and c.get("pid"):
         parts.append("pid %s" % c["pid"])
+    if c.get("registered"):
+        parts.append("registered at %s" % c.get("uri", "?"))
     exit_text = status_columns.last_exit(c)
     if c.get("state") != "running" and exit_text != "-":
         parts.append(exit_text)
