@@ -119,6 +119,14 @@ class Change(NamedTuple):
     line: dict  # the change as the events file writes it
 
 
+class RunEvent(NamedTuple):
+    """A line of the run's own (a reload, the master restarted, the launch's end) in the change stream: a long
+    poll's reader follows it as the events file has it."""
+
+    seq: int
+    line: dict
+
+
 def size_text(n: float) -> str:
     """Bytes in words: 612.0 MB."""
     for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
@@ -165,7 +173,7 @@ class Fleet:
         self.say = say  # the outcome's words ("all processes on machine have died ...")
         self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
         self.seq = 0
-        self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
+        self.changes: collections.deque[Change | RunEvent] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
         self.done = asyncio.Event()
@@ -272,10 +280,12 @@ class Fleet:
 
     # ---- the change stream, for readers outside -----------------------------------------------------------
 
-    def changes_since(self, seq: int) -> tuple[list[dict], bool]:
-        """The changes after `seq`, as the events file has them, and whether they are all there (False:
-        older ones were dropped; a reader should read the status again)."""
-        changes = [c for c in self.changes if c.seq > seq]
+    def changes_since(self, seq: int, written: bool = False) -> tuple[list[dict], bool]:
+        """The changes after `seq`, as the events file has them (`written`: only those it writes, and the
+        run's own lines: what `launcher events -f` prints), and whether they are all there (False: older ones
+        were dropped; a reader should read the status again)."""
+        changes = [c for c in self.changes if c.seq > seq
+                   and not (written and isinstance(c, Change) and not visible(c))]
         complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
         return [c.line for c in changes], complete
 
@@ -330,7 +340,7 @@ class Fleet:
 
     def run_event(self, event: str, **fields: object) -> None:
         """A line in the events file about the run, not one node (`event`: its name, `reason`: its words)."""
-        line = {"event": event, "time": round(time.time(), 6), **fields}
+        line = self._stream({"event": event, "time": round(time.time(), 6), **fields})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
@@ -340,13 +350,22 @@ class Fleet:
 
     def reloaded(self, reason: str, **what: list) -> None:
         """A reload's line in the events file: what it changed, in words (`reason`) and by name."""
-        line = {"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what}
+        line = self._stream({"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":"), default=str) + "\n")
             except OSError as e:
                 self._warning("cannot write the events file: %s" % e.strerror)
                 self._close()
+
+    def _stream(self, line: dict) -> dict:
+        """A run's line numbered in the change stream (`seq`), for the long poll's readers too."""
+        self.seq += 1
+        line = {"seq": self.seq, **line}
+        self.changes.append(RunEvent(self.seq, line))
+        if self._changed is not None:
+            self._changed.set()
+        return line
 
     @staticmethod
     def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:

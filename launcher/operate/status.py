@@ -6,7 +6,9 @@ uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
 (memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
 its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
-redraws every second. When no launch answers, the last run's end and each
+redraws at each change of the launch's stream (`launcher_changes`, a long poll)
+and every second between them (uptimes, CPU), and once the launch has ended
+shows that run as its files tell it. When no launch answers, the last run's end and each
 node's state then (operate/lastrun.py; exit status 3: nothing runs); `--run
 RUN_ID` shows that run's.
 """
@@ -15,9 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
-import time
 from typing import Any
 
 from launcher.operate import client
@@ -28,7 +30,7 @@ from launcher.model.units import format_size
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="launcher status", description=__doc__.split("\n")[0])
     p.add_argument("--json", action="store_true", help="print the status as JSON")
-    p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
+    p.add_argument("--watch", action="store_true", help="redraw at every change and every second (Ctrl-C ends)")
     client.add_launch_options(p)
     client.add_run_option(p)
     return p
@@ -105,25 +107,52 @@ def node_table(nodes: list[dict[str, Any]]) -> str:
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
-    first, last = client.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
-                                                          else table(client.status(uri))))
+    def snapshot(uri: str) -> str:
+        return client.status_text(uri) if opts.json else table(client.status(uri))
+
+    first, last = client.live_or_last(opts, lambda uri: (uri, snapshot(uri)))
     if last is not None:
-        if opts.json:
-            sys.stdout.write(json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
-        else:
-            sys.stdout.write("%s\n%s\n" % (last.headline(), node_table(last.nodes())))
+        show_last(last, opts.json)
         # (the run's end was asked for by --run; otherwise the launch asked about does not run)
         return client.EXIT_OK if opts.run else client.EXIT_NO_LAUNCH
     uri, text = first
-    while True:
-        # clear and redraw from the top; a pipe gets one snapshot after another
-        prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
+    # clear and redraw from the top; a pipe gets one snapshot after another
+    prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
+    sys.stdout.write(prefix + text + "\n")
+    if not opts.watch:
+        return client.EXIT_OK
+    sys.stdout.flush()
+
+    def redraw(_answer: dict[str, Any]) -> None:
+        try:
+            text = snapshot(uri)
+        except client.ToolError as e:
+            if e.status != client.EXIT_NO_LAUNCH:
+                raise
+            return  # (gone between the stream's answer and this: the stream says so next)
         sys.stdout.write(prefix + text + "\n")
-        if not opts.watch:
-            return client.EXIT_OK
         sys.stdout.flush()
-        time.sleep(1.0)
-        text = client.status_text(uri) if opts.json else table(client.status(uri))
+
+    run_id = json.loads(client.status_text(uri)).get("run_id") or None
+    since = client.changes(uri, client.LAST_SEQ, 0.0)["seq"]
+    client.follow_changes(uri, since, redraw)  # (an answer at each change, or after a second without one)
+    # the launch has ended: the run as its files tell it (how it ended, each node's last state)
+    from launcher.operate import lastrun
+    try:
+        ended = lastrun.read(lastrun.find_run(os.environ, run_id), latest=False)
+    except client.ToolError as e:
+        raise client.ToolError("the launch at %s has ended (%s)" % (uri, e), client.EXIT_NO_LAUNCH) from None
+    show_last(ended, opts.json, prefix)
+    return client.EXIT_NO_LAUNCH
+
+
+def show_last(last: Any, as_json: bool, prefix: str = "") -> None:
+    """A run that has ended (operate/lastrun.py), as its files tell it."""
+    if as_json:
+        sys.stdout.write(prefix + json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
+    else:
+        sys.stdout.write("%s%s\n%s\n" % (prefix, last.headline(), node_table(last.nodes())))
+    sys.stdout.flush()
 
 
 def main(argv: list[str]) -> int:

@@ -219,20 +219,24 @@ class LaunchServer:
         # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault
         return json.dumps(info, separators=(",", ":"), default=str)
 
-    def launcher_changes(self, since: Any, timeout: Any = 0.0) -> Any:
+    def launcher_changes(self, since: Any, timeout: Any = 0.0, written: Any = False) -> Any:
         """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
-        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
-        instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
-        older changes were dropped (read the status again), "changes": [as in the events file]}]."""
-        if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
-            raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
+        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view, `launcher
+        status --watch` and `launcher events -f` read instead of tailing the events file. `written`: only
+        the lines the events file has (a node's internal steps left out). The run's own lines (a reload, the
+        master restarted, the launch's end) are in the stream too, with no "node". [1, text, JSON {"seq": the
+        last one, "complete": false when older changes were dropped (read the status again), "changes": [as
+        in the events file]}]."""
+        if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0 \
+                or not isinstance(written, bool):
+            raise Fault(1, "launcher_changes(since: int, timeout: seconds[, written: bool])")
         fleet = self.run.fleet
 
         async def changes() -> list:
             if fleet is None:
                 return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
             await fleet.wait_change(since, min(float(timeout), CHANGES_WAIT_MAX_S))
-            lines, complete = fleet.changes_since(since)
+            lines, complete = fleet.changes_since(since, written)
             return [1, "changes", json.dumps({"seq": fleet.seq, "complete": complete, "changes": lines},
                                              separators=(",", ":"), default=str)]
         return changes()

@@ -288,6 +288,17 @@ def test_the_change_stream_serves_a_long_poll():
         before = asyncio.get_running_loop().time()
         await fleet.wait_change(fleet.seq, 0.05)  # nothing new: back after the timeout
         assert asyncio.get_running_loop().time() - before >= 0.04
+        # the lines the events file has: the internal steps left out, the run's own lines in (numbered)
+        waiter = asyncio.ensure_future(fleet.wait_change(fleet.seq, 5.0))
+        await asyncio.sleep(0)
+        fleet.run_event("master_restarted", reason="why")
+        await asyncio.wait_for(waiter, 1.0)
+        fleet.apply("/a", Event(m.STOP))
+        fleet.apply("/a", Event(m.DOWN))
+        written, _ = fleet.changes_since(0, written=True)
+        assert [(c["seq"], c.get("state"), c.get("event")) for c in written] == [
+            (2, "running", None), (3, None, "master_restarted"), (5, "stopped", None)]
+        assert [c["seq"] for c in fleet.changes_since(0)[0]] == [1, 2, 3, 4, 5]
         fleet.changes.popleft()  # (the oldest dropped, as past CHANGES_KEPT)
         assert fleet.changes_since(0)[1] is False
     asyncio.run(main())

@@ -99,6 +99,7 @@ function handle(ev) {
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
+      if (!c.node) continue;  // (a line of the run's own: a reload, the launch's end)
       let n = nodes.get(c.node);
       if (!n) { n = {name: c.node}; nodes.set(c.node, n); }  // (a node a reload added)
       const newRun = c.state === "running" && (n.state !== "running" || n.pid !== c.pid);
