@@ -18,8 +18,14 @@ EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPA
 SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
          "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
          "fat": m.FATAL, "stp": m.STOPPED, "det": m.DETACHED}
-# For a respawning node of this machine. "-": changes nothing (a late report, a second stop ...);
-# "!": a runner's bug (InvalidTransition); else the state after the event.
+# Every cell: the state after the event, and (in the matrix of actions below it) what the runner is told to do.
+# States: "-": changes nothing (a late report, a second stop ...); "!": a runner's bug (InvalidTransition); else
+# the state after the event. Actions, in their order: S spawn, L launch (its machine's child), T schedule (a
+# timer), C cancel, H hold (readiness), B begin stop, K kill, E end the launch, N note; ".": none.
+ACTION_CODES = {"S": m.SPAWN, "L": m.LAUNCH, "T": m.SCHEDULE, "C": m.CANCEL, "H": m.HOLD, "B": m.BEGIN_STOP,
+                "K": m.KILL, "E": m.END_LAUNCH, "N": m.NOTE}
+
+# A respawning node of this machine.
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 MATRIX = """
 new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new   -     -
@@ -39,7 +45,109 @@ fat      sta   !     -     -     -     !     !     -     -     -     -     -    
 stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -     -     new   stp   -     -
 det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta   stp   new   det   -     -
 """
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
+ACTIONS = """
+new      S     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     .     .     C     .     .     .     .
+wai      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     .     .     C     !     .     .     .
+hel      !     !     !     S     .     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     C     .     C     !     .     .     .
+sta      !     !     !     !     !     .     T     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
+pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
+lau      !     !     !     !     !     .     T     T     !     !     .     !     .     B     C     !     !     .     !     .     .     .     C     !     !     C     !     .     .     .
+run      !     !     !     !     !     .     !     T     K     K     .     K     .     B     B     !     !     .     !     .     .     .     C     B     .     B     !     .     .     .
+hun      !     !     !     !     !     !     !     T     .     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+stl      !     !     !     !     !     !     !     T     K     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+sto      !     !     !     !     !     .     !     .     .     .     .     .     .     .     .     .     .     .     !     .     !     .     .     .     .     .     !     .     .     .
+res      !     !     S     !     !     .     !     !     .     .     .     .     .     C     C     !     !     CS    !     !     .     .     C     C     .     C     !     .     .     .
+los      !     !     !     !     !     .     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
+exi      S     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     C     .     .     .     .     .     .
+fat      S     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     C     .     .     .     .     .     .
+stp      S     !     .     .     .     .     .     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     .     .     .     .     .     .     .
+det      !     !     .     !     !     !     !     .     .     .     .     .     .     C     C     !     !     CS    !     .     .     .     .     .     S     C     .     .     .     .
+"""
+
+# A node of another machine whose child respawns it (no policy of the parent's: roslaunch's remote respawn).
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
+REMOTE_MATRIX = """
+new      pen   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   -     -     stp   new   new   -     -
+wai      !     !     pen   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   -     -     stp   !     wai   -     -
+hel      !     !     !     pen   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   det   -     stp   !     hel   -     -
+sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
+lau      !     !     !     !     !     run   res   res   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !     stp   !     lau   lau   -
+run      !     !     !     !     !     run   !     res   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -     sto   !     run   run   -
+hun      !     !     !     !     !     !     !     res   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     hun   hun   -
+stl      !     !     !     !     !     !     !     res   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     stl   stl   -
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -     -     !     sto   sto   -
+res      !     !     pen   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     pen   !     !     -     los   exi   det   -     stp   !     res   -     -
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     los   -     -
+exi      pen   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     pen   !     -     -     -     -     det   -     -     new   exi   -     -
+fat      pen   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     pen   !     -     -     -     -     det   -     -     new   fat   -     -
+stp      pen   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     pen   !     -     -     -     -     -     -     -     new   stp   -     -
+det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     pen   !     -     -     -     -     -     pen   stp   new   det   -     -
+"""
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
+REMOTE_ACTIONS = """
+new      L     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     .     .     C     .     .     .     .
+wai      !     !     L     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     .     .     C     !     .     .     .
+hel      !     !     !     L     .     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     C     .     C     !     .     .     .
+sta      !     !     !     !     !     .     .     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
+pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
+lau      !     !     !     !     !     .     .     .     !     !     .     !     .     B     C     !     !     .     !     .     .     .     C     !     !     C     !     .     .     .
+run      !     !     !     !     !     .     !     .     K     K     .     K     .     B     B     !     !     .     !     .     .     .     C     B     .     B     !     .     .     .
+hun      !     !     !     !     !     !     !     .     .     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+stl      !     !     !     !     !     !     !     .     K     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+sto      !     !     !     !     !     .     !     .     .     .     .     .     .     .     .     .     .     .     !     .     !     .     .     .     .     .     !     .     .     .
+res      !     !     L     !     !     .     !     !     .     .     .     .     .     C     C     !     !     CL    !     !     .     .     C     C     .     C     !     .     .     .
+los      !     !     !     !     !     .     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
+exi      L     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CL    !     .     .     .     .     C     .     .     .     .     .     .
+fat      L     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CL    !     .     .     .     .     C     .     .     .     .     .     .
+stp      L     !     .     .     .     .     .     .     .     .     .     .     .     .     .     !     !     CL    !     .     .     .     .     .     .     .     .     .     .     .
+det      !     !     .     !     !     !     !     .     .     .     .     .     .     C     C     !     !     CL    !     .     .     .     .     .     L     C     .     .     .     .
+"""
+
+# A required node of this machine: whatever ends it ends the launch.
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
+REQUIRED_MATRIX = """
+new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new   -     -
+wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai   -     -
+hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel   -     -
+sta      !     !     !     !     !     run   exi   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
+pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
+lau      !     !     !     !     !     run   exi   exi   !     !     -     !     -     sto   stp   !     !     -     !     lau   pen   los   exi   !     !     stp   !     lau   lau   -
+run      !     !     !     !     !     run   !     exi   hun   stl   -     run   run   sto   sto   !     !     -     !     run   -     los   exi   sto   -     sto   !     run   run   -
+hun      !     !     !     !     !     !     !     exi   -     -     -     -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     hun   hun   -
+stl      !     !     !     !     !     !     !     exi   hun   -     run   -     -     sto   sto   !     !     -     !     !     !     !     !     sto   -     sto   !     stl   stl   -
+sto      !     !     !     !     !     -     !     sto   -     -     -     -     -     -     -     stp   run   -     !     -     !     stp   -     -     -     -     !     sto   sto   -
+res      !     !     sta   !     !     run   !     !     -     -     -     -     -     stp   stp   !     !     sta   !     !     -     -     exi   det   -     stp   !     res   -     -
+los      !     !     !     !     !     -     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     los   -     -
+exi      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   exi   -     -
+fat      sta   !     -     -     -     !     !     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     det   -     -     new   fat   -     -
+stp      sta   !     -     -     -     -     -     -     -     -     -     -     -     -     -     !     !     sta   !     -     -     -     -     -     -     -     new   stp   -     -
+det      !     !     -     !     !     !     !     -     -     -     -     -     -     stp   stp   !     !     sta   !     -     -     -     -     -     sta   stp   new   det   -     -
+"""
+#        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
+REQUIRED_ACTIONS = """
+new      S     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    .     .     C     .     .     .     .
+wai      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    .     .     C     !     .     .     .
+hel      !     !     !     S     E     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    C     .     C     !     .     .     .
+sta      !     !     !     !     !     .     E     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
+pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     CE    !     !     C     !     .     .     .
+lau      !     !     !     !     !     .     E     E     !     !     .     !     .     B     C     !     !     .     !     .     .     E     CE    !     !     C     !     .     .     .
+run      !     !     !     !     !     .     !     E     K     K     .     K     .     B     B     !     !     .     !     .     .     E     CE    B     .     B     !     .     .     .
+hun      !     !     !     !     !     !     !     E     .     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+stl      !     !     !     !     !     !     !     E     K     .     .     .     .     B     B     !     !     .     !     !     !     !     !     B     .     B     !     .     .     .
+sto      !     !     !     !     !     .     !     .     .     .     .     .     .     .     .     .     .     .     !     .     !     .     .     .     .     .     !     .     .     .
+res      !     !     S     !     !     .     !     !     .     .     .     .     .     C     C     !     !     CS    !     !     .     .     CE    C     .     C     !     .     .     .
+los      !     !     !     !     !     .     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     CE    !     !     C     !     .     .     .
+exi      S     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     C     .     .     .     .     .     .
+fat      S     !     .     .     .     !     !     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     C     .     .     .     .     .     .
+stp      S     !     .     .     .     .     .     .     .     .     .     .     .     .     .     !     !     CS    !     .     .     .     .     .     .     .     .     .     .     .
+det      !     !     .     !     !     !     !     .     .     .     .     .     .     C     C     !     !     CS    !     .     .     .     .     .     S     C     .     .     .     .
+"""
 RULES = Rules(respawn=True)
+TABLES = {"local": (RULES, MATRIX, ACTIONS),
+          "remote": (Rules(respawn=True, remote=True, machine="m1", owned=False), REMOTE_MATRIX, REMOTE_ACTIONS),
+          "required": (Rules(required=True), REQUIRED_MATRIX, REQUIRED_ACTIONS)}
 
 
 def record_in(state: str, rules: Rules = RULES) -> Record:
@@ -52,31 +160,44 @@ def event(kind: str) -> Event:
     return Event(kind, pid=1, exit_code=1, over_limit=(("memory_limit", 1.0),), process="n-2", reason="why")
 
 
-def cells():
-    rows = [line.split() for line in MATRIX.strip().splitlines()]
+def _rows(text: str) -> list[list[str]]:
+    rows = [line.split() for line in text.strip().splitlines()]
     for row in rows:
         assert len(row) == len(EVENTS) + 1, row[0]
-        for kind, expected in zip(EVENTS, row[1:]):
-            yield SHORT[row[0]], kind, expected
+    return rows
+
+
+def cells():
+    """(table, rules, state, event, the state after it, its actions) for every cell of every matrix."""
+    for table, (rules, states, actions) in TABLES.items():
+        for row, acts in zip(_rows(states), _rows(actions)):
+            assert row[0] == acts[0]
+            for kind, expected, codes in zip(EVENTS, row[1:], acts[1:]):
+                yield table, rules, SHORT[row[0]], kind, expected, codes
 
 
 def test_the_matrix_covers_every_state_and_event():
-    assert {s for s, _, _ in cells()} == set(m.STATES)
+    for table, (_rules, states, actions) in TABLES.items():
+        assert [r[0] for r in _rows(states)] == [r[0] for r in _rows(actions)] == list(SHORT), table
+    assert {s for _, _, s, _, _, _ in cells()} == set(m.STATES)
     assert set(EVENTS) == set(m.EVENTS)
 
 
-@pytest.mark.parametrize("state,kind,expected", list(cells()), ids=lambda x: str(x))
-def test_every_state_and_event(state, kind, expected):
-    before = record_in(state)
+@pytest.mark.parametrize("table,rules,state,kind,expected,codes", list(cells()),
+                         ids=lambda x: x if isinstance(x, str) else "")
+def test_every_state_and_event(table, rules, state, kind, expected, codes):
+    before = record_in(state, rules)
     if expected == "!":
+        assert codes == "!"
         with pytest.raises(m.InvalidTransition):
             m.step(before, event(kind), 10.0)
         return
     after, actions = m.step(before, event(kind), 10.0)
     if expected == "-":
-        assert after is before and actions == []
+        assert after is before and actions == [] and codes == "."
     else:
         assert after.state == SHORT[expected]
+        assert [a.kind for a in actions] == [ACTION_CODES[c] for c in codes.strip(".")]
 
 
 def test_a_first_start_waits_for_spawn_delay_then_for_its_conditions():
@@ -165,12 +286,16 @@ def test_a_required_node_that_exits_ends_the_launch_with_its_status():
 def test_fatal_after_too_many_failed_starts_and_an_operator_start_clears_the_count():
     rules = Rules(respawn=True, policy=NodePolicy(respawn_max_retries=1, on_fatal="shutdown"))
     r = record_in(m.RUNNING, rules)._replace(started=0.0)
-    r, _ = m.step(r, Event(m.EXITED_, exit_code=1), 0.1)  # a failed start (under respawn_min_uptime)
+    r, actions = m.step(r, Event(m.EXITED_, exit_code=1), 0.1)  # a failed start (under respawn_min_uptime)
     assert (r.state, r.failures) == (m.RESPAWNING, 1)
+    # what the restart policy decided, in words for the console
+    assert actions[0].kind == m.NOTE and "(1 failed start in a row)" in actions[0].text
     r, _ = m.step(r, Event(m.DUE), 0.5)
     r, _ = m.step(r, Event(m.SPAWNED, pid=2), 0.5)
     r, actions = m.step(r, Event(m.EXITED_, exit_code=1), 0.6)
-    assert r.state == m.FATAL and r.failures == 2 and Action(m.END_LAUNCH, status=1) in actions
+    assert r.state == m.FATAL and r.failures == 2
+    assert actions == [Action(m.NOTE, text="FATAL: failed 2 starts in a row (respawn_max_retries=1), not restarted"),
+                       Action(m.END_LAUNCH, status=1)]
     r, actions = m.step(r, Event(m.OPERATOR_START), 5.0)
     assert (r.state, r.failures, actions) == (m.STARTING, 0, [Action(m.CANCEL), Action(m.SPAWN)])
 
