@@ -8,8 +8,9 @@ states of a node sent to another machine. It does no I/O and reads no clock:
 the runners (`process.supervisor` for this machine, `remote.parent` for the
 others) feed it what happened and carry out the actions it returns; the
 fleet (`fleet.state.Fleet`) keeps the records and tells every view of each
-change. A pair (state, event) that is in neither TABLE nor IGNORED is a bug
-in a runner, raised as `InvalidTransition`.
+change. Every pair (state, event) is in one of three: TABLE (what it does),
+IGNORED (a report that comes after the state it reports on moved on: nothing)
+or REFUSED (no runner sends it: a bug in a runner, raised as `InvalidTransition`).
 
 Internal states, and the state the outside (README, events file, status,
 `api.Launch`) sees:
@@ -189,7 +190,7 @@ def step(record: Record, event: Event, now: float) -> tuple[Record, list[Action]
         return handler(record, event, now)
     if (record.state, event.kind) in IGNORED:
         return record, []
-    raise InvalidTransition("node [%s]: event [%s] in state [%s]" % (record.name, event.kind, record.state))
+    raise InvalidTransition("node [%s]: event [%s] in state [%s]" % (record.name, event.kind, record.state))  # (REFUSED)
 
 
 def exit_status(exit_code: int | None, exit_signal: int | None) -> int:
@@ -571,6 +572,46 @@ IGNORED = frozenset(
     + [(s, k) for s in STATES if s not in _MAY_BE_REGISTERED for k in (REGISTERED, UNREGISTERED)]
 )
 assert not IGNORED & TABLE.keys()
+
+# Pairs no runner sends: each is a runner's bug, raised as InvalidTransition (the fleet says "internal error" and
+# leaves the node as it was). With TABLE and IGNORED they are every pair, each in one (tests/fleet/test_machine.py).
+_LOCAL_ONLY = (STARTING, HUNG, STALLED)  # (states of a node of this machine: the health watchers are local)
+REFUSED = frozenset(
+    # the launch starts a node once (again only after its end: a remote child's parent gives it anew)
+    [(s, START) for s in STATES if s not in (NEW,) + _DOWN_FOR_GOOD]
+    # only a node being made is kept stopped (--no-start)
+    + [(s, KEEP_STOPPED) for s in STATES if s != NEW]
+    # no timer runs: a spawn_delay's or a respawn's only (a cancelled one firing late: ignored)
+    + [(s, DUE) for s in (NEW, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, LOST)]
+    # only a held node is in the readiness hold (one let go of late: ignored)
+    + [(s, k) for k in (READY, NOT_READY) for s in STATES if s not in (HELD,) + _DOWN_FOR_GOOD]
+    # a run is told after a spawn or a `launch` call (or its child's respawn), not before
+    + [(s, SPAWNED) for s in (NEW, WAITING, HELD, PENDING, HUNG, STALLED, EXITED, FATAL, DETACHED)]
+    # only a spawn or a `launch` call fails to start
+    + [(s, SPAWN_FAILED) for s in (NEW, WAITING, HELD, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, EXITED, FATAL,
+                                   DETACHED)]
+    # no process of it runs (a spawn's exit comes after its start; a run's end is told once)
+    + [(s, EXITED_) for s in (NEW, WAITING, HELD, STARTING, RESPAWNING)]
+    # the probes and the limit watch look at a running process only
+    + [(s, k) for k in (HANG, STALL) for s in (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, LOST)]
+    + [(s, RESTART) for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, LOST)]
+    # a spawn is done within one call of the runner: no stop comes between
+    + [(STARTING, k) for k in (STOP, SHUTDOWN, RELOAD_STOP)]
+    # only a stop under way ends, or is refused
+    + [(s, k) for k in (DOWN, STOP_REFUSED) for s in STATES if s != STOPPING]
+    # only a node queued for its machine is sent
+    + [(s, LAUNCH_SENT) for s in STATES if s not in (PENDING, LOST)]
+    # only a node in a `launch` call is answered (a late answer: ignored)
+    + [(s, k) for k in (LAUNCHED, LAUNCH_REFUSED) for s in (NEW, WAITING, HELD, STARTING, HUNG, STALLED)]
+    + [(s, LAUNCHED) for s in (RESPAWNING,)] + [(s, LAUNCH_REFUSED) for s in (STOPPING,)]
+    # a node of this machine has no machine's session to lose
+    + [(s, k) for k in (LINK_LOST, MACHINE_FAILED) for s in _LOCAL_ONLY]
+    # a bound node and its partner are both of this machine
+    + [(s, k) for k in (BOUND_ENDED, BOUND_STARTED) for s in (PENDING, LAUNCHING, LOST)]
+    # a reload renews a node once it has stopped it
+    + [(s, RENEW) for s in STATES if s not in (NEW, DETACHED) + _DOWN_FOR_GOOD]
+)
+assert not REFUSED & (TABLE.keys() | IGNORED)
 
 
 def outcome_all_dead(records) -> bool:

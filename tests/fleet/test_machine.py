@@ -183,16 +183,27 @@ def test_the_matrix_covers_every_state_and_event():
     assert set(EVENTS) == set(m.EVENTS)
 
 
+def test_every_pair_is_done_ignored_or_refused_and_only_one_of_them():
+    pairs = {(s, k) for s in m.STATES for k in m.EVENTS}
+    done, ignored, refused = set(m.TABLE), set(m.IGNORED), set(m.REFUSED)
+    assert done | ignored | refused == pairs
+    assert not (done & ignored or done & refused or ignored & refused)
+    # what a matrix cell says of a pair agrees: "!" for the refused, "-" or a state for the others
+    for _table, _rules, state, kind, expected, _codes in cells():
+        assert (expected == "!") == ((state, kind) in refused), (state, kind)
+
+
 @pytest.mark.parametrize("table,rules,state,kind,expected,codes", list(cells()),
                          ids=lambda x: x if isinstance(x, str) else "")
 def test_every_state_and_event(table, rules, state, kind, expected, codes):
     before = record_in(state, rules)
     if expected == "!":
-        assert codes == "!"
+        assert codes == "!" and (state, kind) in m.REFUSED
         with pytest.raises(m.InvalidTransition):
             m.step(before, event(kind), 10.0)
         return
     after, actions = m.step(before, event(kind), 10.0)
+    assert (state, kind) not in m.REFUSED
     if expected == "-":
         assert after is before and actions == [] and codes == "."
     else:
