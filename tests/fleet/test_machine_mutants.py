@@ -58,10 +58,10 @@ def test_every_action_of_the_table_made_a_no_op_is_caught_by_its_tests(tmp_path)
     assert len(sites) >= 20  # (the check finds what it looks for)
     baseline = table_tests(source, tmp_path, "unchanged")
     assert baseline.returncode == 0, baseline.stdout[-3000:] + baseline.stderr[-3000:]
-    mutated = [(i, call) for i, call in enumerate(sites) if ast.unparse(call) != "Action(NOTE)"]  # (else: no mutant)
+    mutated = [(i, call) for i, call in enumerate(sites) if ast.get_source_segment(source, call) != "Action(NOTE)"]  # (else: no mutant)
     with concurrent.futures.ThreadPoolExecutor(2) as pool:  # (each run is a process of its own)
         runs = list(pool.map(lambda ic: table_tests(mutant(source, ic[1]), tmp_path, "mutant%d" % ic[0]), mutated))
     # 1: a test failed (anything else, 0 or a broken run, caught nothing)
-    survivors = ["machine.py:%d %s (pytest exit %d)" % (call.lineno, ast.unparse(call), run.returncode)
+    survivors = ["machine.py:%d %s (pytest exit %d)" % (call.lineno, ast.get_source_segment(source, call), run.returncode)
                  for (_, call), run in zip(mutated, runs) if run.returncode != 1]
     assert survivors == []
