@@ -33,6 +33,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+from launcher import compat
 from launcher.net import xmlrpc
 from launcher.fleet.machine import describe
 from launcher.fleet.state import Fleet
@@ -60,7 +61,7 @@ class Readiness:
         self.loop = asyncio.get_running_loop()
         self.waiting: dict[Any, float] = {}  # NodeProcess -> loop time of its wait_timeout
         self._task: asyncio.Task | None = None
-        self._wake = asyncio.Event()  # set by a change that may meet a condition
+        self._wake = compat.Event()  # set by a change that may meet a condition
         graph.listeners.append(self._changed)
         fleet.listeners.append(self._changed)
         # node name -> its output file followed, while an output condition waits (runner.output_path(name))
