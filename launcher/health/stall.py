@@ -11,8 +11,9 @@ wait, and each verdict first drains it, so a quiet topic costs a read per
 verdict and a 30 MB/s one a read per 256 kB. `TopicWatch` decides,
 fed the times of the messages and a clock:
 
-- no message for `watch_timeout` s (counted from the run's start until a
-  first message comes): stalled;
+- no message for `watch_timeout` s (counted from the run's registration
+  until a first message comes: a node publishes nothing before it has
+  registered, and a rospy node takes a second or more to get there): stalled;
 - fewer than `watch_min_rate` Hz over the last `watch_window` s (once a whole
   window has passed): stalled;
 - with neither set, silence for `watch_window` s is a stall.
@@ -71,7 +72,7 @@ class TopicWatch:
         if self.timeout is not None:
             since = self.last if self.last is not None else self.started_at
             if now - since >= self.timeout:
-                what = "since its last message" if self.last is not None else "since the node started"
+                what = "since its last message" if self.last is not None else "since the node registered"
                 return "no message on %s for %.1f s %s (watch_timeout %g)" % (self.topic, now - since, what,
                                                                               self.timeout)
         if self.min_rate is not None and now - self.started_at >= self.window:
@@ -95,17 +96,17 @@ class StallWatch:
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
         self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
-        self.started_at: dict[Any, float] = {}  # NodeProcess -> its current run's start (loop time)
+        self.watched: set[Any] = set()  # the NodeProcesses whose current run is watched once registered
         supervisor.fleet.listeners.append(self._changed)
 
     def started(self, proc: Any) -> None:
         if proc.spec.policy.watch_topics:
             self._cancel(proc)
-            self.started_at[proc] = self.loop.time()  # (silence counts from here, registered or not)
+            self.watched.add(proc)
 
     def exiting(self, proc: Any) -> None:
         self._cancel(proc)
-        self.started_at.pop(proc, None)
+        self.watched.discard(proc)
 
     def close(self) -> None:
         if self._changed in self.supervisor.fleet.listeners:
@@ -119,11 +120,11 @@ class StallWatch:
         if (new.registered, new.uri) == (old.registered, old.uri) or new.host != LOCAL_HOST:
             return
         proc = self.supervisor.node(new.name)
-        if proc is None or proc not in self.started_at:
+        if proc is None or proc not in self.watched:
             return
         self._cancel(proc)
-        if new.registered and self._current(proc, proc.popen):
-            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen, new.uri, self.started_at[proc]))
+        if new.registered and self._current(proc, proc.popen):  # (silence counts from here)
+            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen, new.uri, self.loop.time()))
 
     def _cancel(self, proc: Any) -> None:
         task = self.tasks.pop(proc, None)
