@@ -42,6 +42,7 @@ from typing import Callable, Iterable, NamedTuple
 from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
+from launcher.model.units import format_size
 
 WAITING = "waiting"
 RUNNING = "running"
@@ -53,8 +54,8 @@ STALLED = "stalled"
 STOPPED = "stopped"
 STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 
-EVENTS_FILE = "launcher-events.jsonl"
-LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+EVENTS_FILE = "launcher-events.jsonl"  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends
 RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
@@ -67,7 +68,7 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit", "registered", "uri")
+                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at", "registered", "uri")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -81,6 +82,11 @@ class NodeStatus:
         self.spawn_count = 0  # runs started
         self.exit_code: int | None = None  # the last run's exit code, if it exited
         self.exit_signal: int | None = None  # the signal that ended the last run, if one did
+        # how the last run that ended did end, and when (wall clock): kept while the node runs again, when
+        # exit_code and exit_signal (the current run's) are None again (why does it keep restarting?)
+        self.last_exit_code: int | None = None
+        self.last_exit_signal: int | None = None
+        self.last_exit_at: float | None = None
         self.next_start: float | None = None  # when respawning
         self.reason = ""  # why the last change happened, in words
         self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
@@ -104,7 +110,9 @@ class NodeStatus:
                 "phase": self.phase, "pid": self.pid, "started_at": self.started_at, "uptime": self.uptime(),
                 "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
-                "rss": self.rss, "over_limit": dict(self.over_limit), "registered": self.registered, "uri": self.uri}
+                "rss": self.rss, "over_limit": dict(self.over_limit), "last_exit_code": self.last_exit_code,
+                "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at,
+                "registered": self.registered, "uri": self.uri}
 
 
 class Change(NamedTuple):
@@ -128,23 +136,24 @@ class RunEvent(NamedTuple):
     line: dict
 
 
-def size_text(n: float) -> str:
-    """Bytes in words: 612.0 MB."""
-    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
-        if n >= scale:
-            return "%.1f %s" % (n / scale, unit)
-    return "%d B" % n
-
-
 def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
-    """The limits a node is over, each with the value it has now: "memory_limit 500.0 MB (uses 612.0 MB)"."""
+    """The limits a node is over, each with the value it has now: "memory_limit 500MB (uses 612.3MB)" (sizes as
+    the README's units rule writes them: the limit as given, the measured use in decimal units)."""
     parts = []
     for limit, maximum in sorted(over_limit.items()):
         if limit == "memory_limit":
-            parts.append("memory_limit %s (uses %s)" % (size_text(maximum), "?" if rss is None else size_text(rss)))
+            parts.append("memory_limit %s (uses %s)" % (format_size(maximum),
+                                                        "?" if rss is None else format_size(rss, measured=True)))
         else:
             parts.append("%s %g cores (uses %s)" % (limit, maximum, "?" if cpu is None else "%.2f" % cpu))
     return ", ".join(parts)
+
+
+def run_ended(before: tuple, after: tuple) -> bool:
+    """Whether a node's (exit_code, exit_signal) going from `before` to `after` is a run's end: a run clears
+    them when it starts, and its end sets them (a view of the change stream or of the events file keeps
+    `last_exit_*` by the same rule)."""
+    return after != (None, None) and after != before
 
 
 def visible(change: Change) -> bool:
@@ -260,6 +269,8 @@ class Fleet:
         status.started_at = None if r.started is None or r.spawn_count == 0 else wall + r.started
         status.restarts = r.restarts
         status.spawn_count = r.spawn_count
+        if run_ended((status.exit_code, status.exit_signal), (r.exit_code, r.exit_signal)):
+            status.last_exit_code, status.last_exit_signal, status.last_exit_at = r.exit_code, r.exit_signal, wall + now
         status.exit_code, status.exit_signal = r.exit_code, r.exit_signal
         status.next_start = None if r.next_start is None else wall + r.next_start
         status.reason = r.reason
@@ -281,14 +292,15 @@ class Fleet:
 
     # ---- the change stream, for readers outside -----------------------------------------------------------
 
-    def changes_since(self, seq: int, written: bool = False) -> tuple[list[dict], bool]:
-        """The changes after `seq`, as the events file has them (`written`: only those it writes, and the
-        run's own lines: what `launcher events -f` prints), and whether they are all there (False: older ones
-        were dropped; a reader should read the status again)."""
-        changes = [c for c in self.changes if c.seq > seq
-                   and not (written and isinstance(c, Change) and not visible(c))]
+    def changes_since(self, seq: int) -> tuple[list[dict], bool]:
+        """The changes after `seq`, as the events file has them (a step it leaves out, such as running ->
+        stopping, marked `"internal": true`: a view that shows the file's lines skips it; the run's own lines, a
+        reload's, the master's restart, the launch's end, as the file has them too), and whether they
+        are all there (False: older ones were dropped; a reader should read the status again)."""
+        changes = [c for c in self.changes if c.seq > seq]
         complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
-        return [c.line for c in changes], complete
+        return [c.line if isinstance(c, RunEvent) or visible(c) else dict(c.line, internal=True)
+                for c in changes], complete
 
     async def wait_change(self, seq: int, timeout: float) -> None:
         """Return when there is a change after `seq`, or after `timeout` seconds."""

@@ -30,11 +30,14 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import logging
 import urllib.parse
 from typing import Any
 
 from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import tcpros, xmlrpc
+
+log = logging.getLogger("launcher.stall")
 
 CALLER_ID = "/launcher_stall_watch"
 MAX_PERIOD_S = 1.0
@@ -138,17 +141,16 @@ class StallWatch:
         policy = proc.spec.policy
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
-        links: dict[str, tcpros.CountingLink] = {}
+        links: dict[str, PublisherWatch] = {}
         period = min(w.period() for w in watches.values())
         stalled = False
         try:
             while self._current(proc, popen):
                 for topic, watch in watches.items():
                     link = links.get(topic)
-                    if link is None or link.closed:
-                        links[topic] = await self._subscribe(uri, topic, watch, period) or link
-                    else:
-                        link.drain()  # (a quiet topic's messages wait under the socket's low-water mark)
+                    if link is None:
+                        link = links[topic] = PublisherWatch(uri, topic, watch, max(period, 0.5))
+                    link.check()
                 now = self.loop.time()
                 why = "; ".join(v for v in (w.verdict(now) for w in watches.values()) if v)
                 if not self._current(proc, popen):
@@ -162,22 +164,94 @@ class StallWatch:
                 await asyncio.sleep(period)
         finally:
             for link in links.values():
-                if link is not None:
-                    link.close()
+                link.close()
 
-    async def _subscribe(self, uri: str, topic: str, watch: TopicWatch, timeout: float) -> Any:
-        """A link to the node's own publisher of `topic` (None: it does not publish it yet)."""
+
+class PublisherWatch:
+    """The watch's connection to a node's own publisher of one topic, opened in the background (a verdict never
+    waits for a handshake). A node that does not publish the topic yet, or whose port does not answer, is asked
+    again at the next verdict; a connection that ended is tried again as tcpros.PublisherRetry says (a refusal or
+    a header of no message type: not in this run of the node), each lie one warning line naming the publisher and
+    the topic."""
+
+    def __init__(self, uri: str, topic: str, watch: TopicWatch, timeout: float):
+        self.loop = asyncio.get_running_loop()
+        self.uri = uri
+        self.topic = topic
+        self.watch = watch
+        self.timeout = timeout
+        self.retry = tcpros.PublisherRetry()
+        self.link: tcpros.CountingLink | None = None
+        self.task: asyncio.Task | None = None
+        self.timer: asyncio.TimerHandle | None = None   # the next attempt after a connection ended
+        self.given_up = False                           # refused: none in this run
+        self.closed = False
+
+    def check(self) -> None:
+        """At each verdict: count what came (a quiet topic's messages wait under the socket's low-water mark), or
+        ask for the topic if nothing is under way."""
+        if self.link is not None:
+            self.link.drain()
+        elif self.task is None and self.timer is None and not self.given_up:
+            self._open_soon()
+
+    def _open_soon(self) -> None:
+        self.timer = None
+        if not self.closed and self.task is None:
+            self.task = self.loop.create_task(self._open())
+
+    async def _open(self) -> None:
+        opened = self.loop.time()
         try:
-            code, _msg, proto = await xmlrpc.call(uri, "requestTopic", CALLER_ID, topic, [["TCPROS"]],
-                                                  timeout=max(timeout, 0.5))
-        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
-            return None
-        if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
-            return None
-        host, port = proto[1], proto[2]
-        try:
-            return await tcpros.watch_publisher(host or urllib.parse.urlsplit(uri).hostname, int(port), topic,
-                                                CALLER_ID, uri, lambda n: watch.messages(n, self.loop.time()),
-                                                timeout=max(timeout, 0.5))
-        except (OSError, asyncio.TimeoutError, tcpros.TcprosError, ValueError):
-            return None
+            try:
+                code, _msg, proto = await xmlrpc.call(self.uri, "requestTopic", CALLER_ID, self.topic, [["TCPROS"]],
+                                                      timeout=self.timeout)
+            except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
+                return
+            if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
+                return  # (not published yet: asked again at the next verdict)
+            link = await tcpros.watch_publisher(proto[1] or urllib.parse.urlsplit(self.uri).hostname, int(proto[2]),
+                                                self.topic, CALLER_ID, self.uri, self._messages, timeout=self.timeout,
+                                                on_close=self._closed)
+            if self.closed:
+                link.close()
+            else:
+                self.link = link
+        except tcpros.TcprosError as exc:
+            self._ended(exc.ending, opened, str(exc))
+        except (OSError, asyncio.TimeoutError, ValueError, TypeError) as exc:
+            # no connection at all (a node starting under load, or going): no lie, asked again at the next verdict
+            log.debug("cannot connect to publisher %s of %s: %s", self.uri, self.topic, exc)
+        finally:
+            self.task = None
+
+    def _messages(self, count: int) -> None:
+        self.watch.messages(count, self.loop.time())
+
+    def _closed(self, link: tcpros.CountingLink) -> None:
+        if link is self.link:
+            self.link = None
+        assert link.state is not None
+        self._ended(link.ending or tcpros.ENDED, link.state.opened_at, link.why)
+
+    def _ended(self, how: str, opened_at: float, why: str) -> None:
+        if self.closed or how == tcpros.CLOSED:
+            return
+        now = self.loop.time()
+        due = self.retry.ended(how, opened_at, now)
+        if due is None:
+            self.given_up = True
+            what = "%s; dropping the connection, not watched again until the node starts again" % why
+        else:
+            self.timer = self.loop.call_at(due, self._open_soon)
+            what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
+        log.log(logging.DEBUG if how == tcpros.ENDED else logging.WARNING, "%s", what)
+
+    def close(self) -> None:
+        self.closed = True
+        if self.timer is not None:
+            self.timer.cancel()
+        if self.task is not None:
+            self.task.cancel()
+        if self.link is not None:
+            self.link.close()

@@ -36,12 +36,20 @@ def describe(event: dict) -> str:
     if "node" not in event and event.get("event"):  # an event of the run, not a node's (launch_ended)
         return " ".join([when, str(event["event"]).replace("_", " ")] + (
             ["(%s)" % event["reason"]] if event.get("reason") else []))
-    parts = [when, event.get("node", "?")]
+    return "%s %s %s" % (when, event.get("node", "?"), words(event))
+
+
+def words(event: dict) -> str:
+    """A node's change in words, after its name: "running pid 21006 restarts 1 (started by operator)" (the
+    live view's output pane says each change so too)."""
+    parts = []
     if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
         parts.append("on %s" % event["host"])
     parts.append(event.get("state", "?"))
     if event.get("pid"):
         parts.append("pid %s" % event["pid"])
+    if event.get("registered"):  # (its run registered with the master: up, not only running)
+        parts.append("registered at %s" % event.get("uri", "?"))
     if event.get("exit_signal") is not None:
         parts.append("signal %s" % event["exit_signal"])
     elif event.get("exit_code") is not None:
@@ -60,7 +68,7 @@ def _main(argv: list[str]) -> int:
     info, last = client.live_or_last(opts, lambda uri: (uri, client.changes(uri, client.LAST_SEQ, 0.0)["seq"],
                                                         client.status(uri)))
     if last is not None:
-        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.write(last.ended_line() + "\n")
         sys.stderr.flush()
         opts.follow = False  # (nothing more will come)
         path = last.events_file()
@@ -112,8 +120,8 @@ def _main(argv: list[str]) -> int:
             raise client.ToolError("no events yet (%s)" % path) from None
     if opts.follow:
         printed = max(printed, seq)  # (the file held every event up to `seq` when it was read)
-        client.follow_changes(uri, printed, lambda answer: show(
-            [(json.dumps(c, separators=(",", ":")), c) for c in answer["changes"]]), written=True)
+        client.follow_changes(uri, printed, lambda answer: show(  # (the steps the file leaves out: not shown)
+            [(json.dumps(c, separators=(",", ":")), c) for c in answer["changes"] if not c.get("internal")]))
         try:  # the launch has ended: what its file has after the events the stream gave (its end)
             with open(path, "rb") as f:
                 f.seek(offset)

@@ -192,6 +192,10 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def warn(text: str) -> None:
+    print("launcher install: warning: %s" % text, file=sys.stderr)
+
+
 def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
     cwd = cwd or os.getcwd()
     system = not ns.user_unit and (ns.system or os.geteuid() == 0)
@@ -213,7 +217,12 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
         try:
             ros_home = os.path.join(pwd.getpwnam(user).pw_dir, ".ros")
         except KeyError:
-            raise InstallError("no user %r on this machine" % user) from None
+            if not ns.dry_run:
+                raise InstallError("no user %r on this machine" % user) from None
+            # a dry run writes a unit for another machine (the robot): the user is that machine's
+            ros_home = os.path.join("/home", user, ".ros")
+            warn("no user %r on this machine: its home taken as /home/%s (ROS_HOME=%s); make sure the machine that "
+                 "runs the unit has that user" % (user, user, ros_home))
     env = []
     for item in ns.env:
         key, eq, value = item.partition("=")
@@ -339,6 +348,8 @@ def installed(argv: list[str]) -> int:
                 rows.append((entry[:-len(".service")], system, files))
     for name, system, files in rows:
         print("%s\t%s\t%s\t%s" % (name, "system" if system else "user", state(name, system), files))
+    if not rows:
+        print("no unit written by `launcher install` in %s" % " or ".join(d for d, _ in _dirs(ns)))
     return 0
 
 

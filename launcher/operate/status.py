@@ -23,7 +23,7 @@ import sys
 from typing import Any
 
 from launcher.operate import client
-from launcher.fleet.state import over_limit_text
+from launcher.fleet.state import over_limit_text, run_ended
 from launcher.model.units import format_size
 
 
@@ -49,15 +49,34 @@ def duration(seconds: float | None) -> str:
     return "%dd%02dh" % (s // 86400, s % 86400 // 3600)
 
 
-def last_exit(node: dict[str, Any]) -> str:
-    if node.get("exit_signal") is not None:
+def exit_text(code: int | None, sig: int | None) -> str:
+    """How a run ended: SIGSEGV, code 3, or - (not ended)."""
+    if sig is not None:
         try:
-            return signal.Signals(node["exit_signal"]).name
+            return signal.Signals(sig).name
         except ValueError:
-            return "signal %d" % node["exit_signal"]
-    if node.get("exit_code") is not None:
-        return "code %d" % node["exit_code"]
+            return "signal %d" % sig
+    if code is not None:
+        return "code %d" % code
     return "-"
+
+
+def last_exit(node: dict[str, Any]) -> str:
+    """The LAST EXIT column: how the node's last run that ended did end, also while it runs again (a status
+    from a launch without `last_exit_*`: the current run's exit fields)."""
+    if "last_exit_code" in node or "last_exit_signal" in node:
+        return exit_text(node.get("last_exit_code"), node.get("last_exit_signal"))
+    return exit_text(node.get("exit_code"), node.get("exit_signal"))
+
+
+def keep_last_exit(node: dict[str, Any], change: dict[str, Any]) -> None:
+    """A node's `last_exit_*` after a change of the stream or a line of the events file (which do not carry
+    them: a run's end is where its exit fields are set), applied before the change's own fields."""
+    before = (node.get("exit_code"), node.get("exit_signal"))
+    after = (change.get("exit_code"), change.get("exit_signal"))
+    if run_ended(before, after):
+        node["last_exit_code"], node["last_exit_signal"] = after
+        node["last_exit_at"] = change.get("time")
 
 
 def table(info: dict[str, Any]) -> str:
@@ -110,7 +129,11 @@ def _main(argv: list[str]) -> int:
     def snapshot(uri: str) -> str:
         return client.status_text(uri) if opts.json else table(client.status(uri))
 
-    first, last = client.live_or_last(opts, lambda uri: (uri, snapshot(uri)))
+    try:
+        first, last = client.live_or_last(opts, lambda uri: (uri, snapshot(uri)))
+    except client.NotOurs as e:  # (a status to read, though not one of ours: said where the status would be)
+        sys.stdout.write("%s\n" % e)
+        return e.status
     if last is not None:
         show_last(last, opts.json)
         # (the run's end was asked for by --run; otherwise the launch asked about does not run)

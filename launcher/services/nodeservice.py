@@ -16,7 +16,7 @@ from launcher.master import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.diff import Difference
 from launcher.plan.specs import node_specs, packages_of
-from launcher.output import console
+from launcher.output import console, screen
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.health.hang import HangDetector
 from launcher.health.stall import StallWatch
@@ -181,6 +181,9 @@ class NodeService:
         if self.supervisor is not None:
             self.signals.while_stopping = None
             self.supervisor.close()
+        relayed = screen.relay_note()
+        if relayed is not None:  # (which way the terminal-bound output went: benchmarks/screen_flood.py reads it)
+            self.log.note(relayed)
         if self.fleet is not None:
             self.fleet.launch_ended(self.end_reason(), self.exit_status)
             self.fleet.close()

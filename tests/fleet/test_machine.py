@@ -424,17 +424,18 @@ def test_the_change_stream_serves_a_long_poll():
         before = asyncio.get_running_loop().time()
         await fleet.wait_change(fleet.seq, 0.05)  # nothing new: back after the timeout
         assert asyncio.get_running_loop().time() - before >= 0.04
-        # the lines the events file has: the internal steps left out, the run's own lines in (numbered)
+        # the run's own lines are in the stream too, numbered with the nodes' changes (the steps the file leaves
+        # out: marked internal)
         waiter = asyncio.ensure_future(fleet.wait_change(fleet.seq, 5.0))
         await asyncio.sleep(0)
         fleet.run_event("master_restarted", reason="why")
         await asyncio.wait_for(waiter, 1.0)
         fleet.apply("/a", Event(m.STOP))
         fleet.apply("/a", Event(m.DOWN))
-        written, _ = fleet.changes_since(0, written=True)
-        assert [(c["seq"], c.get("state"), c.get("event")) for c in written] == [
-            (2, "running", None), (3, None, "master_restarted"), (5, "stopped", None)]
-        assert [c["seq"] for c in fleet.changes_since(0)[0]] == [1, 2, 3, 4, 5]
+        served, _ = fleet.changes_since(0)
+        assert [(c["seq"], c.get("state"), c.get("event"), c.get("internal", False)) for c in served] == [
+            (1, "waiting", None, True), (2, "running", None, False), (3, None, "master_restarted", False),
+            (4, "running", None, True), (5, "stopped", None, False)]
         fleet.changes.popleft()  # (the oldest dropped, as past CHANGES_KEPT)
         assert fleet.changes_since(0)[1] is False
     asyncio.run(main())
@@ -457,6 +458,10 @@ def test_the_events_file_ends_with_the_launchs_end(tmp_path):
     lines = [json.loads(line) for line in path.read_text().splitlines()]
     assert [(e.get("state"), e.get("phase")) for e in lines[:-1]] == [("running", "running"), ("stopped", "stopped")]
     assert lines[-1]["event"] == state.LAUNCH_ENDED and lines[-1]["reason"] == "stopped by SIGINT"
+    # the long poll serves every change; those the file leaves out are marked internal
+    served = [(c.get("phase", c.get("event")), c.get("internal", False)) for c in fleet.changes_since(0)[0]]
+    assert served == [(m.STARTING, True), (m.RUNNING, False), (m.STOPPING, True), (m.STOPPED, False),
+                      (state.LAUNCH_ENDED, False)]  # (the run's own line, as the file has it)
 
 
 def test_a_registration_is_the_current_runs_and_goes_with_it():
@@ -485,3 +490,33 @@ def test_a_remote_run_may_register_before_its_child_says_it_runs():
     assert (r.state, r.registered, r.uri) == (m.RUNNING, True, "http://other:1/")
     lost, _ = m.step(r, Event(m.LINK_LOST, reason="cut"), 11.0)
     assert (lost.state, lost.registered) == (m.LOST, False)
+
+
+def test_the_last_exit_is_kept_while_the_node_runs_again():
+    """exit_code is the current run's (None while it runs); last_exit_* the last run that ended, with its time."""
+    import time
+
+    from launcher.fleet import state
+    clock = [10.0]
+    fleet = state.Fleet(clock=lambda: clock[0])
+    fleet.add("/crasher", process="crasher-1", rules=Rules(respawn=True, respawn_delay=0.5))
+    node = fleet.nodes["/crasher"]
+    assert (node.last_exit_code, node.last_exit_signal, node.last_exit_at) == (None, None, None)
+    fleet.apply("/crasher", Event(m.START))
+    fleet.apply("/crasher", Event(m.SPAWNED, pid=5))
+    before = time.time()
+    fleet.apply("/crasher", Event(m.EXITED_, exit_code=3))
+    ended_at = node.last_exit_at
+    assert before <= ended_at <= time.time() and (node.exit_code, node.last_exit_code) == (3, 3)
+    clock[0] = 11.0
+    fleet.apply("/crasher", Event(m.DUE))
+    fleet.apply("/crasher", Event(m.SPAWNED, pid=6))
+    d = node.as_dict()
+    assert (d["state"], d["exit_code"], d["last_exit_code"], d["last_exit_signal"], d["last_exit_at"]) == (
+        "running", None, 3, None, ended_at)
+    fleet.apply("/crasher", Event(m.STOP))
+    fleet.apply("/crasher", Event(m.EXITED_, exit_signal=2))  # (its end while being stopped)
+    fleet.apply("/crasher", Event(m.DOWN))
+    d = node.as_dict()
+    assert (d["state"], d["exit_signal"], d["last_exit_code"], d["last_exit_signal"]) == ("stopped", 2, None, 2)
+    assert d["last_exit_at"] > ended_at

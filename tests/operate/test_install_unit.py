@@ -122,9 +122,32 @@ def test_a_unit_not_ours_is_not_replaced(tmp_path, launch_file):
     assert gone.returncode == 1 and (units / "robot.service").exists()
 
 
+def test_a_dry_run_writes_the_unit_for_a_user_this_machine_does_not_have(tmp_path, launch_file):
+    """The README's `--run-as robot --dry-run`, on a machine without that user: the unit for the machine that has
+    it (its home taken as /home/USER), and a warning naming the user; a real install still refuses."""
+    path, _ = launch_file
+    user = "no-such-user-x"
+    dry = tool("install", str(path), "--run-as", user, "--system", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    assert "\nUser=%s\n" % user in dry.stdout and "\nEnvironment=ROS_HOME=/home/%s/.ros\n" % user in dry.stdout
+    assert dry.stderr.count("\n") == 1 and "warning: no user '%s' on this machine" % user in dry.stderr
+    done = tool("install", str(path), "--run-as", user, "--system", "--unit-dir", str(tmp_path / "units"))
+    assert done.returncode == 2 and "no user '%s' on this machine" % user in done.stderr
+    assert not (tmp_path / "units").exists()
+
+
+def test_installed_says_when_there_is_none(tmp_path):
+    units = tmp_path / "units"
+    listed = tool("installed", "--unit-dir", str(units), "--system")
+    assert (listed.returncode, listed.stdout) == (0, "no unit written by `launcher install` in %s\n" % units)
+    units.mkdir()
+    (units / "other.service").write_text("[Service]\nExecStart=/bin/true\n")  # (not ours: not listed)
+    assert tool("installed", "--unit-dir", str(units)).stdout.startswith("no unit written by `launcher install`")
+
+
 def test_bad_options_are_said(tmp_path, launch_file):
     path, _ = launch_file
-    assert "no user" in tool("install", str(path), "--run-as", "no-such-user-x", "--system", "--dry-run").stderr
+    assert "no user" in tool("install", str(path), "--run-as", "no-such-user-x", "--system").stderr
     assert "KEY=VALUE" in tool("install", str(path), "--env", "NOEQUALS", "--dry-run").stderr
     assert "--run-as is for a system unit" in tool("install", str(path), "--run-as", "root", "--user-unit",
                                                    "--dry-run").stderr

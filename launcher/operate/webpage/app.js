@@ -23,10 +23,19 @@ function size(n) {
   for (const [scale, unit] of [[1e9, "GB"], [1e6, "MB"], [1e3, "kB"]]) if (n >= scale) return (n / scale).toFixed(1) + unit;
   return n + "B";
 }
-function lastExit(n) {
-  if (n.exit_signal !== null && n.exit_signal !== undefined) return SIGNALS[n.exit_signal] || "signal " + n.exit_signal;
-  if (n.exit_code !== null && n.exit_code !== undefined) return "code " + n.exit_code;
+const given = (v) => v !== null && v !== undefined;
+function lastExit(n) {  // how its last run that ended did end, also while it runs again (launcher status's LAST EXIT)
+  const [code, sig] = "last_exit_code" in n ? [n.last_exit_code, n.last_exit_signal] : [n.exit_code, n.exit_signal];
+  if (given(sig)) return SIGNALS[sig] || "signal " + sig;
+  if (given(code)) return "code " + code;
   return "-";
+}
+function keepLastExit(n, c) {  // a change whose exit fields are set anew is a run's end (status.keep_last_exit)
+  const before = [n.exit_code, n.exit_signal].map((v) => given(v) ? v : null);
+  const after = [c.exit_code, c.exit_signal].map((v) => given(v) ? v : null);
+  if ((after[0] !== null || after[1] !== null) && (after[0] !== before[0] || after[1] !== before[1])) {
+    [n.last_exit_code, n.last_exit_signal, n.last_exit_at] = [after[0], after[1], c.time];
+  }
 }
 function spark(values, max, color) {
   const w = 60, h = 16;
@@ -103,6 +112,7 @@ function handle(ev) {
       let n = nodes.get(c.node);
       if (!n) { n = {name: c.node}; nodes.set(c.node, n); }  // (a node a reload added)
       const newRun = c.state === "running" && (n.state !== "running" || n.pid !== c.pid);
+      keepLastExit(n, c);
       Object.assign(n, c);
       if (newRun) n.started_at = c.time;
       if (c.state !== "running") { n.cpu = null; n.rss = null; }
@@ -135,6 +145,18 @@ setInterval(() => {
     draw(name);
   }
 }, 1000);
+
+// The address `launcher web` printed on its terminal carries the run's token in its fragment (#token=...: a
+// fragment never reaches a server or a Referer): kept in this tab, and taken out of the address bar (and history).
+function takeToken() {
+  const m = /(?:^#|&)token=([^&]*)/.exec(location.hash);
+  if (!m) return;
+  const t = decodeURIComponent(m[1]).trim();
+  if (t) sessionStorage.setItem("launcher-token", t);
+  const rest = location.hash.slice(1).split("&").filter((p) => !p.startsWith("token=")).join("&");
+  history.replaceState(null, "", location.pathname + location.search + (rest ? "#" + rest : ""));
+}
+takeToken();
 
 function token() {
   let t = sessionStorage.getItem("launcher-token");
