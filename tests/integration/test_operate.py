@@ -798,7 +798,7 @@ def test_a_crash_looping_nodes_last_exit_shows_while_it_runs_again(tmp_path, pkg
                 assert node["exit_code"] is None  # (the current run's)
             table = tool(env, "status")
             row = [line.split() for line in table.stdout.splitlines() if line.startswith("/crasher ")][0]
-            assert row[5:7] == ["code", "3"], table.stdout
+            assert row[6:8] == ["code", "3"], table.stdout  # (after NODE STATE REG PID UPTIME RESTARTS)
             time.sleep(0.3)
         assert "running" in states  # (seen while it runs again, not only between its runs)
     finally:

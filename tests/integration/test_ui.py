@@ -400,7 +400,7 @@ def test_the_output_pane_says_each_change_once_in_the_events_words_and_the_filte
         assert expected[1].startswith("[/r2/talker] stopped pid %d " % old) and expected[1].endswith(
             "(stopped by operator)"), expected
         screen = tmux.wait_screen(lambda s: talker_lines(s) == expected, "one line per change of the events file")
-        assert row(screen, "/r2/talker")[5] == "SIGINT"  # (LAST EXIT: how its last run ended, while it runs again)
+        assert row(screen, "/r2/talker")[6] == "SIGINT"  # (LAST EXIT: how its last run ended, while it runs again)
         # the filter applies to every line of the pane: no other node's, state or output
         tmux.keys("/", "s", "u", "b", "Enter")
         screen = tmux.wait_screen(lambda s: "filter [sub]" in s and not talker_lines(s), "only /r2/sub's lines")
