@@ -68,7 +68,7 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at")
+                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at", "registered", "uri")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -95,6 +95,10 @@ class NodeStatus:
         self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
         # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
         self.over_limit: dict[str, float] = {}
+        # its current run is registered with the master, at this XML-RPC URI ("running" says that a process
+        # runs; a ROS node is up once it is registered too)
+        self.registered = False
+        self.uri = ""
 
     def uptime(self, now: float | None = None) -> float | None:
         if self.state != RUNNING or self.started_at is None:
@@ -107,7 +111,8 @@ class NodeStatus:
                 "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
                 "rss": self.rss, "over_limit": dict(self.over_limit), "last_exit_code": self.last_exit_code,
-                "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at}
+                "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at,
+                "registered": self.registered, "uri": self.uri}
 
 
 class Change(NamedTuple):
@@ -121,6 +126,14 @@ class Change(NamedTuple):
     actions: list  # the machine's actions (a NOTE among them is for the console)
     status: NodeStatus  # the node's view now (it changes with later changes)
     line: dict  # the change as the events file writes it
+
+
+class RunEvent(NamedTuple):
+    """A line of the run's own (a reload, the master restarted, the launch's end) in the change stream: a long
+    poll's reader follows it as the events file has it."""
+
+    seq: int
+    line: dict
 
 
 def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
@@ -152,7 +165,8 @@ def visible(change: Change) -> bool:
     return (machine.PUBLIC[old.state] != machine.PUBLIC[new.state] or old.pid != new.pid
             or old.spawn_count != new.spawn_count or old.exit_code != new.exit_code
             or old.exit_signal != new.exit_signal or old.over_limit != new.over_limit
-            or old.failures != new.failures or (old.reason != new.reason and new.reason != ""))
+            or old.failures != new.failures or (old.reason != new.reason and new.reason != "")
+            or old.registered != new.registered or old.uri != new.uri)
 
 
 class Fleet:
@@ -169,7 +183,7 @@ class Fleet:
         self.say = say  # the outcome's words ("all processes on machine have died ...")
         self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
         self.seq = 0
-        self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
+        self.changes: collections.deque[Change | RunEvent] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
         self.done = compat.Event()
@@ -239,6 +253,12 @@ class Fleet:
             self._check_all_dead()
         return actions
 
+    def registration(self, name: str, uri: str, present: bool) -> None:
+        """The master's word about a node's current run (health/registration.py): registered at `uri`, or that
+        registration gone. No runner is needed: the machine answers these with no action."""
+        if name in self.records:
+            self.apply(name, Event(machine.REGISTERED if present else machine.UNREGISTERED, uri=uri))
+
     def _mirror(self, r: Record, now: float) -> NodeStatus:
         status = self.nodes[r.name]
         wall = time.time() - now  # this clock's zero on the wall clock
@@ -256,6 +276,7 @@ class Fleet:
         status.reason = r.reason
         status.failures = r.failures
         status.over_limit = dict(r.over_limit)
+        status.registered, status.uri = r.registered, r.uri
         if status.state != RUNNING:
             status.cpu = status.rss = None  # (a stopped node uses nothing: no stale sample)
         return status
@@ -273,11 +294,13 @@ class Fleet:
 
     def changes_since(self, seq: int) -> tuple[list[dict], bool]:
         """The changes after `seq`, as the events file has them (a step it leaves out, such as running ->
-        stopping, marked `"internal": true`: a view that shows the file's lines skips it), and whether they
+        stopping, marked `"internal": true`: a view that shows the file's lines skips it; the run's own lines, a
+        reload's, the master's restart, the launch's end, as the file has them too), and whether they
         are all there (False: older ones were dropped; a reader should read the status again)."""
         changes = [c for c in self.changes if c.seq > seq]
         complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
-        return [c.line if visible(c) else dict(c.line, internal=True) for c in changes], complete
+        return [c.line if isinstance(c, RunEvent) or visible(c) else dict(c.line, internal=True)
+                for c in changes], complete
 
     async def wait_change(self, seq: int, timeout: float) -> None:
         """Return when there is a change after `seq`, or after `timeout` seconds."""
@@ -330,7 +353,7 @@ class Fleet:
 
     def run_event(self, event: str, **fields: object) -> None:
         """A line in the events file about the run, not one node (`event`: its name, `reason`: its words)."""
-        line = {"event": event, "time": round(time.time(), 6), **fields}
+        line = self._stream({"event": event, "time": round(time.time(), 6), **fields})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
@@ -340,7 +363,7 @@ class Fleet:
 
     def reloaded(self, reason: str, **what: list) -> None:
         """A reload's line in the events file: what it changed, in words (`reason`) and by name."""
-        line = {"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what}
+        line = self._stream({"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":"), default=str) + "\n")
@@ -348,13 +371,22 @@ class Fleet:
                 self._warning("cannot write the events file: %s" % e.strerror)
                 self._close()
 
+    def _stream(self, line: dict) -> dict:
+        """A run's line numbered in the change stream (`seq`), for the long poll's readers too."""
+        self.seq += 1
+        line = {"seq": self.seq, **line}
+        self.changes.append(RunEvent(self.seq, line))
+        if self._changed is not None:
+            self._changed.set()
+        return line
+
     @staticmethod
     def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:
         """A change as the events file and the long poll give it."""
         return {"seq": seq, "time": round(when, 6), "node": r.name, "host": r.host, "state": status.state,
                 "phase": r.state, "pid": r.pid, "exit_code": r.exit_code, "exit_signal": r.exit_signal,
                 "restarts": r.restarts, "failures": r.failures, "next_start": status.next_start,
-                "over_limit": dict(r.over_limit), "reason": r.reason}
+                "over_limit": dict(r.over_limit), "reason": r.reason, "registered": r.registered, "uri": r.uri}
 
     def _write(self, change: Change) -> None:
         if self._events is None:

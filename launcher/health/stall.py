@@ -1,7 +1,8 @@
 """Stalled topics: a node alive whose own publication of a watched topic went silent or too slow.
 
 A node with `watch_topic` (its names resolved as the node resolves them, at
-load) is watched once its run has registered: the launcher asks the node
+load) is watched once its run has registered (the fleet's record says so, and at
+which URI: health/registration.py): the launcher asks the node
 itself for each topic (`requestTopic`, as any subscriber does) and subscribes
 over TCPROS with any type (`*`: no message package, nothing deserialized), so
 another publisher on the same topic cannot hide a stall. The messages are
@@ -10,8 +11,9 @@ wait, and each verdict first drains it, so a quiet topic costs a read per
 verdict and a 30 MB/s one a read per 256 kB. `TopicWatch` decides,
 fed the times of the messages and a clock:
 
-- no message for `watch_timeout` s (counted from the run's start until a
-  first message comes): stalled;
+- no message for `watch_timeout` s (counted from the run's registration
+  until a first message comes: a node publishes nothing before it has
+  registered, and a rospy node takes a second or more to get there): stalled;
 - fewer than `watch_min_rate` Hz over the last `watch_window` s (once a whole
   window has passed): stalled;
 - with neither set, silence for `watch_window` s is a stall.
@@ -32,13 +34,12 @@ import logging
 import urllib.parse
 from typing import Any
 
+from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import tcpros, xmlrpc
-from launcher.health.hang import registered_uri
 
 log = logging.getLogger("launcher.stall")
 
 CALLER_ID = "/launcher_stall_watch"
-REGISTRATION_POLL_S = 0.25
 MAX_PERIOD_S = 1.0
 
 
@@ -74,7 +75,7 @@ class TopicWatch:
         if self.timeout is not None:
             since = self.last if self.last is not None else self.started_at
             if now - since >= self.timeout:
-                what = "since its last message" if self.last is not None else "since the node started"
+                what = "since its last message" if self.last is not None else "since the node registered"
                 return "no message on %s for %.1f s %s (watch_timeout %g)" % (self.topic, now - since, what,
                                                                               self.timeout)
         if self.min_rate is not None and now - self.started_at >= self.window:
@@ -91,26 +92,42 @@ class TopicWatch:
 
 
 class StallWatch:
-    """Watches the watched topics of every running node of a supervisor (a watcher: `started`, `exiting`)."""
+    """Watches the watched topics of every running node of a supervisor once its run has registered (a
+    watcher: `started`, `exiting`; and a listener of the supervisor's fleet)."""
 
-    def __init__(self, master_uri: str, supervisor: Any):
-        self.master_uri = master_uri
+    def __init__(self, supervisor: Any):
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
         self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
+        self.watched: set[Any] = set()  # the NodeProcesses whose current run is watched once registered
+        supervisor.fleet.listeners.append(self._changed)
 
     def started(self, proc: Any) -> None:
         if proc.spec.policy.watch_topics:
             self._cancel(proc)
-            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen))
+            self.watched.add(proc)
 
     def exiting(self, proc: Any) -> None:
         self._cancel(proc)
+        self.watched.discard(proc)
 
     def close(self) -> None:
+        if self._changed in self.supervisor.fleet.listeners:
+            self.supervisor.fleet.listeners.remove(self._changed)
         for task in self.tasks.values():
             task.cancel()
         self.tasks.clear()
+
+    def _changed(self, change: Change) -> None:
+        old, new = change.old, change.new
+        if (new.registered, new.uri) == (old.registered, old.uri) or new.host != LOCAL_HOST:
+            return
+        proc = self.supervisor.node(new.name)
+        if proc is None or proc not in self.watched:
+            return
+        self._cancel(proc)
+        if new.registered and self._current(proc, proc.popen):  # (silence counts from here)
+            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen, new.uri, self.loop.time()))
 
     def _cancel(self, proc: Any) -> None:
         task = self.tasks.pop(proc, None)
@@ -120,17 +137,15 @@ class StallWatch:
     def _current(self, proc: Any, popen: Any) -> bool:
         return proc.popen is popen and proc.alive and not proc.stopping and not self.supervisor.shutting_down
 
-    async def _watch(self, proc: Any, popen: Any) -> None:
+    async def _watch(self, proc: Any, popen: Any, uri: str, started_at: float) -> None:
         policy = proc.spec.policy
-        started_at = self.loop.time()
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
         links: dict[str, PublisherWatch] = {}
-        uri = await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), REGISTRATION_POLL_S)
         period = min(w.period() for w in watches.values())
         stalled = False
         try:
-            while uri is not None and self._current(proc, popen):
+            while self._current(proc, popen):
                 for topic, watch in watches.items():
                     link = links.get(topic)
                     if link is None:

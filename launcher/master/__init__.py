@@ -11,6 +11,7 @@ from launcher import compat
 from launcher.master.api import MasterApi, unsendable
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
+from launcher.model.graph import Graph
 from launcher.model.names import resolve_name
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
@@ -106,6 +107,8 @@ class Master:
         self._api: Any = None
         self._tree = ParamTree()
         self._purges: set[asyncio.Task] = set()  # (process_ended's checks under way)
+        # what is registered, told as it changes: the launch listens here rather than asking over XML-RPC
+        self.graph = Graph()
 
     @property
     def params(self) -> ParamTree:
@@ -120,7 +123,7 @@ class Master:
         """Listen and serve; OSError if the port is taken."""
 
         self._notifier = Notifier(timeout=self._notify_timeout)
-        self._api = MasterApi(self._notifier, self._tree)
+        self._api = MasterApi(self._notifier, self._tree, graph=self.graph)
         self._api.on_shutdown = self._on_shutdown
         self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True,
                                     allow=self._allow.allows if self._allow is not None else None)

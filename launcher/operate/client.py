@@ -232,6 +232,35 @@ def status(uri: str) -> dict[str, Any]:
     return json.loads(status_text(uri))
 
 
+# A long poll of the change stream waits this long on the launch's side (the server's cap is longer).
+CHANGES_WAIT_S = 1.0
+LAST_SEQ = (1 << 31) - 1  # (since the last change: the answer is the stream's number now, and no change)
+
+
+def changes(uri: str, since: int, wait: float = CHANGES_WAIT_S) -> dict[str, Any]:
+    """The launch's changes after `since` (launcher_changes: a long poll of up to `wait` s): {"seq", "complete",
+    "changes"}. ToolError (EXIT_NO_LAUNCH) once the launch is gone."""
+    code, msg, text = call(uri, "launcher_changes", since, wait, timeout=wait + 10)
+    if code != 1:
+        raise ToolError("changes: %s" % msg)
+    return json.loads(text)
+
+
+def follow_changes(uri: str, since: int, on_answer: Callable[[dict[str, Any]], None],
+                   wait: float = CHANGES_WAIT_S) -> int:
+    """Hand each answer of the change stream after `since` to `on_answer` (one at least every `wait` s, changes
+    or none) while the launch runs; the last sequence number handed over, once it is gone."""
+    while True:
+        try:
+            answer = changes(uri, since, wait)
+        except ToolError as e:
+            if e.status != EXIT_NO_LAUNCH:
+                raise
+            return since
+        since = answer["seq"]
+        on_answer(answer)
+
+
 def find_node(info: dict[str, Any], name: str) -> dict[str, Any]:
     """A node of the status by node name (leading / optional) or process name; ToolError naming it."""
     wanted = name if name.startswith("/") else "/" + name

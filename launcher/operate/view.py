@@ -81,7 +81,7 @@ class ViewState:
             was_running, old_pid = node.get("state") == "running", node.get("pid")
             status_columns.keep_last_exit(node, c)
             for key in ("state", "pid", "exit_code", "exit_signal", "restarts", "failures", "next_start",
-                        "over_limit", "reason", "phase"):
+                        "over_limit", "reason", "phase", "registered", "uri"):
                 if key in c:
                     node[key] = c[key]
             if node["state"] == "running" and (not was_running or node.get("pid") != old_pid):

@@ -221,10 +221,11 @@ class LaunchServer:
 
     def launcher_changes(self, since: Any, timeout: Any = 0.0) -> Any:
         """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
-        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
-        instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
-        older changes were dropped (read the status again), "changes": [as in the events file; the steps it
-        leaves out marked "internal": true]}]."""
+        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view, `launcher
+        status --watch` and `launcher events -f` read instead of tailing the events file. The run's own lines
+        (a reload, the master restarted, the launch's end) are in the stream too, with no "node". [1, text, JSON
+        {"seq": the last one, "complete": false when older changes were dropped (read the status again),
+        "changes": [as in the events file; the steps it leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
         fleet = self.run.fleet

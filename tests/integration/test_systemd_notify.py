@@ -78,11 +78,10 @@ def port_of(env: dict[str, str]) -> int:
 
 def test_ready_after_registration_status_through_respawn_and_stopping(tmp_path, setup):
     env, notify, stamps = setup
-    # (a node that has not registered counts as up once it has run for its respawn_min_uptime: these slow
-    # ones are given 20 s, so READY=1 can only come from their registrations)
+    # (the crasher is no ROS node and says so: registers="false"; the rospy nodes count once registered)
     body = "\n".join('<node pkg="sd_tests" type="slow_spinner" name="n%d" args="%s n%d" respawn_min_uptime="20"/>'
                      % (i, delay, i) for i, delay in enumerate((0.2, 1.0, 2.0)))
-    body += '\n<node pkg="sd_tests" type="crasher" name="crasher" respawn="true" respawn_delay="1"/>'
+    body += '\n<node pkg="sd_tests" type="crasher" name="crasher" respawn="true" respawn_delay="1" registers="false"/>'
     launch = Launcher([write_launch(str(tmp_path), body), "-p", str(port_of(env))], env, str(tmp_path))
     try:
         when_ready, fields = until(lambda: notify.first("READY", "1"), 60, what="READY=1")
@@ -91,7 +90,7 @@ def test_ready_after_registration_status_through_respawn_and_stopping(tmp_path, 
             began = float((stamps / ("n%d" % i)).read_text())
             assert when_ready > began, "READY=1 %.3fs before n%d registered" % (began - when_ready, i)
             assert master_proxy(port_of(env)).lookupNode("/test", "/n%d" % i)[0] == 1
-        # ... and said so: all four up (the crasher, which never registers, counts after respawn_min_uptime)
+        # ... and said so: all four up (the crasher, which never registers, counts once it runs)
         assert fields["STATUS"] == "4/4 nodes running", fields
         # the crash and the respawn are told as they happen
         crashed, _ = until(lambda: notify.first("STATUS", "3/4 nodes running, 1 respawning"), 30,

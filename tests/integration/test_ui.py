@@ -137,7 +137,8 @@ THREE = """
 
 def running_pid(screen: str, name: str) -> int | None:
     r = row(screen, name)
-    return int(r[2]) if r and r[1] == "running" and r[2].isdigit() else None
+    # (cells: name, state, REG, pid, ...)
+    return int(r[3]) if r and r[1] == "running" and r[2] in ("yes", "no") and r[3].isdigit() else None
 
 
 def steer_and_watch(tmux: Tmux, env: dict) -> None:
@@ -174,7 +175,7 @@ def steer_and_watch(tmux: Tmux, env: dict) -> None:
     gamma = running_pid(screen, "/g/gamma")
     os.kill(gamma, signal.SIGKILL)
     screen = tmux.wait_screen(lambda s: running_pid(s, "/g/gamma") not in (None, gamma), "/g/gamma respawned")
-    assert (row(screen, "/g/gamma") or [])[4] == "1"  # restarts
+    assert (row(screen, "/g/gamma") or [])[5] == "1"  # restarts
     assert "[/g/gamma] running pid %d" % running_pid(screen, "/g/gamma") in screen
 
 
@@ -227,7 +228,7 @@ def test_thirty_nodes_scroll_in_80x24_with_every_column_and_follow_resizes(tmp_p
     def every_column(screen: str, names: list[str]) -> bool:
         # name state pid uptime restarts last-exit cpu rss host: nine cells, the host last
         rows = [row(screen, n) for n in names]
-        return all(r and len(r) == 9 and r[-1] == "localhost" for r in rows)
+        return all(r and len(r) == 10 and r[-1] == "localhost" for r in rows)
     header = next(line for line in screen.splitlines() if line.split()[:2] == ["NODE", "STATE"])
     assert header.split()[-1] == "HOST"
     tmux.wait_screen(lambda s: every_column(s, ["/n%02d" % i for i in range(5)]), "every column of the rows")
@@ -399,7 +400,7 @@ def test_the_output_pane_says_each_change_once_in_the_events_words_and_the_filte
         assert expected[1].startswith("[/r2/talker] stopped pid %d " % old) and expected[1].endswith(
             "(stopped by operator)"), expected
         screen = tmux.wait_screen(lambda s: talker_lines(s) == expected, "one line per change of the events file")
-        assert row(screen, "/r2/talker")[5] == "SIGINT"  # (LAST EXIT: how its last run ended, while it runs again)
+        assert row(screen, "/r2/talker")[6] == "SIGINT"  # (LAST EXIT: how its last run ended, while it runs again)
         # the filter applies to every line of the pane: no other node's, state or output
         tmux.keys("/", "s", "u", "b", "Enter")
         screen = tmux.wait_screen(lambda s: "filter [sub]" in s and not talker_lines(s), "only /r2/sub's lines")

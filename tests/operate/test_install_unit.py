@@ -151,3 +151,16 @@ def test_bad_options_are_said(tmp_path, launch_file):
     assert "KEY=VALUE" in tool("install", str(path), "--env", "NOEQUALS", "--dry-run").stderr
     assert "--run-as is for a system unit" in tool("install", str(path), "--run-as", "root", "--user-unit",
                                                    "--dry-run").stderr
+
+
+def test_start_timeout_stays_above_the_launch_ready_timeout(tmp_path, launch_file):
+    assert install.timeout_start(install.UnitOptions("a", ())) == install.START_TIMEOUT_S
+    assert install.timeout_start(install.UnitOptions("a", (), ready_timeout=300.5)) == 301 + install.START_MARGIN_S
+    path, _ = launch_file
+    dry = tool("install", str(path), "--system", "--ready-timeout", "200", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    assert "TimeoutStartSec=%d\n" % (200 + install.START_MARGIN_S) in dry.stdout
+    exec_start = next(line for line in dry.stdout.splitlines() if line.startswith("ExecStart="))
+    assert exec_start.endswith("--screen --ready-timeout 200")  # the launch is told the same timeout
+    assert "TimeoutStartSec=120\n" in tool("install", str(path), "--system", "--dry-run").stdout
+    assert "greater than zero" in tool("install", str(path), "--ready-timeout", "0", "--dry-run").stderr

@@ -27,13 +27,13 @@ def test_rows_are_launcher_status_columns_with_uptime_from_the_clock():
     v = view(node("/a", cpu=0.25, rss=50 * 1000 * 1000), node("/b", "stopped", None, exit_code=0))
     rows = v.table_rows(10, T0 + 75)
     a = rows[0][0].split()
-    assert a == [">", "/a", "running", "100", "1m15s", "0", "-", "25%", "50MB", "localhost"]
+    assert a == [">", "/a", "running", "no", "100", "1m15s", "0", "-", "25%", "50MB", "localhost"]
     assert rows[0][1:] == ("green", True)
-    assert rows[1][0].split() == ["/b", "stopped", "-", "-", "0", "code", "0", "-", "-", "localhost"]
+    assert rows[1][0].split() == ["/b", "stopped", "-", "-", "-", "0", "code", "0", "-", "-", "localhost"]
     assert rows[1][1:] == ("grey", False)
     # the same cells as `launcher status` gives for that node
     assert tuple(a[1:]) == status.row(dict(v.nodes["/a"], uptime=75.0))
-    assert v.table_header(T0).split() == list(status.HEADER[:5]) + ["LAST", "EXIT"] + list(status.HEADER[6:])
+    assert v.table_header(T0).split() == list(status.HEADER[:6]) + ["LAST", "EXIT"] + list(status.HEADER[7:])
 
 
 def test_a_change_updates_the_row_and_says_it_in_the_pane():
@@ -43,12 +43,17 @@ def test_a_change_updates_the_row_and_says_it_in_the_pane():
                {"seq": 4, "time": T0 + 6, "node": "/a", "state": "running", "pid": 222, "restarts": 1}])
     assert v.seq == 4
     row = v.table_rows(5, T0 + 16)[0][0].split()
-    assert row[2:6] == ["running", "222", "10s", "1"]  # uptime from the new run's start
+    assert row[2:7] == ["running", "no", "222", "10s", "1"]  # uptime from the new run's start
     # each change in the events file's words (`launcher events` without its time and node)
     assert v.output_rows(10) == ["[/a] respawning pid 100 signal 9 restarts 0", "[/a] running pid 222 restarts 1"]
-    v.changes([{"seq": 5, "time": T0 + 7, "node": "/a", "state": "stopped", "pid": 222, "exit_code": 0}])
-    assert v.table_rows(5, T0 + 20)[0][0].split()[2:5] == ["stopped", "-", "-"]
-    v.changes([{"seq": 6, "time": T0, "node": "/unknown", "state": "running"}])  # (not in the status: ignored)
+    v.changes([{"seq": 5, "time": T0 + 6.5, "node": "/a", "state": "running", "pid": 222, "restarts": 1,
+                "registered": True, "uri": "http://h:5/"}])
+    assert v.table_rows(5, T0 + 16)[0][0].split()[2:4] == ["running", "yes"]
+    assert v.output_rows(10)[-1] == "[/a] running pid 222 registered at http://h:5/ restarts 1"
+    v.changes([{"seq": 6, "time": T0 + 7, "node": "/a", "state": "stopped", "pid": 222, "exit_code": 0,
+                "registered": False, "uri": ""}])
+    assert v.table_rows(5, T0 + 20)[0][0].split()[2:6] == ["stopped", "-", "-", "-"]
+    v.changes([{"seq": 7, "time": T0, "node": "/unknown", "state": "running"}])  # (not in the status: ignored)
     assert list(v.nodes) == ["/a"]
 
 
@@ -135,11 +140,11 @@ def test_rows_fit_80_columns_with_every_column_and_follow_the_width():
     rows = v.table_rows(10, T0 + 86399, 80)
     header = v.table_header(T0)
     assert all(len(text) <= 80 for text, _, _ in rows) and len(header) <= 80
-    assert header.split() == ["NODE", "STATE", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
+    assert header.split() == ["NODE", "STATE", "REG", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
     a, b = rows[0][0].split(), rows[1][0].split()
     assert a[1].startswith("\u2026") and long.endswith(a[1][1:]) and len(a[1]) >= 10  # (the name's end)
-    assert a[2:] == ["running", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
-    assert b[:6] == ["/b", "respawning", "-", "-", "0", "SIGKILL"]
+    assert a[2:] == ["running", "no", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
+    assert b[:7] == ["/b", "respawning", "-", "-", "-", "0", "SIGKILL"]
     assert b[-1].startswith("robot-arm-") and b[-1].endswith("\u2026")  # (a long host cut, still there)
     # wide enough: nothing shortened, the header's own words
     rows = v.table_rows(10, T0 + 86399, 200)
@@ -204,7 +209,7 @@ def test_the_last_exit_stays_while_the_node_runs_again():
                     "exit_code": code, "exit_signal": None, "restarts": i // 2}])
         n = v.nodes["/crasher"]
         assert (n["exit_code"], n["last_exit_code"], n["last_exit_at"]) == (code, 3, T0 + 1 + i // 2 * 2)
-        assert v.table_rows(1, T0 + 5)[0][0].split()[6:8] == ["code", "3"]
+        assert v.table_rows(1, T0 + 5)[0][0].split()[7:9] == ["code", "3"]
     v.changes([{"seq": 9, "time": T0 + 9, "node": "/crasher", "state": "respawning", "pid": None, "exit_code": None,
                 "exit_signal": 11}])
     assert status.last_exit(v.nodes["/crasher"]) == "SIGSEGV" and v.nodes["/crasher"]["last_exit_at"] == T0 + 9

@@ -51,7 +51,7 @@ function rowOf(name) {
     tr = document.createElement("tr");
     tr.id = "row-" + name;
     tr.dataset.node = name;
-    tr.innerHTML = '<td class="name"></td><td class="state"></td><td class="pid num"></td><td class="uptime num"></td>' +
+    tr.innerHTML = '<td class="name"></td><td class="state"></td><td class="reg"></td><td class="pid num"></td><td class="uptime num"></td>' +
       '<td class="restarts num"></td><td class="exit"></td><td class="cpu num"></td><td class="rss num"></td>' +
       '<td class="host"></td><td class="hist"><svg class="spark" width="60" height="16"></svg></td><td class="actions">' +
       '<button data-verb="start">start</button> <button data-verb="stop">stop</button> ' +
@@ -70,6 +70,8 @@ function draw(name) {
   cell("state").textContent = n.state + (n.over_limit && Object.keys(n.over_limit).length ? " (over " +
     Object.keys(n.over_limit).join(", ") + ")" : "");
   cell("state").className = "state state-" + n.state + (n.over_limit && Object.keys(n.over_limit).length ? " over" : "");
+  // a process runs ("running"); a ROS node is up once its run is registered with the master too
+  cell("reg").textContent = ["running", "stalled", "hung"].includes(n.state) ? (n.registered ? "yes" : "no") : "-";
   cell("pid").textContent = running && n.pid ? n.pid : "-";
   cell("uptime").textContent = running && n.started_at ? duration(Date.now() / 1000 - n.started_at) : "-";
   cell("restarts").textContent = text(n.restarts || 0);
@@ -106,6 +108,7 @@ function handle(ev) {
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
+      if (!c.node) continue;  // (a line of the run's own: a reload, the launch's end)
       let n = nodes.get(c.node);
       if (!n) { n = {name: c.node}; nodes.set(c.node, n); }  // (a node a reload added)
       const newRun = c.state === "running" && (n.state !== "running" || n.pid !== c.pid);
@@ -114,7 +117,8 @@ function handle(ev) {
       if (newRun) n.started_at = c.time;
       if (c.state !== "running") { n.cpu = null; n.rss = null; }
       draw(c.node);
-      addOutput(c.node, c.state + (c.state === "running" && c.pid ? " pid " + c.pid : "") + "\n");
+      addOutput(c.node, c.state + (c.state === "running" && c.pid ? " pid " + c.pid : "") +
+        (c.registered ? " registered at " + c.uri : "") + "\n");
     }
   } else if (ev.type === "samples") {
     for (const [name, s] of Object.entries(ev.samples)) {
