@@ -223,6 +223,21 @@ def _direct(stream: TextIO) -> int | None:
     return fd
 
 
+def forget(stream: TextIO) -> None:
+    """Close the descriptor kept for writing node output to `stream` (a stream that is closed: while that
+    descriptor is open, the pipe's reader never sees its end)."""
+    fd = _directs.pop(stream, None)
+    if fd is not None and fd != _fileno(stream):
+        os.close(fd)
+
+
+def _fileno(stream: TextIO) -> int | None:
+    try:
+        return stream.fileno()
+    except (OSError, ValueError):
+        return None
+
+
 def _write_some(stream: TextIO, fd: int, data: bytes) -> int:
     """As much of `data` as `fd` takes now: how many bytes (a stream that is gone takes all: they are lost)."""
     try:

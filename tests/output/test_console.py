@@ -47,8 +47,10 @@ def test_node_output_is_never_dropped_and_the_relay_is_told_when_to_wait(monkeyp
         assert console.flush(30)
         assert resumed.is_set()
     finally:
+        console.forget(stream)
         stream.close()
     reader.join(10)
+    assert not reader.is_alive(), "the pipe's reader never saw its end"
     text = bytes(got)
     assert text.startswith(b"".join(chunks))  # all of it, in order, before the lines queued after it
     assert b"launcher line 2999" in text and b"launcher line 0000" not in text
