@@ -81,6 +81,11 @@ class TopicWatch:
                                                                                       self.min_rate)
         return ""
 
+    def rate(self, now: float) -> float:
+        """Messages a second over the last `window` seconds (over the time since the run started, when shorter)."""
+        self._trim(now)
+        return len(self.times) / max(min(self.window, now - self.started_at), 1e-3)
+
     def period(self) -> float:
         """How often the verdict is worth asking for."""
         shortest = min(x for x in (self.timeout, self.window) if x is not None)
@@ -95,6 +100,8 @@ class StallWatch:
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
         self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
+        # node name -> its watched topics' TopicWatch, while its run is watched (what launch --metrics reads)
+        self.watches: dict[str, dict[str, TopicWatch]] = {}
 
     def started(self, proc: Any) -> None:
         if proc.spec.policy.watch_topics:
@@ -123,10 +130,11 @@ class StallWatch:
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
         links: dict[str, tcpros.CountingLink] = {}
-        uri = await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), REGISTRATION_POLL_S)
         period = min(w.period() for w in watches.values())
         stalled = False
+        self.watches[proc.spec.node_name] = watches
         try:
+            uri = await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), REGISTRATION_POLL_S)
             while uri is not None and self._current(proc, popen):
                 for topic, watch in watches.items():
                     link = links.get(topic)
@@ -146,6 +154,8 @@ class StallWatch:
                     self.supervisor.unstalled(proc, "every watched topic is published as it should be")
                 await asyncio.sleep(period)
         finally:
+            if self.watches.get(proc.spec.node_name) is watches:
+                del self.watches[proc.spec.node_name]
             for link in links.values():
                 if link is not None:
                     link.close()

@@ -57,6 +57,7 @@ class NodeService:
         self._packages: dict[str, str] = {}  # process name -> package, for process_info
         self._tasks: list[asyncio.Future] = []
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
+        self.stall: StallWatch | None = None  # the watched topics (launch --metrics reads their rates)
 
     # ---- start -----------------------------------------------------------------------------------------
 
@@ -135,7 +136,7 @@ class NodeService:
         sup = self.supervisor
         sup.readiness = Readiness(master_uri, sup)
         hang = HangDetector(master_uri, sup)
-        stall = StallWatch(master_uri, sup)
+        stall = self.stall = StallWatch(master_uri, sup)
         sup.watchers += [hang, stall, CoreDumpReporter()]
         self._health += [sup.readiness, hang, stall]
         monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
