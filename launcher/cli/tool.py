@@ -50,7 +50,7 @@ def usage() -> str:
 
 
 # The third-party packages launcher depends on (pyproject.toml), by their import names.
-REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml", "prompt_toolkit")
+REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml", "prompt_toolkit", "prometheus_client")
 
 
 def main(argv: list[str] | None = None) -> int:

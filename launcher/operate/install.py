@@ -167,6 +167,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--after", action="append", default=[], metavar="UNIT")
     p.add_argument("--wants-network", dest="wants_network", action="store_true",
                    help="(always: the unit wants and comes after network-online.target)")
+    p.add_argument("--metrics", metavar="[ADDR:]PORT", help="the launch serves Prometheus metrics there (loopback "
+                   "unless an address is given)")
     p.add_argument("--master", metavar="URI", help="use this master (the launch waits for it) instead of the "
                    "launch's own")
     where = p.add_mutually_exclusive_group()
@@ -210,7 +212,12 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
             raise InstallError("--env %r: give KEY=VALUE" % item)
         env.append((key, value))
     # --screen: every node's output, INFO included, reaches the journal (and still its <name>-stdout.log)
-    launch = launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
+    if ns.metrics is not None:
+        host, _sep, port = ns.metrics.rpartition(":")
+        if not port.isdigit() or int(port) > 65535:
+            raise InstallError("--metrics: the address is [ADDR:]PORT, not %r" % ns.metrics)
+    launch = (launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
+              + (["--metrics", ns.metrics] if ns.metrics is not None else []))
     return UnitOptions(name=name, launch=tuple(launch), description=ns.description or "", files=tuple(files),
                        user=user, ros_home=ros_home,
                        setup=os.path.abspath(ns.setup) if ns.setup else "", env=tuple(env),

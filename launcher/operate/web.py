@@ -13,6 +13,8 @@ user shares it): a request whose `Host` is not this server by address, by
 `localhost` or by this machine's name is refused (DNS rebinding), and so is one
 whose `Origin` is another site's; a mutating request without the run's token
 gets 403. The page's files (operate/webpage/) ship in the package, no CDN.
+`/metrics` is the launch's Prometheus metrics (`launcher_metrics`, services/metrics.py),
+read-only as the page, so without the token.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from launcher.operate.view import ViewState
 PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "webpage")
 FILES = {"/": ("index.html", "text/html; charset=utf-8"), "/app.js": ("app.js", "text/javascript; charset=utf-8"),
          "/style.css": ("style.css", "text/css; charset=utf-8")}
+METRICS_TYPE = "text/plain; version=0.0.4; charset=utf-8"  # Prometheus's text format (launcher_metrics' answer)
 SAMPLE_PERIOD_S = 1.0
 HISTORY = 60  # samples a sparkline shows (a minute)
 KEEPALIVE_S = 15.0  # an event stream's comment line while nothing happens (proxies close silent connections)
@@ -242,6 +245,11 @@ def make_handler(hub: Hub, port_box: list, bound: str) -> type:
                     self._json({"node": unquote(node), "output": hub.recent_output(unquote(node))})
                 except (OSError, XmlRpcError, Fault, ValueError) as e:
                     self._json({"error": str(e)}, 502)
+            elif path == "/metrics":  # Prometheus's scrape: read-only, as the page, so without the token
+                try:
+                    self._send(200, reader.call(hub.uri, "launcher_metrics", timeout=10.0).encode(), METRICS_TYPE)
+                except (OSError, XmlRpcError, Fault, ValueError) as e:
+                    self._send(502, ("the launch does not answer: %s\n" % e).encode())
             elif path == "/api/topics":
                 try:
                     self._json(hub.topics())

@@ -1,0 +1,300 @@
+"""A run's Prometheus metrics: what `launcher status` shows of every node, its watched topics, the master's calls and
+the launcher's own process, read at scrape time; `launch --metrics [ADDR:]PORT` serves them at /metrics.
+
+A scrape never blocks the launch's loop. The loop only copies what it has into
+a `Snapshot` (plain tuples: about a millisecond for 500 nodes); the text is made
+in the scraping thread by the official client library, `prometheus_client`
+(a custom collector: nothing is registered or updated on the loop). The
+`--metrics` server is the library's own, in a thread; the loop is asked for a
+snapshot with `call_soon_threadsafe`, and a loop that does not answer within
+SNAPSHOT_WAIT_S gets the last one served (with the process metrics, which
+are read in the thread: what a stuck launch looks like is still scraped). The
+launch's XML-RPC server answers `launcher_metrics` the same way (the snapshot
+on the loop, the text in a worker thread): the web page's server serves it at
+its own /metrics.
+
+The values are the fleet's, the same `launcher status` reads: the node's public
+state, restarts, exit code, CPU and RSS (sampled by health/resources.py; the
+CPU counter adds each sample's use, so it never goes down across respawns).
+prometheus_client is imported when the first scrape comes (~45 ms: a launch
+that is never scraped does not pay for it).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import sys
+from typing import Any, Callable, NamedTuple
+
+from launcher import __version__
+from launcher.fleet import machine
+from launcher.fleet.state import LOCAL_HOST, STATES
+from launcher.master.callstats import BUCKETS, MethodStats
+from launcher.model.errors import LaunchError
+from launcher.output import console
+
+SNAPSHOT_WAIT_S = 2.0  # a scrape waits this long for the loop's snapshot, then serves the last one
+RUNNING_PHASES = frozenset((machine.RUNNING, machine.HUNG, machine.STALLED, machine.STOPPING))  # a process runs
+NODE_LABELS = ["node", "host"]
+
+
+class NodeSample(NamedTuple):
+    """One node's values, as a scrape reports them."""
+
+    name: str
+    host: str
+    state: str  # its public state (fleet.state.STATES)
+    running: bool  # its process runs
+    registered: bool | None  # with the master (None: not known)
+    restarts: int
+    last_exit_code: int | None
+    cpu_seconds: float | None  # None: not sampled here (a node of another machine)
+    rss: int | None
+
+
+class TopicSample(NamedTuple):
+    node: str
+    host: str
+    topic: str
+    rate: float  # messages a second over the watch window
+    since_last: float | None  # seconds since its last message (None: none yet)
+
+
+class Snapshot(NamedTuple):
+    run_id: str
+    nodes: tuple[NodeSample, ...]
+    topics: tuple[TopicSample, ...] = ()
+    calls: dict[str, MethodStats] | None = None  # the master's calls by method (None: not our master)
+    graph: tuple[int, int, int] | None = None  # registered nodes, topics, services (None: not our master)
+
+
+def node_sample(record: Any, status: Any, registered_names: Any) -> NodeSample:
+    """A node's record (fleet.machine.Record) and status (fleet.state.NodeStatus) as a scrape's values.
+
+    The one place that reads what two changes of the record add (the lead wires them at the merge):
+    - `registered` (issue 33: registration as the fleet's events). Until the record has it, a node is
+      registered when our master's registry has its name (`registered_names`; None with a master found
+      running: the value is then left out).
+    - `last_exit_code` (issue 34: kept while the node runs again). Until then, the exit code of its last
+      run, which the record holds only until the node runs again (left out meanwhile).
+    """
+    registered = getattr(record, "registered", None)
+    if registered is None and registered_names is not None:
+        registered = record.name in registered_names
+    last_exit_code = getattr(record, "last_exit_code", record.exit_code)
+    local = record.host == LOCAL_HOST
+    return NodeSample(record.name, record.host, status.state, record.state in RUNNING_PHASES,
+                      None if registered is None else bool(registered), record.restarts, last_exit_code,
+                      status.cpu_seconds if local else None, status.rss)
+
+
+class Exporter:
+    """What a run's metrics are read from: its master session and its nodes (the fleet, the stall watch)."""
+
+    def __init__(self, master: Any, nodes: Any, run_id: Callable[[], str]):
+        self.master = master  # masterlink.MasterSession
+        self.nodes = nodes  # nodeservice.NodeService
+        self.run_id = run_id
+
+    def snapshot(self) -> Snapshot:
+        """The run's values now: on the loop (it reads the fleet), and cheap (no text is made here)."""
+        ours = self.master.master  # our master, None when one was found running
+        api = ours.api if ours is not None else None
+        registry = api.registry if api is not None else None
+        fleet = self.nodes.fleet
+        nodes: tuple[NodeSample, ...] = ()
+        if fleet is not None:
+            names = registry.nodes if registry is not None else None
+            nodes = tuple(node_sample(fleet.records[name], status, names) for name, status in fleet.nodes.items())
+        topics = []
+        stall = self.nodes.stall
+        if stall is not None:
+            now = asyncio.get_running_loop().time()
+            for node, watches in stall.watches.items():
+                for topic, watch in watches.items():
+                    topics.append(TopicSample(node, LOCAL_HOST, topic, watch.rate(now),
+                                              None if watch.last is None else now - watch.last))
+        graph = None
+        if registry is not None:
+            graph = (len(registry.nodes), len(set(registry.publishers.map) | set(registry.subscribers.map)),
+                     len(registry.services.map))
+        return Snapshot(self.run_id(), nodes, tuple(topics), ours.calls.copy() if ours is not None else None, graph)
+
+    async def text(self) -> str:
+        """The exposition (Prometheus's text format) of the run now: the snapshot on the loop, the text made in a
+        worker thread (what `launcher_metrics` answers)."""
+        snap = self.snapshot()
+        data = await asyncio.get_running_loop().run_in_executor(None, exposition, snap)
+        return data.decode("utf-8")
+
+
+# ---- in the scraping thread ----------------------------------------------------------------------------
+
+
+def families(snap: Snapshot) -> list:
+    """The metric families of a snapshot (prometheus_client's core types)."""
+    from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
+    from prometheus_client.utils import floatToGoString
+
+    info = GaugeMetricFamily("launcher_run_info", "The run this launch is (always 1)", labels=["run_id", "version"])
+    info.add_metric([snap.run_id, __version__], 1.0)
+    running = GaugeMetricFamily("launcher_node_running", "1 while the node's process runs", labels=NODE_LABELS)
+    registered = GaugeMetricFamily("launcher_node_registered", "1 while the node is registered with the master",
+                                   labels=NODE_LABELS)
+    restarts = CounterMetricFamily("launcher_node_restarts", "Starts of the node after its first", labels=NODE_LABELS)
+    exit_code = GaugeMetricFamily("launcher_node_last_exit_code", "The exit code of the node's last run that exited",
+                                  labels=NODE_LABELS)
+    cpu = CounterMetricFamily("launcher_node_cpu_seconds", "CPU time used by the node's process group, all its runs",
+                              labels=NODE_LABELS)
+    rss = GaugeMetricFamily("launcher_node_resident_memory_bytes", "Resident memory of the node's process group",
+                            labels=NODE_LABELS)
+    state = GaugeMetricFamily("launcher_node_state", "1 for the node's current state, 0 for the others",
+                              labels=NODE_LABELS + ["state"])
+    for n in snap.nodes:
+        labels = [n.name, n.host]
+        running.add_metric(labels, 1.0 if n.running else 0.0)
+        if n.registered is not None:
+            registered.add_metric(labels, 1.0 if n.registered else 0.0)
+        restarts.add_metric(labels, n.restarts)
+        if n.last_exit_code is not None:
+            exit_code.add_metric(labels, n.last_exit_code)
+        if n.cpu_seconds is not None:
+            cpu.add_metric(labels, n.cpu_seconds)
+        if n.rss is not None:
+            rss.add_metric(labels, n.rss)
+        for s in STATES:
+            state.add_metric(labels + [s], 1.0 if s == n.state else 0.0)
+    topic_labels = NODE_LABELS + ["topic"]
+    rate = GaugeMetricFamily("launcher_topic_rate_hertz", "Messages a second of a watched topic (watch_topic), over "
+                             "its watch window", labels=topic_labels)
+    silence = GaugeMetricFamily("launcher_topic_seconds_since_message", "Seconds since a watched topic's last "
+                                "message", labels=topic_labels)
+    for t in snap.topics:
+        labels = [t.node, t.host, t.topic]
+        rate.add_metric(labels, t.rate)
+        if t.since_last is not None:
+            silence.add_metric(labels, t.since_last)
+    out = [info, running, registered, restarts, exit_code, cpu, rss, state, rate, silence]
+    if snap.calls is not None:
+        calls = HistogramMetricFamily("launcher_master_call_duration_seconds", "Master API calls by method: the "
+                                      "time from a complete request to its reply written", labels=["method"])
+        bounds = [floatToGoString(b) for b in BUCKETS] + ["+Inf"]
+        for method, stats in sorted(snap.calls.items()):
+            cumulative, buckets = 0, []
+            for bound, count in zip(bounds, stats.buckets):
+                cumulative += count
+                buckets.append((bound, cumulative))
+            calls.add_metric([method], buckets, stats.total)
+        out.append(calls)
+    if snap.graph is not None:
+        for name, doc, value in zip(("launcher_master_registered_nodes", "launcher_master_topics",
+                                     "launcher_master_services"),
+                                    ("Nodes registered with the master", "Topics with a publisher or a subscriber",
+                                     "Services registered with the master"), snap.graph):
+            g = GaugeMetricFamily(name, doc)
+            g.add_metric([], value)
+            out.append(g)
+    return out
+
+
+class _SnapshotCollector:
+    """A prometheus_client collector whose families come from `take()`, a snapshot, at each collect."""
+
+    def __init__(self, take: Callable[[], Snapshot | None]):
+        self.take = take
+
+    def collect(self) -> list:
+        snap = self.take()
+        return families(snap) if snap is not None else []
+
+
+def registry(take: Callable[[], Snapshot | None]) -> Any:
+    """A registry of the run's families (from `take`) and the launcher's own process metrics (process_*)."""
+    from prometheus_client import CollectorRegistry, ProcessCollector
+    reg = CollectorRegistry(auto_describe=False)
+    reg.register(_SnapshotCollector(take))
+    ProcessCollector(registry=reg)
+    return reg
+
+
+def exposition(snap: Snapshot) -> bytes:
+    """A snapshot in Prometheus's text format (with the process metrics read now)."""
+    from prometheus_client import generate_latest
+    return generate_latest(registry(lambda: snap))
+
+
+# ---- launch --metrics ----------------------------------------------------------------------------------
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """[ADDR:]PORT: loopback unless an address is given."""
+    host, sep, port = text.rpartition(":")
+    if not port.isdigit() or int(port) > 65535:
+        raise LaunchError("--metrics: the address is [ADDR:]PORT, not [%s]" % text)
+    return (host.strip("[]") if sep and host else "127.0.0.1"), int(port)
+
+
+class MetricsServer:
+    """`launch --metrics [ADDR:]PORT`: /metrics served by prometheus_client's HTTP server, in a thread."""
+
+    def __init__(self, exporter: Exporter, address: str):
+        self.exporter = exporter
+        self.host, self.port = parse_address(address)
+        self.url = ""
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._httpd: Any = None
+        self._last: Snapshot | None = None
+
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        try:
+            # (the library's import and the bind off the loop: the nodes are starting meanwhile)
+            self._httpd = await self._loop.run_in_executor(None, self._serve)
+        except OSError as e:  # the launch runs on without it, as without any server that cannot start
+            console.printerrlog("could not serve the metrics at %s:%d: %s" % (self.host, self.port, e.strerror or e))
+            return
+        except ImportError as e:
+            console.printerrlog("could not serve the metrics: this Python (%s) lacks %s (pip install "
+                                "prometheus_client)" % (sys.executable, e.name))
+            return
+        host = "[%s]" % self.host if ":" in self.host else self.host
+        self.url = "http://%s:%d/metrics" % (host, self._httpd.server_address[1])
+        console.printlog("metrics at %s" % self.url)
+
+    def _serve(self) -> Any:
+        from prometheus_client import start_http_server
+        httpd, _thread = start_http_server(self.port, self.host, registry(self._take))
+        return httpd
+
+    def _take(self) -> Snapshot | None:
+        """The loop's snapshot (in a scrape's thread), or the last one if the loop does not answer in time."""
+        loop = self._loop
+        done: concurrent.futures.Future = concurrent.futures.Future()
+
+        def take() -> None:
+            if done.set_running_or_notify_cancel():
+                try:
+                    done.set_result(self.exporter.snapshot())
+                except Exception as e:  # noqa: BLE001 - said to the scrape, never to the loop
+                    done.set_exception(e)
+        try:
+            loop.call_soon_threadsafe(take)
+            self._last = done.result(SNAPSHOT_WAIT_S)
+        except concurrent.futures.TimeoutError:
+            done.cancel()
+        except Exception:  # noqa: BLE001 - the loop has closed, or the snapshot failed: the last one is served
+            pass
+        return self._last
+
+    async def stop(self) -> None:
+        httpd, self._httpd = self._httpd, None
+        if httpd is not None:
+            # (shutdown waits for serve_forever's poll, up to half a second: off the loop)
+            await asyncio.get_running_loop().run_in_executor(None, _close, httpd)
+
+
+def _close(httpd: Any) -> None:
+    httpd.shutdown()
+    httpd.server_close()
+
