@@ -128,3 +128,13 @@ def test_bad_options_are_said(tmp_path, launch_file):
     assert "KEY=VALUE" in tool("install", str(path), "--env", "NOEQUALS", "--dry-run").stderr
     assert "--run-as is for a system unit" in tool("install", str(path), "--run-as", "root", "--user-unit",
                                                    "--dry-run").stderr
+
+
+def test_install_metrics_puts_the_address_on_the_launch_command(launch_file):
+    path, _ = launch_file
+    dry = tool("install", str(path), "--user-unit", "--metrics", "0.0.0.0:9180", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    exec_start = next(line for line in dry.stdout.splitlines() if line.startswith("ExecStart="))
+    assert exec_start.endswith(" --screen --metrics 0.0.0.0:9180"), exec_start
+    bad = tool("install", str(path), "--user-unit", "--metrics", "localhost:http", "--dry-run")
+    assert bad.returncode == 2 and "--metrics: the address is [ADDR:]PORT" in bad.stderr

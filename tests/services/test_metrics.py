@@ -1,0 +1,134 @@
+"""services/metrics.py and master/callstats.py: a record's values as samples, the exposition parsed back with
+prometheus_client's own parser, the histogram's buckets, and a scrape of `--metrics` while the loop is busy."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+import urllib.request
+from types import SimpleNamespace
+
+from prometheus_client.parser import text_string_to_metric_families
+
+from launcher.fleet import machine
+from launcher.fleet.machine import Record
+from launcher.fleet.state import NodeStatus, STATES
+from launcher.master.callstats import BUCKETS, OTHER, CallStats
+from launcher.services import metrics
+from launcher.services.metrics import NodeSample, Snapshot, TopicSample
+
+from helpers import free_port
+
+
+def samples(text: str) -> dict:
+    """{(name, sorted labels): value} of an exposition."""
+    out = {}
+    for family in text_string_to_metric_families(text):
+        for s in family.samples:
+            out[(s.name, tuple(sorted(s.labels.items())))] = s.value
+    return out
+
+
+def test_callstats_buckets_are_upper_bounds_and_unknown_methods_are_other():
+    stats = CallStats(["getPid", "lookupNode"])
+    stats.observe("getPid", BUCKETS[0])  # on the bound: in that bucket (le)
+    stats.observe("getPid", BUCKETS[0] * 1.01)
+    stats.observe("getPid", 100.0)  # above every bound
+    for name in ("madeUp1", "madeUp2"):
+        stats.observe(name, 0.0)
+    got = stats.copy()
+    assert set(got) == {"getPid", OTHER}
+    assert got["getPid"].buckets[0] == 1 and got["getPid"].buckets[1] == 1 and got["getPid"].buckets[-1] == 1
+    assert got["getPid"].count == 3 and abs(got["getPid"].total - (BUCKETS[0] * 2.01 + 100.0)) < 1e-9
+    assert got[OTHER].count == 2
+
+
+def _status(record: Record, state: str, cpu_seconds: float = 0.0, rss: int | None = None) -> NodeStatus:
+    status = NodeStatus(record.name, record.process, record.host)
+    status.state, status.cpu_seconds, status.rss = state, cpu_seconds, rss
+    return status
+
+
+def test_a_node_sample_reads_the_record_and_the_masters_registry_until_the_record_says():
+    r = Record("/a", "a-1", "localhost", machine.Rules(), state=machine.RESPAWNING, restarts=4, exit_code=3)
+    s = metrics.node_sample(r, _status(r, "respawning", 1.5), {"/a": object()})
+    assert s == NodeSample("/a", "localhost", "respawning", False, True, 4, 3, 1.5, None)
+    assert metrics.node_sample(r, _status(r, "respawning"), {}).registered is False
+    assert metrics.node_sample(r, _status(r, "respawning"), None).registered is None  # (a master found running)
+    # once the record holds them (issues 33, 34), its own fields win
+    later = SimpleNamespace(**r._asdict(), registered=False, last_exit_code=7)
+    s = metrics.node_sample(later, _status(r, "respawning"), {"/a": object()})
+    assert s.registered is False and s.last_exit_code == 7
+    running = r._replace(state=machine.STOPPING, exit_code=None)
+    assert metrics.node_sample(running, _status(running, "running", 2.0, 1000), None).running
+    remote = r._replace(host="arm.local")
+    assert metrics.node_sample(remote, _status(remote, "respawning"), None).cpu_seconds is None
+
+
+def test_the_exposition_holds_every_family_with_its_labels():
+    snap = Snapshot("run-1", (NodeSample("/sleeper", "localhost", "running", True, True, 0, None, 1.25, 4096),
+                              NodeSample("/crasher", "localhost", "respawning", False, None, 5, 3, 0.5, None)),
+                    (TopicSample("/sleeper", "localhost", "/chatter", 9.5, 0.25),),
+                    {"getPid": metrics.MethodStats((1, 2) + (0,) * (len(BUCKETS) - 1), 0.5)},
+                    (3, 4, 5))
+    got = samples(metrics.exposition(snap).decode())
+    node = (("host", "localhost"), ("node", "/sleeper"))
+    crasher = (("host", "localhost"), ("node", "/crasher"))
+    assert got[("launcher_node_running", node)] == 1 and got[("launcher_node_running", crasher)] == 0
+    assert got[("launcher_node_registered", node)] == 1 and ("launcher_node_registered", crasher) not in got
+    assert got[("launcher_node_restarts_total", crasher)] == 5
+    assert got[("launcher_node_last_exit_code", crasher)] == 3 and ("launcher_node_last_exit_code", node) not in got
+    assert got[("launcher_node_cpu_seconds_total", node)] == 1.25
+    assert got[("launcher_node_resident_memory_bytes", node)] == 4096
+    for n, current in ((node, "running"), (crasher, "respawning")):
+        assert {st: got[("launcher_node_state", tuple(sorted(n + (("state", st),))))] for st in STATES} == \
+            {st: 1.0 if st == current else 0.0 for st in STATES}
+    topic = tuple(sorted(node + (("topic", "/chatter"),)))
+    assert got[("launcher_topic_rate_hertz", topic)] == 9.5
+    assert got[("launcher_topic_seconds_since_message", topic)] == 0.25
+    assert got[("launcher_master_call_duration_seconds_bucket", (("le", "0.0001"), ("method", "getPid")))] == 1
+    assert got[("launcher_master_call_duration_seconds_bucket", (("le", "0.00025"), ("method", "getPid")))] == 3
+    assert got[("launcher_master_call_duration_seconds_bucket", (("le", "+Inf"), ("method", "getPid")))] == 3
+    assert got[("launcher_master_call_duration_seconds_count", (("method", "getPid"),))] == 3
+    assert got[("launcher_master_call_duration_seconds_sum", (("method", "getPid"),))] == 0.5
+    assert (got[("launcher_master_registered_nodes", ())], got[("launcher_master_topics", ())],
+            got[("launcher_master_services", ())]) == (3, 4, 5)
+    assert got[("process_resident_memory_bytes", ())] > 0
+
+
+def test_a_scrape_while_the_loop_is_busy_gets_the_last_snapshot_and_the_loop_is_never_waited_on(monkeypatch):
+    """The scrape's thread asks the loop for a snapshot; a loop busy for longer than SNAPSHOT_WAIT_S gets the
+    last one served, with the process metrics read in the thread."""
+    monkeypatch.setattr(metrics, "SNAPSHOT_WAIT_S", 0.3)
+    calls = []
+
+    class Exporter:
+        def snapshot(self):
+            calls.append(threading.current_thread())
+            return Snapshot("run-%d" % len(calls), ())
+
+    async def main():
+        server = metrics.MetricsServer(Exporter(), "127.0.0.1:%d" % free_port())
+        await server.start()
+        url = server.url
+        loop = asyncio.get_running_loop()
+        try:
+            first = await loop.run_in_executor(None, lambda: urllib.request.urlopen(url, timeout=5).read())
+            assert b'run_id="run-1"' in first
+            answers = []
+            scrape = threading.Thread(target=lambda: answers.append(
+                (urllib.request.urlopen(url, timeout=5).read(), time.monotonic())))
+            started = time.monotonic()
+            scrape.start()
+            time.sleep(1.5)  # the loop blocked: the scrape cannot get a new snapshot
+            scrape.join(5)
+            text, answered = answers[0]
+            assert answered - started < 1.0, "the scrape waited for the busy loop"
+            assert b'run_id="run-1"' in text and b"process_cpu_seconds_total" in text
+        finally:
+            await server.stop()
+        return calls
+
+    calls = asyncio.run(main())
+    assert all(t is threading.main_thread() for t in calls)  # (snapshots only ever taken on the loop)
