@@ -26,6 +26,7 @@ from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
+from launcher.services import runrecord
 from launcher.remote.parent import RemoteParent
 from launcher.model.runopts import RunOptions
 
@@ -115,6 +116,21 @@ class NodeService:
             if spec.stdout_path:
                 self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
         self.rotator.start()
+        self._write_record()
+
+    def _write_record(self) -> None:
+        """The run's record and parameters into its log directory (services/runrecord.py), in a worker thread."""
+        run_dir = self.log.run_dir
+        if not run_dir:
+            return
+        run = runrecord.record(self.plan.config, os.path.basename(run_dir), self.plan.environ, self._packages, sys.argv)
+
+        def written(done: asyncio.Future) -> None:
+            problem = done.result() if not done.cancelled() and done.exception() is None else str(done.exception())
+            if problem:
+                console.printerrlog("WARNING: %s (launcher report will miss it)" % problem)
+        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config)
+        task.add_done_callback(written)
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:
         """What this run is, for the launch log: files, args, environment, parameters, command lines."""
