@@ -236,8 +236,26 @@ def core_dumps(launch_logs: list[str]) -> list[dict[str, str]]:
             words = shlex.split(commands.get(core["process"], ""))
         except ValueError:
             words = commands.get(core["process"], "").split()
-        core["executable"] = words[0] if words else ""
+        core["executable"] = executable(words[0]) if words else ""
     return cores
+
+
+def executable(path: str) -> str:
+    """The program that dumped the core: `path`, or the interpreter its `#!` line names (a script's core is its
+    interpreter's: gdb needs that one's symbols)."""
+    try:
+        with open(path, "rb") as f:
+            first = f.readline(256)
+    except OSError:
+        return path
+    if not first.startswith(b"#!"):
+        return path
+    words = first[2:].decode("utf-8", "replace").split()
+    if not words:
+        return path
+    if os.path.basename(words[0]) == "env" and len(words) > 1:
+        return shutil.which(words[1]) or words[1]
+    return words[0]
 
 
 def backtrace(core: dict[str, str]) -> str:

@@ -128,3 +128,34 @@ def test_a_long_output_is_cut_to_its_last_10_mb_from_a_line_start(tmp_path, monk
     entry = next(f for f in manifest["files"] if f["name"] == "log/node-1-stdout.log")
     assert entry["truncated"] == "the last 1000 of %d bytes" % len(lines)
     assert "params_missing" in manifest and "record_missing" in manifest
+
+
+Aborter = "#!%s\nimport os, time\ntime.sleep(0.5)\nos.abort()\n" % ROS_PYTHON
+
+
+def test_a_core_dump_is_in_the_report_as_its_backtrace_not_the_core(tmp_path, ros_env):
+    import resource
+    import shutil
+    if resource.getrlimit(resource.RLIMIT_CORE)[1] == 0:
+        pytest.skip("the hard core limit is 0 here: no process may dump core")
+    if shutil.which("gdb") is None:
+        pytest.skip("gdb is not installed")
+    if open("/proc/sys/kernel/core_pattern").read().startswith("|"):
+        pytest.skip("cores are piped to a handler here, not written as files")
+    make_package(str(tmp_path / "pkgs"), "report_tests", {"aborter": Aborter})
+    port = free_port()
+    env = env_of(str(tmp_path), port, str(tmp_path / "pkgs"))
+    path = write_launch(str(tmp_path), '<node pkg="report_tests" type="aborter" name="aborter" required="true" '
+                        'enable_coredumps="true" cwd="node"/>')
+    lp = Launcher(["-p", str(port), path], env, str(tmp_path))
+    try:
+        lp.wait_output("dumped core", stream="stderr")
+        lp.wait(30)
+    finally:
+        lp.close()
+    done = report(env, str(tmp_path), "-o", str(tmp_path / "r.tar.gz"))
+    assert done.returncode == 0, done.stderr
+    files = members(str(tmp_path / "r.tar.gz"))
+    (trace,) = [data for name, data in files.items() if name.startswith("backtraces/")]
+    assert b"aborter-2: signal 6, core dumped to " in trace and b"#0 " in trace and b"abort" in trace
+    assert not any(os.path.basename(n).startswith("core") for n in files)
