@@ -97,6 +97,28 @@ def test_the_exposition_holds_every_family_with_its_labels():
     assert got[("process_resident_memory_bytes", ())] > 0
 
 
+def test_a_family_is_formatted_again_only_when_its_values_change(monkeypatch):
+    node = NodeSample("/a", "localhost", "running", True, True, 0, None, 1.0, 4096)
+    formatter = metrics.Formatter()
+    built = []
+
+    def counted(name, build):
+        def counting(key):
+            built.append(name)
+            return build(key)
+        return counting
+    monkeypatch.setattr(metrics, "FAMILIES", [(name, key_of, counted(name, build))
+                                              for name, key_of, build in metrics.FAMILIES])
+    first = samples(formatter.render(Snapshot("r", (node,))).decode())
+    assert first[("launcher_node_cpu_seconds_total", (("host", "localhost"), ("node", "/a")))] == 1.0
+    built.clear()
+    later = samples(formatter.render(Snapshot("r", (node._replace(cpu_seconds=2.5, state="hung"),))).decode())
+    assert sorted(built) == ["cpu", "state"]
+    assert later[("launcher_node_cpu_seconds_total", (("host", "localhost"), ("node", "/a")))] == 2.5
+    assert later[("launcher_node_state", (("host", "localhost"), ("node", "/a"), ("state", "hung")))] == 1.0
+    assert later[("launcher_node_running", (("host", "localhost"), ("node", "/a")))] == 1.0  # (kept)
+
+
 def test_a_scrape_while_the_loop_is_busy_gets_the_last_snapshot_and_the_loop_is_never_waited_on(monkeypatch):
     """The scrape's thread asks the loop for a snapshot; a loop busy for longer than SNAPSHOT_WAIT_S gets the
     last one served, with the process metrics read in the thread."""
@@ -104,6 +126,8 @@ def test_a_scrape_while_the_loop_is_busy_gets_the_last_snapshot_and_the_loop_is_
     calls = []
 
     class Exporter:
+        formatter = metrics.Formatter()
+
         def snapshot(self):
             calls.append(threading.current_thread())
             return Snapshot("run-%d" % len(calls), ())
