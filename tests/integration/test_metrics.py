@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import urllib.request
 import pytest
 
 from conftest import skip_unless_ros_required
+from readme import section
 from helpers import ROS_PYTHON, free_port, until
 from running import Launcher, make_package, ros_env, write_launch
 
@@ -138,6 +140,14 @@ def test_prometheus_scrapes_a_launch_every_second(tmp_path, ros_env):
         assert q('process_resident_memory_bytes{job="launch"}') > 0
         assert q('process_cpu_seconds_total{job="launch"}') is not None
         assert int(q('process_open_fds{job="launch"}')) > 0
+
+        # the README's query of each family: Prometheus takes each, and the node families' give an answer here
+        rows = [line.split("|") for line in section("Metrics for Prometheus").splitlines() if line.startswith("| `")]
+        queries = [re.search(r"`([^`]+)`", row[2]).group(1) for row in rows]
+        assert len(queries) >= 12
+        for promql in queries:
+            prom.query(promql)  # (asserts Prometheus's "success")
+        assert prom.query("sum by (state) (launcher_node_state)")
 
         # the web page's server: the same metrics, read-only, with no token
         text = until(lambda: get("http://127.0.0.1:%d/metrics" % web_port).decode(), 30, 0.5, "the page's /metrics",
