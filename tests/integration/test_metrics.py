@@ -17,7 +17,7 @@ import pytest
 from conftest import skip_unless_ros_required
 from readme import section
 from helpers import ROS_PYTHON, free_port, until
-from running import Launcher, make_package, ros_env, write_launch
+from running import Launcher, RospyTalker, make_package, ros_env, write_launch
 
 pytestmark = pytest.mark.integration
 
@@ -89,12 +89,14 @@ class Prometheus:
 
 
 def test_prometheus_scrapes_a_launch_every_second(tmp_path, ros_env):
-    make_package(str(tmp_path / "pkgs"), "metrics_tests", {"sleeper": Sleeper, "crasher": Crasher})
+    talker = RospyTalker.replace("#!/usr/bin/env python3", "#!" + ROS_PYTHON)  # (20 Hz on chatter)
+    make_package(str(tmp_path / "pkgs"), "metrics_tests", {"sleeper": Sleeper, "crasher": Crasher, "talker": talker})
     master_port, metrics_port, web_port = free_port(), free_port(), free_port()
     env = ros_env_of(tmp_path, master_port)
     path = write_launch(str(tmp_path), """
       <node pkg="metrics_tests" type="sleeper" name="sleeper"/>
-      <node pkg="metrics_tests" type="crasher" name="crasher" respawn="true" respawn_delay="2"/>""")
+      <node pkg="metrics_tests" type="crasher" name="crasher" respawn="true" respawn_delay="2"/>
+      <node pkg="metrics_tests" type="talker" name="talker" watch_topic="chatter" watch_window="2"/>""")
     lp = Launcher(["-p", str(master_port), "--metrics", str(metrics_port), "--web", str(web_port), path], env,
                   str(tmp_path))
     prom = None
@@ -122,13 +124,18 @@ def test_prometheus_scrapes_a_launch_every_second(tmp_path, ros_env):
         until(lambda: q('launcher_node_last_exit_code{node="/crasher"}') == 3, 30, 0.5, "the crasher's exit code 3",
               ok)
 
+        # the watched topic's rate (over its 2 s window) and silence
+        until(lambda: 10 <= (q('launcher_topic_rate_hertz{node="/talker",topic="/chatter"}') or 0) <= 30, 30, 0.5,
+              "the talker's 20 Hz", ok)
+        assert q('launcher_topic_seconds_since_message{node="/talker",topic="/chatter"}') < 1.5
+
         # each node's state series: one per public state, and they sum to 1
         states = prom.query('launcher_node_state{node=~"/sleeper|/crasher"}')
         assert {(s["metric"]["node"], s["metric"]["state"]) for s in states} == {
             (n, st) for n in ("/sleeper", "/crasher")
             for st in ("waiting", "running", "respawning", "exited", "fatal", "hung", "stalled", "stopped")}
         sums = {s["metric"]["node"]: float(s["value"][1]) for s in prom.query("sum by (node) (launcher_node_state)")}
-        assert sums == {"/sleeper": 1.0, "/crasher": 1.0}
+        assert sums == {"/sleeper": 1.0, "/crasher": 1.0, "/talker": 1.0}
 
         # the master's latency histogram (the sleeper registered through it) and the launcher's own process
         buckets = prom.query('launcher_master_call_duration_seconds_bucket{method="registerPublisher"}')
