@@ -29,10 +29,8 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import socket
-import socketserver
 import sys
 import threading
-from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 from typing import Any, Callable, NamedTuple
 
 from launcher import __version__
@@ -303,15 +301,6 @@ def parse_address(text: str) -> tuple[str, int]:
     return (host.strip("[]") if sep and host else "127.0.0.1"), int(port)
 
 
-class _ThreadingServer(socketserver.ThreadingMixIn, WSGIServer):
-    daemon_threads = True  # (a scrape under way never holds the launch's exit)
-
-
-class _QuietHandler(WSGIRequestHandler):
-    def log_message(self, format: str, *args: Any) -> None:  # (no line per scrape on the launch's stderr)
-        pass
-
-
 class MetricsServer:
     """`launch --metrics [ADDR:]PORT`: /metrics served by the standard library's WSGI server in a thread (a thread
     per scrape), the text made there by prometheus_client."""
@@ -341,11 +330,20 @@ class MetricsServer:
         console.printlog("metrics at %s" % self.url)
 
     def _serve(self) -> Any:
-        import prometheus_client  # noqa: F401 - (imported here, off the loop: the first scrape does not wait for it)
+        # (imported here, off the loop and only with --metrics: http.server costs a launch ~45 ms; and the first
+        # scrape does not wait for prometheus_client)
+        import prometheus_client  # noqa: F401
+        import socketserver
+        from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
-        class Server(_ThreadingServer):
+        class Server(socketserver.ThreadingMixIn, WSGIServer):
             address_family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
-        httpd = make_server(self.host, self.port, self._app, Server, handler_class=_QuietHandler)
+            daemon_threads = True  # (a scrape under way never holds the launch's exit)
+
+        class QuietHandler(WSGIRequestHandler):
+            def log_message(self, format: str, *args: Any) -> None:  # (no line per scrape on the launch's stderr)
+                pass
+        httpd = make_server(self.host, self.port, self._app, Server, handler_class=QuietHandler)
         threading.Thread(target=httpd.serve_forever, name="launcher-metrics", daemon=True).start()
         return httpd
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import sys
 import time
 from typing import Any
@@ -26,7 +25,7 @@ from launcher.workspace.roshome import PARAMS_FILE, RUN_RECORD_FILE, ros_environ
 def record(config: Any, run_id: str, environ: dict[str, str], packages: dict[str, str], argv: list[str]) -> dict:
     """The run's record (`launcher-run.json`)."""
     return {"run_id": run_id, "time": round(time.time(), 3), "pid": os.getpid(), "argv": list(argv),
-            "launcher": __version__, "python": sys.version.split()[0], "platform": platform.platform(),
+            "launcher": __version__, "python": sys.version.split()[0], "platform": " ".join(os.uname()[i] for i in (0, 2, 3, 4)),
             "launch_files": list(config.files), "yaml_files": list(config.yaml_files),
             "packages": sorted({p for p in packages.values() if p}), "environment": ros_environment(environ)}
 
