@@ -134,14 +134,13 @@ Aborter = "#!%s\nimport os, time\ntime.sleep(0.5)\nos.abort()\n" % ROS_PYTHON
 
 
 def test_a_core_dump_is_in_the_report_as_its_backtrace_not_the_core(tmp_path, ros_env):
+    """With cores written as files and gdb here (CI installs it), gdb's backtrace; a core piped to a handler
+    (systemd-coredump, apport) gets what that handler tells, or where the core is."""
     import resource
     import shutil
     if resource.getrlimit(resource.RLIMIT_CORE)[1] == 0:
-        pytest.skip("the hard core limit is 0 here: no process may dump core")
-    if shutil.which("gdb") is None:
-        pytest.skip("gdb is not installed")
-    if open("/proc/sys/kernel/core_pattern").read().startswith("|"):
-        pytest.skip("cores are piped to a handler here, not written as files")
+        pytest.skip("the hard core limit is 0 here: no process may dump core (as tests/process/test_coredumps.py)")
+    piped = open("/proc/sys/kernel/core_pattern").read().startswith("|")
     make_package(str(tmp_path / "pkgs"), "report_tests", {"aborter": Aborter})
     port = free_port()
     env = env_of(str(tmp_path), port, str(tmp_path / "pkgs"))
@@ -157,5 +156,11 @@ def test_a_core_dump_is_in_the_report_as_its_backtrace_not_the_core(tmp_path, ro
     assert done.returncode == 0, done.stderr
     files = members(str(tmp_path / "r.tar.gz"))
     (trace,) = [data for name, data in files.items() if name.startswith("backtraces/")]
-    assert b"aborter-2: signal 6, core dumped to " in trace and b"#0 " in trace and b"abort" in trace
+    assert b"aborter-2: signal 6, " in trace
+    if not piped:
+        assert b"core dumped to " in trace
+        if shutil.which("gdb") is not None:
+            assert b"#0 " in trace and b"abort" in trace
+        else:
+            assert b"gdb is not installed" in trace
     assert not any(os.path.basename(n).startswith("core") for n in files)
