@@ -4,7 +4,7 @@
 One launch of N idle nodes (each a `sleep`, a process per node, in a scratch package) with our own master and
 `--metrics`. Once every node has started and a settle time has passed, windows of --window seconds alternate,
 --pairs times: in one a scraper GETs /metrics every second (as Prometheus would: a new connection each time), in the
-other nobody does. Throughout, a client calls the master about 50 times a second (getSystemState and lookupNode in
+other nobody does (the scraper is a process of its own, as Prometheus is). Throughout, a client calls the master about 50 times a second (getSystemState and lookupNode in
 turn, a new connection each), and the launching process's CPU (all its threads: the scrapes run in threads of
 its own) is read from /proc/PID/task/*/schedstat at each window's edges.
 
@@ -100,25 +100,41 @@ class Caller(threading.Thread):
             time.sleep(max(0.0, started + 0.02 - time.monotonic()))
 
 
-class Scraper(threading.Thread):
-    def __init__(self, url: str):
-        super().__init__(daemon=True)
-        self.url = url
-        self.on = threading.Event()
-        self.stop = threading.Event()
-        self.sizes: list[int] = []
-        self.times: list[float] = []
+SCRAPER = """
+import sys, time, urllib.request
+url, accept = sys.argv[1], sys.argv[2]
+while True:
+    started = time.monotonic()
+    with urllib.request.urlopen(urllib.request.Request(url, headers={"Accept": accept}), timeout=10) as answer:
+        size = len(answer.read())
+    print(size, time.monotonic() - started, flush=True)
+    time.sleep(max(0.0, started + 1.0 - time.monotonic()))
+"""
 
-    def run(self) -> None:
-        while not self.stop.is_set():
-            if not self.on.wait(0.1):
-                continue
-            started = time.monotonic()
-            request = urllib.request.Request(self.url, headers={"Accept": ACCEPT})
-            with urllib.request.urlopen(request, timeout=10) as answer:
-                self.sizes.append(len(answer.read()))
-            self.times.append(time.monotonic() - started)
-            time.sleep(max(0.0, started + 1.0 - time.monotonic()))
+
+class Scraper:
+    """A process apart that GETs /metrics every second, as Prometheus would (in the benchmark's own process its
+    reading of the text would hold the GIL of the client timing the master)."""
+
+    def __init__(self, url: str, root: str):
+        self.url = url
+        self.log = os.path.join(root, "scrapes.txt")
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        with open(self.log, "a") as out:
+            self.proc = subprocess.Popen([sys.executable, "-c", SCRAPER, self.url, ACCEPT], stdout=out)
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            self.proc.terminate()
+            self.proc.wait()
+            self.proc = None
+
+    def results(self) -> tuple[list[int], list[float]]:
+        with open(self.log) as f:
+            rows = [line.split() for line in f if line.strip()]
+        return [int(r[0]) for r in rows], [float(r[1]) for r in rows]
 
 
 def pct(values: list[float], q: float) -> float:
@@ -164,7 +180,7 @@ def main() -> int:
                              "--skip-log-check", "--metrics", str(metrics_port)], env=env, stdout=out,
                             stderr=subprocess.STDOUT, start_new_session=True)
     caller = Caller(uri)
-    scraper = Scraper("http://127.0.0.1:%d/metrics" % metrics_port)
+    scraper = Scraper("http://127.0.0.1:%d/metrics" % metrics_port, root)
     try:
         deadline = time.monotonic() + 300
         while True:
@@ -177,22 +193,20 @@ def main() -> int:
             time.sleep(0.5)
         time.sleep(o.settle)
         caller.start()
-        scraper.start()
         cpu: dict[str, list[float]] = {"scraped": [], "not scraped": []}
         lat: dict[str, list[float]] = {"scraped": [], "not scraped": []}
         for pair in range(o.pairs):
             for kind in (("scraped", "not scraped") if pair % 2 == 0 else ("not scraped", "scraped")):
                 if kind == "scraped":
-                    scraper.on.set()
-                else:
-                    scraper.on.clear()
-                time.sleep(1.0)  # (a scrape under way ends; the first of a window begins)
+                    scraper.start()
+                time.sleep(1.0)  # (the scraper's start, or the last scrape's end, is outside the window)
                 window: list[float] = []
                 c0, t0 = cpu_seconds(proc.pid), time.monotonic()
                 caller.window = window
                 time.sleep(o.window)
                 caller.window = None
                 c1, t1 = cpu_seconds(proc.pid), time.monotonic()
+                scraper.stop()
                 cpu[kind].append(100.0 * (c1 - c0) / (t1 - t0))
                 lat[kind] += window
                 print("  pair %d %-11s launcher cpu %5.2f %% of a core, master p99 %6.2f ms (%d calls)"
@@ -201,7 +215,8 @@ def main() -> int:
             raise SystemExit("the launch ended early (%s)" % proc.returncode)
     finally:
         caller.stop.set()
-        scraper.stop.set()
+        scraper.stop()
+        sizes, times = scraper.results() if os.path.exists(scraper.log) else ([], [])
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGINT)
             try:
@@ -218,8 +233,8 @@ def main() -> int:
     ratio = pct(lat["scraped"], 0.99) / max(pct(lat["not scraped"], 0.99), 1e-6)
     print("%d nodes: a scrape a second costs %.2f %% of a core (goal <= 1); master p99 scraped / not: x%.3f "
           "(goal <= 1.10); %d scrapes of %d kB, each answered in %.1f ms (median)"
-          % (o.n, cost, ratio, len(scraper.times), statistics.median(scraper.sizes) // 1000 if scraper.sizes else 0,
-             statistics.median(scraper.times) * 1000 if scraper.times else 0))
+          % (o.n, cost, ratio, len(times), statistics.median(sizes) // 1000 if sizes else 0,
+             statistics.median(times) * 1000 if times else 0))
     if o.formatting:
         ms = formatting(o.n)
         print("formatting a %d-node snapshot whose every CPU and memory value moved: %.1f ms, %.2f %% of a core at "
