@@ -67,7 +67,11 @@ MAY_IMPORT = {_ + part: {_ + d for d in deps.split()} for part, deps in {
     "api": "model workspace operate",  # a run needs the main thread's signals: the API runs `launch` as a child
     "pytest_plugin": "api",
     "__main__": "cli",
+    "compat": "",  # what differs between Python 3.8 and 3.13: below every part, which all may import
 }.items()}
+for _part in MAY_IMPORT:
+    if _part != _ + "compat":
+        MAY_IMPORT[_part].add(_ + "compat")
 # module -> the only modules of ours it may import: the bottom of the tree, which everything else stands on
 ONLY = {_ + module: {_ + d for d in deps.split()} for module, deps in {
     "model.names": "", "model.errors": "", "model.units": "", "model.suggest": "", "model.shellwords": "",

@@ -71,8 +71,10 @@ def record_main(argv: list[str]) -> int:
         p.error("you must specify a topic name, -a or --node")
     if o.buffsize < 0 or o.chunksize <= 0:
         p.error("-b/--buffsize must be 0 (unbounded) or more, and --chunksize more than 0")
-    if (o.size or o.duration or o.max_splits) and not o.split:
-        p.error("--size, --duration and --max-splits need --split")
+    if o.split and not (o.size or o.duration):
+        p.error("Split specified without giving a maximum duration or size")  # (rosbag's words)
+    if o.max_splits and not o.split:
+        p.error("--max-splits needs --split")
     opts = record.RecordOptions(
         topics=[] if o.regex else record.resolve_topics(o.topics, ros.name), all=o.all,
         regex=o.topics if o.regex else [], exclude=o.exclude, output_name=o.output_name,

@@ -20,6 +20,7 @@ import tty
 from collections.abc import Iterator
 from typing import Any
 
+from launcher import compat
 from launcher.model import names
 from launcher.bag import rosargs
 from launcher.bag.info import BagError, open_bag
@@ -83,10 +84,10 @@ class Player:
         self.remaps = remaps
         self.pubs: dict[tuple[int, int], Publication] = {}  # (reader, connection id) -> publication
         self.clock: Publication | None = None
-        self.stop = asyncio.Event()
+        self.stop = compat.Event()
         self.paused = opts.pause
         self.step = False
-        self.resumed = asyncio.Event()
+        self.resumed = compat.Event()
         self.published = 0
         self._progress_at = 0.0
         # rosbag's status line, rewritten in place: on a terminal only (in a pipe or a log it is noise)

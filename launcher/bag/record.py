@@ -29,8 +29,10 @@ from typing import Any, NamedTuple
 
 from rosbags.rosbag1 import Writer
 from rosbags.rosbag1.reader import RecordType
-from rosbags.rosbag1.writer import MAXSIZE, Header, WriteChunk, serialize_time, serialize_uint32
+from rosbags.rosbag1.writer import Header, WriteChunk, serialize_time, serialize_uint32
 
+from launcher import compat
+from launcher.compat import to_thread
 from launcher.model import names
 from launcher.bag import rosargs
 from launcher.bag.buffer import Buffer, Queued
@@ -143,6 +145,12 @@ class DiskFile:
             os.close(self.fd)
 
 
+def _new_chunk() -> WriteChunk:
+    """An empty chunk as rosbags' writer starts one: its start time above any stamp, lowered by the first
+    message (rosbags' own constant for it is 2**64 in 0.9, MAXSIZE in 0.11; any value past every stamp will do)."""
+    return WriteChunk(BytesIO(), -1, 2**63 - 1, 0, defaultdict(list))
+
+
 class BagFile:
     """One bag being written: its connections (one per topic and publisher header) and its size."""
 
@@ -216,7 +224,7 @@ class BagFile:
         chunk.start = chunk.end = stamp_ns
         chunk.connections[conn.id].append((stamp_ns, 0))
         chunk.data.close()
-        writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
+        writer.chunks.append(_new_chunk())
 
     @property
     def size(self) -> int:
@@ -235,7 +243,7 @@ class BagFile:
         try:
             self.disk.cut()
             writer.chunks = [c for c in writer.chunks if c.pos != -1 and c.pos < self.disk.synced]
-            writer.chunks.append(WriteChunk(BytesIO(), -1, MAXSIZE, 0, defaultdict(list)))
+            writer.chunks.append(_new_chunk())
             writer.close()
             os.rename(self.active, self.path)
             return True
@@ -267,7 +275,7 @@ class Recorder:
         self.counts: dict[str, int] = {}   # per topic, for -l
         self.full: set[str] = set()        # topics that reached -l
         self.failed: str | None = None
-        self.done = asyncio.Event()
+        self.done = compat.Event()
         self.loop = asyncio.get_running_loop()
         self.buffer = Buffer(opts.buffer_size)
         self.writer: threading.Thread | None = None
@@ -357,10 +365,13 @@ class Recorder:
         bag = self.bag
         if bag is None:
             return
-        # As rosbag: the message that finds the bag full or old enough opens the next one.
-        if self.opts.split and (
-                (self.opts.size and bag.size >= self.opts.size)
-                or (self.opts.duration and time.monotonic() - bag.started >= self.opts.duration)):
+        # As rosbag: the message that finds the bag full or old enough opens the next one, or, without --split,
+        # ends the recording (`--duration 30` alone records 30 s).
+        if (self.opts.size and bag.size >= self.opts.size) or (
+                self.opts.duration and time.monotonic() - bag.started >= self.opts.duration):
+            if not self.opts.split:
+                self.loop.call_soon_threadsafe(self.done.set)
+                return
             try:
                 self._split()
             except OSError as exc:
@@ -449,7 +460,7 @@ class Recorder:
             await sub.drain()
         # ...and what the buffer holds (rosbag's writer too empties its queue before it closes the bag)
         self.buffer.close()
-        await asyncio.to_thread(self.writer.join)
+        await to_thread(self.writer.join)
         if self.buffer.total_dropped:
             self.say("[ WARN] [%.9f]: %d messages were dropped: the buffer (-b %d MB) was full"
                      % (time.time(), self.buffer.total_dropped, self.opts.buffer_size >> 20))

@@ -1,7 +1,7 @@
 """`launcher doctor [pkg] [file.launch]`: the set-up mistakes newcomers hit most, found before a launch, each with its fix.
 
 Each check says `ok`, `note` or `problem` in one line, and a problem says what
-to do. Checks: the machine's host name, ROS_HOSTNAME and ROS_IP (they must
+to do. Checks: which Python runs the launcher; the machine's host name, ROS_HOSTNAME and ROS_IP (they must
 resolve to an address of this machine, or nodes cannot be reached: "Unable to
 contact my own server"); ROS_MASTER_URI (its host resolves; a master answers, or
 one can be started here); ROS_PACKAGE_PATH (each entry holds packages: an empty
@@ -53,6 +53,7 @@ def main(argv: list[str]) -> int:
         return 0
     environ = dict(os.environ)
     report = Report()
+    check_launcher_python(report)
     local = _local_addresses()
     check_host_names(report, environ, local)
     check_master(report, environ, local)
@@ -63,6 +64,16 @@ def main(argv: list[str]) -> int:
         check_launch(report, argv, environ, packages)
     print("%d problem%s found" % (report.problems, "" if report.problems == 1 else "s"))
     return 1 if report.problems else 0
+
+
+def check_launcher_python(report: Report) -> None:
+    """Which Python runs the launcher (the nodes run their own: a `#!/usr/bin/env python3` finds the system's)."""
+    version = "%d.%d.%d" % sys.version_info[:3]
+    if sys.version_info < (3, 8):
+        report.say(PROBLEM, "the launcher runs on Python %s (%s), older than it supports" % (version, sys.executable),
+                   "install it with Python 3.8 or newer")
+    else:
+        report.say(OK, "the launcher runs on Python %s (%s)" % (version, sys.executable))
 
 
 def _local_addresses() -> set[str]:

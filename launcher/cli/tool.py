@@ -9,6 +9,7 @@ that `launcher status` does not pay for the test runner. A subcommand is
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 from launcher import __version__
@@ -78,7 +79,15 @@ def main(argv: list[str] | None = None) -> int:
               "installed for, or install its dependencies here (pip install ros1-launcher)"
               % (args[0], sys.executable, e.name), file=sys.stderr)
         return 1
-    return getattr(module, function or "main")(args[1:])
+    try:
+        status = getattr(module, function or "main")(args[1:])
+        sys.stdout.flush()  # (here, where a reader that left is caught, rather than at the interpreter's exit)
+        return status
+    except BrokenPipeError:
+        # `launcher doctor | head`: the reader left, which is no error. What is still buffered goes nowhere, so
+        # that the interpreter's own flush at exit has nothing to say either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":

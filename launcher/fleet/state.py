@@ -39,6 +39,7 @@ import json
 import time
 from typing import Callable, Iterable, NamedTuple
 
+from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
 
@@ -165,7 +166,7 @@ class Fleet:
         self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
-        self.done = asyncio.Event()
+        self.done = compat.Event()
         # the launch's exit status when a node ended it: a required node's own exit code (128 + the
         # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
         self.exit_status = 0
@@ -277,7 +278,7 @@ class Fleet:
         if self.seq > seq:
             return
         if self._changed is None:
-            self._changed = asyncio.Event()
+            self._changed = compat.Event()
         self._changed.clear()
         try:
             await asyncio.wait_for(self._changed.wait(), timeout)

@@ -7,6 +7,7 @@ import os
 import socket
 from typing import Any, Mapping, NamedTuple
 
+from launcher import compat
 from launcher.master.api import MasterApi, unsendable
 from launcher.master.callstats import CallStats
 from launcher.master.masterlog import mlog
@@ -99,7 +100,7 @@ class Master:
         self._uri_host = uri_host
         self._notify_timeout = notify_timeout
         self.uri: str = ""
-        self.shutdown_requested = asyncio.Event()
+        self.shutdown_requested = compat.Event()
         self.shutdown_reason = ""  # the message of the `shutdown` call that set shutdown_requested
         self._server: Any = None
         self._notifier: Any = None

@@ -11,9 +11,9 @@ working.
 from __future__ import annotations
 
 import ipaddress
-from typing import Iterable
+from typing import Iterable, Union
 
-_Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+_Network = Union[ipaddress.IPv4Network, ipaddress.IPv6Network]
 _LOOPBACK = ("127.0.0.0/8", "::1/128")
 
 

@@ -9,6 +9,7 @@ import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from launcher import compat
 from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
@@ -122,7 +123,7 @@ class SlaveNode:
         self.tcpros = TcprosServer(name, self.host)
         self.subscriptions: dict[str, Subscription] = {}
         self.param_callbacks: dict[str, Callable[[Any], None]] = {}
-        self.shutdown_requested = asyncio.Event()
+        self.shutdown_requested = compat.Event()
         self.shutdown_reason = ""
         self._xmlrpc: Any = None
 

@@ -23,6 +23,7 @@ import socket
 import time
 from typing import Any
 
+from launcher.compat import P_PIDFD
 from launcher.output import console
 
 CORE_PATTERN = "/proc/sys/kernel/core_pattern"
@@ -94,7 +95,7 @@ class CoreDumpReporter:
         if not proc.spec.policy.enable_coredumps or proc.pidfd is None:
             return
         try:
-            info = os.waitid(os.P_PIDFD, proc.pidfd, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+            info = os.waitid(P_PIDFD, proc.pidfd, os.WEXITED | os.WNOHANG | os.WNOWAIT)
         except (OSError, AttributeError):
             return
         if info is None or info.si_code != os.CLD_DUMPED:

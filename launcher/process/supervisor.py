@@ -39,6 +39,7 @@ import subprocess
 from collections import deque
 from typing import Callable
 
+from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
 from launcher.fleet import machine, restart, state
 from launcher.fleet.machine import Event
@@ -381,7 +382,7 @@ class Supervisor:
         proc.alive = proc.group_alive = True
         proc.sigkilled = False
         try:
-            proc.pidfd = os.pidfd_open(popen.pid)
+            proc.pidfd = pidfd_open(popen.pid)
             self.loop.add_reader(proc.pidfd, self._on_exit, proc)
         except OSError:
             # pidfd unavailable (very old kernel): fall back to a waiter thread

@@ -22,6 +22,7 @@ import stat
 import tempfile
 from typing import Any
 
+from launcher import compat
 from launcher.model.errors import LaunchError
 from launcher.net.slave import default_host
 from launcher.net.xmlrpc import Fault, call
@@ -73,8 +74,8 @@ class Child:
         self.log = RunLog(self.environ)
         self.fleet: Fleet | None = None
         self.supervisor: Supervisor | None = None
-        self.stop = asyncio.Event()
-        self._to_parent: asyncio.Queue = asyncio.Queue()
+        self.stop = compat.Event()
+        self._to_parent: asyncio.Queue = compat.Queue()
         self._number = 0  # process numbering, as a roslaunch child's: talker-1, listener-2, ...
 
     async def main(self) -> int:

@@ -53,6 +53,7 @@ import os
 import signal
 from typing import Any, Callable, Mapping, NamedTuple
 
+from launcher import compat
 from launcher.model.config import Machine, Node, NodePolicy
 from launcher.model.errors import LaunchError
 from launcher.net.xmlrpc import Fault, call
@@ -167,10 +168,10 @@ class RemoteChild:
         self.machine = machine
         self.nodes = [RemoteNode(n, self) for n in nodes]
         self.uri: str | None = None
-        self.registered: asyncio.Event = asyncio.Event()
+        self.registered: asyncio.Event = compat.Event()
         self.ssh: asyncio.subprocess.Process | None = None
         self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
-        self.wanted = asyncio.Event()  # a node is queued (pending or lost): a session is needed
+        self.wanted = compat.Event()  # a node is queued (pending or lost): a session is needed
         self.session = session.Session()  # this machine's session with its child (remote.session)
         self.launching: asyncio.Task | None = None
         self.task: asyncio.Task | None = None
@@ -207,7 +208,7 @@ class RemoteParent:
         # a second; that second overlaps the master's start and the parameters), but get their
         # nodes only once the parameters are set
         self.fleet: state.Fleet = None  # type: ignore[assignment]
-        self.attached = asyncio.Event()
+        self.attached = compat.Event()
         self.watchdog = watchdog
         self.sigint_timeout = sigint_timeout
         self.sigterm_timeout = sigterm_timeout

@@ -14,6 +14,8 @@ from typing import NamedTuple
 
 from lxml import etree
 
+from launcher.compat import removeprefix
+
 # rosunit's rule (#576) for a test name inside a file name
 _FILENAME_UNSAFE = ' "\'&$!`/\\'
 
@@ -95,7 +97,7 @@ def read_result_file(path: str, prefix: str | None = None) -> tuple[CaseResult, 
     if root is None or root.tag not in ("testsuite", "testsuites"):
         raise ValueError("test results [%s] hold no <testsuite>" % path)
     prefix = prefix or "%s.%s" % (os.path.basename(os.path.dirname(os.path.abspath(path))),
-                        os.path.splitext(os.path.basename(path))[0].removeprefix("TEST-"))
+                        removeprefix(os.path.splitext(os.path.basename(path))[0], "TEST-"))
     cases = []
     for case in root.iter("testcase"):
         classname = case.get("classname") or "unknown"

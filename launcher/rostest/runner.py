@@ -31,6 +31,7 @@ import tempfile
 import time
 from typing import Any
 
+from launcher.compat import pidfd_open
 from launcher.services import masterlink
 from launcher.model.runopts import RunOptions
 from launcher.process.command import node_command
@@ -166,7 +167,7 @@ class TestAttempt:
             return
         loop = asyncio.get_running_loop()
         exited = loop.create_future()
-        pidfd = os.pidfd_open(popen.pid)
+        pidfd = pidfd_open(popen.pid)
         loop.add_reader(pidfd, lambda: exited.done() or exited.set_result(None))
         try:
             limit = test.time_limit if test.time_limit is not None else DEFAULT_TIME_LIMIT

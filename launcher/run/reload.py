@@ -25,6 +25,8 @@ import asyncio
 import time
 from typing import Any
 
+from launcher import compat
+from launcher.compat import to_thread
 from launcher.model.errors import LaunchError
 from launcher.output import console
 from launcher.plan.diff import Difference, difference, lines
@@ -36,7 +38,7 @@ class Reloader:
 
     def __init__(self, run: Any):
         self.run = run  # runtime.Run: its plan, master session, nodes, log, systemd notifier
-        self._lock = asyncio.Lock()
+        self._lock = compat.Lock()
 
     async def reload(self, given: list[str], dry_run: bool) -> dict:
         """{"ok": bool, "error": text, "warnings": [...], "difference": Difference.as_dict(), "lines": [...],
@@ -52,7 +54,7 @@ class Reloader:
             warnings: list[str] = []
             started = time.monotonic()
             try:
-                new, diff = await asyncio.to_thread(self._load, old, given, warnings.append)
+                new, diff = await to_thread(self._load, old, given, warnings.append)
             except LaunchError as e:
                 return {"ok": False, "error": str(e), "warnings": warnings}
             answer = {"ok": True, "warnings": warnings, "difference": diff.as_dict(), "lines": list(lines(diff)),

@@ -24,6 +24,7 @@ import sys
 import time
 from typing import Any, Awaitable, Callable
 
+from launcher import compat
 from launcher.services import masterlink
 from launcher.process.command import master_uri
 from launcher.model.config import LaunchConfig
@@ -223,7 +224,7 @@ class StopSignals:
 
     def __init__(self) -> None:
         self.loop: asyncio.AbstractEventLoop | None = None
-        self.event = asyncio.Event()  # (bound to the loop that first waits on it)
+        self.event = compat.Event()  # (bound to the loop that first waits on it)
         # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
         self.while_stopping: Callable[[], None] | None = None
         self.received = ""  # the first stop signal's name

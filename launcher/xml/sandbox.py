@@ -238,7 +238,9 @@ def _join(sep: str, items: Any) -> str:
 
 
 def _plain(cls: type, *names: str) -> dict[str, Callable[..., Any]]:
-    return {n: getattr(cls, n) for n in names}
+    # The methods this interpreter has: roslaunch's $(eval) offers those of the Python it runs on
+    # (removeprefix and removesuffix came with 3.9; Noetic's roslaunch on Ubuntu 20.04 has neither).
+    return {n: getattr(cls, n) for n in names if hasattr(cls, n)}
 
 
 _METHODS: dict[type, dict[str, Callable[..., Any]]] = {
@@ -412,8 +414,11 @@ class Evaluator:
 
     def _subscript(self, node: ast.Subscript) -> Any:
         value = self.eval(node.value)
+        key = node.slice
+        if type(key).__name__ == "Index":  # (Python 3.8's parser wraps a subscript's key in ast.Index)
+            key = key.value  # type: ignore[attr-defined]
         if isinstance(value, (str, list, tuple, dict, range)):
-            return self.weigh(self._apply(lambda v, k: v[k], value, self.eval(node.slice)))
+            return self.weigh(self._apply(lambda v, k: v[k], value, self.eval(key)))
         raise EvalError("'%s' object is not subscriptable" % type(value).__name__)
 
     def _slice(self, node: ast.Slice) -> slice:

@@ -43,6 +43,18 @@ def test_a_sound_setup_passes(env):
     assert "0 problems found" in out and "launch` will start one" in out
 
 
+def test_it_says_which_python_runs_the_launcher(env):
+    rc, out = doctor(env)
+    assert "ok       the launcher runs on Python %d.%d.%d (%s)" % (sys.version_info[:3] + (sys.executable,)) in out, out
+
+
+def test_a_reader_that_leaves_is_no_error(env):
+    """`launcher doctor | true`: no traceback when the reader has gone before the first line."""
+    r = subprocess.run("%s -m launcher.cli.tool doctor | true" % sys.executable, shell=True, capture_output=True,
+                       text=True, timeout=60, env=env)
+    assert r.stderr == "", r.stderr
+
+
 def test_ros_ip_that_is_not_ours(env):
     assert "192.0.2.77" not in _local_addresses()  # (TEST-NET-1: never an address of this machine)
     rc, out = doctor(dict(env, ROS_IP="192.0.2.77"))

@@ -33,7 +33,8 @@ def test_rosout_types_are_noetics(typestore, name):
     from rosbags.typesys import Stores, get_typestore
     noetic = get_typestore(Stores.ROS1_NOETIC)
     assert typestore.generate_msgdef(name) == noetic.generate_msgdef(name)
-    assert typestore.fielddefs[name] == noetic.fielddefs[name]
+    fields = "fielddefs" if hasattr(noetic, "fielddefs") else "FIELDDEFS"  # (rosbags 0.11's name; 0.9's)
+    assert getattr(typestore, fields)[name] == getattr(noetic, fields)[name]
 
 
 def _log(typestore, **fields):

@@ -1,0 +1,83 @@
+"""launcher/compat.py: the newer calls as 3.8 gets them, each doing what the newer Python's does."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+
+from launcher import compat
+
+
+def test_pidfd_by_the_system_call_becomes_readable_at_the_exit():
+    """The libc path (3.8's) on every Python: readable only once the process has exited, and waitid reads it."""
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.3)"])
+    fd = compat._syscall_pidfd_open(child.pid)
+    try:
+        assert select.select([fd], [], [], 0)[0] == []
+        started = time.monotonic()
+        assert select.select([fd], [], [], 10)[0] == [fd]
+        assert time.monotonic() - started < 5
+        info = os.waitid(compat.P_PIDFD, fd, os.WEXITED | os.WNOHANG)
+        assert info is not None and info.si_pid == child.pid and info.si_status == 0
+    finally:
+        os.close(fd)
+        child.wait()
+
+
+def test_pidfd_of_no_process_is_an_oserror():
+    try:
+        compat._syscall_pidfd_open(2 ** 22 + 12345)  # (past pid_max's default: no such process)
+    except OSError as e:
+        assert e.errno in (3, 22)  # ESRCH, EINVAL
+    else:
+        raise AssertionError("no OSError")
+
+
+def test_to_thread_runs_off_the_loop_with_the_callers_context():
+    import contextvars
+    var = contextvars.ContextVar("var")
+
+    async def main():
+        var.set("mine")
+        return await compat.to_thread(lambda a: (a, threading.current_thread() is threading.main_thread(),
+                                                 var.get()), 7)
+
+    assert asyncio.run(main()) == (7, False, "mine")
+
+
+def test_removeprefix():
+    assert compat.removeprefix("TEST-a", "TEST-") == "a"
+    assert compat.removeprefix("a-TEST-", "TEST-") == "a-TEST-"
+    assert compat.removeprefix("abc", "") == "abc"
+
+
+def test_primitives_made_before_the_loop_work_in_it():
+    """As since 3.10: made where no loop runs (a record made before `asyncio.run`), bound to the loop that uses
+    them, also after an earlier loop was closed and in a thread without one."""
+    asyncio.run(asyncio.sleep(0))  # (leaves the main thread with no current loop)
+    event, lock, queue = compat.Event(), compat.Lock(), compat.Queue()
+    made_in_thread = []
+    t = threading.Thread(target=lambda: made_in_thread.append(compat.Event()))
+    t.start()
+    t.join()
+
+    async def main():
+        asyncio.get_running_loop().call_later(0.01, event.set)
+        await asyncio.wait_for(event.wait(), 5)
+        async with lock:
+            await queue.put(1)
+        assert await queue.get() == 1
+        queue.task_done()
+        await asyncio.wait_for(queue.join(), 5)
+        other = made_in_thread[0]
+        asyncio.get_running_loop().call_soon(other.set)
+        await asyncio.wait_for(other.wait(), 5)
+        return True
+
+    assert asyncio.run(main())
+    assert isinstance(event, asyncio.Event) and isinstance(queue, asyncio.Queue)
