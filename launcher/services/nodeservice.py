@@ -207,6 +207,7 @@ class NodeService:
             return
         await asyncio.gather(self._reload_here(diff, plan), self._reload_remote(diff, plan))
         self.plan = plan
+        self._write_record()  # (the parameters the launch set are now the reloaded files')
 
     async def _reload_remote(self, diff: Difference, plan: Any) -> None:
         """The other machines' part (remote.parent: the operator's stop and start calls)."""
