@@ -17,7 +17,10 @@ The idle nodes' CPU and memory do not move, so each scrape formats only what cha
 changed since the last (the worst case for a robot whose nodes all work), in ms and % of a core at one scrape a
 second.
 
-    python3 benchmarks/metrics.py [--n 500] [--window 20] [--pairs 3] [--formatting]
+--control runs the same with the scraper asking for /nothing (404): the scraping process's own share of a busy
+machine, the launch doing nothing for it.
+
+    python3 benchmarks/metrics.py [--n 500] [--window 20] [--pairs 3] [--formatting] [--control]
 """
 
 from __future__ import annotations
@@ -101,12 +104,15 @@ class Caller(threading.Thread):
 
 
 SCRAPER = """
-import sys, time, urllib.request
+import sys, time, urllib.error, urllib.request
 url, accept = sys.argv[1], sys.argv[2]
 while True:
     started = time.monotonic()
-    with urllib.request.urlopen(urllib.request.Request(url, headers={"Accept": accept}), timeout=10) as answer:
-        size = len(answer.read())
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, headers={"Accept": accept}), timeout=10) as answer:
+            size = len(answer.read())
+    except urllib.error.HTTPError as e:  # (--control: /nothing)
+        size = len(e.read())
     print(size, time.monotonic() - started, flush=True)
     time.sleep(max(0.0, started + 1.0 - time.monotonic()))
 """
@@ -169,6 +175,8 @@ def main() -> int:
     ap.add_argument("--pairs", type=int, default=3)
     ap.add_argument("--settle", type=float, default=10.0)
     ap.add_argument("--formatting", action="store_true")
+    ap.add_argument("--control", action="store_true", help="the scraper asks for /nothing (answered 404 at once): "
+                    "what the scraping process itself costs the machine, the launch doing no work for it")
     o = ap.parse_args()
     root = tempfile.mkdtemp(prefix="metricsbench-")
     port, metrics_port = free_port(), free_port()
@@ -180,7 +188,7 @@ def main() -> int:
                              "--skip-log-check", "--metrics", str(metrics_port)], env=env, stdout=out,
                             stderr=subprocess.STDOUT, start_new_session=True)
     caller = Caller(uri)
-    scraper = Scraper("http://127.0.0.1:%d/metrics" % metrics_port, root)
+    scraper = Scraper("http://127.0.0.1:%d/%s" % (metrics_port, "nothing" if o.control else "metrics"), root)
     try:
         deadline = time.monotonic() + 300
         while True:

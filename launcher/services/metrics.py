@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import operator
 import socket
 import sys
 import threading
@@ -146,15 +147,21 @@ class Exporter:
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"  # what prometheus_client's generate_latest writes
 
 
-def _node_key(snap: Snapshot, field: str) -> tuple:
-    return tuple((n.name, n.host, getattr(n, field)) for n in snap.nodes)
+_NAME_HOST = operator.attrgetter("name", "host")
+
+
+def _column(field: str) -> Callable[[Snapshot, tuple], tuple]:
+    """A node family's key: the nodes' (name, host) pairs and their values of `field` (map and attrgetter: C, no
+    Python a node, in the scraping thread that holds the GIL meanwhile)."""
+    getter = operator.attrgetter(field)
+    return lambda snap, names: (names, tuple(map(getter, snap.nodes)))
 
 
 def _node_family(kind: str, name: str, doc: str, convert: Callable[[Any], float]) -> Callable[[tuple], Any]:
     def build(key: tuple) -> Any:
         from prometheus_client import core
         family = getattr(core, kind)(name, doc, labels=NODE_LABELS)
-        for node, host, value in key:
+        for (node, host), value in zip(*key):
             if value is not None:
                 family.add_metric([node, host], convert(value))
         return family
@@ -165,7 +172,7 @@ def _states(key: tuple) -> Any:
     from prometheus_client.core import GaugeMetricFamily
     family = GaugeMetricFamily("launcher_node_state", "1 for the node's current state (README), 0 for the others",
                                labels=NODE_LABELS + ["state"])
-    for node, host, current in key:
+    for (node, host), current in zip(*key):
         for s in STATES:
             family.add_metric([node, host, s], 1.0 if s == current else 0.0)
     return family
@@ -220,29 +227,30 @@ def _graph(key: tuple) -> list:
     return out
 
 
-# (name, key of a snapshot (None: the family is left out), builder of the family or families from the key)
-FAMILIES: list[tuple[str, Callable[[Snapshot], Any], Callable[[Any], Any]]] = [
-    ("info", lambda snap: (snap.run_id,), _info),
-    ("running", lambda snap: _node_key(snap, "running"),
+# (name, key of a snapshot and its nodes' (name, host) pairs (None: the family is left out), builder of the family or
+# families from the key)
+FAMILIES: list[tuple[str, Callable[[Snapshot, tuple], Any], Callable[[Any], Any]]] = [
+    ("info", lambda snap, names: (snap.run_id,), _info),
+    ("running", _column("running"),
      _node_family("GaugeMetricFamily", "launcher_node_running", "1 while the node's process runs", float)),
-    ("registered", lambda snap: _node_key(snap, "registered"),
+    ("registered", _column("registered"),
      _node_family("GaugeMetricFamily", "launcher_node_registered", "1 while the node is registered with the master",
                   float)),
-    ("restarts", lambda snap: _node_key(snap, "restarts"),
+    ("restarts", _column("restarts"),
      _node_family("CounterMetricFamily", "launcher_node_restarts", "Starts of the node after its first", float)),
-    ("last_exit_code", lambda snap: _node_key(snap, "last_exit_code"),
+    ("last_exit_code", _column("last_exit_code"),
      _node_family("GaugeMetricFamily", "launcher_node_last_exit_code", "The exit code of the node's last run that "
                   "exited", float)),
-    ("cpu", lambda snap: _node_key(snap, "cpu_seconds"),
+    ("cpu", _column("cpu_seconds"),
      _node_family("CounterMetricFamily", "launcher_node_cpu_seconds", "CPU time used by the node's process group, "
                   "all its runs", float)),
-    ("rss", lambda snap: _node_key(snap, "rss"),
+    ("rss", _column("rss"),
      _node_family("GaugeMetricFamily", "launcher_node_resident_memory_bytes", "Resident memory of the node's "
                   "process group", float)),
-    ("state", lambda snap: tuple((n.name, n.host, n.state) for n in snap.nodes), _states),
-    ("topics", lambda snap: snap.topics, _topics),
-    ("calls", lambda snap: None if snap.calls is None else tuple(sorted(snap.calls.items())), _calls),
-    ("graph", lambda snap: snap.graph, _graph),
+    ("state", _column("state"), _states),
+    ("topics", lambda snap, names: snap.topics, _topics),
+    ("calls", lambda snap, names: None if snap.calls is None else tuple(sorted(snap.calls.items())), _calls),
+    ("graph", lambda snap, names: snap.graph, _graph),
 ]
 
 
@@ -269,8 +277,9 @@ class Formatter:
         parts = []
         with self._lock:
             if snap is not None:
+                names = tuple(map(_NAME_HOST, snap.nodes))
                 for name, key_of, build in FAMILIES:
-                    key = key_of(snap)
+                    key = key_of(snap, names)
                     if key is None:
                         continue
                     kept = self._kept.get(name)
