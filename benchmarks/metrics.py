@@ -157,9 +157,11 @@ def formatting(n: int, rounds: int = 20) -> float:
         calls.observe(method, 0.0003)
 
     def snap(k: int) -> metrics.Snapshot:
-        return metrics.Snapshot("run", tuple(metrics.NodeSample("/n%d" % i, "localhost", "running", True, True, 0,
-                                                                None, 1.5 + k, 123456 + k) for i in range(n)),
-                                (), calls.copy(), (n, 10, 2 * n))
+        columns = {"state": ("running",) * n, "running": (True,) * n, "registered": (True,) * n,
+                   "restarts": (0,) * n, "last_exit_code": (None,) * n, "cpu_seconds": (1.5 + k,) * n,
+                   "rss": (123456 + k,) * n}
+        return metrics.Snapshot("run", tuple(("/n%d" % i, "localhost") for i in range(n)), columns, (), calls.copy(),
+                                (n, 10, 2 * n))
     formatter = metrics.Formatter()
     formatter.render(snap(0))
     started = time.process_time()

@@ -7,7 +7,7 @@ import asyncio
 import threading
 import time
 import urllib.request
-from types import SimpleNamespace
+from typing import NamedTuple
 
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -16,7 +16,7 @@ from launcher.fleet.machine import Record
 from launcher.fleet.state import NodeStatus, STATES
 from launcher.master.callstats import BUCKETS, OTHER, CallStats
 from launcher.services import metrics
-from launcher.services.metrics import NodeSample, Snapshot, TopicSample
+from launcher.services.metrics import Snapshot, TopicSample
 
 from helpers import free_port
 
@@ -50,41 +50,63 @@ def _status(record: Record, state: str, cpu_seconds: float = 0.0, rss: int | Non
     return status
 
 
-def test_a_node_sample_reads_the_record_and_the_masters_registry_until_the_record_says():
+class LaterRecord(NamedTuple):
+    """A record as issues 33 and 34 make it (registered, last_exit_code), for the one place that reads them."""
+
+    name: str
+    host: str
+    state: str
+    restarts: int
+    exit_code: int | None
+    registered: bool
+    last_exit_code: int | None
+
+
+def test_node_columns_read_the_record_and_the_masters_registry_until_the_record_says():
     r = Record("/a", "a-1", "localhost", machine.Rules(), state=machine.RESPAWNING, restarts=4, exit_code=3)
-    s = metrics.node_sample(r, _status(r, "respawning", 1.5), {"/a": object()})
-    assert s == NodeSample("/a", "localhost", "respawning", False, True, 4, 3, 1.5, None)
-    assert metrics.node_sample(r, _status(r, "respawning"), {}).registered is False
-    assert metrics.node_sample(r, _status(r, "respawning"), None).registered is None  # (a master found running)
+    b = Record("/b", "b-1", "localhost", machine.Rules(), state=machine.STOPPING)
+    statuses = (_status(r, "respawning", 1.5), _status(b, "running", 2.0, 1000))
+    assert metrics.node_columns((r, b), statuses, {"/a": object()}) == {
+        "state": ("respawning", "running"), "running": (False, True), "registered": (True, False),
+        "restarts": (4, 0), "last_exit_code": (3, None), "cpu_seconds": (1.5, 2.0), "rss": (None, 1000)}
+    assert metrics.node_columns((r, b), statuses, None)["registered"] == (None, None)  # (a master found running)
     # once the record holds them (issues 33, 34), its own fields win
-    later = SimpleNamespace(**r._asdict(), registered=False, last_exit_code=7)
-    s = metrics.node_sample(later, _status(r, "respawning"), {"/a": object()})
-    assert s.registered is False and s.last_exit_code == 7
-    running = r._replace(state=machine.STOPPING, exit_code=None)
-    assert metrics.node_sample(running, _status(running, "running", 2.0, 1000), None).running
+    later = LaterRecord("/a", "localhost", machine.RUNNING, 4, None, False, 7)
+    got = metrics.node_columns((later,), statuses[:1], {"/a": object()})
+    assert got["registered"] == (False,) and got["last_exit_code"] == (7,)
     remote = r._replace(host="arm.local")
-    assert metrics.node_sample(remote, _status(remote, "respawning"), None).cpu_seconds is None
+    assert metrics.node_columns((remote, b), statuses, None)["cpu_seconds"] == (None, 2.0)
+
+
+def snapshot(rows: list, **kw) -> Snapshot:
+    """A snapshot of nodes given as dicts of NODE_COLUMNS (and name, host)."""
+    return Snapshot("run-1", tuple((r["name"], r["host"]) for r in rows),
+                    {c: tuple(r[c] for r in rows) for c in metrics.NODE_COLUMNS}, **kw)
+
+
+def node(name: str, state: str, running: bool, registered, restarts: int, last_exit_code, cpu_seconds, rss) -> dict:
+    return dict(name=name, host="localhost", state=state, running=running, registered=registered, restarts=restarts,
+                last_exit_code=last_exit_code, cpu_seconds=cpu_seconds, rss=rss)
 
 
 def test_the_exposition_holds_every_family_with_its_labels():
-    snap = Snapshot("run-1", (NodeSample("/sleeper", "localhost", "running", True, True, 0, None, 1.25, 4096),
-                              NodeSample("/crasher", "localhost", "respawning", False, None, 5, 3, 0.5, None)),
-                    (TopicSample("/sleeper", "localhost", "/chatter", 9.5, 0.25),),
-                    {"getPid": metrics.MethodStats((1, 2) + (0,) * (len(BUCKETS) - 1), 0.5)},
-                    (3, 4, 5))
+    snap = snapshot([node("/sleeper", "running", True, True, 0, None, 1.25, 4096),
+                     node("/crasher", "respawning", False, None, 5, 3, 0.5, None)],
+                    topics=(TopicSample("/sleeper", "localhost", "/chatter", 9.5, 0.25),),
+                    calls={"getPid": metrics.MethodStats((1, 2) + (0,) * (len(BUCKETS) - 1), 0.5)}, graph=(3, 4, 5))
     got = samples(metrics.exposition(snap).decode())
-    node = (("host", "localhost"), ("node", "/sleeper"))
+    sleeper = (("host", "localhost"), ("node", "/sleeper"))
     crasher = (("host", "localhost"), ("node", "/crasher"))
-    assert got[("launcher_node_running", node)] == 1 and got[("launcher_node_running", crasher)] == 0
-    assert got[("launcher_node_registered", node)] == 1 and ("launcher_node_registered", crasher) not in got
+    assert got[("launcher_node_running", sleeper)] == 1 and got[("launcher_node_running", crasher)] == 0
+    assert got[("launcher_node_registered", sleeper)] == 1 and ("launcher_node_registered", crasher) not in got
     assert got[("launcher_node_restarts_total", crasher)] == 5
-    assert got[("launcher_node_last_exit_code", crasher)] == 3 and ("launcher_node_last_exit_code", node) not in got
-    assert got[("launcher_node_cpu_seconds_total", node)] == 1.25
-    assert got[("launcher_node_resident_memory_bytes", node)] == 4096
-    for n, current in ((node, "running"), (crasher, "respawning")):
+    assert got[("launcher_node_last_exit_code", crasher)] == 3 and ("launcher_node_last_exit_code", sleeper) not in got
+    assert got[("launcher_node_cpu_seconds_total", sleeper)] == 1.25
+    assert got[("launcher_node_resident_memory_bytes", sleeper)] == 4096
+    for n, current in ((sleeper, "running"), (crasher, "respawning")):
         assert {st: got[("launcher_node_state", tuple(sorted(n + (("state", st),))))] for st in STATES} == \
             {st: 1.0 if st == current else 0.0 for st in STATES}
-    topic = tuple(sorted(node + (("topic", "/chatter"),)))
+    topic = tuple(sorted(sleeper + (("topic", "/chatter"),)))
     assert got[("launcher_topic_rate_hertz", topic)] == 9.5
     assert got[("launcher_topic_seconds_since_message", topic)] == 0.25
     assert got[("launcher_master_call_duration_seconds_bucket", (("le", "0.0001"), ("method", "getPid")))] == 1
@@ -98,7 +120,7 @@ def test_the_exposition_holds_every_family_with_its_labels():
 
 
 def test_a_family_is_formatted_again_only_when_its_values_change(monkeypatch):
-    node = NodeSample("/a", "localhost", "running", True, True, 0, None, 1.0, 4096)
+    a = node("/a", "running", True, True, 0, None, 1.0, 4096)
     formatter = metrics.Formatter()
     built = []
 
@@ -109,10 +131,10 @@ def test_a_family_is_formatted_again_only_when_its_values_change(monkeypatch):
         return counting
     monkeypatch.setattr(metrics, "FAMILIES", [(name, key_of, counted(name, build))
                                               for name, key_of, build in metrics.FAMILIES])
-    first = samples(formatter.render(Snapshot("r", (node,))).decode())
+    first = samples(formatter.render(snapshot([a])).decode())
     assert first[("launcher_node_cpu_seconds_total", (("host", "localhost"), ("node", "/a")))] == 1.0
     built.clear()
-    later = samples(formatter.render(Snapshot("r", (node._replace(cpu_seconds=2.5, state="hung"),))).decode())
+    later = samples(formatter.render(snapshot([dict(a, cpu_seconds=2.5, state="hung")])).decode())
     assert sorted(built) == ["cpu", "state"]
     assert later[("launcher_node_cpu_seconds_total", (("host", "localhost"), ("node", "/a")))] == 2.5
     assert later[("launcher_node_state", (("host", "localhost"), ("node", "/a"), ("state", "hung")))] == 1.0
