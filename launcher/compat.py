@@ -57,6 +57,18 @@ async def to_thread(func: Callable[..., T], *args: Any) -> T:
     return await loop.run_in_executor(None, call)
 
 
+def orig_argv() -> list:
+    """sys.orig_argv (3.10): the interpreter's whole command line, `python -m launcher ...` as it was typed;
+    before 3.10 read back from the kernel (sys.argv has `-m launcher` made into the module's path)."""
+    if hasattr(sys, "orig_argv"):
+        return list(sys.orig_argv)
+    try:
+        with open("/proc/self/cmdline", "rb") as f:
+            return [os.fsdecode(a) for a in f.read().split(b"\0")[:-1]]
+    except OSError:
+        return [sys.executable] + sys.argv
+
+
 def removeprefix(text: str, prefix: str) -> str:
     """str.removeprefix (3.9)."""
     return text[len(prefix):] if prefix and text.startswith(prefix) else text

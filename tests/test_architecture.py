@@ -114,6 +114,45 @@ def test_no_import_cycle_between_parts():
             visit(u, [])
 
 
+# Who may ask a master about registrations (lookupNode, getSystemState): the master itself, and the watcher of a
+# master found running (services/masterwatch.py), which tells the run's graph. The launch's own parts (readiness,
+# hang, stall, systemd's READY=1, the bound holds) listen to the graph and the fleet instead of asking.
+REGISTRATION_CALLS = ("lookupNode", "getSystemState")
+MAY_ASK_REGISTRATIONS = ("launcher.master", "launcher.services.masterwatch")
+# ROS clients that are no part of a launch's supervision, and ask as the ROS tool they stand for does: `bag record
+# --node` (rosbag asks which topics the node has), the web view's topic list (a process apart, as rostopic
+# list), the Python API's wait for a publisher (a test's client of the graph)
+CLIENTS = {"launcher.bag.record": "rosbag record --node", "launcher.operate.web": "the page's topic list",
+           "launcher.api": "Launch.wait_for_topic"}
+
+
+def _registration_calls() -> dict[str, list[int]]:
+    """module -> the lines where it names a registration call (a method name given to a call, or an attribute)."""
+    found: dict[str, list[int]] = {}
+    for dirpath, _dirs, files in os.walk(ROOT):
+        for f in files:
+            if not f.endswith(".py"):
+                continue
+            path = os.path.join(dirpath, f)
+            rel = os.path.relpath(path, os.path.dirname(ROOT))[:-3].replace(os.sep, ".")
+            module = rel[:-9] if rel.endswith(".__init__") else rel
+            for node in ast.walk(ast.parse(open(path).read())):
+                named = (node.value if isinstance(node, ast.Constant) else
+                         node.attr if isinstance(node, ast.Attribute) else None)
+                if named in REGISTRATION_CALLS:
+                    found.setdefault(module, []).append(node.lineno)
+    return found
+
+
+def test_only_the_master_and_its_watcher_ask_about_registrations():
+    calls = _registration_calls()
+    asking = {m: lines for m, lines in calls.items()
+              if not any(m == p or m.startswith(p + ".") for p in MAY_ASK_REGISTRATIONS) and m not in CLIENTS}
+    assert asking == {}, "asks the master about registrations (listen to model.graph / the fleet instead)"
+    assert "launcher.services.masterwatch" in calls  # (the check sees what it looks for)
+    assert set(CLIENTS) <= set(calls), "a client no longer asks: take it off the list"
+
+
 def test_the_metrics_are_made_in_one_module():
     """prometheus_client is the exporter's (services/metrics.py) alone: the rest of the launch counts in plain
     data (master/callstats.py, the fleet) and never pays for the library's import or its locks."""

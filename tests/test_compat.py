@@ -81,3 +81,12 @@ def test_primitives_made_before_the_loop_work_in_it():
 
     assert asyncio.run(main())
     assert isinstance(event, asyncio.Event) and isinstance(queue, asyncio.Queue)
+
+
+def test_orig_argv_is_the_whole_command_line():
+    """`python -m launcher ...` as typed (roslaunch's process_info gives it): 3.8's sys.argv has the module's path."""
+    code = "import json; from launcher import compat; print(json.dumps(compat.orig_argv()))"
+    import json
+    r = subprocess.run([sys.executable, "-c", code, "a b", "-p"], capture_output=True, text=True, timeout=60,
+                       cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert json.loads(r.stdout) == [sys.executable, "-c", code, "a b", "-p"], r.stderr

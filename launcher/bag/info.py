@@ -10,39 +10,41 @@ import time
 from typing import Any, NamedTuple
 
 import yaml
-from rosbags.rosbag1 import Reader, ReaderError
-from rosbags.rosbag1.reader import Header, RecordType
 
 from launcher.bag import reindex
-from launcher.bag.msgtypes import ros1_type
+from launcher.bag.reader import Bag, BagError
+
+# The largest damaged bag whose recoverable messages an error counts (a walk of the whole file).
+COUNT_LIMIT = 256 << 20
 
 
-class BagError(Exception):
-    """A bag that cannot be read: its file name and why."""
-
-
-def open_bag(path: str) -> Reader:
-    """An open Reader, or BagError naming the file (an .active or truncated bag: what reindex does for it)."""
+def open_bag(path: str) -> Bag:
+    """An open bag, checked, or BagError naming the file and what is wrong where (and, for a bag whose index is lost
+    or damaged, what reindex can still read of it)."""
     try:
-        reader = Reader(path)
-        reader.open()
-    except FileNotFoundError:
-        raise BagError("%s: no such file" % path) from None
-    except (ReaderError, OSError, ValueError, KeyError) as exc:
-        why = str(exc) or type(exc).__name__
-        raise BagError("%s: not a readable bag: %s%s" % (path, why, _recoverable(path))) from None
-    return reader
+        return Bag(path)
+    except BagError as exc:
+        raise BagError(str(exc) + (_recoverable(path) if exc.reindexable else "")) from None
+
+
+def warn(line: str) -> None:
+    """A damaged part of a bag that is left out, said on stderr at once."""
+    print("[ WARN] %s" % line, file=sys.stderr, flush=True)
 
 
 def _recoverable(path: str) -> str:
-    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag)."""
+    """What reindex could still read of a damaged bag, in words ("" for a file that is no bag, or nothing). A bag
+    larger than COUNT_LIMIT is not walked for the count (minutes, for an error message)."""
     try:
-        conns, msgs, stop = reindex.scan(path)
+        if os.path.getsize(path) > COUNT_LIMIT:
+            return " ('launcher bag reindex %s' can still read what its whole chunks hold into an indexed bag)" % path
+        conns, known, _ = reindex.count(path)
     except (reindex.ReindexError, OSError):
         return ""
-    known = sum(1 for m in msgs if m[2] in conns)
-    return (" (%d messages on %d connections can still be read, up to %s: 'launcher bag reindex %s' "
-            "writes them into an indexed bag)" % (known, len(conns), stop, path))
+    if not known:
+        return ""
+    return (" ('launcher bag reindex %s' can still read %d messages on %d connection%s of it into an indexed bag)"
+            % (path, known, conns, "" if conns == 1 else "s"))
 
 
 class Compression(NamedTuple):
@@ -85,51 +87,49 @@ def _median(values: list[float]) -> float:
     return ordered[half] if len(ordered) % 2 else float(ordered[half - 1] + ordered[half]) / 2
 
 
-def _chunk_sizes(reader: Reader) -> list[tuple[str, int, int]]:
-    """(compression, compressed size, uncompressed size) of each chunk, from the chunk records' headers
-    (rosbags keeps the compressed size only)."""
-    sizes = []
-    bio = reader.bio
-    for info in reader.chunk_infos:
-        bio.seek(info.pos)
-        header = Header.read(bio, RecordType.CHUNK)
-        sizes.append((header.get_string("compression"), reader.chunks[info.pos].datasize, header.get_uint32("size")))
-    return sizes
-
-
-def bag_info(path: str, reader: Reader, freq: bool = False) -> BagInfo:
-    """The facts of one open bag; `freq`: each topic's median frequency from its index (rosbag info --freq)."""
-    size = os.path.getsize(path)
-    chunk_infos = reader.chunk_infos
-    if not chunk_infos:
+def bag_info(path: str, bag: Bag, freq: bool = False) -> BagInfo:
+    """The facts of one open bag; `freq`: each topic's median frequency from its index (rosbag info --freq).
+    A damaged chunk's messages are counted as its chunk info says (as rosbag's); its sizes and compression as its
+    record says, if that could be read."""
+    size = bag.size
+    chunks = bag.chunks
+    if not chunks:
         return BagInfo(path, size, False, 0.0, 0.0, 0, 0, [], [], [])
-    # as rosbag: the first chunk's start and the last chunk's end (rosbags' end_time is one past it)
-    start, end = _sec(chunk_infos[0].start_time), _sec(chunk_infos[-1].end_time - 1)
-    messages = sum(sum(c.connection_counts.values()) for c in chunk_infos)
+    # as rosbag: the first chunk's start and the last chunk's end (of those whose chunk info could be read)
+    timed = [c for c in chunks if c.start <= c.end]
+    start, end = (_sec(timed[0].start), _sec(timed[-1].end)) if timed else (0.0, 0.0)
+    messages = sum(sum(c.counts.values()) for c in chunks)
     by_kind: dict[str, list[int]] = {}
-    for kind, compressed, uncompressed in _chunk_sizes(reader):
-        total = by_kind.setdefault(kind, [0, 0, 0])
+    for chunk in chunks:
+        if not chunk.compression or not chunk.size:
+            continue  # a damaged chunk whose record could not be read: nothing to say of its sizes
+        total = by_kind.setdefault(chunk.compression, [0, 0, 0])
         total[0] += 1
-        total[1] += compressed
-        total[2] += uncompressed
+        total[1] += chunk.datasize
+        total[2] += chunk.size
     # rosbag orders them by (count, name), most first
     compressions = [Compression(k, *v) for k, v in sorted(by_kind.items(), key=lambda kv: (kv[1][0], kv[0]),
                                                           reverse=True)]
     datatypes: dict[str, str] = {}
-    for conn in reader.connections:
-        datatypes.setdefault(ros1_type(conn.msgtype), conn.digest)
+    for conn in bag.connections:
+        datatypes.setdefault(conn.type, conn.md5sum)
+    stamps_of: dict[int, list[int]] = {}
+    if freq:
+        for chunk in chunks:
+            for t, cid, _ in chunk.entries:
+                stamps_of.setdefault(cid, []).append(t)
     topics = []
-    for topic in sorted({c.topic for c in reader.connections}):
-        conns = [c for c in reader.connections if c.topic == topic]
-        count = sum(ci.connection_counts.get(c.id, 0) for c in conns for ci in chunk_infos)
+    for topic in sorted({c.topic for c in bag.connections}):
+        conns = [c for c in bag.connections if c.topic == topic]
+        count = sum(chunk.counts.get(c.id, 0) for c in conns for chunk in chunks)
         frequency = None
         if freq:
-            stamps = [_sec(i.time) for i in sorted(i for c in conns for i in reader.indexes.get(c.id, []))]
+            stamps = [_sec(t) for t in sorted(t for c in conns for t in stamps_of.get(c.id, []))]
             if len(stamps) > 1:
                 period = _median([b - a for a, b in zip(stamps, stamps[1:])])
                 frequency = 1.0 / period if period > 0.0 else None
-        topics.append(TopicInfo(topic, ros1_type(conns[0].msgtype), count, len(conns), frequency))
-    return BagInfo(path, size, True, start, end, messages, len(chunk_infos), compressions, sorted(datatypes.items()),
+        topics.append(TopicInfo(topic, conns[0].type, count, len(conns), frequency))
+    return BagInfo(path, size, True, start, end, messages, len(chunks), compressions, sorted(datatypes.items()),
                    topics)
 
 
@@ -224,7 +224,7 @@ def yaml_text(info: BagInfo) -> str:
         return "\n".join(lines + ["size: %d" % info.size, "indexed: False"]) + "\n"
     lines += ["duration: %.6f" % (info.end - info.start), "start: %.6f" % info.start, "end: %.6f" % info.end,
               "size: %d" % info.size, "messages: %d" % info.messages, "indexed: True",
-              "compression: %s" % info.compressions[0].kind]
+              "compression: %s" % (info.compressions[0].kind if info.compressions else "unknown")]
     if any(c.kind != "none" for c in info.compressions):
         lines += ["uncompressed: %d" % sum(c.uncompressed for c in info.compressions),
                   "compressed: %d" % sum(c.compressed for c in info.compressions)]
@@ -277,14 +277,14 @@ def main(paths: list[str], as_yaml: bool = False, key: str | None = None, freq: 
     status = 0
     for i, path in enumerate(paths):
         try:
-            reader = open_bag(path)
+            bag = open_bag(path)
         except BagError as exc:
             print("ERROR %s" % exc, file=sys.stderr)
             return 1  # as rosbag info: the bags after a bad one are not read
-        try:
-            info = bag_info(path, reader, freq)
-        finally:
-            reader.close()
+        with bag:
+            for line in bag.warnings():
+                warn(line)
+            info = bag_info(path, bag, freq)
         if not as_yaml:
             print(text(info))
         elif not key:  # (as rosbag: -k '' is the whole YAML)

@@ -23,8 +23,8 @@ from typing import Any
 from launcher import compat
 from launcher.model import names
 from launcher.bag import rosargs
-from launcher.bag.info import BagError, open_bag
-from launcher.bag.msgtypes import ros1_type
+from launcher.bag.info import open_bag, warn
+from launcher.bag.reader import Bag, BagError
 from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import Publication, TopicType
 
@@ -74,10 +74,11 @@ def clock_payload(stamp_ns: int) -> bytes:
     return _TIME.pack(stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
 
 
+
 class Player:
     """Plays open bag readers through `node`'s publications."""
 
-    def __init__(self, opts: argparse.Namespace, readers: list[Any], node: SlaveNode, remaps: dict[str, str]):
+    def __init__(self, opts: argparse.Namespace, readers: list[Bag], node: SlaveNode, remaps: dict[str, str]):
         self.opts = opts
         self.readers = readers
         self.node = node
@@ -106,8 +107,8 @@ class Player:
                 topic = self.remaps.get(conn.topic, conn.topic)
                 pub = by_topic.get(topic)
                 if pub is None:
-                    mtype = TopicType(ros1_type(conn.msgtype), conn.digest, conn.msgdef.data)
-                    latch = getattr(conn.ext, "latching", None) == 1
+                    mtype = TopicType(conn.type, conn.md5sum, conn.msgdef)
+                    latch = conn.latching == 1
                     pub = await self.node.advertise(topic, mtype, latch=latch, queue_size=self.opts.queue)
                     by_topic[topic] = pub
                 self.pubs[(i, conn.id)] = pub
@@ -120,13 +121,13 @@ class Player:
         say(" done.\n\nHit space to toggle paused, or 's' to step.")
 
     def _messages(self, start: int, stop: int | None) -> Iterator[tuple[int, int, Any, bytes]]:
-        """(time, reader, connection, data) of every message to play, in time order over all bags."""
+        """(time, reader, connection, data) of every message to play, in time order over all bags (a chunk found
+        damaged as it is read: left out with a warning, the rest played)."""
         streams = []
         for i, reader in enumerate(self.readers):
-            conns = [c for c in reader.connections if (i, c.id) in self.pubs]
-            if conns:
-                streams.append(((t, i, c, d) for c, t, d in reader.messages(connections=conns, start=start,
-                                                                                stop=stop)))
+            ids = {c.id for c in reader.connections if (i, c.id) in self.pubs}
+            if ids:
+                streams.append(((t, i, c, d) for t, c, d in reader.messages(ids, start, stop, warn=warn)))
         return heapq.merge(*streams, key=lambda m: (m[0], m[1]))
 
     async def _sleep_until(self, deadline: float) -> None:
@@ -236,7 +237,7 @@ class Player:
         bag_start = min(r.start_time for r in self.readers)
         start = bag_start + int(self.opts.start * 1e9)
         stop = start + int(self.opts.duration * 1e9) if self.opts.duration is not None else None
-        end = max(r.end_time for r in self.readers) - 1  # (rosbags' end_time is one past the last message)
+        end = max(r.end_time for r in self.readers)
         self.last = end if stop is None else min(stop, end)
         while not self.stop.is_set():
             await self.play_once(start, stop)
@@ -250,7 +251,7 @@ class Player:
         return 0
 
 
-async def play(opts: argparse.Namespace, readers: list[Any], ros: rosargs.RosArgs) -> int:
+async def play(opts: argparse.Namespace, readers: list[Bag], ros: rosargs.RosArgs) -> int:
     await rosargs.wait_for_master(ros.master_uri, ros.name)
     node = SlaveNode(ros.name, ros.master_uri, host=ros.host or default_host())
     await node.start()
@@ -302,8 +303,12 @@ def main(argv: list[str]) -> int:
         for path in bags:
             say("[ INFO] [%.9f]: Opening %s" % (time.time(), path))
             readers.append(open_bag(path))
+            for line in readers[-1].warnings():
+                warn(line)
     except BagError as exc:
         print("ERROR %s" % exc, file=sys.stderr)
+        for reader in readers:
+            reader.close()
         return 1
     try:
         return asyncio.run(play(opts, readers, ros))

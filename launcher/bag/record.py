@@ -8,7 +8,8 @@ rosbag's `NAME.bag.active` and renamed to `NAME.bag` once closed and indexed.
 As in rosbag, messages are taken from the sockets on one side (the asyncio
 loop) and written on the other (a writer thread, which owns the open bag while
 it runs), through a buffer of `-b` MB whose oldest messages are dropped when it
-is full: a slow disk costs the oldest messages, not the reading of the sockets.
+is full: a slow disk costs the oldest messages (of the topic holding the most of
+the buffer: bag/buffer.py), not the reading of the sockets nor a connection.
 """
 
 from __future__ import annotations
@@ -455,9 +456,12 @@ class Recorder:
         shutdown.cancel()
         if poller is not None:
             poller.cancel()
-        # What the kernel already holds for us belongs in the bag: read it, then close.
+        # What the kernel already holds for us belongs in the bag: read it, then close (a publisher faster than
+        # the disk would otherwise keep the writer from ever finding the buffer empty).
         for sub in list(self.node.subscriptions.values()):
             await sub.drain()
+        for sub in list(self.node.subscriptions.values()):
+            sub.close()
         # ...and what the buffer holds (rosbag's writer too empties its queue before it closes the bag)
         self.buffer.close()
         await to_thread(self.writer.join)

@@ -1,123 +1,130 @@
 """`bag reindex`: a bag without its index (an `.active` bag, a truncated or damaged one) read record by record and written anew.
 
-rosbags reads only indexed bags, so the records are walked here: chunks
-(decompressed), the connection and message records inside them; the walk stops
-at the first record that is cut short or makes no sense, and everything before
-it is kept.
+The records are walked from the start (`reader`'s checked reads): chunks
+(decompressed), the connection and message records inside them; the walk
+stops at the first record that is cut short or makes no sense, and everything
+before it is kept. A chunk whose record is whole but whose data is damaged is
+left out with a warning and the walk goes on past it.
 """
 
 from __future__ import annotations
 
-import bz2
 import os
 import struct
 import sys
 from collections.abc import Iterator
-
-from rosbags.rosbag1 import Writer
+from typing import Optional
 
 from launcher.bag.msgtypes import rosbags_type
+from launcher.bag.reader import (MAGIC, OP_BAG_HEADER, OP_CHUNK, OP_CONNECTION, OP_MSG_DATA, Connection, Damage, File,
+                                 Record, _record_in, connection, decompress, uint)
 
-MAGIC = b"#ROSBAG V2.0\n"
-OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
-_U32 = struct.Struct("<I")
-# No record of a sane bag has a header this large; a larger length is damage, not data.
-MAX_HEADER = 1 << 20
+_TIME = struct.Struct("<II")
+# Where the first chunk starts in a bag of rosbags' (its bag header record padded to 4096 bytes) and of rosbag's (the
+# header and data of its bag header record padded to 4096): a damaged bag header is stepped over to these.
+FIRST_CHUNK = (len(MAGIC) + 4096, len(MAGIC) + 4104)
 
 
 class ReindexError(Exception):
     """A file that is no bag at all."""
 
 
-def fields(data: bytes) -> dict[str, bytes]:
-    """A record header's (or connection header's) `name=value` fields; values are bytes."""
-    out: dict[str, bytes] = {}
-    pos = 0
-    while pos + 4 <= len(data):
-        (size,) = _U32.unpack_from(data, pos)
-        pos += 4
-        if size > len(data) - pos:
-            raise ValueError("field overruns its header")
-        key, eq, value = data[pos:pos + size].partition(b"=")
-        if not eq:
-            raise ValueError("field without '='")
-        out[key.decode("ascii", "replace")] = value
-        pos += size
-    return out
+class Walk:
+    """The records of a bag, one at a time from its start: (kind, connection id, Connection or time, data). Nothing is
+    held but the record at hand (a chunk: its records, decompressed). `stop` says what ended the walk; `skipped`,
+    the chunks left out on the way (their record whole, their data damaged)."""
 
+    def __init__(self, path: str):
+        self.path = path
+        self.stop = "the end of the file"
+        self.skipped: list[str] = []
 
-def records(buf: bytes | memoryview, pos: int) -> Iterator[tuple[dict[str, bytes], memoryview, int]]:
-    """(header, data, end) of each whole record from `pos`; stops at the first one cut short or malformed."""
-    view = memoryview(buf)
-    end = len(view)
-    while pos + 4 <= end:
-        (hlen,) = _U32.unpack_from(view, pos)
-        if hlen > MAX_HEADER or pos + 4 + hlen + 4 > end:
-            return
+    def __iter__(self) -> Iterator[tuple[int, int, object, bytes]]:
+        with open(self.path, "rb") as f:
+            file = File(f, os.fstat(f.fileno()).st_size)
+            if file.size < len(MAGIC) or file.read(0, len(MAGIC)) != MAGIC:
+                raise ReindexError("%s: not a ROS bag (no '#ROSBAG V2.0' line)" % self.path)
+            pos = len(MAGIC)
+            retries = list(FIRST_CHUNK)
+            while pos < file.size:
+                try:
+                    rec = file.record(pos, file.size, "the record")
+                except Damage as exc:
+                    if pos in (len(MAGIC), *FIRST_CHUNK) and retries:
+                        pos = retries.pop(0)  # a damaged bag header: the chunks after it may still be whole
+                        continue
+                    self.stop = "byte %d of %d (%s)" % (pos, file.size, exc)
+                    return
+                retries = []
+                if rec.op == OP_CHUNK:
+                    yield from self._chunk(file, rec)
+                elif rec.op == OP_CONNECTION:
+                    item = _connection(rec.header, file.read(rec.datapos, rec.datasize))
+                    if item:
+                        yield item
+                elif rec.op == OP_BAG_HEADER and pos != len(MAGIC):
+                    self.stop = "byte %d of %d (a second bag header)" % (pos, file.size)
+                    return
+                pos = rec.end
+
+    def _chunk(self, file: File, rec) -> Iterator[tuple[int, int, object, bytes]]:
+        what = "the chunk at byte %d" % rec.pos
         try:
-            header = fields(bytes(view[pos + 4:pos + 4 + hlen]))
-        except ValueError:
+            kind = rec.header.get("compression", b"").decode("ascii", "replace")
+            size = uint(rec.header, "size", 4, what)
+            if kind == "none":
+                if rec.datasize != size:  # (a length lied about is not read: the other says how long it is)
+                    raise Damage("uncompressed, but %d bytes where its header says %d" % (rec.datasize, size))
+                data = file.read(rec.datapos, rec.datasize)
+            elif kind in ("bz2", "lz4"):
+                data = decompress(kind, file, rec.datapos, rec.datasize, size)
+            else:
+                raise Damage("unknown compression %r" % kind)
+        except Damage as exc:
+            self.skipped.append("%s: %s" % (what, exc))
             return
-        (dlen,) = _U32.unpack_from(view, pos + 4 + hlen)
-        start = pos + 8 + hlen
-        if start + dlen > end or "op" not in header:
-            return
-        yield header, view[start:start + dlen], start + dlen
-        pos = start + dlen
-
-
-def _decompress(kind: bytes, data: memoryview, size: int) -> bytes:
-    if kind == b"none":
-        return bytes(data)
-    if kind == b"bz2":
-        return bz2.decompress(data)
-    if kind == b"lz4":
-        import lz4.frame  # (rosbags' own dependency; only lz4 bags need it)
-        return lz4.frame.decompress(data)
-    raise ValueError("unknown compression %r" % kind)
-
-
-def scan(path: str) -> tuple[dict[int, dict[str, bytes]], list[tuple[int, int, int, bytes]], str]:
-    """(connections by id, messages as (time ns, order, connection id, data), what stopped the walk)."""
-    with open(path, "rb") as f:
-        buf = f.read()
-    if not buf.startswith(MAGIC):
-        raise ReindexError("%s: not a ROS bag (no '#ROSBAG V2.0' line)" % path)
-    conns: dict[int, dict[str, bytes]] = {}
-    msgs: list[tuple[int, int, int, bytes]] = []
-    stop = "the end of the file"
-    pos = len(MAGIC)
-    last = pos
-    for header, data, end in records(buf, pos):
-        last = end
-        op = header["op"][:1]
-        if op == bytes([OP_CHUNK]):
+        pos = 0
+        while pos < len(data):  # its records up to the first one cut short or damaged
             try:
-                inner = _decompress(header.get("compression", b"none"), data, 0)
-            except Exception as exc:  # a damaged chunk ends what can be trusted
-                stop = "a damaged chunk at byte %d (%s)" % (end - len(data), exc)
-                break
-            for h, d, _ in records(inner, 0):
-                _take(h, d, conns, msgs)
-        elif op == bytes([OP_CONNECTION]):
-            _take(header, data, conns, msgs)
-    if last < len(buf):
-        stop = "byte %d of %d (a record cut short or damaged)" % (last, len(buf))
-    return conns, msgs, stop
+                inner = _record_in(data, pos, "the record at offset %d" % pos)
+            except Damage as exc:
+                self.skipped.append("%s: the rest from %s" % (what, exc))
+                return
+            body = data[inner.datapos:inner.end]
+            if inner.op == OP_CONNECTION:
+                item = _connection(inner.header, body)
+            elif inner.op == OP_MSG_DATA and len(inner.header.get("time", b"")) == 8 \
+                    and len(inner.header.get("conn", b"")) == 4:
+                sec, nsec = _TIME.unpack(inner.header["time"])
+                item = (OP_MSG_DATA, int.from_bytes(inner.header["conn"], "little"), sec * 1_000_000_000 + nsec, body)
+            else:
+                item = None
+            if item:
+                yield item
+            pos = inner.end
 
 
-def _take(header: dict[str, bytes], data: memoryview, conns: dict, msgs: list) -> None:
-    op = header["op"][:1]
-    if op == bytes([OP_CONNECTION]) and "conn" in header:
-        (cid,) = _U32.unpack(header["conn"][:4])
-        try:
-            conns.setdefault(cid, dict(fields(bytes(data)), topic=header.get("topic", b"")))
-        except ValueError:
-            pass
-    elif op == bytes([OP_MSG_DATA]) and "conn" in header and len(header.get("time", b"")) == 8:
-        (cid,) = _U32.unpack(header["conn"][:4])
-        sec, nsec = struct.unpack("<II", header["time"])
-        msgs.append((sec * 1_000_000_000 + nsec, len(msgs), cid, bytes(data)))
+def _connection(header: dict, data: bytes) -> Optional[tuple]:
+    """A connection record, checked as the reader checks the index's: a damaged copy is passed over (another copy,
+    in a later chunk or in the index, may be whole)."""
+    try:
+        conn = connection(Record(0, header, OP_CONNECTION, 0, len(data)), data, "a connection record")
+    except Damage:
+        return None
+    return OP_CONNECTION, conn.id, conn, b""
+
+
+def count(path: str) -> tuple[int, int, str]:
+    """(connections, messages on them, what stopped the walk) of what reindex can read of `path`."""
+    conns: set = set()
+    messages: dict[int, int] = {}  # by connection: its record may come after them (in the index at the end)
+    walk = Walk(path)
+    for kind, cid, _, _ in walk:
+        if kind == OP_CONNECTION:
+            conns.add(cid)
+        else:
+            messages[cid] = messages.get(cid, 0) + 1
+    return len(conns), sum(n for cid, n in messages.items() if cid in conns), walk.stop
 
 
 def output_path(path: str, output_dir: str | None) -> str:
@@ -125,48 +132,67 @@ def output_path(path: str, output_dir: str | None) -> str:
     return os.path.join(output_dir, os.path.basename(name)) if output_dir else name
 
 
-def reindex(path: str, output_dir: str | None = None) -> tuple[str, int, str]:
-    """Write the messages that can be read from `path` into a new indexed bag: (its path, messages, where the
-    walk stopped). A bag reindexed in place keeps its original as NAME.orig.bag, as rosbag's does."""
-    conns, msgs, stop = scan(path)
+def reindex(path: str, output_dir: str | None = None) -> tuple[str, int, str, list[str]]:
+    """Write the messages that can be read from `path` into a new indexed bag, in the order they come: (its path,
+    messages, where the walk stopped, the chunks left out). Two walks: the connections first (the index at the end
+    holds them all, even those whose chunk is lost), then the messages. A bag reindexed in place keeps its original
+    as NAME.orig.bag, as rosbag's does."""
+    conns: dict[int, Connection] = {}
+    for kind, cid, conn, _ in Walk(path):
+        if kind == OP_CONNECTION:
+            conns.setdefault(cid, conn)
     target = output_path(path, output_dir)
+    source = path
     if os.path.abspath(target) == os.path.abspath(path):
         backup = target[:-4] + ".orig.bag" if target.endswith(".bag") else target + ".orig"
         os.replace(path, backup)
+        source = backup
     elif os.path.exists(target):
         raise ReindexError("%s exists already: not overwriting it (give --output-dir)" % target)
-    msgs.sort()
+    # (imported here: info and play import this module for the walk, and rosbags' import costs them ~90 ms)
+    from rosbags.rosbag1 import Writer
+
     writer = Writer(target)
     writer.open()
     made = {}
+    same: dict[Connection, object] = {}
+    lost: dict[int, int] = {}
     written = 0
-    for stamp, _, cid, data in msgs:
-        header = conns.get(cid)
-        if header is None:
-            continue  # a message whose connection record was lost with the damage
-        conn = made.get(cid)
-        if conn is None:
-            latching = header.get("latching", b"").decode("ascii", "replace")
-            text = {k: header.get(k, b"").decode("utf-8", "replace") for k in
-                    ("topic", "type", "md5sum", "message_definition", "callerid")}
-            conn = made[cid] = writer.add_connection(
-                text["topic"], rosbags_type(text["type"]), msgdef=text["message_definition"], md5sum=text["md5sum"],
-                callerid=text["callerid"] if "callerid" in header else None,
-                latching=int(latching) if latching.isdigit() else None)
-        writer.write(conn, stamp, data)
+    walk = Walk(source)
+    for kind, cid, stamp, data in walk:
+        if kind != OP_MSG_DATA:
+            continue
+        conn = conns.get(cid)
+        if conn is None:  # its connection record lost with the damage (or every copy of it damaged)
+            lost[cid] = lost.get(cid, 0) + 1
+            continue
+        out = made.get(cid)
+        if out is None:
+            # (two ids of the same connection, one of them damaged, are one connection: rosbags' writer takes a
+            # connection once)
+            key = conn._replace(id=0)
+            out = made[cid] = same.get(key) or writer.add_connection(
+                conn.topic, rosbags_type(conn.type), msgdef=conn.msgdef, md5sum=conn.md5sum,
+                callerid=conn.callerid, latching=conn.latching)
+            same[key] = out
+        writer.write(out, stamp, data)
         written += 1
     writer.close()
-    return target, written, stop
+    skipped = walk.skipped + ["%d message%s of connection %d, whose connection record is lost or damaged"
+                              % (n, "" if n == 1 else "s", cid) for cid, n in sorted(lost.items())]
+    return target, written, walk.stop, skipped
 
 
 def main(paths: list[str], output_dir: str | None = None) -> int:
     status = 0
     for path in paths:
         try:
-            target, count, stop = reindex(path, output_dir)
+            target, count, stop, skipped = reindex(path, output_dir)
         except (ReindexError, OSError) as exc:
             print("ERROR %s" % exc, file=sys.stderr)
             status = 1
             continue
+        for line in skipped:
+            print("[ WARN] %s: %s: left out" % (path, line), file=sys.stderr)
         print("%s: %d messages into %s (read up to %s)" % (path, count, target, stop))
     return status

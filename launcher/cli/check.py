@@ -57,7 +57,7 @@ _BOOLEAN = ("true", "false", "1", "0")
 
 
 class Finding(NamedTuple):
-    severity: str  # "error" | "warning"
+    severity: str  # "error" | "warning" | "note" (no fault: what the launch will do, said)
     message: str  # located: "file:line: what\n  included from ..."
     filename: str | None = None
     line: int | None = None
@@ -340,6 +340,11 @@ def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
             yield Finding("error", _located(node, chain, "<%s> [%s] uses machine [%s], which no <machine> tag declares"
                                             % (kind, node.full_name, node.machine_name)),
                           node.filename, node.line, branch, "run", node.full_name)
+        if node.policy is not None and not node.policy.registers:
+            yield Finding("note", _located(node, chain, "<%s> [%s] has registers=\"false\": not a ROS node, up once "
+                                           "its process runs (no registration with the master is awaited)"
+                                           % (kind, node.full_name)),
+                          node.filename, node.line, branch, "run", node.full_name)
 
 
 def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:
@@ -418,8 +423,10 @@ def main(argv: list[str]) -> int:
     for f in findings:
         if f.severity == "error" or not opts.quiet:
             print(f.format())
-    warnings = len(findings) - errors
-    print("%s: %d error(s), %d warning(s)" % (" ".join(files), errors, warnings),
+    warnings = sum(1 for f in findings if f.severity == "warning")
+    notes = len(findings) - errors - warnings
+    print("%s: %d error(s), %d warning(s)%s" % (" ".join(files), errors, warnings,
+                                                ", %d note(s)" % notes if notes else ""),
           file=sys.stderr if errors else sys.stdout)
     if opts.junit_xml:
         try:

@@ -1,7 +1,8 @@
 """`launcher doctor [pkg] [file.launch]`: the set-up mistakes newcomers hit most, found before a launch, each with its fix.
 
 Each check says `ok`, `note` or `problem` in one line, and a problem says what
-to do. Checks: which Python runs the launcher; the machine's host name, ROS_HOSTNAME and ROS_IP (they must
+to do; a cause found at several nodes is one problem, with the nodes under it
+and its fix once. Checks: which Python runs the launcher; the machine's host name, ROS_HOSTNAME and ROS_IP (they must
 resolve to an address of this machine, or nodes cannot be reached: "Unable to
 contact my own server"); ROS_MASTER_URI (its host resolves; a master answers, or
 one can be started here); ROS_PACKAGE_PATH (each entry holds packages: an empty
@@ -21,7 +22,7 @@ import shutil
 import socket
 import sys
 import urllib.parse
-from typing import Mapping
+from typing import Any, Mapping
 
 import psutil
 
@@ -36,15 +37,36 @@ OK, NOTE, PROBLEM = "ok", "note", "problem"
 
 
 class Report:
+    """The lines doctor prints. A cause is said once with its fix: the nodes it concerns are named under it
+    (five nodes behind one venv's python3 are one problem with one fix), and a fix already given is not
+    given again."""
+
     def __init__(self) -> None:
         self.problems = 0
+        self._fixes: set[str] = set()
+        # (level, cause, fix) -> the nodes it concerns, in the launch's order (dict: the causes' order too)
+        self._nodes: dict[tuple[str, str, str], list[str]] = {}
 
     def say(self, level: str, text: str, fix: str = "") -> None:
         if level == PROBLEM:
             self.problems += 1
         print("%-8s %s" % (level, text))
         if fix:
-            print("%-8s   fix: %s" % ("", fix))
+            print("%-8s   fix: %s" % ("", "as above" if fix in self._fixes else fix))
+            self._fixes.add(fix)
+
+    def node(self, level: str, where: str, cause: str, fix: str = "") -> None:
+        """A cause found at a node (`where`: file:line: node [name]); said by `nodes_done`, once per cause."""
+        self._nodes.setdefault((level, cause, fix), []).append(where)
+
+    def nodes_done(self) -> None:
+        for (level, cause, fix), where in self._nodes.items():
+            if len(where) == 1:
+                self.say(level, "%s: %s" % (where[0], cause), fix)
+            else:
+                self.say(level, "%s: %d nodes\n%s" % (cause, len(where), "\n".join(
+                    "%-8s   %s" % ("", w) for w in where)), fix)
+        self._nodes.clear()
 
 
 def main(argv: list[str]) -> int:
@@ -168,26 +190,35 @@ def check_launch(report: Report, argv: list[str], environ: Mapping[str, str], pa
         return
     report.say(OK, "the launch loads (%d node%s)" % (len(config.nodes), "" if len(config.nodes) == 1 else "s"))
     findable: dict[tuple[str, str], bool] = {}  # (interpreter, module) -> it finds it: once for all the nodes
+    try:
+        check_nodes(report, config, environ, packages, findable)
+    finally:
+        report.nodes_done()
+
+
+def check_nodes(report: Report, config: Any, environ: Mapping[str, str], packages: PackageIndex,
+                findable: dict[tuple[str, str], bool]) -> None:
+    """Each node's executable and its interpreter, each cause told to the report with the node."""
     for node in config.nodes + config.tests:
         where = "%s:%d: node [%s]" % (node.filename, node.line, node.full_name)
         try:
             path = packages.find_node(node.package, node.type)
         except ExecutableNotFound as e:
             if e.not_executable:  # (roslaunch's "Make sure file exists" misleads: it does)
-                report.say(PROBLEM, "%s: the file [%s] is there but not executable" % (where, e.not_executable),
-                           "chmod +x %s" % shlex.quote(e.not_executable))
+                report.node(PROBLEM, where, "the file [%s] is there but not executable" % e.not_executable,
+                            "chmod +x %s" % shlex.quote(e.not_executable))
             else:
-                report.say(PROBLEM, "%s: %s" % (where, str(e).splitlines()[0]),
-                           "build the package, or correct type=\"%s\" (no such executable in [%s]%s)"
-                           % (node.type, node.package, ": " + e.hint if e.hint else ""))
+                report.node(PROBLEM, where, str(e).splitlines()[0],
+                            "build the package, or correct type=\"%s\" (no such executable in [%s]%s)"
+                            % (node.type, node.package, ": " + e.hint if e.hint else ""))
             continue
         except LaunchError as e:
-            report.say(PROBLEM, "%s: %s" % (where, e))
+            report.node(PROBLEM, where, str(e))
             continue
         problem = _shebang_problem(path, environ)
         if problem:
-            report.say(PROBLEM, "%s: %s" % (where, problem),
-                       "correct the first line of %s, or install the interpreter it names" % path)
+            report.node(PROBLEM, where, problem,
+                        "correct the first line of %s, or install the interpreter it names" % path)
         else:
             check_node_python(report, where, path, environ, findable)
 
@@ -204,9 +235,10 @@ def check_node_python(report: Report, where: str, script: str, environ: Mapping[
     trap = nodepython.trap(script, environ, findable)
     if trap is not None:
         interpreter, system, missing = trap
-        report.say(PROBLEM, "%s: %s starts with '#!/usr/bin/env %s', which finds %s first on PATH; that cannot "
-                   "import %s (%s can)" % (where, script, os.path.basename(system), interpreter,
-                                           ", ".join(missing), system), PATH_TRAP_FIX % os.path.dirname(interpreter))
+        # (the script is the node's; the cause, the interpreter PATH finds, is every such node's)
+        report.node(PROBLEM, "%s (%s)" % (where, script), "'#!/usr/bin/env %s' finds %s first on PATH; that cannot "
+                    "import %s (%s can)" % (os.path.basename(system), interpreter, ", ".join(missing), system),
+                    PATH_TRAP_FIX % os.path.dirname(interpreter))
 
 
 def check_python_on_path(report: Report, environ: Mapping[str, str]) -> None:

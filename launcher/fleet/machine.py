@@ -8,8 +8,9 @@ states of a node sent to another machine. It does no I/O and reads no clock:
 the runners (`process.supervisor` for this machine, `remote.parent` for the
 others) feed it what happened and carry out the actions it returns; the
 fleet (`fleet.state.Fleet`) keeps the records and tells every view of each
-change. A pair (state, event) that is in neither TABLE nor IGNORED is a bug
-in a runner, raised as `InvalidTransition`.
+change. Every pair (state, event) is in one of three: TABLE (what it does),
+IGNORED (a report that comes after the state it reports on moved on: nothing)
+or REFUSED (no runner sends it: a bug in a runner, raised as `InvalidTransition`).
 
 Internal states, and the state the outside (README, events file, status,
 `api.Launch`) sees:
@@ -91,10 +92,16 @@ BOUND_STARTED = "bound started"  # ... runs again
 RELOAD_STOP = "reload stop"
 RENEW = "renew"
 RULES = "rules"
+# the master's word (health/registration.py): the current run registered with it at `uri` (by the node's name,
+# or as a process of its group), or that registration went. A registration is no state of its own: a node
+# registered or not is running all the same; the record says which (`registered`, `uri`), and nothing follows
+# from it here (readiness, hang and stall probes, systemd's READY=1 listen to the fleet's changes)
+REGISTERED = "registered"
+UNREGISTERED = "unregistered"
 EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, STALL, UNSTALL, RESTART,
           LIMIT, STOP,
           SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
-          MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED, RELOAD_STOP, RENEW, RULES)
+          MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED, RELOAD_STOP, RENEW, RULES, REGISTERED, UNREGISTERED)
 
 # ---- actions: what the runner carries out
 SPAWN = "spawn"  # start the process (this machine)
@@ -146,6 +153,8 @@ class Record(NamedTuple):
     restart_reason: str = ""  # this run is being killed in order to start again
     rebind: bool = False  # being stopped because the node it is bound to is down: detached once down
     stop_reason: str = ""  # why the launch is stopping it (a reload), said once it is down
+    registered: bool = False  # its current run is registered with the master ...
+    uri: str = ""  # ... and this is that run's XML-RPC URI
 
 
 class Event(NamedTuple):
@@ -159,6 +168,7 @@ class Event(NamedTuple):
     killed: bool = False
     detail: str = ""  # the runner's own words about it, for the console (roslaunch's exit description)
     rules: Rules | None = None  # RENEW, RULES: the node's new rules (None: as they are)
+    uri: str = ""  # REGISTERED, UNREGISTERED: the registration's URI
 
 
 class Action(NamedTuple):
@@ -180,7 +190,7 @@ def step(record: Record, event: Event, now: float) -> tuple[Record, list[Action]
         return handler(record, event, now)
     if (record.state, event.kind) in IGNORED:
         return record, []
-    raise InvalidTransition("node [%s]: event [%s] in state [%s]" % (record.name, event.kind, record.state))
+    raise InvalidTransition("node [%s]: event [%s] in state [%s]" % (record.name, event.kind, record.state))  # (REFUSED)
 
 
 def exit_status(exit_code: int | None, exit_signal: int | None) -> int:
@@ -244,9 +254,12 @@ def _spawned(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     if r.state == RUNNING and (r.pid is None or r.pid == e.pid):
         return r._replace(pid=e.pid, process=e.process or r.process), []
     first = r.spawn_count == 0
+    # a remote run may register before its child says it started (its registration is this run's)
+    kept = r.state == LAUNCHING and r.registered
     return r._replace(state=RUNNING, pid=e.pid, process=e.process or r.process, spawn_count=r.spawn_count + 1,
                       restarts=r.restarts + (0 if first else 1), started=now, exit_code=None, exit_signal=None,
-                      next_start=None, reason="", over_limit=(), restart_reason="", rebind=False), []
+                      next_start=None, reason="", over_limit=(), restart_reason="", rebind=False,
+                      registered=kept, uri=r.uri if kept else ""), []
 
 
 def _launch_sent(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
@@ -270,7 +283,8 @@ def _run_ended(r: Record, e: Event, now: float, started: bool = True) -> tuple[R
     again (the restart policy, or its child does it), or it stays down (exited, fatal)."""
     rules = r.rules
     code, sig = (e.exit_code, e.exit_signal) if started else (None, None)
-    ended = r._replace(exit_code=code, exit_signal=sig, over_limit=(), restart_reason="", next_start=None)
+    ended = r._replace(exit_code=code, exit_signal=sig, over_limit=(), restart_reason="", next_start=None,
+                       registered=False, uri="")
     if started and r.restart_reason:  # killed in order to start again (on_limit="restart")
         return ended._replace(state=RESPAWNING, next_start=now, reason=r.restart_reason), [Action(SCHEDULE, 0.0)]
     if rules.required:
@@ -360,11 +374,11 @@ def _down(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
         else (r.exit_code, r.exit_signal)
     if r.rebind and not r.operator_stopped:  # (stopped with the node it is bound to: it waits for that one)
         return r._replace(state=DETACHED, exit_code=code, exit_signal=sig, over_limit=(), restart_reason="",
-                          rebind=False, stop_reason=""), []
+                          rebind=False, stop_reason="", registered=False, uri=""), []
     why = "killed with SIGKILL" if e.killed else "stopped by operator" if r.operator_stopped \
         else e.reason or r.stop_reason
     return r._replace(state=STOPPED, pid=r.pid, exit_code=code, exit_signal=sig, reason=why, over_limit=(),
-                      restart_reason="", rebind=False, stop_reason=""), []
+                      restart_reason="", rebind=False, stop_reason="", registered=False, uri=""), []
 
 
 def _stop_refused(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
@@ -416,7 +430,7 @@ def _new_rules(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
 def _link_lost(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     """Its machine's session ended while it ran, or was being handed over: it is launched again when
     the machine answers (a required one ends the launch)."""
-    lost = r._replace(state=LOST, reason=e.reason, over_limit=())
+    lost = r._replace(state=LOST, reason=e.reason, over_limit=(), registered=False, uri="")
     return lost, [Action(END_LAUNCH, status=1)] if r.rules.required else []
 
 
@@ -426,8 +440,23 @@ def _stopped_with_link(r: Record, e: Event, now: float) -> tuple[Record, list[Ac
 
 
 def _machine_failed(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
-    new = r._replace(state=EXITED, reason=e.reason, next_start=None)
+    new = r._replace(state=EXITED, reason=e.reason, next_start=None, registered=False, uri="")
     return new, [Action(CANCEL)] + ([Action(END_LAUNCH, status=1)] if r.rules.required else [])
+
+
+# ---- the master's word -----------------------------------------------------------------------------------
+
+def _registered(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    if r.registered and r.uri == e.uri:
+        return r, []
+    return r._replace(registered=True, uri=e.uri), []
+
+
+def _unregistered(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
+    """Its registration went (a registration at another URI, the run's newer one, stays)."""
+    if not r.registered or (e.uri and e.uri != r.uri):
+        return r, []
+    return r._replace(registered=False, uri=""), []
 
 
 def describe(conditions) -> str:
@@ -439,6 +468,8 @@ def describe(conditions) -> str:
 
 _WAITING_TO_START = (NEW, WAITING, HELD, RESPAWNING, PENDING, LOST, DETACHED)
 _DOWN_FOR_GOOD = (EXITED, FATAL, STOPPED)
+# a process of the node may be registered (a remote one may register before its child says it runs)
+_MAY_BE_REGISTERED = (LAUNCHING, RUNNING, HUNG, STALLED, STOPPING)
 
 TABLE = {
     (NEW, START): _start,
@@ -495,6 +526,8 @@ TABLE = {
     **{(s, RULES): _new_rules for s in STATES},
     **{(s, MACHINE_FAILED): _machine_failed for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, RUNNING, LOST,
                                                       RESPAWNING)},
+    **{(s, REGISTERED): _registered for s in _MAY_BE_REGISTERED},
+    **{(s, UNREGISTERED): _unregistered for s in _MAY_BE_REGISTERED},
 }
 
 
@@ -535,8 +568,50 @@ IGNORED = frozenset(
     # a partner's start concerns only a detached node
     + [(s, BOUND_STARTED) for s in (NEW, WAITING, HELD, STARTING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
                                      EXITED, FATAL, STOPPED)]
+    # a run that ended (its registration, late, or left on a master found running), or none under way
+    + [(s, k) for s in STATES if s not in _MAY_BE_REGISTERED for k in (REGISTERED, UNREGISTERED)]
 )
 assert not IGNORED & TABLE.keys()
+
+# Pairs no runner sends: each is a runner's bug, raised as InvalidTransition (the fleet says "internal error" and
+# leaves the node as it was). With TABLE and IGNORED they are every pair, each in one (tests/fleet/test_machine.py).
+_LOCAL_ONLY = (STARTING, HUNG, STALLED)  # (states of a node of this machine: the health watchers are local)
+REFUSED = frozenset(
+    # the launch starts a node once (again only after its end: a remote child's parent gives it anew)
+    [(s, START) for s in STATES if s not in (NEW,) + _DOWN_FOR_GOOD]
+    # only a node being made is kept stopped (--no-start)
+    + [(s, KEEP_STOPPED) for s in STATES if s != NEW]
+    # no timer runs: a spawn_delay's or a respawn's only (a cancelled one firing late: ignored)
+    + [(s, DUE) for s in (NEW, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, LOST)]
+    # only a held node is in the readiness hold (one let go of late: ignored)
+    + [(s, k) for k in (READY, NOT_READY) for s in STATES if s not in (HELD,) + _DOWN_FOR_GOOD]
+    # a run is told after a spawn or a `launch` call (or its child's respawn), not before
+    + [(s, SPAWNED) for s in (NEW, WAITING, HELD, PENDING, HUNG, STALLED, EXITED, FATAL, DETACHED)]
+    # only a spawn or a `launch` call fails to start
+    + [(s, SPAWN_FAILED) for s in (NEW, WAITING, HELD, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, EXITED, FATAL,
+                                   DETACHED)]
+    # no process of it runs (a spawn's exit comes after its start; a run's end is told once)
+    + [(s, EXITED_) for s in (NEW, WAITING, HELD, STARTING, RESPAWNING)]
+    # the probes and the limit watch look at a running process only
+    + [(s, k) for k in (HANG, STALL) for s in (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, LOST)]
+    + [(s, RESTART) for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, LOST)]
+    # a spawn is done within one call of the runner: no stop comes between
+    + [(STARTING, k) for k in (STOP, SHUTDOWN, RELOAD_STOP)]
+    # only a stop under way ends, or is refused
+    + [(s, k) for k in (DOWN, STOP_REFUSED) for s in STATES if s != STOPPING]
+    # only a node queued for its machine is sent
+    + [(s, LAUNCH_SENT) for s in STATES if s not in (PENDING, LOST)]
+    # only a node in a `launch` call is answered (a late answer: ignored)
+    + [(s, k) for k in (LAUNCHED, LAUNCH_REFUSED) for s in (NEW, WAITING, HELD, STARTING, HUNG, STALLED)]
+    + [(s, LAUNCHED) for s in (RESPAWNING,)] + [(s, LAUNCH_REFUSED) for s in (STOPPING,)]
+    # a node of this machine has no machine's session to lose
+    + [(s, k) for k in (LINK_LOST, MACHINE_FAILED) for s in _LOCAL_ONLY]
+    # a bound node and its partner are both of this machine
+    + [(s, k) for k in (BOUND_ENDED, BOUND_STARTED) for s in (PENDING, LAUNCHING, LOST)]
+    # a reload renews a node once it has stopped it
+    + [(s, RENEW) for s in STATES if s not in (NEW, DETACHED) + _DOWN_FOR_GOOD]
+)
+assert not REFUSED & (TABLE.keys() | IGNORED)
 
 
 def outcome_all_dead(records) -> bool:

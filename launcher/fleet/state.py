@@ -42,6 +42,7 @@ from typing import Callable, Iterable, NamedTuple
 from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
+from launcher.model.units import format_size
 
 WAITING = "waiting"
 RUNNING = "running"
@@ -53,8 +54,8 @@ STALLED = "stalled"
 STOPPED = "stopped"
 STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 
-EVENTS_FILE = "launcher-events.jsonl"
-LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+EVENTS_FILE = "launcher-events.jsonl"  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
+LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends
 RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
@@ -67,7 +68,8 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit", "cpu_seconds")
+                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at", "registered", "uri",
+                 "cpu_seconds")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -81,6 +83,11 @@ class NodeStatus:
         self.spawn_count = 0  # runs started
         self.exit_code: int | None = None  # the last run's exit code, if it exited
         self.exit_signal: int | None = None  # the signal that ended the last run, if one did
+        # how the last run that ended did end, and when (wall clock): kept while the node runs again, when
+        # exit_code and exit_signal (the current run's) are None again (why does it keep restarting?)
+        self.last_exit_code: int | None = None
+        self.last_exit_signal: int | None = None
+        self.last_exit_at: float | None = None
         self.next_start: float | None = None  # when respawning
         self.reason = ""  # why the last change happened, in words
         self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
@@ -91,6 +98,10 @@ class NodeStatus:
         self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
         # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
         self.over_limit: dict[str, float] = {}
+        # its current run is registered with the master, at this XML-RPC URI ("running" says that a process
+        # runs; a ROS node is up once it is registered too)
+        self.registered = False
+        self.uri = ""
 
     def uptime(self, now: float | None = None) -> float | None:
         if self.state != RUNNING or self.started_at is None:
@@ -102,7 +113,10 @@ class NodeStatus:
                 "phase": self.phase, "pid": self.pid, "started_at": self.started_at, "uptime": self.uptime(),
                 "restarts": self.restarts, "exit_code": self.exit_code, "exit_signal": self.exit_signal,
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
-                "rss": self.rss, "cpu_seconds": round(self.cpu_seconds, 3), "over_limit": dict(self.over_limit)}
+                "rss": self.rss, "over_limit": dict(self.over_limit), "last_exit_code": self.last_exit_code,
+                "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at,
+                "registered": self.registered, "uri": self.uri,
+                "cpu_seconds": round(self.cpu_seconds, 3)}
 
 
 class Change(NamedTuple):
@@ -118,23 +132,32 @@ class Change(NamedTuple):
     line: dict  # the change as the events file writes it
 
 
-def size_text(n: float) -> str:
-    """Bytes in words: 612.0 MB."""
-    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
-        if n >= scale:
-            return "%.1f %s" % (n / scale, unit)
-    return "%d B" % n
+class RunEvent(NamedTuple):
+    """A line of the run's own (a reload, the master restarted, the launch's end) in the change stream: a long
+    poll's reader follows it as the events file has it."""
+
+    seq: int
+    line: dict
 
 
 def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
-    """The limits a node is over, each with the value it has now: "memory_limit 500.0 MB (uses 612.0 MB)"."""
+    """The limits a node is over, each with the value it has now: "memory_limit 500MB (uses 612.3MB)" (sizes as
+    the README's units rule writes them: the limit as given, the measured use in decimal units)."""
     parts = []
     for limit, maximum in sorted(over_limit.items()):
         if limit == "memory_limit":
-            parts.append("memory_limit %s (uses %s)" % (size_text(maximum), "?" if rss is None else size_text(rss)))
+            parts.append("memory_limit %s (uses %s)" % (format_size(maximum),
+                                                        "?" if rss is None else format_size(rss, measured=True)))
         else:
             parts.append("%s %g cores (uses %s)" % (limit, maximum, "?" if cpu is None else "%.2f" % cpu))
     return ", ".join(parts)
+
+
+def run_ended(before: tuple, after: tuple) -> bool:
+    """Whether a node's (exit_code, exit_signal) going from `before` to `after` is a run's end: a run clears
+    them when it starts, and its end sets them (a view of the change stream or of the events file keeps
+    `last_exit_*` by the same rule)."""
+    return after != (None, None) and after != before
 
 
 def visible(change: Change) -> bool:
@@ -146,7 +169,8 @@ def visible(change: Change) -> bool:
     return (machine.PUBLIC[old.state] != machine.PUBLIC[new.state] or old.pid != new.pid
             or old.spawn_count != new.spawn_count or old.exit_code != new.exit_code
             or old.exit_signal != new.exit_signal or old.over_limit != new.over_limit
-            or old.failures != new.failures or (old.reason != new.reason and new.reason != ""))
+            or old.failures != new.failures or (old.reason != new.reason and new.reason != "")
+            or old.registered != new.registered or old.uri != new.uri)
 
 
 class Fleet:
@@ -163,7 +187,7 @@ class Fleet:
         self.say = say  # the outcome's words ("all processes on machine have died ...")
         self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
         self.seq = 0
-        self.changes: collections.deque[Change] = collections.deque(maxlen=CHANGES_KEPT)
+        self.changes: collections.deque[Change | RunEvent] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
         self.done = compat.Event()
@@ -233,6 +257,12 @@ class Fleet:
             self._check_all_dead()
         return actions
 
+    def registration(self, name: str, uri: str, present: bool) -> None:
+        """The master's word about a node's current run (health/registration.py): registered at `uri`, or that
+        registration gone. No runner is needed: the machine answers these with no action."""
+        if name in self.records:
+            self.apply(name, Event(machine.REGISTERED if present else machine.UNREGISTERED, uri=uri))
+
     def _mirror(self, r: Record, now: float) -> NodeStatus:
         status = self.nodes[r.name]
         wall = time.time() - now  # this clock's zero on the wall clock
@@ -243,11 +273,14 @@ class Fleet:
         status.started_at = None if r.started is None or r.spawn_count == 0 else wall + r.started
         status.restarts = r.restarts
         status.spawn_count = r.spawn_count
+        if run_ended((status.exit_code, status.exit_signal), (r.exit_code, r.exit_signal)):
+            status.last_exit_code, status.last_exit_signal, status.last_exit_at = r.exit_code, r.exit_signal, wall + now
         status.exit_code, status.exit_signal = r.exit_code, r.exit_signal
         status.next_start = None if r.next_start is None else wall + r.next_start
         status.reason = r.reason
         status.failures = r.failures
         status.over_limit = dict(r.over_limit)
+        status.registered, status.uri = r.registered, r.uri
         if status.state != RUNNING:
             status.cpu = status.rss = None  # (a stopped node uses nothing: no stale sample)
         return status
@@ -267,11 +300,14 @@ class Fleet:
     # ---- the change stream, for readers outside -----------------------------------------------------------
 
     def changes_since(self, seq: int) -> tuple[list[dict], bool]:
-        """The changes after `seq`, as the events file has them, and whether they are all there (False:
-        older ones were dropped; a reader should read the status again)."""
+        """The changes after `seq`, as the events file has them (a step it leaves out, such as running ->
+        stopping, marked `"internal": true`: a view that shows the file's lines skips it; the run's own lines, a
+        reload's, the master's restart, the launch's end, as the file has them too), and whether they
+        are all there (False: older ones were dropped; a reader should read the status again)."""
         changes = [c for c in self.changes if c.seq > seq]
         complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
-        return [c.line for c in changes], complete
+        return [c.line if isinstance(c, RunEvent) or visible(c) else dict(c.line, internal=True)
+                for c in changes], complete
 
     async def wait_change(self, seq: int, timeout: float) -> None:
         """Return when there is a change after `seq`, or after `timeout` seconds."""
@@ -324,7 +360,7 @@ class Fleet:
 
     def run_event(self, event: str, **fields: object) -> None:
         """A line in the events file about the run, not one node (`event`: its name, `reason`: its words)."""
-        line = {"event": event, "time": round(time.time(), 6), **fields}
+        line = self._stream({"event": event, "time": round(time.time(), 6), **fields})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
@@ -334,7 +370,7 @@ class Fleet:
 
     def reloaded(self, reason: str, **what: list) -> None:
         """A reload's line in the events file: what it changed, in words (`reason`) and by name."""
-        line = {"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what}
+        line = self._stream({"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what})
         if self._events is not None:
             try:
                 self._events.write(json.dumps(line, separators=(",", ":"), default=str) + "\n")
@@ -342,13 +378,22 @@ class Fleet:
                 self._warning("cannot write the events file: %s" % e.strerror)
                 self._close()
 
+    def _stream(self, line: dict) -> dict:
+        """A run's line numbered in the change stream (`seq`), for the long poll's readers too."""
+        self.seq += 1
+        line = {"seq": self.seq, **line}
+        self.changes.append(RunEvent(self.seq, line))
+        if self._changed is not None:
+            self._changed.set()
+        return line
+
     @staticmethod
     def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:
         """A change as the events file and the long poll give it."""
         return {"seq": seq, "time": round(when, 6), "node": r.name, "host": r.host, "state": status.state,
                 "phase": r.state, "pid": r.pid, "exit_code": r.exit_code, "exit_signal": r.exit_signal,
                 "restarts": r.restarts, "failures": r.failures, "next_start": status.next_start,
-                "over_limit": dict(r.over_limit), "reason": r.reason}
+                "over_limit": dict(r.over_limit), "reason": r.reason, "registered": r.registered, "uri": r.uri}
 
     def _write(self, change: Change) -> None:
         if self._events is None:

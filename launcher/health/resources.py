@@ -143,15 +143,6 @@ class GroupReader:
             self._drop(members, pid)
 
 
-def read_groups(pgids) -> dict[int, tuple[int, int]]:
-    """One reading of `pgids` (see GroupReader)."""
-    reader = GroupReader()
-    try:
-        return reader.read(pgids)
-    finally:
-        reader.close()
-
-
 class ResourceMonitor:
     """Samples a supervisor's running nodes into its Fleet and applies their limits."""
 

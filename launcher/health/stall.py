@@ -1,7 +1,8 @@
 """Stalled topics: a node alive whose own publication of a watched topic went silent or too slow.
 
 A node with `watch_topic` (its names resolved as the node resolves them, at
-load) is watched once its run has registered: the launcher asks the node
+load) is watched once its run has registered (the fleet's record says so, and at
+which URI: health/registration.py): the launcher asks the node
 itself for each topic (`requestTopic`, as any subscriber does) and subscribes
 over TCPROS with any type (`*`: no message package, nothing deserialized), so
 another publisher on the same topic cannot hide a stall. The messages are
@@ -10,8 +11,9 @@ wait, and each verdict first drains it, so a quiet topic costs a read per
 verdict and a 30 MB/s one a read per 256 kB. `TopicWatch` decides,
 fed the times of the messages and a clock:
 
-- no message for `watch_timeout` s (counted from the run's start until a
-  first message comes): stalled;
+- no message for `watch_timeout` s (counted from the run's registration
+  until a first message comes: a node publishes nothing before it has
+  registered, and a rospy node takes a second or more to get there): stalled;
 - fewer than `watch_min_rate` Hz over the last `watch_window` s (once a whole
   window has passed): stalled;
 - with neither set, silence for `watch_window` s is a stall.
@@ -28,14 +30,16 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import logging
 import urllib.parse
 from typing import Any
 
+from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import tcpros, xmlrpc
-from launcher.health.hang import registered_uri
+
+log = logging.getLogger("launcher.stall")
 
 CALLER_ID = "/launcher_stall_watch"
-REGISTRATION_POLL_S = 0.25
 MAX_PERIOD_S = 1.0
 
 
@@ -71,7 +75,7 @@ class TopicWatch:
         if self.timeout is not None:
             since = self.last if self.last is not None else self.started_at
             if now - since >= self.timeout:
-                what = "since its last message" if self.last is not None else "since the node started"
+                what = "since its last message" if self.last is not None else "since the node registered"
                 return "no message on %s for %.1f s %s (watch_timeout %g)" % (self.topic, now - since, what,
                                                                               self.timeout)
         if self.min_rate is not None and now - self.started_at >= self.window:
@@ -93,28 +97,44 @@ class TopicWatch:
 
 
 class StallWatch:
-    """Watches the watched topics of every running node of a supervisor (a watcher: `started`, `exiting`)."""
+    """Watches the watched topics of every running node of a supervisor once its run has registered (a
+    watcher: `started`, `exiting`; and a listener of the supervisor's fleet)."""
 
-    def __init__(self, master_uri: str, supervisor: Any):
-        self.master_uri = master_uri
+    def __init__(self, supervisor: Any):
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
         self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
         # node name -> its watched topics' TopicWatch, while its run is watched (what launch --metrics reads)
         self.watches: dict[str, dict[str, TopicWatch]] = {}
+        self.watched: set[Any] = set()  # the NodeProcesses whose current run is watched once registered
+        supervisor.fleet.listeners.append(self._changed)
 
     def started(self, proc: Any) -> None:
         if proc.spec.policy.watch_topics:
             self._cancel(proc)
-            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen))
+            self.watched.add(proc)
 
     def exiting(self, proc: Any) -> None:
         self._cancel(proc)
+        self.watched.discard(proc)
 
     def close(self) -> None:
+        if self._changed in self.supervisor.fleet.listeners:
+            self.supervisor.fleet.listeners.remove(self._changed)
         for task in self.tasks.values():
             task.cancel()
         self.tasks.clear()
+
+    def _changed(self, change: Change) -> None:
+        old, new = change.old, change.new
+        if (new.registered, new.uri) == (old.registered, old.uri) or new.host != LOCAL_HOST:
+            return
+        proc = self.supervisor.node(new.name)
+        if proc is None or proc not in self.watched:
+            return
+        self._cancel(proc)
+        if new.registered and self._current(proc, proc.popen):  # (silence counts from here)
+            self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen, new.uri, self.loop.time()))
 
     def _cancel(self, proc: Any) -> None:
         task = self.tasks.pop(proc, None)
@@ -124,24 +144,21 @@ class StallWatch:
     def _current(self, proc: Any, popen: Any) -> bool:
         return proc.popen is popen and proc.alive and not proc.stopping and not self.supervisor.shutting_down
 
-    async def _watch(self, proc: Any, popen: Any) -> None:
+    async def _watch(self, proc: Any, popen: Any, uri: str, started_at: float) -> None:
         policy = proc.spec.policy
-        started_at = self.loop.time()
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
-        links: dict[str, tcpros.CountingLink] = {}
+        links: dict[str, PublisherWatch] = {}
         period = min(w.period() for w in watches.values())
         stalled = False
         self.watches[proc.spec.node_name] = watches
         try:
-            uri = await registered_uri(self.master_uri, proc, lambda: self._current(proc, popen), REGISTRATION_POLL_S)
-            while uri is not None and self._current(proc, popen):
+            while self._current(proc, popen):
                 for topic, watch in watches.items():
                     link = links.get(topic)
-                    if link is None or link.closed:
-                        links[topic] = await self._subscribe(uri, topic, watch, period) or link
-                    else:
-                        link.drain()  # (a quiet topic's messages wait under the socket's low-water mark)
+                    if link is None:
+                        link = links[topic] = PublisherWatch(uri, topic, watch, max(period, 0.5))
+                    link.check()
                 now = self.loop.time()
                 why = "; ".join(v for v in (w.verdict(now) for w in watches.values()) if v)
                 if not self._current(proc, popen):
@@ -157,22 +174,94 @@ class StallWatch:
             if self.watches.get(proc.spec.node_name) is watches:
                 del self.watches[proc.spec.node_name]
             for link in links.values():
-                if link is not None:
-                    link.close()
+                link.close()
 
-    async def _subscribe(self, uri: str, topic: str, watch: TopicWatch, timeout: float) -> Any:
-        """A link to the node's own publisher of `topic` (None: it does not publish it yet)."""
+
+class PublisherWatch:
+    """The watch's connection to a node's own publisher of one topic, opened in the background (a verdict never
+    waits for a handshake). A node that does not publish the topic yet, or whose port does not answer, is asked
+    again at the next verdict; a connection that ended is tried again as tcpros.PublisherRetry says (a refusal or
+    a header of no message type: not in this run of the node), each lie one warning line naming the publisher and
+    the topic."""
+
+    def __init__(self, uri: str, topic: str, watch: TopicWatch, timeout: float):
+        self.loop = asyncio.get_running_loop()
+        self.uri = uri
+        self.topic = topic
+        self.watch = watch
+        self.timeout = timeout
+        self.retry = tcpros.PublisherRetry()
+        self.link: tcpros.CountingLink | None = None
+        self.task: asyncio.Task | None = None
+        self.timer: asyncio.TimerHandle | None = None   # the next attempt after a connection ended
+        self.given_up = False                           # refused: none in this run
+        self.closed = False
+
+    def check(self) -> None:
+        """At each verdict: count what came (a quiet topic's messages wait under the socket's low-water mark), or
+        ask for the topic if nothing is under way."""
+        if self.link is not None:
+            self.link.drain()
+        elif self.task is None and self.timer is None and not self.given_up:
+            self._open_soon()
+
+    def _open_soon(self) -> None:
+        self.timer = None
+        if not self.closed and self.task is None:
+            self.task = self.loop.create_task(self._open())
+
+    async def _open(self) -> None:
+        opened = self.loop.time()
         try:
-            code, _msg, proto = await xmlrpc.call(uri, "requestTopic", CALLER_ID, topic, [["TCPROS"]],
-                                                  timeout=max(timeout, 0.5))
-        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
-            return None
-        if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
-            return None
-        host, port = proto[1], proto[2]
-        try:
-            return await tcpros.watch_publisher(host or urllib.parse.urlsplit(uri).hostname, int(port), topic,
-                                                CALLER_ID, uri, lambda n: watch.messages(n, self.loop.time()),
-                                                timeout=max(timeout, 0.5))
-        except (OSError, asyncio.TimeoutError, tcpros.TcprosError, ValueError):
-            return None
+            try:
+                code, _msg, proto = await xmlrpc.call(self.uri, "requestTopic", CALLER_ID, self.topic, [["TCPROS"]],
+                                                      timeout=self.timeout)
+            except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
+                return
+            if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
+                return  # (not published yet: asked again at the next verdict)
+            link = await tcpros.watch_publisher(proto[1] or urllib.parse.urlsplit(self.uri).hostname, int(proto[2]),
+                                                self.topic, CALLER_ID, self.uri, self._messages, timeout=self.timeout,
+                                                on_close=self._closed)
+            if self.closed:
+                link.close()
+            else:
+                self.link = link
+        except tcpros.TcprosError as exc:
+            self._ended(exc.ending, opened, str(exc))
+        except (OSError, asyncio.TimeoutError, ValueError, TypeError) as exc:
+            # no connection at all (a node starting under load, or going): no lie, asked again at the next verdict
+            log.debug("cannot connect to publisher %s of %s: %s", self.uri, self.topic, exc)
+        finally:
+            self.task = None
+
+    def _messages(self, count: int) -> None:
+        self.watch.messages(count, self.loop.time())
+
+    def _closed(self, link: tcpros.CountingLink) -> None:
+        if link is self.link:
+            self.link = None
+        assert link.state is not None
+        self._ended(link.ending or tcpros.ENDED, link.state.opened_at, link.why)
+
+    def _ended(self, how: str, opened_at: float, why: str) -> None:
+        if self.closed or how == tcpros.CLOSED:
+            return
+        now = self.loop.time()
+        due = self.retry.ended(how, opened_at, now)
+        if due is None:
+            self.given_up = True
+            what = "%s; dropping the connection, not watched again until the node starts again" % why
+        else:
+            self.timer = self.loop.call_at(due, self._open_soon)
+            what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
+        log.log(logging.DEBUG if how == tcpros.ENDED else logging.WARNING, "%s", what)
+
+    def close(self) -> None:
+        self.closed = True
+        if self.timer is not None:
+            self.timer.cancel()
+        if self.task is not None:
+            self.task.cancel()
+        if self.link is not None:
+            self.link.close()

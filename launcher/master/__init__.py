@@ -12,6 +12,7 @@ from launcher.master.api import MasterApi, unsendable
 from launcher.master.callstats import CallStats
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
+from launcher.model.graph import Graph
 from launcher.model.names import resolve_name
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
@@ -108,6 +109,8 @@ class Master:
         self._tree = ParamTree()
         self._purges: set[asyncio.Task] = set()  # (process_ended's checks under way)
         self.calls = CallStats()  # its calls by method and their latency (launch --metrics)
+        # what is registered, told as it changes: the launch listens here rather than asking over XML-RPC
+        self.graph = Graph()
 
     @property
     def params(self) -> ParamTree:
@@ -122,7 +125,7 @@ class Master:
         """Listen and serve; OSError if the port is taken."""
 
         self._notifier = Notifier(timeout=self._notify_timeout)
-        self._api = MasterApi(self._notifier, self._tree)
+        self._api = MasterApi(self._notifier, self._tree, graph=self.graph)
         self._api.on_shutdown = self._on_shutdown
         self.calls = CallStats(list(self._api.methods) + ["system.multicall"])
         self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True,

@@ -171,11 +171,12 @@ def unsendable(value: Any) -> str:
 class MasterApi:
     """Method table and state of one master. `dispatch(method, params)` answers a call."""
 
-    def __init__(self, notifier: Notifier, params: ParamTree | None = None, uri: str = ""):
+    def __init__(self, notifier: Notifier, params: ParamTree | None = None, uri: str = "", graph: Any = None):
         self.uri = uri
         self.notifier = notifier
         self.params = params if params is not None else ParamTree()
-        self.registry = reg.Registry(self._bumped, notifier.forget, since_boot)
+        # graph: a model.graph.Graph told of every registration's coming and going (the launch's readers)
+        self.registry = reg.Registry(self._bumped, notifier.forget, since_boot, graph)
         self.topic_types: dict[str, str] = {}
         self._names_cache: tuple[int, int, Encoded] | None = None  # (tree id, shape_version, names)
         self.on_shutdown: Callable[[str], None] | None = None

@@ -8,6 +8,8 @@ re-registered with a new API bumping the old one.
 
 from __future__ import annotations
 
+from typing import Callable
+
 from launcher.net.xmlrpc import Encoded, encode_value
 
 PUBLICATIONS = 1
@@ -39,7 +41,7 @@ class NodeRef:
 class Registrations:
     """key (topic, service or parameter key) -> [(caller_id, caller_api)] in registration order."""
 
-    __slots__ = ("kind", "map", "service_api_map", "_frags", "_state", "_had_services")
+    __slots__ = ("kind", "map", "service_api_map", "_frags", "_state", "_had_services", "on_key")
 
     def __init__(self, kind: int):
         self.kind = kind
@@ -49,6 +51,8 @@ class Registrations:
         self._frags: dict[str, str] = {}
         self._state: Encoded | None = None
         self._had_services = False  # rosmaster's wording differs until a first service registers
+        # told (key, present) when a key gets its first registration or loses its last (model.graph)
+        self.on_key: Callable[[str, bool], None] | None = None
 
     def _changed(self, key: str) -> None:
         self._frags.pop(key, None)
@@ -88,15 +92,20 @@ class Registrations:
     def register(self, key: str, caller_id: str, caller_api: str, service_api: str | None = None) -> None:
         if service_api:
             # a service has exactly one provider: the newest registration wins
+            new = key not in self.map
             self.map[key] = [(caller_id, caller_api)]
             self.service_api_map[key] = (caller_id, service_api)
             self._had_services = True
             self._changed(key)
+            if new and self.on_key is not None:
+                self.on_key(key, True)
             return
         providers = self.map.get(key)
         if providers is None:
             self.map[key] = [(caller_id, caller_api)]
             self._changed(key)
+            if self.on_key is not None:
+                self.on_key(key, True)
         elif (caller_id, caller_api) not in providers:
             providers.append((caller_id, caller_api))
             self._changed(key)
@@ -111,6 +120,8 @@ class Registrations:
             del self.service_api_map[key]
             del self.map[key]
             self._changed(key)
+            if self.on_key is not None:
+                self.on_key(key, False)
             return 1, "Unregistered [%s] as provider of [%s]" % (caller_id, key), 1
         providers = self.map.get(key)
         entry = (caller_id, caller_api)
@@ -118,6 +129,8 @@ class Registrations:
             providers.remove(entry)
             if not providers:
                 del self.map[key]
+                if self.on_key is not None:
+                    self.on_key(key, False)
             self._changed(key)
             return 1, "Unregistered [%s] as provider of [%s]" % (caller_id, key), 1
         return 1, "[%s] is not a known provider of [%s]" % (caller_id, key), 0
@@ -134,6 +147,8 @@ class Registrations:
                     dead.append(key)
         for key in dead:
             del self.map[key]
+            if self.on_key is not None:
+                self.on_key(key, False)
         for key in [k for k, v in self.service_api_map.items() if v[0] == caller_id]:
             del self.service_api_map[key]
 
@@ -144,10 +159,12 @@ class Registry:
     `on_bump(old_node, caller_id)` is called when a node name registers with a
     new API: the master tells the old process to shut down. `on_gone(api)` is
     called when no node is known by `api` any more: nothing is owed to it.
-    `clock()` says when (since boot) a name registers with an API it did not have.
+    `clock()` says when (since boot) a name registers with an API it did not have. `graph` (a
+    model.graph.Graph) is told each node that registers or goes, each topic that gets its first publisher
+    or loses its last, each service that gets or loses its provider.
     """
 
-    def __init__(self, on_bump, on_gone=None, clock=lambda: 0.0):
+    def __init__(self, on_bump, on_gone=None, clock=lambda: 0.0, graph=None):
         self.nodes: dict[str, NodeRef] = {}
         self._api_users: dict[str, int] = {}  # api -> known nodes with it (a client may reuse one for many)
         self.publishers = Registrations(PUBLICATIONS)
@@ -159,6 +176,10 @@ class Registry:
         self._on_bump = on_bump
         self._on_gone = on_gone
         self._clock = clock
+        self._graph = graph
+        if graph is not None:
+            self.publishers.on_key = lambda key, present: graph.key("topic", key, present)
+            self.services.on_key = lambda key, present: graph.key("service", key, present)
 
     def get_node(self, caller_id: str) -> NodeRef | None:
         return self.nodes.get(caller_id)
@@ -176,6 +197,8 @@ class Registry:
             for r in self._by_kind.values():
                 r.unregister_all(caller_id)
             self._released(node.api)
+        if self._graph is not None:
+            self._graph.node(caller_id, caller_api)
         return fresh
 
     def _released(self, api: str) -> None:
@@ -204,4 +227,6 @@ class Registry:
         if node.is_empty():
             del self.nodes[caller_id]
             self._released(node.api)
+            if self._graph is not None:
+                self._graph.node(caller_id, None)
         return ret

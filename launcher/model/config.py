@@ -64,6 +64,9 @@ class NodePolicy(NamedTuple):
     watch_window: float = 5.0
     on_stall: str = "restart"  # "restart" | "warn"
     bind_to: str = ""  # the node this one starts after and is stopped before (its resolved name)
+    # registers="false": not a ROS node (a shell script, a tool that never calls the master): up once it runs,
+    # not awaited for a registration (systemd's READY=1)
+    registers: bool = True
     memory_limit: int | None = None  # bytes, RSS of the whole process group
     cpu_limit: float | None = None  # cores, over the last sample window
     on_limit: str = "warn"  # "warn" | "restart"

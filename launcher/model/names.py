@@ -16,7 +16,6 @@ REMAP = ":="
 ANYTYPE = "*"
 
 _LEGAL_NAME = re.compile(r"^[\~\/A-Za-z][\w\/]*$")
-_LEGAL_BASE_NAME = re.compile(r"^[A-Za-z][\w]*$")
 
 
 def is_global(name: str) -> bool:
@@ -104,23 +103,3 @@ def is_legal_name(name: str | None) -> bool:
         return True
     m = _LEGAL_NAME.match(name)
     return m is not None and m.group(0) == name and "//" not in name
-
-
-def is_legal_base_name(name: str | None) -> bool:
-    if name is None:
-        return False
-    m = _LEGAL_BASE_NAME.match(name)
-    return m is not None and m.group(0) == name
-
-
-def namespaces_of(name: str) -> list[str]:
-    """Every enclosing namespace of a global name, outermost first (`/a/b/c` -> `/`, `/a/`, `/a/b/`)."""
-    if not name or name == SEP:
-        return [SEP] if name == SEP else []
-    parts = [p for p in name.split(SEP) if p][:-1]
-    out = [SEP]
-    acc = SEP
-    for p in parts:
-        acc = acc + p + SEP
-        out.append(acc)
-    return out

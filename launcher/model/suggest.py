@@ -63,9 +63,19 @@ def did_you_mean(word: str, candidates: Iterable[str], n: int = MAX_SUGGESTIONS)
 
 
 def near_file(path: str) -> str:
-    """did_you_mean for a missing file, among the names in its folder ("" when there is none close, or no folder)."""
+    """did_you_mean for a missing file, among the files in its folder (a directory is no answer where a file is
+    asked for: `cam.launch` does not get `launcher`); "" when there is none close, or no folder."""
     folder, name = os.path.split(path)
     try:
-        return did_you_mean(name, os.listdir(folder or os.curdir))
+        with os.scandir(folder or os.curdir) as entries:
+            files = [e.name for e in entries if _is_file(e)]
     except OSError:
         return ""
+    return did_you_mean(name, sorted(files))
+
+
+def _is_file(entry: os.DirEntry) -> bool:
+    try:
+        return entry.is_file()  # (a symbolic link to a file too)
+    except OSError:
+        return False

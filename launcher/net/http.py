@@ -6,7 +6,9 @@ h11's shape: `receive_data(bytes)` (b"" for end of stream), then
 `next_event()` until it answers `NEED_DATA`. Framing errors raise `HttpError`
 carrying the status a server answers with. Only what XML-RPC needs is spoken:
 POST with a Content-Length (no chunked bodies; rospy, roscpp and rosjava never
-send them), keep-alive, pipelining, `Expect: 100-continue`. Time-outs and
+send them), keep-alive, pipelining, `Expect: 100-continue`; a server that asks
+(`RequestLimits(methods=..., fields=True)`: the live view's page server) also
+gets GET requests, their query and their header fields. Time-outs and
 socket handling belong to the callers (`launcher.net.xmlrpc_server` and the
 clients in `launcher.net.xmlrpc`); this module imports no asyncio.
 """
@@ -49,6 +51,16 @@ class Request(NamedTuple):
     target: bytes  # the path, without query, also for an absolute-form target
     body: bytes
     keep_alive: bool
+    method: bytes = b"POST"
+    query: bytes = b""  # what follows the target's "?"
+    fields: tuple = ()  # ((lower-case name, value), ...) when the limits keep them, in the order sent
+
+    def field(self, name: bytes) -> bytes | None:
+        """The value of header field `name` (lower case), the first if it was sent twice; None if absent."""
+        for key, value in self.fields:
+            if key == name:
+                return value
+        return None
 
 
 class Response(NamedTuple):
@@ -61,20 +73,30 @@ class _Head(NamedTuple):
     length: int
     keep_alive: bool
     expect_continue: bool
+    method: bytes = b"POST"
+    query: bytes = b""
+    fields: tuple = ()
 
 
 class RequestLimits:
     """The bounds of one server's requests, and the heads it has already parsed.
 
     Clients repeat the same few heads (only Content-Length moves), so each
-    distinct head is parsed once per server (the cache is bounded).
+    distinct head is parsed once per server (the cache holds `cache` of them;
+    0: none, for a server whose clients' heads all differ). `methods` are the
+    request methods served (others: 501); only POST must say its length.
+    `fields`: each request keeps its header fields (`Request.fields`).
     """
 
     def __init__(self, max_body_size: int = 64 * 1024 * 1024, max_header_size: int = 16 * 1024,
-                 max_header_count: int = 100):
+                 max_header_count: int = 100, *, methods: tuple = (b"POST",), fields: bool = False,
+                 cache: int = 1024):
         self.max_body_size = max_body_size
         self.max_header_size = max_header_size
         self.max_header_count = max_header_count
+        self.methods = methods
+        self.fields = fields
+        self.cache = cache
         self.heads: dict[bytes, _Head] = {}
 
 
@@ -99,13 +121,15 @@ def _parse_request_head(head: bytes, limits: RequestLimits) -> _Head:
     method, target, version = request_line
     if low.count(b"\r\n") > limits.max_header_count:
         raise HttpError(431, "Request Header Fields Too Large")
-    if method != b"POST":
+    if method not in limits.methods:
         raise HttpError(501, "Unsupported method (%s)" % method.decode("latin-1")[:16])
     if b"\r\ntransfer-encoding:" in low:
         raise HttpError(501, "Transfer-Encoding not supported")
     values = _header_values(low, b"\r\ncontent-length:")
     if not values:
-        raise HttpError(411, "Length Required")
+        if method == b"POST":
+            raise HttpError(411, "Length Required")
+        values = [b"0"]  # (a GET has no body unless it says so)
     try:
         lengths = {int(v) for v in values}
     except ValueError:
@@ -124,11 +148,20 @@ def _parse_request_head(head: bytes, limits: RequestLimits) -> _Head:
         elif b"keep-alive" in v:
             keep_alive = True
     expect_continue = b"100-continue" in _header_values(low, b"\r\nexpect:")
+    query = b""
     if b"?" in target:
-        target = target.split(b"?", 1)[0]
+        target, query = target.split(b"?", 1)
     if target.startswith(b"http://"):  # absolute-form request target
         target = b"/" + target[7:].partition(b"/")[2]
-    return _Head(target, length, keep_alive, expect_continue)
+    if not limits.fields:
+        return _Head(target, length, keep_alive, expect_continue, method, query)
+    fields = []
+    for line in head.split(b"\r\n")[1:]:
+        name, colon, value = line.partition(b":")
+        if not colon or not name or name != name.strip():  # (no space before the colon: RFC 9112 5.1)
+            raise HttpError(400, "Bad Request")
+        fields.append((name.lower(), value.strip()))
+    return _Head(target, length, keep_alive, expect_continue, method, query, tuple(fields))
 
 
 class RequestReader:
@@ -182,9 +215,10 @@ class RequestReader:
             head = limits.heads.get(raw)
             if head is None:
                 head = _parse_request_head(raw, limits)
-                if len(limits.heads) >= 1024:
-                    limits.heads.clear()
-                limits.heads[raw] = head
+                if limits.cache:
+                    if len(limits.heads) >= limits.cache:
+                        limits.heads.clear()
+                    limits.heads[raw] = head
             self._head = head
             self._body_start = end + 4
             self._continue_given = False
@@ -197,7 +231,7 @@ class RequestReader:
         body = bytes(buf[self._body_start:body_end])
         del buf[:body_end]
         self._head = None
-        return Request(head.target, body, head.keep_alive)
+        return Request(head.target, body, head.keep_alive, head.method, head.query, head.fields)
 
 
 class ResponseReader:

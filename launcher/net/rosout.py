@@ -51,7 +51,6 @@ _LOGGER_SERVICE_TYPES = {
     "roscpp/msg/SetLoggerLevel_Request": "string logger\nstring level",
     "roscpp/msg/SetLoggerLevel_Response": "",
 }
-_EMPTY_MD5 = "d41d8cd98f00b204e9800998ecf8427e"
 # rosgraph_msgs/Log seen as bytes: a ROS 1 `string` and a `uint8[]` are the same on the wire
 # (length, then bytes), so this type reads a Log whose strings are not UTF-8 (roscpp sends any
 # bytes) and lets us write them out untouched, as rosout.cpp does, instead of losing the line.
@@ -131,21 +130,6 @@ def rosout_typestore() -> Any:
         types.update(get_types_from_msg(text, name))
     typestore.register(types)
     return typestore
-
-
-def service_md5(typestore: Any, request: str, response: str) -> str:
-    """A service's md5sum: md5 over the request's then the response's md5 text (genmsg).
-
-    rosbags gives the md5 of each half, not its text; when one half is empty the service md5 is
-    the other half's md5, which covers roscpp's logger services. Other shapes are refused.
-    """
-    req = typestore.generate_msgdef(request)[1]
-    resp = typestore.generate_msgdef(response)[1]
-    if req == _EMPTY_MD5:
-        return resp
-    if resp == _EMPTY_MD5:
-        return req
-    raise NotImplementedError("service md5 of two non-empty halves (%s, %s)" % (request, response))
 
 
 def _logger_level(name: str) -> str:

@@ -13,8 +13,8 @@ from launcher import compat
 from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.net.tcpros import (Publication, PublisherLink, ServiceServer, TcprosServer, TopicType,
-                             connect_publisher)
+from launcher.net.tcpros import (BROKEN, CLOSED, ENDED, REFUSED, Publication, PublisherLink, PublisherRetry,
+                                 ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher)
 
 log = logging.getLogger("launcher.slave")
 
@@ -35,7 +35,11 @@ def bind_address(host: str) -> str:
 
 
 class Subscription:
-    """A topic we subscribe to, and our connections to its publishers."""
+    """A topic we subscribe to, and our connections to its publishers.
+
+    A connection that ends is tried again as PublisherRetry says (its back-off is per publisher, kept while the
+    master lists it): a refusal or a header we must not take waits for the next publisherUpdate that lists the
+    publisher; a broken one is retried after 1, 2, 4 ... 30 s. Each publisher that lied is one warning line."""
 
     def __init__(self, node: SlaveNode, topic: str, mtype: TopicType,
                  callback: Callable[[bytes, PublisherLink], None]):
@@ -45,54 +49,104 @@ class Subscription:
         self.callback = callback
         self.links: dict[str, PublisherLink] = {}
         self.connecting: dict[str, asyncio.Task] = {}
+        self.retries: dict[str, PublisherRetry] = {}       # every publisher listed, by URI
+        self.timers: dict[str, asyncio.TimerHandle] = {}   # the next attempt of those waiting for one
         self.closed = False
 
     def update(self, publisher_uris: list[str], *, additive: bool = False) -> None:
         """Follow the master's list of publishers: connect to new ones, drop the ones that left
-        (unless `additive`: the list may be older than a publisherUpdate already applied)."""
+        (unless `additive`: the list may be older than a publisherUpdate already applied; nor is it a
+        publisher advertising again)."""
         if self.closed:
             return
-        wanted = set(publisher_uris) if not additive else set(publisher_uris) | set(
-            self.links) | set(self.connecting)
-        for uri in list(self.links):
+        wanted = set(publisher_uris) if not additive else set(publisher_uris) | set(self.retries)
+        for uri in list(self.retries):
             if uri not in wanted:
-                self.links.pop(uri).close()
-        for uri in list(self.connecting):
-            if uri not in wanted:
-                self.connecting.pop(uri).cancel()
+                self._forget(uri)
         for uri in publisher_uris:
-            if uri not in self.links and uri not in self.connecting:
-                task = asyncio.get_running_loop().create_task(self._connect(uri))
-                self.connecting[uri] = task
+            retry = self.retries.get(uri)
+            if retry is None:
+                self.retries[uri] = PublisherRetry()
+                self._start(uri)
+            elif not additive and retry.listed():
+                self._start(uri)
+
+    def _forget(self, uri: str) -> None:
+        self.retries.pop(uri, None)
+        timer = self.timers.pop(uri, None)
+        if timer is not None:
+            timer.cancel()
+        task = self.connecting.pop(uri, None)
+        if task is not None:
+            task.cancel()
+        link = self.links.pop(uri, None)
+        if link is not None:
+            link.close()
+
+    def _start(self, uri: str) -> None:
+        timer = self.timers.pop(uri, None)
+        if timer is not None:
+            timer.cancel()
+        if uri not in self.links and uri not in self.connecting:
+            self.connecting[uri] = asyncio.get_running_loop().create_task(self._connect(uri))
 
     async def _connect(self, uri: str) -> None:
+        loop = asyncio.get_running_loop()
+        opened = loop.time()
+        link = None
         try:
             reply = await call(uri, "requestTopic", self.node.name, self.topic, [["TCPROS"]],
                                timeout=10.0)
             code, status, proto = reply
-            if code != 1 or not proto or proto[0] != "TCPROS":
-                log.warning("publisher %s of %s offers no TCPROS: %s", uri, self.topic, status)
+            if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
+                self._ended(uri, REFUSED, opened, "publisher %s on %s offers no TCPROS: %s" % (
+                    uri, self.topic, str(status)[:200]))
                 return
             link = PublisherLink(self.topic, self.mtype, self.node.name, uri,
                                  self.callback, self._link_closed)
             await connect_publisher(str(proto[1]), int(proto[2]), link)
         except asyncio.CancelledError:
             raise
+        except TcprosError:
+            return  # the link ended in its handshake: _link_closed has said why and what next
         except Exception as exc:  # one unreachable publisher must not affect the others
+            if link is not None:
+                if link.closed:
+                    return  # (as above)
+                link.close()
             # Short-lived nodes (rosservice, rostopic) come and go all the time: not a warning.
-            log.debug("cannot connect to publisher %s of %s: %s", uri, self.topic, exc)
+            self._ended(uri, BROKEN, opened, "cannot connect to publisher %s of %s: %s" % (uri, self.topic, exc),
+                        quiet=True)
             return
         finally:
             if self.connecting.get(uri) is asyncio.current_task():
                 del self.connecting[uri]
-        if self.closed or link.closed:
-            link.close()
+        if self.closed or uri not in self.retries or link.closed:
+            link.close()  # (if it ended meanwhile, _link_closed has seen to it)
             return
         self.links[uri] = link
 
     def _link_closed(self, link: PublisherLink) -> None:
-        if self.links.get(link.publisher_uri) is link:
-            del self.links[link.publisher_uri]
+        uri = link.publisher_uri
+        if self.links.get(uri) is link:
+            del self.links[uri]
+        self._ended(uri, link.ending or ENDED, link.state.opened_at, link.why, quiet=link.ending == ENDED)
+
+    def _ended(self, uri: str, how: str, opened_at: float, why: str, quiet: bool = False) -> None:
+        """A connection to `uri` ended `how`: say so, and when it is tried again."""
+        retry = self.retries.get(uri)
+        if how == CLOSED or retry is None or self.closed:
+            return
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        at = retry.ended(how, opened_at, now)
+        if at is None:
+            log.log(logging.DEBUG if quiet else logging.WARNING,
+                    "%s; dropping the connection until it advertises again", why)
+            return
+        log.log(logging.DEBUG if quiet else logging.WARNING, "%s; dropping the connection, trying again in %g s",
+                why, at - now)
+        self.timers[uri] = loop.call_at(at, self._start, uri)
 
     async def drain(self, rounds: int = 50) -> None:
         """Let the loop read what the kernel already holds for us, so nothing received is lost."""
@@ -104,12 +158,8 @@ class Subscription:
 
     def close(self) -> None:
         self.closed = True
-        for task in self.connecting.values():
-            task.cancel()
-        self.connecting.clear()
-        for link in list(self.links.values()):
-            link.close()
-        self.links.clear()
+        for uri in list(self.retries):
+            self._forget(uri)
 
 
 class SlaveNode:

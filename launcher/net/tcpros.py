@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 import socket
 import struct
 from collections import deque
@@ -16,10 +17,14 @@ log = logging.getLogger("launcher.tcpros")
 
 _LEN = struct.Struct("<I")
 
-# roscpp refuses headers over 1 GB and messages over 1 GB; a log aggregator has no use for
-# anything near that, and a garbage length must not make us allocate gigabytes.
-MAX_HEADER_SIZE = 1 << 20
-MAX_MESSAGE_SIZE = 64 << 20
+# The one limit of a frame's length, a connection header's and a message's alike, on every reader here (a
+# subscriber's link, a watch, our publications' and services' clients): roscpp's, which takes a length over
+# 10^9 bytes for lost framing (connection.cpp, transport_publisher_link.cpp). Large on purpose: a dense point
+# cloud is tens of MB. A length is not trusted for memory: a frame costs what has come of it (FrameReader).
+MAX_FRAME_SIZE = 1_000_000_000
+# A publisher's connection header is due this long after we connect (roscpp and rospy wait for ever; the
+# master gives an HTTP request's head the same 10 s).
+HANDSHAKE_TIMEOUT_S = 10.0
 # Above this many unsent bytes a subscriber is stalled: we drop what it cannot take rather than
 # let one slow reader grow the launcher's memory (roscpp drops from its publish queue likewise).
 MAX_WRITE_BACKLOG = 16 << 20
@@ -28,7 +33,12 @@ ANY_MD5 = "*"
 
 
 class TcprosError(Exception):
-    """A peer broke the TCPROS protocol (bad header, absurd length, refused handshake)."""
+    """A peer broke the TCPROS protocol (bad header, absurd length, refused handshake); `ending`, where a link
+    raises it: how its connection ended (see PublisherRetry)."""
+
+    def __init__(self, why: str, ending: str = "broken"):
+        super().__init__(why)
+        self.ending = ending
 
 
 # --------------------------------------------------------------------------- sans-I/O codec
@@ -77,7 +87,7 @@ class FrameDecoder:
 
     __slots__ = ("_buf", "limit")
 
-    def __init__(self, limit: int = MAX_MESSAGE_SIZE):
+    def __init__(self, limit: int = MAX_FRAME_SIZE):
         self._buf = bytearray()
         self.limit = limit
 
@@ -111,12 +121,21 @@ class FrameCounter:
     """Counts the length-prefixed frames of a byte stream without keeping their bytes: a watcher that only
     needs to know that messages come skips megabytes at the cost of one step per chunk read."""
 
-    __slots__ = ("_skip", "_prefix", "limit")
+    __slots__ = ("_skip", "_size", "_prefix", "limit")
 
-    def __init__(self, limit: int = MAX_MESSAGE_SIZE):
+    def __init__(self, limit: int = MAX_FRAME_SIZE):
         self._skip = 0  # payload bytes of the current frame still to come
+        self._size = 0  # ...of its size
         self._prefix = b""  # the first bytes of a length prefix cut by a chunk's end
         self.limit = limit
+
+    def partial(self) -> str:
+        """The frame cut short if the stream ended now, in words ("" at a frame's boundary)."""
+        if self._skip:
+            return "%d of its %d bytes" % (self._size - self._skip, self._size)
+        if self._prefix:
+            return "%d of the 4 bytes of its length" % len(self._prefix)
+        return ""
 
     def feed(self, data: bytes | memoryview) -> int:
         """Frames completed by `data`; raises TcprosError on an absurd length."""
@@ -145,37 +164,57 @@ class FrameCounter:
                 raise TcprosError("frame of %d bytes exceeds the %d byte limit" % (size, self.limit))
             if size == 0:
                 done += 1
-            self._skip = size
+            self._skip = self._size = size
+
+
+# A frame's length is trusted for memory only as far as its bytes bear it out: a large frame's buffer is
+# FIRST_BODY bytes at first, then TRUST_FACTOR times what has come (at most the frame), a new buffer taking over
+# what the last one holds (copies of a fifteenth of the frame in all). A camera image of 1-4 MB: one or two
+# buffers; a peer that announces 900 MB and sends 100 kB holds 1 MiB. (roscpp's `new uint8_t[len]` is lazy
+# likewise: its pages are taken as the bytes come.)
+FIRST_BODY = 1 << 20
+TRUST_FACTOR = 16
 
 
 class FrameReader:
     """Frames read in place, for asyncio's BufferedProtocol: the socket is read into `get_buffer()`, then
     `received(n)` says how much came. A frame larger than the scratch buffer is read straight into a
-    bytearray of its own, which is handed on as the frame (one copy, the kernel's: megabyte messages
-    are not copied again); smaller frames are cut from the scratch buffer as bytes."""
+    bytearray of its own (grown as its bytes come: see TRUST_FACTOR), which is handed on as the frame (the
+    kernel's copy: megabyte messages are not copied again); smaller frames are cut from the scratch buffer as
+    bytes."""
 
-    __slots__ = ("limit", "_scratch", "_view", "_fill", "_body", "_got")
+    __slots__ = ("limit", "failure", "_scratch", "_view", "_fill", "_body", "_size", "_got")
 
     SCRATCH = 64 * 1024
 
-    def __init__(self, limit: int = MAX_MESSAGE_SIZE):
+    def __init__(self, limit: int = MAX_FRAME_SIZE):
         self.limit = limit
+        self.failure: TcprosError | None = None
         self._scratch = bytearray(self.SCRATCH)
         self._view = memoryview(self._scratch)
         self._fill = 0                          # bytes in the scratch buffer
-        self._body: bytearray | None = None     # a large frame being read, and how much of it came
+        self._body: bytearray | None = None     # a large frame being read: its buffer so far, its size,
+        self._size = 0                          # and how much of it came
         self._got = 0
 
     def get_buffer(self) -> memoryview:
-        if self._body is not None:
-            return memoryview(self._body)[self._got:]
+        body = self._body
+        if body is not None:
+            if self._got == len(body):  # full, and the frame is not: a buffer of TRUST_FACTOR times what came
+                grown = bytearray(min(self._size, TRUST_FACTOR * self._got))
+                grown[:self._got] = body
+                self._body = body = grown
+            return memoryview(body)[self._got:]
         return self._view[self._fill:]
 
     def received(self, n: int) -> list[bytes | bytearray]:
-        """The frames completed by `n` more bytes, oldest first; raises TcprosError on an absurd length."""
+        """The frames completed by `n` more bytes, oldest first; raises TcprosError on an absurd length (or, if
+        frames came whole before it, returns those and keeps the error as `failure`, raised by the next call)."""
+        if self.failure is not None:
+            raise self.failure
         if self._body is not None:
             self._got += n
-            if self._got < len(self._body):
+            if self._got < self._size:
                 return []
             body, self._body = self._body, None
             return [body]
@@ -185,16 +224,19 @@ class FrameReader:
         while fill - pos >= 4:
             (size,) = _LEN.unpack_from(buf, pos)
             if size > self.limit:
-                raise TcprosError("frame of %d bytes exceeds the %d byte limit" % (size, self.limit))
+                self.failure = TcprosError("frame of %d bytes exceeds the %d byte limit" % (size, self.limit))
+                if not frames:
+                    raise self.failure
+                return frames  # (those before it are whole and theirs: handed on, then `failure`)
             if fill - pos - 4 >= size:
                 frames.append(bytes(self._view[pos + 4:pos + 4 + size]))
                 pos += 4 + size
             elif size > self.SCRATCH - 4:
-                # too big for the scratch buffer: the rest of it is read into its own bytearray
-                body = bytearray(size)
+                # too big for the scratch buffer: the rest of it is read into a buffer of its own
                 self._got = fill - pos - 4
-                body[:self._got] = self._view[pos + 4:fill]
-                self._body = body
+                self._size = size
+                self._body = bytearray(min(size, max(FIRST_BODY, self._got)))
+                self._body[:self._got] = self._view[pos + 4:fill]
                 pos = fill
                 break
             else:
@@ -210,10 +252,26 @@ class FrameReader:
         """Bytes received that do not yet make a whole frame."""
         return self._fill + (4 + self._got if self._body is not None else 0)
 
+    @property
+    def held(self) -> int:
+        """Bytes of memory the frame being read holds (its buffer so far)."""
+        return len(self._body) if self._body is not None else 0
+
+    def partial(self) -> str:
+        """The frame cut short if the stream ended now, in words ("" at a frame's boundary)."""
+        if self._body is not None:
+            return "%d of its %d bytes" % (self._got, self._size)
+        if self._fill >= 4:
+            (size,) = _LEN.unpack_from(self._scratch, 0)
+            return "%d of its %d bytes" % (self._fill - 4, size)
+        if self._fill:
+            return "%d of the 4 bytes of its length" % self._fill
+        return ""
+
     def take_pending(self) -> bytes:
         """The bytes of the incomplete frame, its length first, handed on (to a FrameCounter) and forgotten here."""
         if self._body is not None:
-            rest = _LEN.pack(len(self._body)) + bytes(self._body[:self._got])
+            rest = _LEN.pack(self._size) + bytes(self._body[:self._got])
             self._body, self._got = None, 0
         else:
             rest = bytes(self._view[:self._fill])
@@ -263,14 +321,23 @@ class TopicType:
 
 HEADER, MESSAGES, FAILED = "header", "messages", "failed"  # the phases of a topic connection
 
+# How a connection to a publisher ended, which decides when it is tried again (PublisherRetry):
+ENDED = "ended"        # the publisher closed it between two frames
+BROKEN = "broken"      # a broken frame, no header in time, a close in the middle of a frame, no connection at all
+REFUSED = "refused"    # an error header, or a header we must not take (no type or md5sum, another type)
+CLOSED = "closed"      # we closed it (the subscription ended, or the master no longer lists the publisher)
+
+_MD5 = re.compile(r"[0-9a-f]{32}")
+_TYPE = re.compile(r"[A-Za-z][\w]*/[A-Za-z]\w*")
+
 
 class PublisherLinkState:
     """Our end, as a subscriber, of one connection to a publisher: fed bytes and a clock, it says what came.
 
-    Phases: `header` (our header sent, theirs awaited: checked for an error field and the md5sum) ->
-    `messages` -> `failed` (a broken frame, a refusal, a type mismatch: the connection is to be closed).
-    It counts bytes and messages and keeps the time of the last message, which is what a watch of a
-    stalled topic reads (`silence`)."""
+    Phases: `header` (our header sent, theirs due by `deadline`: checked for an error field, a type and an
+    md5sum) -> `messages` -> `failed`, once the connection is over for any reason: then `ending` says how
+    (ENDED, BROKEN, REFUSED, CLOSED) and `why` says it in one line naming the publisher and the topic.
+    It counts bytes and messages and keeps the time of the last message."""
 
     def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str, now: float):
         self.topic = topic
@@ -279,17 +346,27 @@ class PublisherLinkState:
         self.publisher_uri = publisher_uri
         self.phase = HEADER
         self.header: dict[str, str] | None = None
-        self.reader = FrameReader(MAX_HEADER_SIZE)
+        self.reader = FrameReader()
         self.bytes_received = 0
         self.messages_received = 0
         self.opened_at = now
+        self.deadline = now + HANDSHAKE_TIMEOUT_S
         self.last_message_at: float | None = None
+        self.ending: str | None = None
+        self.why = ""
+        self.their_callerid = ""  # as their header says, taken or not
 
     def request(self) -> bytes:
         """The connection header we send first."""
         return encode_header({"callerid": self.callerid, "topic": self.topic, "type": self.mtype.name,
                               "md5sum": self.mtype.md5sum, "message_definition": self.mtype.definition,
                               "tcp_nodelay": "1"})
+
+    @property
+    def publisher(self) -> str:
+        """The publisher as a line names it: its URI, and its caller id once its header said it."""
+        callerid = self.their_callerid
+        return "publisher %s%s" % (self.publisher_uri, " (%s)" % callerid if callerid else "")
 
     def receive(self, data: bytes, now: float) -> list[tuple[str, Any]]:
         """What `data` brings, in order: ("header", dict), ("message", payload), or ("failed", why), after
@@ -317,7 +394,7 @@ class PublisherLinkState:
         try:
             frames = self.reader.received(n)
         except TcprosError as exc:
-            return [self._failed("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))]
+            return [self._failed(BROKEN, "%s" % exc)]
         out: list[tuple[str, Any]] = []
         for payload in frames:
             if self.phase == HEADER:
@@ -328,31 +405,103 @@ class PublisherLinkState:
                 self.messages_received += 1
                 self.last_message_at = now
                 out.append(("message", payload))
+        if self.reader.failure is not None and self.phase != FAILED:
+            out.append(self._failed(BROKEN, "%s" % self.reader.failure))
         return out
 
-    def silence(self, now: float) -> float:
-        """Seconds since the last message (since the connection opened, before the first)."""
-        return now - (self.last_message_at if self.last_message_at is not None else self.opened_at)
+    def expire(self, now: float) -> list[tuple[str, Any]]:
+        """The clock reached `now`: ("failed", why) if the header is overdue (see HANDSHAKE_TIMEOUT_S)."""
+        if self.phase != HEADER or now < self.deadline:
+            return []
+        return [self._failed(BROKEN, "sent no whole connection header in %g s (%d bytes came)" % (
+            HANDSHAKE_TIMEOUT_S, self.bytes_received))]
+
+    def lost(self, now: float) -> str:
+        """The publisher closed the connection (or it broke): how it ended, and `why` says what was cut."""
+        if self.phase != FAILED:
+            cut = self.reader.partial()
+            if self.phase == HEADER:
+                self._failed(BROKEN, "closed the connection in the middle of a frame (its connection header: %s)"
+                             % cut if cut else "closed the connection before sending a connection header")
+            elif cut:
+                self._failed(BROKEN, "closed the connection in the middle of a frame (%s)" % cut)
+            else:
+                self._failed(ENDED, "closed the connection")
+        return self.ending or ENDED
+
+    def close(self) -> None:
+        """We close the connection ourselves."""
+        if self.phase != FAILED:
+            self._failed(CLOSED, "closed by us")
 
     def _header(self, payload: bytes) -> tuple[str, Any]:
         try:
             header = decode_header(payload)
         except TcprosError as exc:
-            return self._failed("publisher %s on %s: %s" % (self.publisher_uri, self.topic, exc))
+            return self._failed(BROKEN, "%s" % exc)
+        self.their_callerid = header.get("callerid", "")[:200]
         if "error" in header:
-            return self._failed("publisher %s refused %s: %s" % (self.publisher_uri, self.topic, header["error"]))
-        theirs = header.get("md5sum", "")
+            return self._failed(REFUSED, "refused the connection: %s" % header["error"])
+        for required in ("type", "md5sum"):
+            if required not in header:
+                return self._failed(REFUSED, "sent a connection header without '%s'" % required)
+        theirs, kind = header["md5sum"], header["type"]
+        if theirs != ANY_MD5 and not _MD5.fullmatch(theirs) or kind != "*" and not _TYPE.fullmatch(kind):
+            return self._failed(REFUSED, "sent type %r, md5sum %r: not a message type and its md5sum" % (
+                kind[:80], theirs[:80]))
         if self.mtype.md5sum != ANY_MD5 and theirs not in (self.mtype.md5sum, ANY_MD5):
-            return self._failed("publisher %s on %s sends %s [%s], we expect %s [%s]" % (
-                self.publisher_uri, self.topic, header.get("type", "?"), theirs, self.mtype.name, self.mtype.md5sum))
+            return self._failed(REFUSED, "sends %s [%s], we expect %s [%s]" % (
+                kind, theirs, self.mtype.name, self.mtype.md5sum))
         self.header = header
         self.phase = MESSAGES
-        self.reader.limit = MAX_MESSAGE_SIZE
         return ("header", header)
 
-    def _failed(self, why: str) -> tuple[str, Any]:
+    def _failed(self, ending: str, what: str) -> tuple[str, Any]:
         self.phase = FAILED
-        return ("failed", why)
+        self.ending = ending
+        self.why = "%s on %s: %s" % (self.publisher, self.topic, what)
+        return ("failed", self.why)
+
+
+# PublisherRetry's delays: the first, doubled at each broken connection in a row up to the last (rospy
+# doubles from 1 s to 32 s, roscpp from 0.1 s to 20 s).
+RETRY_FIRST_S = 1.0
+RETRY_MAX_S = 30.0
+
+
+class PublisherRetry:
+    """When to connect again to one publisher of a topic once a connection to it ended (pure: how it ended
+    and a clock in, a time out; `delay` is its state).
+
+    | ended    | next attempt                                    | delay after        |
+    |----------|-------------------------------------------------|--------------------|
+    | REFUSED  | none until the publisher is listed again        | unchanged          |
+    | BROKEN   | after the delay, doubled (the first: 1 s)       | min(2 * delay, 30) |
+    | ENDED    | after RETRY_FIRST_S                             | RETRY_FIRST_S      |
+    | CLOSED   | none (ours)                                     | unchanged          |
+
+    A connection that lived RETRY_MAX_S or more before it broke starts the doubling over."""
+
+    def __init__(self) -> None:
+        self.delay = 0.0        # the last delay waited (0: none yet)
+        self.refused = False    # waiting for the publisher to be listed again
+
+    def ended(self, how: str, opened_at: float, now: float) -> float | None:
+        """The time of the next attempt after a connection opened at `opened_at` ended `how` (None: none)."""
+        if how == CLOSED:
+            return None
+        if how == REFUSED:
+            self.refused = True
+            return None
+        if how == ENDED or now - opened_at >= RETRY_MAX_S:
+            self.delay = 0.0
+        self.delay = min(2 * self.delay, RETRY_MAX_S) if how == BROKEN and self.delay else RETRY_FIRST_S
+        return now + self.delay
+
+    def listed(self) -> bool:
+        """The master lists the publisher again (a publisherUpdate): True if it refused and is to be tried now."""
+        was, self.refused = self.refused, False
+        return was
 
 
 class InboundState:
@@ -404,7 +553,9 @@ class InboundState:
 
 class PublisherLink(asyncio.BufferedProtocol):
     """Our connection, as a subscriber, to one publisher of a topic: the asyncio side of a PublisherLinkState
-    (a buffered protocol: the socket is read into the state's buffers, a large message straight into its own)."""
+    (a buffered protocol: the socket is read into the state's buffers, a large message straight into its own).
+    `on_close(link)` is called once, however it ended (`ending`, `why`); `handshake` is settled with the
+    publisher's header, or None if the link ended first (never with an exception: nobody need retrieve one)."""
 
     def __init__(self, topic: str, mtype: TopicType, callerid: str, publisher_uri: str,
                  on_message: Callable[[bytes | bytearray, PublisherLink], None],
@@ -421,7 +572,8 @@ class PublisherLink(asyncio.BufferedProtocol):
         self.transport: asyncio.Transport | None = None
         self.closed = False
         self.info = "TCPROS connection"
-        self.handshake = self.loop.create_future()
+        self.handshake: asyncio.Future = self.loop.create_future()
+        self._deadline: asyncio.TimerHandle | None = None
 
     @property
     def header(self) -> dict[str, str] | None:
@@ -435,11 +587,20 @@ class PublisherLink(asyncio.BufferedProtocol):
     def messages_received(self) -> int:
         return self.state.messages_received
 
+    @property
+    def ending(self) -> str | None:
+        return self.state.ending
+
+    @property
+    def why(self) -> str:
+        return self.state.why
+
     # asyncio.Protocol
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
         self.info = transport_info(transport.get_extra_info("socket"))
         transport.write(self.state.request())  # type: ignore[attr-defined]
+        self._deadline = self.loop.call_at(self.state.deadline, self._expire)
 
     def get_buffer(self, sizehint: int) -> memoryview:
         return self.state.get_buffer()
@@ -450,6 +611,10 @@ class PublisherLink(asyncio.BufferedProtocol):
     def data_received(self, data: bytes) -> None:
         self._deliver(self.state.receive(data, self.loop.time()))
 
+    def _expire(self) -> None:
+        self._deadline = None
+        self._deliver(self.state.expire(self.loop.time()))
+
     def _deliver(self, events: list[tuple[str, Any]]) -> None:
         for kind, value in events:
             if kind == "message":
@@ -458,26 +623,29 @@ class PublisherLink(asyncio.BufferedProtocol):
                 except Exception:  # a bad message must not end the connection or the launcher
                     log.exception("handling a message on %s from %s", self.topic, self.publisher_uri)
             elif kind == "header":
+                if self._deadline is not None:
+                    self._deadline.cancel()
+                    self._deadline = None
                 if not self.handshake.done():
                     self.handshake.set_result(value)
             else:
-                self._fail(value)
-
-    def _fail(self, why: str) -> None:
-        log.warning("%s; dropping the connection", why)
-        if not self.handshake.done():
-            self.handshake.set_exception(TcprosError(why))
-        self.close()
+                self._end()
 
     def connection_lost(self, exc: Exception | None) -> None:
-        if not self.handshake.done():
-            self.handshake.set_exception(TcprosError("connection closed during handshake"))
-        if not self.closed:
-            self.closed = True
-            self.on_close(self)
+        self.state.lost(self.loop.time())
+        self._end()
 
     def close(self) -> None:
-        """Close now; bytes already received have been delivered."""
+        """Close now (bytes already received have been delivered)."""
+        self.state.close()
+        self._end()
+
+    def _end(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+        if not self.handshake.done():
+            self.handshake.set_result(None)
         if self.transport is not None:
             self.transport.close()
         if not self.closed:
@@ -491,18 +659,23 @@ class PublisherLink(asyncio.BufferedProtocol):
 
 async def connect_publisher(host: str, port: int, link: PublisherLink, *,
                             timeout: float = 10.0) -> PublisherLink:
-    """Open `link` to a publisher's TCPROS server and complete the handshake."""
+    """Open `link` to a publisher's TCPROS server (within `timeout`) and complete the handshake (by the link's
+    own deadline); TcprosError(why, ending) if the link ended first."""
     loop = asyncio.get_running_loop()
-    transport, _ = await asyncio.wait_for(
-        loop.create_connection(lambda: link, host, port), timeout)
-    sock = transport.get_extra_info("socket")
+    await asyncio.wait_for(loop.create_connection(lambda: link, host, port), timeout)
+    sock = link.transport.get_extra_info("socket") if link.transport is not None and not link.closed else None
     if sock is not None:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:  # (the link may have ended already: what came with the connection broke it)
+            pass
     try:
-        await asyncio.wait_for(asyncio.shield(link.handshake), timeout)
-    except BaseException:
+        header = await asyncio.shield(link.handshake)
+    except BaseException:  # cancelled: the subscription went
         link.close()
         raise
+    if header is None:
+        raise TcprosError(link.why, link.ending or BROKEN)
     return link
 
 
@@ -514,14 +687,20 @@ WATCH_CHUNK = 256 << 10
 
 class CountingLink:
     """A subscriber's connection that only counts the publisher's messages (`on_messages(n)`), reading
-    into one buffer of its own: no bytes kept, no object per message, few wake-ups (see WATCH_LOWAT)."""
+    into one buffer of its own: no bytes kept, no object per message, few wake-ups (see WATCH_LOWAT).
+    Once it is closed, `ending` and `why` say how (as PublisherLinkState's)."""
 
-    def __init__(self, sock: socket.socket, counter: FrameCounter, on_messages: Callable[[int], None]):
+    def __init__(self, sock: socket.socket, counter: FrameCounter, on_messages: Callable[[int], None],
+                 state: PublisherLinkState | None = None, on_close: Callable[[CountingLink], None] | None = None):
         self.loop = asyncio.get_running_loop()
         self.sock = sock
         self.counter = counter
         self.on_messages = on_messages
+        self.state = state
+        self.on_close = on_close
         self.closed = False
+        self.ending: str | None = None
+        self.why = ""
         self._buf = bytearray(WATCH_CHUNK)
         self._view = memoryview(self._buf)
         self.loop.add_reader(sock.fileno(), self.drain)
@@ -535,8 +714,10 @@ class CountingLink:
         try:
             while True:
                 got = self.sock.recv_into(self._buf)
-                if not got:
-                    self.close()  # the publisher went
+                if not got:  # the publisher closed it
+                    cut = self.counter.partial()
+                    self._close(BROKEN if cut else ENDED, "closed the connection in the middle of a frame (%s)" % cut
+                                if cut else "closed the connection")
                     break
                 done += self.counter.feed(self._view[:got])
                 if got < WATCH_CHUNK:
@@ -544,46 +725,63 @@ class CountingLink:
         except (BlockingIOError, InterruptedError):
             pass
         except (OSError, TcprosError) as exc:
-            log.warning("watching %s: %s; dropping the connection", self.sock, exc)
-            self.close()
+            self._close(BROKEN, str(exc))
         if done:
             self.on_messages(done)
 
-    def close(self) -> None:
+    def _close(self, ending: str, what: str) -> None:
         if not self.closed:
-            self.closed = True
-            self.loop.remove_reader(self.sock.fileno())
-            self.sock.close()
+            who = self.state.publisher + " on " + self.state.topic if self.state is not None else str(self.sock)
+            self.ending, self.why = ending, "%s: %s" % (who, what)
+            self._release()
+            if self.on_close is not None:
+                self.on_close(self)
+
+    def close(self) -> None:
+        self._close(CLOSED, "closed by us")
+
+    def _release(self) -> None:
+        self.closed = True
+        self.loop.remove_reader(self.sock.fileno())
+        self.sock.close()
 
 
 async def watch_publisher(host: str, port: int, topic: str, callerid: str, publisher_uri: str,
-                          on_messages: Callable[[int], None], *, timeout: float = 10.0) -> CountingLink:
-    """A CountingLink to a publisher's TCPROS server, any type, once its header has come."""
+                          on_messages: Callable[[int], None], *, timeout: float = 10.0,
+                          on_close: Callable[[CountingLink], None] | None = None) -> CountingLink:
+    """A CountingLink to a publisher's TCPROS server, any type, once its header has come: the connection within
+    `timeout`, the header by HANDSHAKE_TIMEOUT_S; TcprosError(why, ending) if the publisher failed it."""
     loop = asyncio.get_running_loop()
     state = PublisherLinkState(topic, TopicType("*", ANY_MD5, ""), callerid, publisher_uri, loop.time())
     family, kind, proto, _, addr = (await loop.getaddrinfo(host, port, type=socket.SOCK_STREAM))[0]
     sock = socket.socket(family, kind, proto)
     try:
         sock.setblocking(False)
-        deadline = loop.time() + timeout
         await asyncio.wait_for(loop.sock_connect(sock, addr), timeout)
-        await loop.sock_sendall(sock, state.request())
+        state.deadline = loop.time() + HANDSHAKE_TIMEOUT_S
+        await asyncio.wait_for(loop.sock_sendall(sock, state.request()), HANDSHAKE_TIMEOUT_S)
         early = 0  # messages that came with the header
         while state.phase == HEADER:
-            data = await asyncio.wait_for(loop.sock_recv(sock, 65536), max(0.0, deadline - loop.time()))
-            if not data:
-                raise TcprosError("connection closed during handshake")
-            for what, value in state.receive(data, loop.time()):
-                if what == "failed":
-                    raise TcprosError(value)
-                early += what == "message"
+            try:
+                data = await asyncio.wait_for(loop.sock_recv(sock, 65536), max(0.0, state.deadline - loop.time()))
+            except asyncio.TimeoutError:
+                data, events = None, state.expire(max(loop.time(), state.deadline))
+            except OSError:
+                data, events = b"", []
+            if data is not None:
+                events = state.receive(data, loop.time()) if data else []
+                if not data:
+                    state.lost(loop.time())
+            if state.phase == FAILED:
+                raise TcprosError(state.why, state.ending or BROKEN)
+            early += sum(what == "message" for what, _ in events)
         counter = FrameCounter()
         early += counter.feed(state.reader.take_pending())
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, WATCH_LOWAT)
     except BaseException:
         sock.close()
         raise
-    link = CountingLink(sock, counter, on_messages)
+    link = CountingLink(sock, counter, on_messages, state, on_close)
     if early:
         on_messages(early)
     return link
@@ -636,7 +834,7 @@ class InboundConnection(asyncio.Protocol):
         self.server = server
         self.id = _new_connection_id()
         self.transport: asyncio.Transport | None = None
-        self.decoder = FrameDecoder(MAX_HEADER_SIZE)
+        self.decoder = FrameDecoder()
         self.header: dict[str, str] | None = None
         self.publication: Publication | None = None
         self.service: ServiceServer | None = None
@@ -702,7 +900,6 @@ class InboundConnection(asyncio.Protocol):
                 self.close()
                 return
             self.service = srv
-            self.decoder.limit = MAX_MESSAGE_SIZE
             return
         _, pub, reply = verdict
         sock = self.transport.get_extra_info("socket")

@@ -45,6 +45,13 @@ class ToolError(Exception):
         self.status = status
 
 
+class NotOurs(ToolError):
+    """The run asked about is roslaunch's or roscore's (operate/lastrun.py): no events file, no states to tell."""
+
+    def __init__(self, message: str):
+        super().__init__(message, EXIT_NO_LAUNCH)
+
+
 def add_launch_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--uri", help="the launch's XML-RPC URI (default: found through ROS_MASTER_URI)")
     parser.add_argument("--launch", metavar="KEY", help="which launch, when several use the master: its "
@@ -225,6 +232,35 @@ def status(uri: str) -> dict[str, Any]:
     return json.loads(status_text(uri))
 
 
+# A long poll of the change stream waits this long on the launch's side (the server's cap is longer).
+CHANGES_WAIT_S = 1.0
+LAST_SEQ = (1 << 31) - 1  # (since the last change: the answer is the stream's number now, and no change)
+
+
+def changes(uri: str, since: int, wait: float = CHANGES_WAIT_S) -> dict[str, Any]:
+    """The launch's changes after `since` (launcher_changes: a long poll of up to `wait` s): {"seq", "complete",
+    "changes"}. ToolError (EXIT_NO_LAUNCH) once the launch is gone."""
+    code, msg, text = call(uri, "launcher_changes", since, wait, timeout=wait + 10)
+    if code != 1:
+        raise ToolError("changes: %s" % msg)
+    return json.loads(text)
+
+
+def follow_changes(uri: str, since: int, on_answer: Callable[[dict[str, Any]], None],
+                   wait: float = CHANGES_WAIT_S) -> int:
+    """Hand each answer of the change stream after `since` to `on_answer` (one at least every `wait` s, changes
+    or none) while the launch runs; the last sequence number handed over, once it is gone."""
+    while True:
+        try:
+            answer = changes(uri, since, wait)
+        except ToolError as e:
+            if e.status != EXIT_NO_LAUNCH:
+                raise
+            return since
+        since = answer["seq"]
+        on_answer(answer)
+
+
 def find_node(info: dict[str, Any], name: str) -> dict[str, Any]:
     """A node of the status by node name (leading / optional) or process name; ToolError naming it."""
     wanted = name if name.startswith("/") else "/" + name
@@ -244,8 +280,10 @@ def add_run_option(parser: argparse.ArgumentParser) -> None:
 def live_or_last(opts: argparse.Namespace, fetch: Callable[[str], Any],
                  environ: Mapping[str, str] | None = None) -> tuple[Any, Any]:
     """(fetch(the running launch's URI), None); or, when no launch of ours answers and --uri or --launch
-    named none, (None, the last run: a lastrun.LastRun), once stderr says why the launch was not read.
-    `--run` reads that run."""
+    named none, (None, the last run: a lastrun.LastRun). Stderr says why the launch was not read only when
+    that matters: the last run's launch still runs (its master does not answer, say); a launch that has
+    ended needs no master (what the caller prints says how it ended). `--run` reads that run; a roslaunch
+    run is NotOurs."""
     env = os.environ if environ is None else environ
     why = None
     if not opts.run:
@@ -259,11 +297,16 @@ def live_or_last(opts: argparse.Namespace, fetch: Callable[[str], Any],
     from launcher.operate import lastrun
     try:
         last = lastrun.read(lastrun.find_run(env, opts.run), latest=not opts.run)
+    except NotOurs:
+        if why is not None:  # (whether that run ended cannot be told: what was tried, then what it is)
+            sys.stderr.write("launcher: %s\n" % why)
+            sys.stderr.flush()
+        raise
     except ToolError as e:
         if why is None:
             raise
         raise ToolError("%s\n%s" % (why, e), why.status) from None
-    if why is not None:
+    if why is not None and last.still_running:
         sys.stderr.write("launcher: %s\n" % why)
         sys.stderr.flush()
     return None, last

@@ -2,9 +2,11 @@
 
 One line per change: time, node (and its host, when not this machine), state,
 pid, exit, restarts, limits it is over, reason; `--json` prints the file's own
-JSON lines. `-f` follows new events until Ctrl-C. When no launch answers, the
-last run's events, after a line on stderr saying how it ended
-(operate/lastrun.py); `--run RUN_ID` reads that run's.
+JSON lines. `-f` follows new events until Ctrl-C: while the launch runs, from its
+change stream (`launcher_changes`, a long poll: each event as it happens), then,
+once it has ended, what its file holds after them (its last line: the launch's
+end). When no launch answers, the last run's events, after a line on stderr saying
+how it ended (operate/lastrun.py); `--run RUN_ID` reads that run's.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import sys
 import time
 
 from launcher.operate import client
-from launcher.operate.logs import follow, tail
+from launcher.operate.logs import tail
 from launcher.fleet.state import LOCAL_HOST
 
 
@@ -34,12 +36,20 @@ def describe(event: dict) -> str:
     if "node" not in event and event.get("event"):  # an event of the run, not a node's (launch_ended)
         return " ".join([when, str(event["event"]).replace("_", " ")] + (
             ["(%s)" % event["reason"]] if event.get("reason") else []))
-    parts = [when, event.get("node", "?")]
+    return "%s %s %s" % (when, event.get("node", "?"), words(event))
+
+
+def words(event: dict) -> str:
+    """A node's change in words, after its name: "running pid 21006 restarts 1 (started by operator)" (the
+    live view's output pane says each change so too)."""
+    parts = []
     if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
         parts.append("on %s" % event["host"])
     parts.append(event.get("state", "?"))
     if event.get("pid"):
         parts.append("pid %s" % event["pid"])
+    if event.get("registered"):  # (its run registered with the master: up, not only running)
+        parts.append("registered at %s" % event.get("uri", "?"))
     if event.get("exit_signal") is not None:
         parts.append("signal %s" % event["exit_signal"])
     elif event.get("exit_code") is not None:
@@ -54,36 +64,52 @@ def describe(event: dict) -> str:
 
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
-    info, last = client.live_or_last(opts, client.status)
+    # (the launch's URI and, before its file is read, its stream's number: no event falls between the two)
+    info, last = client.live_or_last(opts, lambda uri: (uri, client.changes(uri, client.LAST_SEQ, 0.0)["seq"],
+                                                        client.status(uri)))
     if last is not None:
-        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.write(last.ended_line() + "\n")
         sys.stderr.flush()
         opts.follow = False  # (nothing more will come)
         path = last.events_file()
+        uri, seq = "", 0
     else:
+        uri, seq, info = info
         path = info.get("events_file")
     if not path:
         raise client.ToolError("the launch has no log directory, hence no events file")
     pending = b""
+    printed = 0  # the last event's number printed (a line of the stream, or of the file)
+
+    def show(events: list[tuple[str, dict | None]]) -> None:
+        """(the line as the file has it, the event) each; an event after those printed is printed."""
+        nonlocal printed
+        out = []
+        for text, event in events:
+            number = event.get("seq") if isinstance(event, dict) else None
+            if isinstance(number, int):
+                if number <= printed:
+                    continue  # (printed from the stream already)
+                printed = number
+            out.append(text if opts.json or event is None else describe(event))
+        if out:
+            sys.stdout.write("\n".join(out) + "\n")
+            sys.stdout.flush()
 
     def write(data: bytes) -> None:
         nonlocal pending
         pending += data
         *lines, pending = pending.split(b"\n")  # a line still being written waits for its end
-        out = []
+        events = []
         for line in lines:
             if not line.strip():
                 continue
-            if opts.json:
-                out.append(line.decode("utf-8", "replace"))
-                continue
+            text = line.decode("utf-8", "replace")
             try:
-                out.append(describe(json.loads(line)))
+                events.append((text, json.loads(line)))
             except ValueError:
-                out.append(line.decode("utf-8", "replace"))
-        if out:
-            sys.stdout.write("\n".join(out) + "\n")
-            sys.stdout.flush()
+                events.append((text, None))
+        show(events)
 
     offset = 0
     try:
@@ -93,7 +119,15 @@ def _main(argv: list[str]) -> int:
         if not opts.follow:
             raise client.ToolError("no events yet (%s)" % path) from None
     if opts.follow:
-        follow(path, offset, write)
+        printed = max(printed, seq)  # (the file held every event up to `seq` when it was read)
+        client.follow_changes(uri, printed, lambda answer: show(  # (the steps the file leaves out: not shown)
+            [(json.dumps(c, separators=(",", ":")), c) for c in answer["changes"] if not c.get("internal")]))
+        try:  # the launch has ended: what its file has after the events the stream gave (its end)
+            with open(path, "rb") as f:
+                f.seek(offset)
+                write(f.read() + b"\n")
+        except OSError:
+            pass
     return client.EXIT_OK
 
 

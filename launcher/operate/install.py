@@ -28,7 +28,10 @@ from launcher.model.runopts import RunOptions
 MARK = "# Written by `launcher install`"  # the first line of our units: only these are replaced or removed
 DEFAULT_WATCHDOG_S = 30  # systemd restarts a launch whose loop has not pinged for this long
 STOP_MARGIN_S = 5  # TimeoutStopSec beyond the launch's own escalation (its own teardown: master, logs)
-START_TIMEOUT_S = 120  # TimeoutStartSec: the launch sends READY=1 after at most its ready timeout (60 s)
+# TimeoutStartSec: the launch sends READY=1 after at most its ready timeout (60 s, --ready-timeout); systemd's
+# own start timeout stays this much above it (or else systemd, not the launch, would decide the start failed)
+START_TIMEOUT_S = 120
+START_MARGIN_S = 60
 # a system PATH: no virtual environment's or pyenv's python3 before the system's, whose rospy the nodes import
 SYSTEM_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 NAME_OK = re.compile(r"[A-Za-z0-9:_.\\-]+")
@@ -51,6 +54,7 @@ class UnitOptions(NamedTuple):
     watchdog_s: int = DEFAULT_WATCHDOG_S
     sigint_timeout: float = RunOptions().sigint_timeout
     sigterm_timeout: float = RunOptions().sigterm_timeout
+    ready_timeout: float = RunOptions().ready_timeout
 
 
 def quote(arg: str) -> str:
@@ -88,6 +92,11 @@ def timeout_stop(opts: UnitOptions) -> int:
     return int(opts.sigint_timeout + opts.sigterm_timeout + STOP_MARGIN_S + 0.999)
 
 
+def timeout_start(opts: UnitOptions) -> int:
+    """Seconds systemd waits for READY=1: the launch's ready timeout and a margin (its master, its setup)."""
+    return max(START_TIMEOUT_S, int(opts.ready_timeout + 0.999) + START_MARGIN_S)
+
+
 def unit_text(opts: UnitOptions) -> str:
     after = ["network-online.target"] + [a for a in opts.after if a != "network-online.target"]
     lines = [MARK + " (launcher %s); `launcher uninstall %s` removes it." % (__version__, opts.name),
@@ -120,7 +129,7 @@ def unit_text(opts: UnitOptions) -> str:
                                                                             "launcher")),
               "KillSignal=SIGINT",
               "KillMode=mixed",
-              "TimeoutStartSec=%d" % START_TIMEOUT_S,
+              "TimeoutStartSec=%d" % timeout_start(opts),
               "TimeoutStopSec=%d" % timeout_stop(opts),
               "WatchdogSec=%d" % opts.watchdog_s,
               "Restart=on-failure",
@@ -179,8 +188,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--watchdog-sec", dest="watchdog_sec", type=int, default=DEFAULT_WATCHDOG_S)
     p.add_argument("--sigint-timeout", dest="sigint_timeout", type=float, default=RunOptions().sigint_timeout)
     p.add_argument("--sigterm-timeout", dest="sigterm_timeout", type=float, default=RunOptions().sigterm_timeout)
+    p.add_argument("--ready-timeout", dest="ready_timeout", type=float, default=None, metavar="SECONDS",
+                   help="the launch's --ready-timeout (READY=1 at the latest after it; TimeoutStartSec= stays above)")
     p.add_argument("--dry-run", dest="dry_run", action="store_true", help="print the unit, write nothing")
     return p
+
+
+def warn(text: str) -> None:
+    print("launcher install: warning: %s" % text, file=sys.stderr)
 
 
 def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
@@ -204,7 +219,12 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
         try:
             ros_home = os.path.join(pwd.getpwnam(user).pw_dir, ".ros")
         except KeyError:
-            raise InstallError("no user %r on this machine" % user) from None
+            if not ns.dry_run:
+                raise InstallError("no user %r on this machine" % user) from None
+            # a dry run writes a unit for another machine (the robot): the user is that machine's
+            ros_home = os.path.join("/home", user, ".ros")
+            warn("no user %r on this machine: its home taken as /home/%s (ROS_HOME=%s); make sure the machine that "
+                 "runs the unit has that user" % (user, user, ros_home))
     env = []
     for item in ns.env:
         key, eq, value = item.partition("=")
@@ -216,14 +236,22 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
         host, _sep, port = ns.metrics.rpartition(":")
         if not port.isdigit() or int(port) > 65535:
             raise InstallError("--metrics: the address is [ADDR:]PORT, not %r" % ns.metrics)
-    launch = (launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
-              + (["--metrics", ns.metrics] if ns.metrics is not None else []))
+    launch = launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
+    ready_timeout = RunOptions().ready_timeout
+    if ns.ready_timeout is not None:
+        if not ns.ready_timeout > 0:
+            raise InstallError("--ready-timeout must be greater than zero")
+        ready_timeout = ns.ready_timeout
+        launch += ["--ready-timeout", "%g" % ready_timeout]
+    if ns.metrics is not None:
+        launch += ["--metrics", ns.metrics]
     return UnitOptions(name=name, launch=tuple(launch), description=ns.description or "", files=tuple(files),
                        user=user, ros_home=ros_home,
                        setup=os.path.abspath(ns.setup) if ns.setup else "", env=tuple(env),
                        env_files=tuple(os.path.abspath(f) for f in ns.env_file), ros_ip_from=ns.ros_ip_from or "",
                        after=tuple(ns.after), master=ns.master or "", system=system, watchdog_s=ns.watchdog_sec,
-                       sigint_timeout=ns.sigint_timeout, sigterm_timeout=ns.sigterm_timeout)
+                       sigint_timeout=ns.sigint_timeout, sigterm_timeout=ns.sigterm_timeout,
+                       ready_timeout=ready_timeout)
 
 
 def ours(path: str) -> bool:
@@ -328,6 +356,8 @@ def installed(argv: list[str]) -> int:
                 rows.append((entry[:-len(".service")], system, files))
     for name, system, files in rows:
         print("%s\t%s\t%s\t%s" % (name, "system" if system else "user", state(name, system), files))
+    if not rows:
+        print("no unit written by `launcher install` in %s" % " or ".join(d for d, _ in _dirs(ns)))
     return 0
 
 

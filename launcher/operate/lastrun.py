@@ -23,6 +23,7 @@ import time
 from typing import Any, Mapping, NamedTuple
 
 from launcher.operate import client
+from launcher.operate.status import keep_last_exit
 from launcher.fleet.state import EVENTS_FILE, LAUNCH_ENDED
 from launcher.workspace.roshome import log_root
 from launcher.model.suggest import did_you_mean
@@ -33,6 +34,8 @@ OUR_LINE = re.compile(r"\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)\.(\d{3})\] ?(.*)")
 DONE = "done"  # the last line of the launch log of a launch that stopped by itself (runtime's teardown)
 STDOUT_LOG = re.compile(r"(?P<name>.+)-(?P<number>\d+)-stdout\.log")  # (runtime.node_specs names them so)
 TAIL_BYTES = 4096  # enough of a launch log's end for its last line
+DOWN_STATES = ("exited", "fatal", "stopped")  # a node in these was down before its launch was killed
+KILLED_REASON = "the launch was killed"
 
 
 class LastRun(NamedTuple):
@@ -46,9 +49,20 @@ class LastRun(NamedTuple):
     still_running: bool  # that launch still runs (it cannot be reached, yet it has not ended)
     last_line_at: float | None  # the time of the launch log's last line
 
+    def killed(self) -> bool:
+        """The launch ended without a word (`kill -9`, a crash of the machine): its nodes' last events may say
+        they run, yet they went with it (the launch's watchdog kills them)."""
+        return self.ended_at is None and not self.still_running
+
     def nodes(self) -> list[dict[str, Any]]:
-        """Each node's last state change, with `name` as in launcher_status (for the status table)."""
-        return [dict(event, name=name) for name, event in final_states(self.events).items()]
+        """Each node's last state change, with `name` and `last_exit_*` as in launcher_status (for the status
+        table); a node of a killed launch that was not down by then is `stopped`, "the launch was killed"."""
+        nodes = node_states(self.events)
+        if self.killed():
+            for node in nodes:
+                if node.get("state") not in DOWN_STATES:
+                    node.update(state="stopped", phase="stopped", reason=KILLED_REASON, next_start=None)
+        return nodes
 
     def last_event_at(self) -> float | None:
         times = [e["time"] for e in self.events if isinstance(e.get("time"), (int, float))]
@@ -70,6 +84,10 @@ class LastRun(NamedTuple):
                 which, self.run_id, "event" if last is not None else "line of its launch log",
                 when(last if last is not None else self.last_line_at), "" if self.pid is None else " (pid %d)" % self.pid)
         return "%s\nits logs: %s" % (text, self.run_dir)
+
+    def ended_line(self) -> str:
+        """How the run ended, in one line (what `launcher events` and `logs` say on stderr before it)."""
+        return self.headline().split("\n", 1)[0]
 
     def events_file(self) -> str:
         return os.path.join(self.run_dir, EVENTS_FILE)
@@ -115,6 +133,20 @@ def read_events(path: str) -> list[dict[str, Any]]:
             if isinstance(event, dict):
                 events.append(event)
     return events
+
+
+def node_states(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each node's last state change, with `name`, and how its last run that ended did end (`last_exit_*`,
+    which the events file does not write: status.keep_last_exit follows its lines)."""
+    nodes: dict[str, dict[str, Any]] = {}
+    for event in events:
+        name = event.get("node")
+        if isinstance(name, str) and "state" in event:
+            node = nodes.setdefault(name, {"name": name, "last_exit_code": None, "last_exit_signal": None,
+                                           "last_exit_at": None})
+            keep_last_exit(node, event)
+            node.update(event)
+    return list(nodes.values())
 
 
 def final_states(events: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -165,7 +197,7 @@ def read(run_dir: str, latest: bool = True) -> LastRun:
         raise client.ToolError("cannot read %s: %s" % (os.path.join(run_dir, EVENTS_FILE), e.strerror)) from None
     ours = _our_launch_logs(run_dir)
     if not has_events and not ours:
-        raise client.ToolError("%s, %s, is roslaunch's (or roscore's), not a run of `launch`: it has no %s, and "
+        raise client.NotOurs("%s, %s, is roslaunch's (or roscore's), not a run of `launch`: it has no %s, and "
                                "`launcher` cannot tell its nodes' states; its logs are in %s"
                                % ("the last run" if latest else "the run", run_id, EVENTS_FILE, run_dir))
     pid, host, (line_at, line) = None, "", (None, "")

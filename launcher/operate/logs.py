@@ -113,7 +113,7 @@ def _main(argv: list[str]) -> int:
     if last is not None:
         path = last.stdout_log(opts.node)
         name = opts.node
-        sys.stderr.write(last.headline() + "\n")
+        sys.stderr.write(last.ended_line() + "\n")
         sys.stderr.flush()
         opts.follow = False  # (nothing more will come)
     else:

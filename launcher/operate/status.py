@@ -1,10 +1,14 @@
 """`launcher status [--json] [--watch]`: every node of a running launch, one line each.
 
-Columns: node, state, pid, uptime, restarts, last exit (code or signal),
+Columns: node, state, whether its run is registered with the master (REG: a
+process runs, "running", and a ROS node is up once it is registered too), pid,
+uptime, restarts, last exit (code or signal),
 CPU (cores), RSS, host, and while a node is over one of its limits, which
 (memory_limit, cpu_limit) and what it uses now. `--json` prints the run and
 its nodes as one JSON object (fields as in launcher-events.jsonl); `--watch`
-redraws every second. When no launch answers, the last run's end and each
+redraws at each change of the launch's stream (`launcher_changes`, a long poll)
+and every second between them (uptimes, CPU), and once the launch has ended
+shows that run as its files tell it. When no launch answers, the last run's end and each
 node's state then (operate/lastrun.py; exit status 3: nothing runs); `--run
 RUN_ID` shows that run's.
 """
@@ -13,20 +17,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
-import time
 from typing import Any
 
 from launcher.operate import client
-from launcher.fleet.state import over_limit_text
+from launcher.fleet.state import over_limit_text, run_ended
 from launcher.model.units import format_size
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="launcher status", description=__doc__.split("\n")[0])
     p.add_argument("--json", action="store_true", help="print the status as JSON")
-    p.add_argument("--watch", action="store_true", help="redraw every second (Ctrl-C ends)")
+    p.add_argument("--watch", action="store_true", help="redraw at every change and every second (Ctrl-C ends)")
     client.add_launch_options(p)
     client.add_run_option(p)
     return p
@@ -45,15 +49,34 @@ def duration(seconds: float | None) -> str:
     return "%dd%02dh" % (s // 86400, s % 86400 // 3600)
 
 
-def last_exit(node: dict[str, Any]) -> str:
-    if node.get("exit_signal") is not None:
+def exit_text(code: int | None, sig: int | None) -> str:
+    """How a run ended: SIGSEGV, code 3, or - (not ended)."""
+    if sig is not None:
         try:
-            return signal.Signals(node["exit_signal"]).name
+            return signal.Signals(sig).name
         except ValueError:
-            return "signal %d" % node["exit_signal"]
-    if node.get("exit_code") is not None:
-        return "code %d" % node["exit_code"]
+            return "signal %d" % sig
+    if code is not None:
+        return "code %d" % code
     return "-"
+
+
+def last_exit(node: dict[str, Any]) -> str:
+    """The LAST EXIT column: how the node's last run that ended did end, also while it runs again (a status
+    from a launch without `last_exit_*`: the current run's exit fields)."""
+    if "last_exit_code" in node or "last_exit_signal" in node:
+        return exit_text(node.get("last_exit_code"), node.get("last_exit_signal"))
+    return exit_text(node.get("exit_code"), node.get("exit_signal"))
+
+
+def keep_last_exit(node: dict[str, Any], change: dict[str, Any]) -> None:
+    """A node's `last_exit_*` after a change of the stream or a line of the events file (which do not carry
+    them: a run's end is where its exit fields are set), applied before the change's own fields."""
+    before = (node.get("exit_code"), node.get("exit_signal"))
+    after = (change.get("exit_code"), change.get("exit_signal"))
+    if run_ended(before, after):
+        node["last_exit_code"], node["last_exit_signal"] = after
+        node["last_exit_at"] = change.get("time")
 
 
 def table(info: dict[str, Any]) -> str:
@@ -66,7 +89,14 @@ def table(info: dict[str, Any]) -> str:
     return text
 
 
-HEADER = ("NODE", "STATE", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
+HEADER = ("NODE", "STATE", "REG", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
+
+
+def registered(n: dict[str, Any]) -> str:
+    """The REG column: a running node's run registered with the master ("yes"), or not yet ("no")."""
+    if n["state"] not in ("running", "stalled", "hung"):
+        return "-"
+    return "yes" if n.get("registered") else "no"
 
 
 def row(n: dict[str, Any]) -> tuple[str, ...]:
@@ -74,7 +104,7 @@ def row(n: dict[str, Any]) -> tuple[str, ...]:
     # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
     # keeps the last sample of a run that ended)
     running = n["state"] == "running"
-    return (n["name"], n["state"], str(n["pid"]) if n.get("pid") and running else "-",
+    return (n["name"], n["state"], registered(n), str(n["pid"]) if n.get("pid") and running else "-",
             duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
             "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
             "-" if n.get("rss") is None or not running else format_size(n["rss"], measured=True), n.get("host", ""))
@@ -96,25 +126,56 @@ def node_table(nodes: list[dict[str, Any]]) -> str:
 def _main(argv: list[str]) -> int:
     opts = parser().parse_args(argv)
     # --json passes the launch's own JSON through: a 500-node status is not decoded to be encoded again
-    first, last = client.live_or_last(opts, lambda uri: (uri, client.status_text(uri) if opts.json
-                                                          else table(client.status(uri))))
+    def snapshot(uri: str) -> str:
+        return client.status_text(uri) if opts.json else table(client.status(uri))
+
+    try:
+        first, last = client.live_or_last(opts, lambda uri: (uri, snapshot(uri)))
+    except client.NotOurs as e:  # (a status to read, though not one of ours: said where the status would be)
+        sys.stdout.write("%s\n" % e)
+        return e.status
     if last is not None:
-        if opts.json:
-            sys.stdout.write(json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
-        else:
-            sys.stdout.write("%s\n%s\n" % (last.headline(), node_table(last.nodes())))
+        show_last(last, opts.json)
         # (the run's end was asked for by --run; otherwise the launch asked about does not run)
         return client.EXIT_OK if opts.run else client.EXIT_NO_LAUNCH
     uri, text = first
-    while True:
-        # clear and redraw from the top; a pipe gets one snapshot after another
-        prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
+    # clear and redraw from the top; a pipe gets one snapshot after another
+    prefix = "\x1b[H\x1b[2J" if opts.watch and sys.stdout.isatty() else ""
+    sys.stdout.write(prefix + text + "\n")
+    if not opts.watch:
+        return client.EXIT_OK
+    sys.stdout.flush()
+
+    def redraw(_answer: dict[str, Any]) -> None:
+        try:
+            text = snapshot(uri)
+        except client.ToolError as e:
+            if e.status != client.EXIT_NO_LAUNCH:
+                raise
+            return  # (gone between the stream's answer and this: the stream says so next)
         sys.stdout.write(prefix + text + "\n")
-        if not opts.watch:
-            return client.EXIT_OK
         sys.stdout.flush()
-        time.sleep(1.0)
-        text = client.status_text(uri) if opts.json else table(client.status(uri))
+
+    run_id = json.loads(client.status_text(uri)).get("run_id") or None
+    since = client.changes(uri, client.LAST_SEQ, 0.0)["seq"]
+    client.follow_changes(uri, since, redraw)  # (an answer at each change, or after a second without one)
+    # the launch has ended: the run as its files tell it (how it ended, each node's last state)
+    from launcher.operate import lastrun
+    try:
+        ended = lastrun.read(lastrun.find_run(os.environ, run_id), latest=False)
+    except client.ToolError as e:
+        raise client.ToolError("the launch at %s has ended (%s)" % (uri, e), client.EXIT_NO_LAUNCH) from None
+    show_last(ended, opts.json, prefix)
+    return client.EXIT_NO_LAUNCH
+
+
+def show_last(last: Any, as_json: bool, prefix: str = "") -> None:
+    """A run that has ended (operate/lastrun.py), as its files tell it."""
+    if as_json:
+        sys.stdout.write(prefix + json.dumps(last.as_dict(), separators=(",", ":")) + "\n")
+    else:
+        sys.stdout.write("%s%s\n%s\n" % (prefix, last.headline(), node_table(last.nodes())))
+    sys.stdout.flush()
 
 
 def main(argv: list[str]) -> int:

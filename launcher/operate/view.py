@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 from typing import Any, Iterable
 
+from launcher.operate import events
 from launcher.operate import status as status_columns
 
 OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
@@ -78,8 +79,9 @@ class ViewState:
             if node is None:
                 continue
             was_running, old_pid = node.get("state") == "running", node.get("pid")
+            status_columns.keep_last_exit(node, c)
             for key in ("state", "pid", "exit_code", "exit_signal", "restarts", "failures", "next_start",
-                        "over_limit", "reason", "phase"):
+                        "over_limit", "reason", "phase", "registered", "uri"):
                 if key in c:
                     node[key] = c[key]
             if node["state"] == "running" and (not was_running or node.get("pid") != old_pid):
@@ -87,7 +89,8 @@ class ViewState:
             if node["state"] != "running":
                 node["started_at"] = None
                 node["cpu"] = node["rss"] = None
-            self.lines.append(Line(node["name"], change_text(c), "state"))
+            if not c.get("internal"):  # (one line per change of the events file, in its words)
+                self.lines.append(Line(node["name"], change_text(c), "state"))
 
     def samples(self, samples: dict[str, list]) -> None:
         """CPU (cores) and RSS (bytes) of the running nodes (`launcher_samples`); each node's CPU history too."""
@@ -183,8 +186,9 @@ class ViewState:
         """The pane's lines with their style (a /rosout line's level's, else '')."""
         if self.mode == NODE_OUTPUT:
             return [(text, "") for text in self.node_output]
+        f = self.filter.lower()
         return [("[%s] %s" % (line.node, line.text), LEVEL_STYLE.get(line.kind, "")) for line in self.lines
-                if line.node not in self.muted]
+                if line.node not in self.muted and f in line.node.lower()]
 
     def output_rows(self, height: int) -> list[str]:
         """The pane's lines, `height` of them at most, ending `scroll` lines before the newest."""
@@ -299,13 +303,5 @@ def cut_right(text: str, n: int) -> str:
 
 
 def change_text(c: dict[str, Any]) -> str:
-    """A change as one line of the pane: the state, and the pid or how the run ended."""
-    parts = [c.get("state", "?")]
-    if c.get("state") == "running" and c.get("pid"):
-        parts.append("pid %s" % c["pid"])
-    exit_text = status_columns.last_exit(c)
-    if c.get("state") != "running" and exit_text != "-":
-        parts.append(exit_text)
-    if c.get("reason"):
-        parts.append("(%s)" % c["reason"])
-    return " ".join(parts)
+    """A change as one line of the pane: as `launcher events` says it (its time and node aside)."""
+    return events.words(c)

@@ -7,12 +7,16 @@ the launch through its server (the change stream, the samples, the output long
 poll) and passes the operator's token on to it, so a browser never costs the
 launch more than one more reader. It sends changes, not the table: a new page
 gets the table once, then each change, each sample that moved, each new output.
-The HTTP side is the standard library's threading server (a handful of
-browsers, each held by its event stream). Guards, on loopback too (every local
-user shares it): a request whose `Host` is not this server by address, by
-`localhost` or by this machine's name is refused (DNS rebinding), and so is one
-whose `Origin` is another site's; a mutating request without the run's token
-gets 403. The page's files (operate/webpage/) ship in the package, no CDN.
+Everything runs on one asyncio loop: the reads of the launch (`Hub`) and the
+HTTP side (`operate/webserver.py`: bounded connections, deadlines, event
+streams dropped when their client stops reading). Guards, on loopback too
+(every local user shares it): a request whose `Host` is not this server by
+address, by `localhost` or by this machine's name is refused (DNS rebinding),
+and so is one whose `Origin` is another site's; a mutating request without the
+run's token gets 403 saying where the token file is. The address printed to a
+terminal carries the token in its fragment (`#token=...`, which no server log
+or Referer ever sees); the page keeps it in the tab and takes it out of the
+address bar. The page's files (operate/webpage/) ship in the package, no CDN.
 `/metrics` is the launch's Prometheus metrics (`launcher_metrics`, services/metrics.py),
 read-only as the page, so without the token.
 """
@@ -20,34 +24,44 @@ read-only as the page, so without the token.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import collections
-import http.server
+import functools
 import ipaddress
 import json
 import os
-import queue
+import signal
 import socket
 import sys
-import threading
 import time
-from typing import Any
+from typing import Any, Awaitable, Callable, NamedTuple
+from urllib.parse import parse_qs
 
-from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
-from launcher.operate import client
 from launcher.model import token as run_token
+from launcher.net.http import Request
+from launcher.net.open_files import raise_open_file_limit
+from launcher.net.xmlrpc import Fault, XmlRpcError, call
+from launcher.operate import client
 from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
-from launcher.operate.ui import POLL_WAIT_S
+from launcher.operate.ui import POLL_WAIT_S, RECENT_OUTPUT_BYTES
 from launcher.operate.view import ViewState
+from launcher.operate.webserver import EventStream, PageServer, Reply, StreamReply
 
 PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "webpage")
 FILES = {"/": ("index.html", "text/html; charset=utf-8"), "/app.js": ("app.js", "text/javascript; charset=utf-8"),
-         "/style.css": ("style.css", "text/css; charset=utf-8")}
+         "/style.css": ("style.css", "text/css; charset=utf-8"), "/icon.svg": ("icon.svg", "image/svg+xml"),
+         "/favicon.ico": ("icon.svg", "image/svg+xml")}  # (asked for by clients that do not read the page's link)
 METRICS_TYPE = "text/plain; version=0.0.4; charset=utf-8"  # Prometheus's text format (launcher_metrics' answer)
 SAMPLE_PERIOD_S = 1.0
 HISTORY = 60  # samples a sparkline shows (a minute)
 KEEPALIVE_S = 15.0  # an event stream's comment line while nothing happens (proxies close silent connections)
 CONTROL_TIMEOUT_S = 600.0
-CLIENT_QUEUE = 1000  # events a slow browser may lag behind before it is dropped (it reconnects and starts over)
+READ_CALLS = 8  # the launch's or master's read calls made for pages at once (the rest wait their turn)
+CONTROL_CALLS = 8  # start/stop/restart/reload calls at once (a stop may wait for its node's escalation)
+# with every response: the page runs only its own files, no other site may frame it, nothing is cached
+HEADERS = (b"Cache-Control: no-store\r\nContent-Security-Policy: default-src 'self'; frame-ancestors 'none'\r\n"
+           b"X-Content-Type-Options: nosniff\r\n")
+ERRORS = (OSError, XmlRpcError, Fault, ValueError, TypeError, KeyError, asyncio.TimeoutError)
 
 
 def round_sample(cpu: float | None, rss: int | None) -> list:
@@ -56,115 +70,130 @@ def round_sample(cpu: float | None, rss: int | None) -> list:
     return [None if cpu is None else round(cpu, 3), None if rss is None else int(rss) // 100000 * 100000]
 
 
-class Hub:
-    """The launch as the page sees it: a ViewState kept current from the launch's server, and every change
-    handed to each connected page."""
+def event_bytes(event: dict) -> bytes:
+    return ("data: %s\n\n" % json.dumps(event, separators=(",", ":"), default=str)).encode()
 
-    def __init__(self, uri: str):
+
+async def read(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
+    """A read call of the launch's server: its value (a failed answer is an XmlRpcError)."""
+    code, msg, value = await call(uri, method, *params, timeout=timeout)
+    if code != 1:
+        raise XmlRpcError("%s: %s" % (method, msg))
+    return value
+
+
+class Hub:
+    """The launch as the page sees it: a ViewState kept current from the launch's server by three readers on the
+    loop (changes, samples, output), and every change handed to each event stream."""
+
+    def __init__(self, uri: str, info: dict[str, Any], past: dict[str, list]):
         self.uri = uri
         self.state = ViewState()
-        self.state.load(client.status(uri))
-        self.lock = threading.Lock()
-        self.clients: list[queue.Queue] = []
+        self.state.load(info)
+        self.streams: set[EventStream] = set()
         self.sent: dict[str, list] = {}  # the samples the pages have
         # each node's samples over the last minute, as a new page's sparklines start (then it keeps its own)
         self.history: dict[str, collections.deque] = {
             name: collections.deque((round_sample(cpu, rss) for _t, cpu, rss in kept), maxlen=HISTORY)
-            for name, kept in reader.past_samples(uri).items()}  # (what the launch kept: full from the start)
-        self.gone = threading.Event()
+            for name, kept in past.items()}  # (what the launch kept: full from the start)
+        self.gone: asyncio.Event | None = None
+        self.reads: asyncio.Semaphore | None = None
+        self.controls: asyncio.Semaphore | None = None
 
-    def start(self) -> None:
-        for target in (self._changes, self._samples, self._output):
-            threading.Thread(target=target, daemon=True).start()
+    @property
+    def token_file(self) -> str:
+        return self.state.info.get("token_file") or ""
 
-    def _call(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
-        return reader.call(self.uri, method, *params, timeout=timeout)
+    async def run(self) -> None:
+        """Read the launch until it stops answering."""
+        self.gone = asyncio.Event()
+        self.reads, self.controls = asyncio.Semaphore(READ_CALLS), asyncio.Semaphore(CONTROL_CALLS)
+        readers = [asyncio.ensure_future(self._loop(body)) for body in (self._changes, self._samples,
+                                                                           self._output(), self._keepalive)]
+        try:
+            await self.gone.wait()
+        finally:
+            for task in readers:
+                task.cancel()
 
-    def _loop(self, body: Any) -> None:
+    async def _loop(self, body: Callable[[], Awaitable[None]]) -> None:
         failures = 0
         while not self.gone.is_set():
             try:
-                body()
+                await body()
                 failures = 0
-            except (OSError, XmlRpcError, Fault, ValueError):
+            except ERRORS:
                 failures += 1
                 if failures >= 3:  # (the launch has ended: so does its page server)
-                    self.gone.set()
                     self.broadcast({"type": "gone"})
-                self.gone.wait(1.0)
+                    self.gone.set()
+                    return
+                await asyncio.sleep(1.0)
 
     def broadcast(self, event: dict) -> None:
-        data = ("data: %s\n\n" % json.dumps(event, separators=(",", ":"))).encode()
-        with self.lock:
-            for q in list(self.clients):
-                try:
-                    q.put_nowait(data)
-                except queue.Full:  # (a page that cannot keep up starts over: it is told to reconnect)
-                    self.clients.remove(q)
-                    with q.mutex:
-                        q.queue.clear()
-                    q.put_nowait(None)
+        self.send(event_bytes(event))
 
-    def subscribe(self) -> tuple[queue.Queue, bytes]:
-        """A page's queue, and its first event: the table as it is now."""
-        q: queue.Queue = queue.Queue(CLIENT_QUEUE)
-        with self.lock:
-            nodes = [dict(n) for n in self.state.nodes.values()]
-            snapshot = {"type": "snapshot", "nodes": nodes, "uri": self.state.info.get("uri"),
-                        "history": {name: list(h) for name, h in self.history.items()},
-                        "run_id": self.state.info.get("run_id"), "seq": self.state.seq}
-            self.clients.append(q)
-        return q, ("data: %s\n\n" % json.dumps(snapshot, separators=(",", ":"), default=str)).encode()
+    def send(self, data: bytes) -> None:
+        for stream in list(self.streams):
+            if not stream.send(data):  # (a page that does not read is dropped: it reconnects and starts over)
+                self.streams.discard(stream)
 
-    def unsubscribe(self, q: queue.Queue) -> None:
-        with self.lock:
-            if q in self.clients:
-                self.clients.remove(q)
+    def subscribe(self) -> StreamReply:
+        """A page's event stream: its first event is the table as it is now."""
+        snapshot = {"type": "snapshot", "nodes": list(self.state.nodes.values()), "uri": self.state.info.get("uri"),
+                    "history": {name: list(h) for name, h in self.history.items()},
+                    "run_id": self.state.info.get("run_id"), "seq": self.state.seq}
+        return StreamReply(event_bytes(snapshot), self.streams.add, self.streams.discard)
 
-    def _changes(self) -> None:
-        def body() -> None:
-            answer = json.loads(self._call("launcher_changes", self.state.seq, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
-            with self.lock:
-                if not answer["complete"]:
-                    self.state.load(json.loads(self._call("launcher_status")))
-                self.state.changes(answer["changes"])
-                self.state.seq = max(self.state.seq, answer["seq"])
-            if answer["changes"]:
-                self.broadcast({"type": "changes", "changes": answer["changes"]})
-        self._loop(body)
+    async def _changes(self) -> None:
+        answer = json.loads(await read(self.uri, "launcher_changes", self.state.seq, POLL_WAIT_S,
+                                       timeout=POLL_WAIT_S + 10))
+        if not answer["complete"]:
+            self.state.load(json.loads(await read(self.uri, "launcher_status")))
+        self.state.changes(answer["changes"])
+        self.state.seq = max(self.state.seq, answer["seq"])
+        if answer["changes"]:
+            self.broadcast({"type": "changes", "changes": answer["changes"]})
 
-    def _samples(self) -> None:
-        def body() -> None:
-            samples = json.loads(self._call("launcher_samples"))
-            with self.lock:
-                self.state.samples(samples)
-                now = {name: round_sample(*samples.get(name, (None, None))) for name in self.state.nodes}
-                moved = {name: s for name, s in now.items() if self.sent.get(name) != s}
-                self.sent = now
-                for name, sample in now.items():
-                    self.history.setdefault(name, collections.deque(maxlen=HISTORY)).append(sample)
-            if moved:
-                self.broadcast({"type": "samples", "time": round(time.time(), 1), "samples": moved})
-            self.gone.wait(SAMPLE_PERIOD_S)
-        self._loop(body)
+    async def _samples(self) -> None:
+        samples = json.loads(await read(self.uri, "launcher_samples"))
+        self.state.samples(samples)
+        now = {name: round_sample(*samples.get(name, (None, None))) for name in self.state.nodes}
+        moved = {name: s for name, s in now.items() if self.sent.get(name) != s}
+        self.sent = now
+        for name, sample in now.items():
+            self.history.setdefault(name, collections.deque(maxlen=HISTORY)).append(sample)
+        if moved:
+            self.broadcast({"type": "samples", "time": round(time.time(), 1), "samples": moved})
+        await asyncio.sleep(SAMPLE_PERIOD_S)
 
-    def _output(self) -> None:
+    def _output(self) -> Callable[[], Awaitable[None]]:
         offsets: dict[str, int] = {}
 
-        def body() -> None:
-            output, log = reader.new_output(self.uri, offsets)
-            if output or log:
-                self.broadcast({"type": "output", "output": output, "log": log})
-        self._loop(body)
+        async def body() -> None:
+            answer = json.loads(await read(self.uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S,
+                                           timeout=POLL_WAIT_S + 10))
+            offsets.update(answer["offsets"])
+            if answer["output"] or answer.get("log"):
+                self.broadcast({"type": "output", "output": answer["output"], "log": answer.get("log") or []})
+        return body
 
-    def recent_output(self, node: str) -> str:
-        return reader.recent_output(self.uri, node)
+    async def _keepalive(self) -> None:
+        await asyncio.sleep(KEEPALIVE_S)
+        self.send(b": -\n\n")
 
-    def topics(self) -> list[dict]:
+    async def recent_output(self, node: str) -> str:
+        """The end of a node's output (its -stdout.log), as the launch's server reads it."""
+        async with self.reads:  # type: ignore[union-attr]
+            answer = json.loads(await read(self.uri, "launcher_output", json.dumps({node: -RECENT_OUTPUT_BYTES}), 0))
+        return answer["output"].get(node, "")
+
+    async def topics(self) -> list[dict]:
         """Each topic of the master's registry: its type, publishers and subscribers."""
         master = self.state.info.get("master_uri")
-        code, _msg, (pubs, subs, _srvs) = call_blocking(master, "getSystemState", "/launcher_web", timeout=10)
-        code2, _msg2, types = call_blocking(master, "getTopicTypes", "/launcher_web", timeout=10)
+        async with self.reads:  # type: ignore[union-attr]
+            (code, _msg, (pubs, subs, _srvs)), (code2, _msg2, types) = await asyncio.gather(
+                call(master, "getSystemState", "/launcher_web"), call(master, "getTopicTypes", "/launcher_web"))
         type_of = dict(types) if code2 == 1 else {}
         topics: dict[str, dict] = {}
         for topic, nodes in pubs:
@@ -175,6 +204,22 @@ class Hub:
             t["type"] = type_of.get(t["topic"], "")
         return sorted(topics.values(), key=lambda t: t["topic"])
 
+    async def metrics(self) -> str:
+        """The launch's Prometheus metrics, as its server makes them (launcher_metrics)."""
+        async with self.reads:  # type: ignore[union-attr]
+            return await read(self.uri, "launcher_metrics")
+
+    async def control(self, method: str, *params: Any) -> Any:
+        """A start/stop/restart/reload call with the operator's token: (code, message, value)."""
+        async with self.controls:  # type: ignore[union-attr]
+            return await call(self.uri, method, *params, timeout=CONTROL_TIMEOUT_S)
+
+
+@functools.lru_cache(maxsize=None)
+def own_names() -> tuple:
+    """This machine's names, looked up once (getfqdn asks the resolver: never on each request)."""
+    return ("localhost", socket.gethostname().lower(), socket.getfqdn().lower())
+
 
 def allowed_host(host: str, port: int, bound: str) -> bool:
     """Whether a request's Host header names this server: by an address literal, `localhost` or this machine's
@@ -183,152 +228,126 @@ def allowed_host(host: str, port: int, bound: str) -> bool:
     if not sep or p != str(port) or not name:
         return False
     name = name.strip("[]").lower()
-    if name in ("localhost", socket.gethostname().lower(), socket.getfqdn().lower()):
-        return True
     try:
         ipaddress.ip_address(name)
     except ValueError:
-        return False
+        return name in own_names()
     return True
 
 
-def make_handler(hub: Hub, port_box: list, bound: str) -> type:
-    class Handler(http.server.BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
-        server_version = "launcher-web"
+class Route(NamedTuple):
+    """What answers a path: `answer(request)` gives a Reply, an awaitable of one, or an event stream.
+    `token`: a mutating request, refused without the run's token."""
 
-        def log_message(self, format: str, *args: Any) -> None:  # (quiet: the launch's terminal is not ours)
-            pass
+    answer: Callable[[Request], Any]
+    token: bool = False
 
-        def _send(self, status: int, body: bytes, ctype: str = "text/plain; charset=utf-8") -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            # the page runs only its own files, and no other site may frame it
-            self.send_header("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'")
-            self.send_header("X-Content-Type-Options", "nosniff")
-            self.end_headers()
-            self.wfile.write(body)
 
-        def _json(self, value: Any, status: int = 200) -> None:
-            self._send(status, json.dumps(value, default=str).encode(), "application/json")
+def json_reply(value: Any, status: int = 200) -> Reply:
+    return Reply(status, json.dumps(value, default=str).encode(), "application/json")
 
-        def _guard(self) -> bool:
-            host = self.headers.get("Host", "")
-            if not allowed_host(host, port_box[0], bound):
-                self._send(403, b"refused: the Host header does not name this server\n")
-                return False
-            origin = self.headers.get("Origin")
-            if origin is not None and origin != "http://" + host:
-                self._send(403, b"refused: a request from another site\n")
-                return False
-            return True
 
-        def do_GET(self) -> None:
-            if not self._guard():
-                return
-            path, _, query = self.path.partition("?")
-            if path in FILES:
-                name, ctype = FILES[path]
-                with open(os.path.join(PAGE_DIR, name), "rb") as f:
-                    body = f.read()
-                if name == "index.html":
-                    body = body.replace(b"{{BOUND}}", ("%s:%d" % (bound, port_box[0])).encode())
-                self._send(200, body, ctype)
-            elif path == "/events":
-                self._events()
-            elif path == "/api/output":
-                node = dict(p.partition("=")[::2] for p in query.split("&")).get("node", "")
-                from urllib.parse import unquote
-                try:
-                    self._json({"node": unquote(node), "output": hub.recent_output(unquote(node))})
-                except (OSError, XmlRpcError, Fault, ValueError) as e:
-                    self._json({"error": str(e)}, 502)
-            elif path == "/metrics":  # Prometheus's scrape: read-only, as the page, so without the token
-                try:
-                    self._send(200, reader.call(hub.uri, "launcher_metrics", timeout=10.0).encode(), METRICS_TYPE)
-                except (OSError, XmlRpcError, Fault, ValueError) as e:
-                    self._send(502, ("the launch does not answer: %s\n" % e).encode())
-            elif path == "/api/topics":
-                try:
-                    self._json(hub.topics())
-                except (OSError, XmlRpcError, Fault, ValueError, TypeError) as e:
-                    self._json({"error": str(e)}, 502)
-            else:
-                self._send(404, b"not found\n")
+def text_reply(status: int, text: str) -> Reply:
+    return Reply(status, (text + "\n").encode())
 
-        def do_POST(self) -> None:
-            if not self._guard():
-                return
-            length = int(self.headers.get("Content-Length") or 0)
-            body = self.rfile.read(min(length, 65536)) if length else b""
-            verb = self.path.rpartition("/")[2]
-            if not self.path.startswith("/api/") or verb not in ("start", "stop", "restart", "reload"):
-                self._send(404, b"not found\n")
-                return
-            token = self.headers.get("X-Launcher-Token", "")
-            if not token:
-                self._send(403, b"refused: start, stop, restart and reload need the run's token\n")
-                return
-            if verb == "reload":
-                self._reload(token)
-                return
+
+class Page:
+    """The page's routes and guards, on top of a Hub. Every route is here: the page's files, its reads
+    (read-only: GET, no token) and its controls (POST, the run's token); a further read-only route
+    (a metrics page) is one more entry in `get`."""
+
+    def __init__(self, hub: Hub, bound: str, port_box: list):
+        self.hub = hub
+        self.bound = bound
+        self.port_box = port_box  # (the port is known once the server listens)
+        self.files: dict[str, bytes] = {}
+        self.get: dict[bytes, Route] = {path.encode(): Route(self._file) for path in FILES}
+        self.get[b"/events"] = Route(lambda request: self.hub.subscribe())
+        self.get[b"/api/output"] = Route(self._output)
+        self.get[b"/api/topics"] = Route(self._topics)
+        self.get[b"/metrics"] = Route(self._metrics)  # (Prometheus's scrape: read-only, as the page)
+        self.post: dict[bytes, Route] = {b"/api/" + verb: Route(self._control, token=True)
+                                         for verb in (b"start", b"stop", b"restart", b"reload")}
+
+    def handle(self, request: Request) -> Any:
+        refusal = self._guard(request)
+        if refusal is not None:
+            return refusal
+        route = (self.get if request.method == b"GET" else self.post).get(request.target)
+        if route is None:
+            return text_reply(404, "not found")
+        if route.token and not request.field(b"x-launcher-token"):
+            where = self.hub.token_file or "launcher-token in the run's log directory"
+            return text_reply(403, "refused: start, stop, restart and reload need the run's token, in the file %s "
+                              "(readable only by the user who started the launch); open the address `launcher web` "
+                              "printed on its terminal, or add #token= and the file's content to the page's address"
+                              % where)
+        return route.answer(request)
+
+    def _guard(self, request: Request) -> Reply | None:
+        """Refuse a request whose Host is not this server (DNS rebinding) or that comes from another site."""
+        host = (request.field(b"host") or b"").decode("latin-1")
+        if not allowed_host(host, self.port_box[0], self.bound):
+            return text_reply(403, "refused: the Host header does not name this server")
+        origin = request.field(b"origin")
+        if origin is not None and origin.decode("latin-1") != "http://" + host:
+            return text_reply(403, "refused: a request from another site")
+        return None
+
+    def _file(self, request: Request) -> Reply:
+        name, ctype = FILES[request.target.decode()]
+        body = self.files.get(name)
+        if body is None:
+            with open(os.path.join(PAGE_DIR, name), "rb") as f:
+                body = f.read()
+            if name == "index.html":
+                body = body.replace(b"{{BOUND}}", ("%s:%d" % (self.bound, self.port_box[0])).encode())
+            self.files[name] = body  # (read once: a few kB)
+        return Reply(200, body, ctype)
+
+    async def _output(self, request: Request) -> Reply:
+        node = (parse_qs(request.query.decode("utf-8", "replace")).get("node") or [""])[0]
+        try:
+            return json_reply({"node": node, "output": await self.hub.recent_output(node)})
+        except ERRORS as e:
+            return json_reply({"error": str(e)}, 502)
+
+    async def _topics(self, request: Request) -> Reply:
+        try:
+            return json_reply(await self.hub.topics())
+        except ERRORS as e:
+            return json_reply({"error": str(e)}, 502)
+
+    async def _metrics(self, request: Request) -> Reply:
+        try:
+            return Reply(200, (await self.hub.metrics()).encode(), METRICS_TYPE)
+        except ERRORS as e:
+            return text_reply(502, "the launch does not answer: %s" % (str(e) or type(e).__name__))
+
+    async def _control(self, request: Request) -> Reply:
+        verb = request.target.rpartition(b"/")[2].decode()
+        token = (request.field(b"x-launcher-token") or b"").decode("latin-1")
+        if verb == "reload":
+            params: tuple = ("launcher_reload", token, [], False)
+        else:
             try:
-                pattern = json.loads(body or b"{}").get("node", "")
+                pattern = json.loads(request.body or b"{}").get("node", "")
             except (ValueError, AttributeError):
-                self._send(400, b"the body is JSON {\"node\": PATTERN}\n")
-                return
-            try:
-                code, msg, names = call_blocking(hub.uri, "%s_nodes" % verb, token, pattern, timeout=CONTROL_TIMEOUT_S)
-            except Fault as e:
-                self._send(403 if e.faultCode == run_token.REFUSED else 400, (e.faultString + "\n").encode())
-                return
-            except (OSError, XmlRpcError) as e:
-                self._send(502, ("the launch does not answer: %s\n" % e).encode())
-                return
-            self._json({"ok": code == 1, "message": msg, "nodes": names}, 200 if code == 1 else 400)
-
-        def _reload(self, token: str) -> None:
-            """The reload button: the launch reads its files again and applies the difference (`launcher reload`)."""
-            try:
-                code, msg, text = call_blocking(hub.uri, "launcher_reload", token, [], False, timeout=CONTROL_TIMEOUT_S)
-            except Fault as e:
-                self._send(403 if e.faultCode == run_token.REFUSED else 400, (e.faultString + "\n").encode())
-                return
-            except (OSError, XmlRpcError) as e:
-                self._send(502, ("the launch does not answer: %s\n" % e).encode())
-                return
-            lines = json.loads(text).get("lines", [])
-            message = ("reloaded: " + "; ".join(lines) if lines else "reload: nothing changed") if code == 1 \
-                else "reload refused, nothing changed: " + msg
-            self._json({"ok": code == 1, "message": message, "lines": lines}, 200 if code == 1 else 400)
-
-        def _events(self) -> None:
-            q, first = hub.subscribe()
-            try:
-                self.send_response(200)
-                self.send_header("Content-Type", "text/event-stream")
-                self.send_header("Cache-Control", "no-store")
-                self.end_headers()
-                self.wfile.write(first)
-                self.wfile.flush()
-                while not hub.gone.is_set():
-                    try:
-                        data = q.get(timeout=KEEPALIVE_S)
-                    except queue.Empty:
-                        data = b": -\n\n"
-                    if data is None:
-                        break
-                    self.wfile.write(data)
-                    self.wfile.flush()
-            except OSError:
-                pass
-            finally:
-                hub.unsubscribe(q)
-                self.close_connection = True
-
-    return Handler
+                return text_reply(400, 'the body is JSON {"node": PATTERN}')
+            params = ("%s_nodes" % verb, token, pattern)
+        try:
+            code, msg, value = await self.hub.control(*params)
+        except Fault as e:
+            return text_reply(403 if e.faultCode == run_token.REFUSED else 400, e.faultString)
+        except (OSError, XmlRpcError, asyncio.TimeoutError) as e:
+            return text_reply(502, "the launch does not answer: %s" % (str(e) or type(e).__name__))
+        if verb != "reload":
+            return json_reply({"ok": code == 1, "message": msg, "nodes": value}, 200 if code == 1 else 400)
+        # the reload button: the launch read its files again and applied the difference (`launcher reload`)
+        lines = json.loads(value).get("lines", []) if code == 1 else []
+        message = ("reloaded: " + "; ".join(lines) if lines else "reload: nothing changed") if code == 1 \
+            else "reload refused, nothing changed: " + msg
+        return json_reply({"ok": code == 1, "message": message, "lines": lines}, 200 if code == 1 else 400)
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -339,25 +358,57 @@ def parse_address(text: str) -> tuple[str, int]:
     return (host.strip("[]") if sep and host else "127.0.0.1"), int(port)
 
 
+def address_line(uri: str, url: str, token_file: str, terminal: bool) -> str:
+    """What `launcher web` says once it listens. To a terminal, the page's address with the run's token in its
+    fragment (opened as it is, the page's buttons work at once); anywhere else (a file, the journal, `launch
+    --ui`'s console), where a token would stay, the plain address and where the token file is."""
+    if terminal and token_file:
+        try:
+            return "launcher web: the live view of %s at %s#token=%s\n" % (uri, url, run_token.read(token_file))
+        except OSError:
+            pass
+    return ("launcher web: the live view of %s at %s (its buttons need the run's token: the file %s)\n"
+            % (uri, url, token_file or "launcher-token in the run's log directory"))
+
+
+async def _serve(hub: Hub, host: str, port: int, parent: int | None) -> None:
+    port_box = [port]
+    page = Page(hub, host, port_box)
+    server = PageServer(page.handle, host, port, headers=HEADERS)
+    await server.start()
+    port_box[0] = server.port
+    shown = "[%s]" % host if ":" in host else host
+    sys.stderr.write(address_line(hub.uri, "http://%s:%d/" % (shown, server.port), hub.token_file,
+                                  sys.stderr.isatty()))
+    sys.stderr.flush()
+    loop = asyncio.get_running_loop()
+    running = asyncio.ensure_future(hub.run())
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, running.cancel)
+
+    def watch_parent() -> None:
+        if parent is not None and os.getppid() != parent:  # (the launch that started us is gone)
+            running.cancel()
+        else:
+            loop.call_later(1.0, watch_parent)
+    watch_parent()
+    try:
+        await running
+    except asyncio.CancelledError:
+        pass
+    finally:
+        await server.stop()
+
+
 def serve(uri: str, address: str, parent: int | None = None) -> int:
     host, port = parse_address(address)
-    hub = Hub(uri)
-    port_box = [port]
-    server = http.server.ThreadingHTTPServer((host, port), make_handler(hub, port_box, host))
-    server.daemon_threads = True
-    port_box[0] = server.server_address[1]
-    shown = "[%s]" % host if ":" in host else host
-    sys.stderr.write("launcher web: the live view of %s at http://%s:%d/\n" % (uri, shown, port_box[0]))
-    sys.stderr.flush()
-    hub.start()
-    threading.Thread(target=server.serve_forever, daemon=True).start()
+    raise_open_file_limit()  # (each client is a file: the connection cap follows the limit)
+    hub = Hub(uri, client.status(uri), reader.past_samples(uri))
+    own_names()  # (before the loop runs: the resolver is never asked on it)
     try:
-        while not hub.gone.wait(1.0):
-            if parent is not None and os.getppid() != parent:  # (the launch that started us is gone)
-                break
-    except KeyboardInterrupt:
-        pass
-    server.shutdown()
+        asyncio.run(_serve(hub, host, port, parent))
+    except OSError as e:
+        raise client.ToolError("cannot serve the page at %s:%d: %s" % (host, port, e.strerror or e)) from None
     return client.EXIT_OK
 
 

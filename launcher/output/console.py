@@ -16,14 +16,21 @@ Node output relayed by the launcher (output/screen.py) goes through the same
 queue, so that it keeps its order with the launcher's lines, but it is never
 dropped: `relay` says when more than MAX_QUEUED_OUTPUT bytes of it wait, and
 the relay then stops reading the node until `when_drained` calls it back. The
-node then blocks in its own write, as it would on a blocked terminal.
+node then blocks in its own write, as it would on a blocked terminal. When
+nothing waits, node output is written by the caller at once, whatever its size,
+through a descriptor of the caller's own that never blocks (`_direct`: the
+terminal or pipe opened again with O_NONBLOCK, which leaves the shared one as
+it is; a regular file as it is): what the terminal does not take at once is
+queued, so the writer thread finishes the line before anything else.
 """
 
 from __future__ import annotations
 
 import atexit
 import collections
+import os
 import select
+import stat
 import sys
 import threading
 from typing import Callable, TextIO
@@ -98,11 +105,18 @@ class _Writer:
             self._wake()
 
     def put_output(self, stream: TextIO, data: bytes) -> bool:
-        """Queue a chunk of node output (never dropped); False when the nodes should wait."""
+        """Write or queue a chunk of node output (never dropped); False when the nodes should wait."""
         with self._cond:
-            if not self._queue and not self._writing and len(data) <= PIPE_BUF and _ready(stream):
-                _write_output(stream, data)
-                return True
+            if not self._queue and not self._writing:
+                fd = _direct(stream)
+                if fd is not None:
+                    written = _write_some(stream, fd, data)
+                    if written == len(data):
+                        return True
+                    data = data[written:]  # (the rest of the line goes first, from the writer thread)
+                elif len(data) <= PIPE_BUF and _ready(stream):
+                    _write_output(stream, data)
+                    return True
             self._queue.append((stream, data))
             self._queued_output += len(data)
             self._wake()
@@ -182,6 +196,42 @@ def _ready(stream: TextIO) -> bool:
         return bool(select.select((), (fd,), (), 0)[1])
     except (OSError, ValueError):
         return False
+
+
+# stream -> a descriptor writing to it that never blocks (None: there is none, the stream is asked with select)
+_directs: dict[TextIO, int | None] = {}
+
+
+def _direct(stream: TextIO) -> int | None:
+    """A descriptor of the stream's terminal, pipe or file that a write never blocks on, made once per stream: a
+    terminal or a pipe opened again (/proc/self/fd) with O_NONBLOCK, so the descriptor the launcher shares with
+    its shell and its nodes stays blocking; a regular file or /dev/null, which never block, as they are."""
+    if stream in _directs:
+        return _directs[stream]
+    fd = None
+    try:
+        own = stream.fileno()
+        stream.buffer  # type: ignore[attr-defined]  # (bytes go to the descriptor: a text-only stream is not one)
+        mode = os.fstat(own).st_mode
+        if stat.S_ISREG(mode) or (stat.S_ISCHR(mode) and not os.isatty(own)):
+            fd = own
+        elif stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
+            fd = os.open("/proc/self/fd/%d" % own, os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except (OSError, ValueError, AttributeError):
+        fd = None  # (no /proc, a socket, an in-memory stream: the way with select)
+    _directs[stream] = fd
+    return fd
+
+
+def _write_some(stream: TextIO, fd: int, data: bytes) -> int:
+    """As much of `data` as `fd` takes now: how many bytes (a stream that is gone takes all: they are lost)."""
+    try:
+        stream.flush()  # (text someone printed without flushing goes first)
+        return os.write(fd, data)
+    except BlockingIOError:
+        return 0
+    except (OSError, ValueError):
+        return len(data)
 
 
 def _write(stream: TextIO, text: str) -> None:

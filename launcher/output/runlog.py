@@ -68,6 +68,8 @@ class RunLog:
                 text += ", killed by signal %d" % status.exit_signal
         elif status.exit_code is not None and status.state != "running":
             text += ", exit code %d" % status.exit_code
+        if status.registered:
+            text += ", registered at %s" % status.uri
         if status.restarts:
             text += ", %d restart%s" % (status.restarts, "" if status.restarts == 1 else "s")
         if status.next_start is not None:

@@ -16,10 +16,24 @@ node) write straight to its own terminal, so nothing keeps that output and
   resized (SIGWINCH to the launcher), every such pty gets the new size: a node
   that asks for its terminal's size sees it, as one writing to the terminal
   itself does under roslaunch (neither gets a SIGWINCH of its own).
-- The loop reads each descriptor when it is readable (one read and one write
-  per chunk, no per-byte work), appends the chunk to the node's
-  `<proc>-stdout.log` (the file roslaunch writes for output="log"; kept under
-  --log-max-size by output/logrotate.py) and hands it to the console. The
+- The loop reads each descriptor when it is readable, as much as it holds (up
+  to READ_MAX: a pty gives at most 4 KiB a read, so a flood is read in a few
+  reads per wake), and passes on the **whole lines** of it as one slice: one
+  write appends them to the node's `<proc>-stdout.log` (the file roslaunch
+  writes for output="log"; kept under --log-max-size by output/logrotate.py),
+  one hand-over gives them to the console. What follows the last newline waits
+  for the rest of its line, so two nodes' lines never mix mid-line on the
+  shared terminal; a line still without its end after PARTIAL_S (a prompt, a
+  progress bar redrawn with "\r") or longer than LINE_MAX is passed on as it
+  is. Nothing here looks at single lines or decodes: a view's output pane
+  (services/server.py's `launcher_output`) and an output readiness pattern
+  (health/outputwatch.py) read the log file. Only the journal's per-line fields
+  (under systemd, output/journal.py) take the lines one by one; `counts` says
+  how many bytes went each way (the launch log's last note). The kernel cannot
+  do this copy for us while keeping lines whole: splice(2)/tee(2) move bytes
+  without telling where a line ends, and a pty (what a node on a terminal
+  gets) is read through the tty layer either way (benchmarks/screen_flood.py's
+  C floor: the kernel's part of a pty relay, which ours is close to). The
   console never drops node output: past its bound, reading stops until it
   drains, and the node blocks in its write as on a blocked terminal.
 - When the node exits, what it wrote is read out (`drain`) before the
@@ -45,7 +59,15 @@ from typing import TextIO
 from launcher.workspace import nodepython
 from launcher.output import console, journal
 
-CHUNK = 65536  # one read per readable event: a pipe's default capacity
+CHUNK = 65536  # one read: a pipe's default capacity (and no larger: a bigger buffer is an mmap per read)
+# Per readable event, reads go on until the descriptor is empty or this much was read: a flooding pty (4 KiB a
+# read) costs a few reads per wake instead of a wake per read, and the loop is not held for long.
+READ_MAX = 256 * 1024
+SHORT_READ = 2048  # a read shorter than this emptied the descriptor (a pipe, or a pty's trickle): no read more
+LINE_MAX = 64 * 1024  # a line longer than this is passed on in pieces (a node that never ends its line)
+# A line without its end yet is passed on after this (a prompt, a progress bar): long enough for a node
+# held back by a busy machine between two writes of one line, short enough for a person.
+PARTIAL_S = 0.2
 # At a node's exit at most this much is read at once per stream: more than any pipe or pty buffers
 # (fs.pipe-max-size is 1 MiB), and a bound when a process the node left behind keeps writing.
 DRAIN_MAX = 1 << 20
@@ -107,6 +129,19 @@ def _follow_resizes(loop: asyncio.AbstractEventLoop, pty_fd: int, terminal_fd: i
         except (RuntimeError, ValueError):  # not the main thread's loop: the ptys keep their first size
             return
         _resize_loops.add(loop)
+
+
+# Bytes relayed since the launch started, by the way they went: "as_read", whole lines passed on as they were
+# read (no per-line work), and "by_line", taken line by line in Python (the journal's fields).
+counts = {"as_read": 0, "by_line": 0}
+
+
+def relay_note() -> str | None:
+    """The launch log's words on how the screen output went (None: there was none)."""
+    if not counts["as_read"] and not counts["by_line"]:
+        return None
+    return ("screen relay: %d bytes relayed in whole lines as read (no per-line work), %d line by line "
+            "(the journal's fields)" % (counts["as_read"], counts["by_line"]))
 
 
 # The interpreters an import hint was given for: once per launch is enough (every node of a package fails alike).
@@ -181,6 +216,9 @@ class ScreenOutput:
         # as an entry with the node's fields where journald's socket is there, else framed on the stream
         self.framers: dict[int, journal.LineFramer] = {}
         self.targets: dict[int, object] = {}  # launcher's end -> where its framed lines go, if not the stream
+        # launcher's end -> (the start of a line not ended yet, when that line began)
+        self.partial: dict[int, tuple[bytes, float]] = {}
+        self._partial_timer: asyncio.TimerHandle | None = None
         if journal.is_journal(os.environ):
             sock = journal.shared_socket()
             for fd, stream in self.sources.items():
@@ -205,17 +243,75 @@ class ScreenOutput:
     def closed(self) -> bool:
         return not self.sources
 
-    def _read(self, fd: int) -> int:
-        """One read of `fd`, relayed: how many bytes (0 when there is nothing more now, or ever: closed)."""
-        try:
-            data = os.read(fd, CHUNK)
-        except BlockingIOError:
-            return 0
-        except OSError:  # EIO: a pty whose node ends are all closed
-            data = b""
-        if not data:
+    def _read(self, fd: int, limit: int = READ_MAX) -> int:
+        """Read what `fd` holds (about `limit` at most) and relay its whole lines: how many bytes (0 when there
+        is nothing more now, or ever: closed)."""
+        chunks = []
+        got = 0
+        ended = False
+        while got < limit:
+            try:
+                data = os.read(fd, CHUNK)
+            except BlockingIOError:
+                break
+            except OSError:  # EIO: a pty whose node ends are all closed
+                data = b""
+            if not data:
+                ended = True
+                break
+            chunks.append(data)
+            got += len(data)
+            if len(data) < SHORT_READ:
+                break
+        if chunks:
+            self._lines(fd, chunks[0] if len(chunks) == 1 else b"".join(chunks))
+        if ended:
             self._close(fd)
-            return 0
+        return got
+
+    def _lines(self, fd: int, data: bytes) -> None:
+        """Pass on the whole lines of what was read; keep the start of a line not ended yet."""
+        kept = self.partial.pop(fd, None)
+        if kept is not None:
+            data = kept[0] + data
+        end = data.rfind(b"\n") + 1
+        if end < len(data) and len(data) - end <= LINE_MAX:
+            began = kept[1] if kept is not None and end == 0 else self.loop.time()
+            self.partial[fd] = (data[end:], began)
+            if self._partial_timer is None:
+                self._partial_timer = self.loop.call_later(PARTIAL_S, self._partial_due)
+            if not end:
+                return
+            data = data[:end]
+        self._relay(fd, data)
+
+    def _partial_due(self) -> None:
+        """Lines left without their end for PARTIAL_S are passed on as they are (what the node wrote since is
+        read first: its end may be there); the others are looked at again. Not while the console is full: the
+        ends wait unread in the kernel then."""
+        self._partial_timer = None
+        if not self.paused:
+            now = self.loop.time()
+            for fd, (_, began) in list(self.partial.items()):
+                if now - began >= PARTIAL_S and fd in self.sources:
+                    self._read(fd)
+                    if self.paused:
+                        break
+                    kept = self.partial.get(fd)
+                    if kept is not None and kept[1] == began:
+                        self._flush_partial(fd)
+        if self.partial:
+            first = min(began for _, began in self.partial.values())
+            self._partial_timer = self.loop.call_later(max(0.0, first + PARTIAL_S - self.loop.time()),
+                                                       self._partial_due)
+
+    def _flush_partial(self, fd: int) -> None:
+        kept = self.partial.pop(fd, None)
+        if kept is not None:
+            self._relay(fd, kept[0])
+
+    def _relay(self, fd: int, data: bytes) -> None:
+        """Lines (the last one perhaps not ended) to the node's output file and the console, each one call."""
         if self.log_fd is not None:
             try:
                 os.write(self.log_fd, data)
@@ -225,13 +321,17 @@ class ScreenOutput:
                 os.close(self.log_fd)
                 self.log_fd = None
         framer = self.framers.get(fd)
-        target = self.targets.get(fd, self.sources[fd])
-        if not console.relay(target, framer.feed(data) if framer else data) and not self.paused:
+        if framer is None:
+            counts["as_read"] += len(data)
+            relayed = console.relay(self.sources[fd], data)
+        else:
+            counts["by_line"] += len(data)
+            relayed = console.relay(self.targets.get(fd, self.sources[fd]), framer.feed(data))
+        if not relayed and not self.paused:
             self._pause()
-        if (b"No module named" in data and self.missing_module is None
-                and self.loop.time() - self.started < nodepython.AT_ONCE_S):
+        if (self.missing_module is None and self.loop.time() - self.started < nodepython.AT_ONCE_S
+                and b"No module named" in data):
             self.missing_module = nodepython.missing_module(data)
-        return len(data)
 
     def _readable(self, fd: int) -> None:
         if fd in self.sources and not self.paused:
@@ -262,10 +362,12 @@ class ScreenOutput:
         for fd in list(self.sources):
             relayed = 0
             while fd in self.sources and relayed < DRAIN_MAX:
-                n = self._read(fd)
+                n = self._read(fd, min(READ_MAX, DRAIN_MAX - relayed))
                 if not n:
                     break
                 relayed += n
+            if fd in self.sources:
+                self._flush_partial(fd)  # (its last line, even without its end, comes before the exit line)
         if self.missing_module is not None:
             self._import_hint(self.missing_module)
             self.missing_module = None
@@ -278,6 +380,10 @@ class ScreenOutput:
             console.printerrlog(hint[1])
 
     def _close(self, fd: int) -> None:
+        self._flush_partial(fd)
+        if not self.partial and self._partial_timer is not None:
+            self._partial_timer.cancel()
+            self._partial_timer = None
         framer = self.framers.pop(fd, None)
         if framer is not None and fd in self.sources:
             console.relay(self.targets.pop(fd, self.sources[fd]), framer.end())

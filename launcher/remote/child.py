@@ -10,8 +10,13 @@ escalation, the no-orphans guard). It tells the parent every console line
 (`log`) and every node death (`process_died`). It sets no parameters and
 starts no master: that is the parent's business.
 
-It ends when told to (`shutdown`, SIGINT/SIGTERM, SIGHUP when the ssh session's
-pty hangs up), or when every node has ended for good, as roslaunch's child does.
+It ends when told to (`shutdown`, SIGINT), when every node has ended for good, as
+roslaunch's child does, or when its session with the parent ends: SIGHUP when the ssh
+session's pty hangs up, SIGTERM from sshd, the end of its stdin (Debian's parent gives it
+no pty), or a parent that stopped answering. A session that ended stops the nodes on a
+short clock (SIGINT, then SIGKILL of each node's whole process group after
+SESSION_END_GRACE_S), whether or not a group's leader still runs: nobody is left to wait
+for them, and a cut link's nodes must be gone within 5 s of the cut.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from launcher.workspace.packages import PackageIndex
 from launcher.output.runlog import RunLog
 from launcher.model.runopts import RunOptions
 from launcher.plan.specs import node_specs
+from launcher.remote.ssh import NODE_GRACE_S
 from launcher.xml import load
 
 LOG_INFO, LOG_ERROR = 2, 8  # rosgraph_msgs/Log levels
@@ -47,6 +53,9 @@ REGISTER_TIMEOUT_S = 10.0
 PARENT_CHECK_S = 0.5
 PARENT_CALL_TIMEOUT_S = 0.75
 PARENT_SILENCE_S = 2.0
+# After its session with the parent ended, how long the nodes get to handle SIGINT before their process
+# groups are SIGKILLed: the watch loop's grace (ssh.NODE_GRACE_S), which Debian's parent does not run.
+SESSION_END_GRACE_S = NODE_GRACE_S
 
 
 def run_child(opts: Any) -> int:
@@ -75,13 +84,17 @@ class Child:
         self.fleet: Fleet | None = None
         self.supervisor: Supervisor | None = None
         self.stop = compat.Event()
+        self.session_ended = False  # the parent is gone (see SESSION_END_GRACE_S)
+        self._stopping: asyncio.Future | None = None  # the nodes' stop, once begun
+        self._kill_timer: asyncio.TimerHandle | None = None
         self._to_parent: asyncio.Queue = compat.Queue()
         self._number = 0  # process numbering, as a roslaunch child's: talker-1, listener-2, ...
 
     async def main(self) -> int:
         loop = asyncio.get_running_loop()
-        for sig in (2, 15, 1):  # SIGINT, SIGTERM, SIGHUP (the ssh session's pty hung up)
-            loop.add_signal_handler(sig, self.stop.set)
+        loop.add_signal_handler(2, self.stop.set)  # SIGINT
+        for sig in (15, 1):  # SIGTERM (sshd ended the session), SIGHUP (the ssh session's pty hung up)
+            loop.add_signal_handler(sig, self._session_end)
         self._watch_session(loop)
         run_dir = self.log.open(self.run_id)
         events = state.EVENTS_FILE.replace(".jsonl", "-%s.jsonl" % self.name)
@@ -111,6 +124,8 @@ class Child:
         await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
         for w in waiters:
             w.cancel()
+        if parent_gone.done() and not parent_gone.cancelled():
+            self._session_end()
         await self._shutdown()
         console.remove_level_handler(self._forward_log)
         if parent_gone.done() and not parent_gone.cancelled():
@@ -122,13 +137,21 @@ class Child:
         return 0
 
     async def _watch_parent(self) -> None:
-        """Return when the parent has not answered for PARENT_SILENCE_S."""
+        """Return when the parent has not answered for PARENT_SILENCE_S (not later: a call under way
+        then is given up)."""
         loop = asyncio.get_running_loop()
         last_answer = loop.time()
-        while loop.time() - last_answer < PARENT_SILENCE_S:
+
+        async def asked() -> None:
             await asyncio.sleep(PARENT_CHECK_S)
+            await call(self.parent_uri, "get_pid", timeout=PARENT_CALL_TIMEOUT_S)
+
+        while True:
+            left = last_answer + PARENT_SILENCE_S - loop.time()
+            if left <= 0:
+                break
             try:
-                await call(self.parent_uri, "get_pid", timeout=PARENT_CALL_TIMEOUT_S)
+                await asyncio.wait_for(asked(), left)
                 last_answer = loop.time()
             except Exception:  # noqa: BLE001 - unreachable, refused, timed out: all mean not answering
                 pass
@@ -158,14 +181,40 @@ class Child:
             if not data:
                 loop.remove_reader(0)
                 console.printerrlog("the ssh session to the parent closed: stopping")
-                self.stop.set()
+                self._session_end()
 
         os.set_blocking(0, False)
         loop.add_reader(0, readable)
 
+    def _session_end(self) -> None:
+        """The session with the parent ended: the nodes are stopped on the short clock, also if their stop
+        (a `shutdown` call's, or at the end of the last node) was under way already."""
+        self.session_ended = True
+        self.stop.set()
+        if self._stopping is not None:
+            self._arm_kill()
+
+    def _arm_kill(self) -> None:
+        if self._kill_timer is None and self.supervisor is not None:
+            # SIGKILL to every node's group still stopping: that of a leader gone at SIGINT too, whose
+            # group the supervisor still waits for (a shell script's background jobs ignore SIGINT)
+            self._kill_timer = asyncio.get_running_loop().call_later(SESSION_END_GRACE_S, self.supervisor.kill_now)
+
     async def _shutdown(self) -> None:
-        if self.supervisor is not None and not self.supervisor.shutting_down:
+        if self.supervisor is None:
+            return
+        if self._stopping is None:
+            self._stopping = asyncio.ensure_future(self._stop_nodes())
+        if self.session_ended:
+            self._arm_kill()
+        await asyncio.shield(self._stopping)
+
+    async def _stop_nodes(self) -> None:
+        try:
             await self.supervisor.shutdown()
+        finally:
+            if self._kill_timer is not None:
+                self._kill_timer.cancel()
             self.supervisor.close()
 
     # ---- talking to the parent ----------------------------------------------------------------------

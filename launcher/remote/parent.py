@@ -63,6 +63,7 @@ from launcher.output import console
 from launcher.fleet import machine, state
 from launcher.fleet.machine import Event
 from launcher.health.readiness import Readiness
+from launcher.model.graph import Graph
 from launcher.remote import session, ssh
 from launcher.remote.launch_xml import remote_launch_xml
 
@@ -240,11 +241,11 @@ class RemoteParent:
         for child in self.children.values():
             child.task = asyncio.ensure_future(self._keep(child))
 
-    def attach(self, fleet: state.Fleet) -> None:
+    def attach(self, fleet: state.Fleet, graph: Graph) -> None:
         """The parameters are set: the nodes' records go to `fleet` (which keeps the launch's outcome too),
-        and they start."""
+        and they start (those with wait_for once `graph`, the master's registrations, has what they wait for)."""
         self.fleet = fleet
-        self.readiness = Readiness(self.master_uri, self)
+        self.readiness = Readiness(self.master_uri, self, graph, fleet)
         for child in self.children.values():
             for rn in child.nodes:
                 fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())

@@ -31,6 +31,8 @@ HEARTBEAT_TIMEOUT_S = 2.5
 NODE_GRACE_S = 1.0  # after a cut, how long the nodes get to handle SIGINT
 ORDERLY_END = b"q\n"  # the heartbeat that says the child was shut down and ends by itself (see remote_command)
 ORDERLY_WAIT_S = 0.15
+# the variable that marks every process a machine's session started (see remote_command)
+SESSION_MARK = "LAUNCHER_SESSION"
 SSH_FAILED = 255  # ssh's exit status for its own errors (the remote command's is passed through)
 
 
@@ -52,39 +54,47 @@ def remote_command(machine: Machine, program: str, child_name: str, parent_uri: 
     argv = ["env", "ROS_MASTER_URI=%s" % master_uri, machine.env_loader or "", program, "-c", child_name,
             "-u", parent_uri, "--run_id", run_id, "--sigint-timeout", str(sigint_timeout),
             "--sigterm-timeout", str(sigterm_timeout)]
-    child = " ".join(shlex.quote(a) for a in argv)
+    # (the mark is the watch loop's own pid, $$: unique on the host while the loop runs, so it is given unquoted)
+    child = "env %s=$$ " % SESSION_MARK + " ".join(shlex.quote(a) for a in argv[1:])
     # The child runs in the background of a small POSIX sh watch loop: the parent writes a newline
     # every HEARTBEAT_S seconds through the session's pty. When none arrives for HEARTBEAT_TIMEOUT_S,
     # the link is cut (neither side's TCP notices for minutes) and the loop stops the nodes itself:
     # the child would try to report each step to the unreachable parent and hang there. (`timeout
-    # --foreground`: in a pgrp of its own, head would be stopped by SIGTTIN reading the tty.) It freezes
-    # the child (so that nothing is respawned), SIGINTs its nodes (each in a session of its own, so
-    # by parent pid), SIGKILLs what is left after NODE_GRACE_S, then the child. When the pty hangs
-    # up instead (the launcher stopped or was killed), the child gets SIGHUP and stops its nodes.
-    # The same when the pty hangs up (HUP) or sshd ends the session (TERM): the child gets SIGHUP too,
-    # but under load its own orderly stop (reporting each step) can take longer than 5 s.
+    # --foreground`: in a pgrp of its own, head would be stopped by SIGTTIN reading the tty.) The same
+    # when the pty hangs up (HUP: the launcher was killed) or sshd ends the session (TERM): the child
+    # gets SIGHUP too and stops its nodes, but under load its own orderly stop can take longer than 5 s.
+    # stop_nodes freezes the child (so that nothing is respawned), SIGINTs every process of its nodes,
+    # SIGKILLs what is left after NODE_GRACE_S, then the child.
+    # Which processes are the nodes' is known by the session's mark in their environment, which every
+    # process the child starts inherits, and theirs in turn: a node's whole process group and session,
+    # whether or not its leader still runs. (Each node leads a session of its own, so the child's
+    # children name them only while their leaders live: a shell script's leader exits at SIGINT at
+    # once, leaving its background jobs, which ignore SIGINT; and either child, ours at its parent's
+    # silence or at SIGHUP, Debian's at SIGHUP, may have SIGINTed its nodes before the loop acts.)
+    # The grace is waited for only while one of them handles SIGINT: one that ignores it (SIGINT's bit,
+    # 0x2, in its status' SigIgn mask: a background job, our child's no-orphans guard) only waits for
+    # SIGKILL. The scan of /proc runs only at the stop, never while the nodes run.
     # An orderly end is the heartbeat ORDERLY_END instead: the parent's `shutdown` call has stopped
     # the nodes. A child with a process left (ours: its no-orphans guard) gets ORDERLY_WAIT_S to end
-    # by itself (ours does in ~20 ms; stop_nodes would freeze it while ending and wait NODE_GRACE_S
-    # for the guard); one with none (Debian's, which would take ~0.3 s more to exit) is ended at once.
-    # When the child has ended either way, the loop exits without stop_nodes: an ended child has no
-    # children left for `pkill -P` to find, and each pgrep/pkill scans /proc on CPUs the nodes need.
-    # Each node runs in a session (and process group) of its own, whose id is the pid of the child's
-    # child that leads it: the signals go to those groups, so what a node started (a shell script's
-    # background jobs, which ignore SIGINT) is SIGKILLed with it, as the local supervisor does.
-    script = ("alive() { for g in $groups; do kill -0 -$g 2>/dev/null && return 0; done; return 1; }\n"
-              "stop_nodes() { kill -STOP $child 2>/dev/null; groups=$(pgrep -P $child)\n"
-              "for g in $groups; do kill -INT -$g 2>/dev/null; done; i=0\n"
-              "while [ $i -lt %d ] && alive; do sleep 0.1; i=$((i+1)); done\n"
-              "for g in $groups; do kill -KILL -$g 2>/dev/null; done; kill -KILL $child 2>/dev/null; exit 0; }\n"
+    # by itself (ours does in ~20 ms); one with none (Debian's, which would take ~0.3 s more to exit) is
+    # ended at once. Then stop_nodes all the same, for what the nodes left: Debian's child waits for
+    # each node's leader only, so a shell script's background jobs outlive its orderly stop. (When
+    # nothing is left, as under ours, that is three scans of /proc, a few ms.)
+    script = ("marked() { for f in $(grep -lzxF %s=$$ /proc/[0-9]*/environ 2>/dev/null); do\n"
+              "p=${f#/proc/}; p=${p%%/environ}; [ \"$p\" = \"$child\" ] || echo $p; done; }\n"
+              "heeds_int() { while read k v; do [ \"$k\" = SigIgn: ] && case $v in *[2367abef]) return 1;; *) return 0;;\n"
+              "esac; done < /proc/$1/status; return 1; } 2>/dev/null\n"
+              "stopping() { for p in $(marked); do heeds_int $p && return 0; done; return 1; }\n"
+              "stop_nodes() { kill -STOP $child 2>/dev/null; pids=$(marked); [ -z \"$pids\" ] || kill -INT $pids 2>/dev/null\n"
+              "i=0; while [ $i -lt %d ] && stopping; do sleep 0.1; i=$((i+1)); done\n"
+              "pids=$(marked); [ -z \"$pids\" ] || kill -KILL $pids 2>/dev/null; kill -KILL $child 2>/dev/null; exit 0; }\n"
               "%s & child=$!\n"
               "trap stop_nodes HUP TERM\n"
               "while kill -0 $child 2>/dev/null && beat=$(timeout --foreground %s head -c 1 2>/dev/null); do\n"
-              "if [ \"$beat\" = %s ]; then pgrep -P $child >/dev/null || { kill -KILL $child; exit 0; }; i=0\n"
-              "while [ $i -lt %d ] && kill -0 $child 2>/dev/null; do sleep 0.01; i=$((i+1)); done\n"
-              "kill -0 $child 2>/dev/null || exit 0; break; fi; done\n"
-              "stop_nodes" % (int(NODE_GRACE_S * 10), child, HEARTBEAT_TIMEOUT_S, ORDERLY_END.decode()[0],
-                              int(ORDERLY_WAIT_S / 0.01)))
+              "if [ \"$beat\" = %s ]; then pgrep -P $child >/dev/null || break; i=0\n"
+              "while [ $i -lt %d ] && kill -0 $child 2>/dev/null; do sleep 0.01; i=$((i+1)); done; break; fi; done\n"
+              "stop_nodes" % (SESSION_MARK, int(NODE_GRACE_S * 10), child, HEARTBEAT_TIMEOUT_S,
+                              ORDERLY_END.decode()[0], int(ORDERLY_WAIT_S / 0.01)))
     return "sh -c %s" % shlex.quote(script)
 
 

@@ -21,7 +21,6 @@ stop and start use (remote.parent); a change that needs what a child cannot do
 
 from __future__ import annotations
 
-import asyncio
 import time
 from typing import Any
 

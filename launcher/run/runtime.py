@@ -386,11 +386,12 @@ class Run:
         if self.nodes not in self._up:
             up(self.nodes)
         first = self.first_number + (self.rosout.processes if self.rosout is not None else 0)
-        self.nodes.start(master.uri, first, exit_when_all_dead=master.external)
+        self.nodes.start(master.uri, first, exit_when_all_dead=master.external, graph=master.graph,
+                         external=master.external)
         if master.master is not None:  # (ours: what a node that ended registered goes with it)
             self.nodes.fleet.listeners.append(self._process_ended)
         if self.notifier is not None:
-            self.notifier.attach(self.nodes.fleet, master.uri)
+            self.notifier.attach(self.nodes.fleet)
         if master.external:
             self.master_watch = MasterWatch(master, self.nodes)
             up(self.master_watch)

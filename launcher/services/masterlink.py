@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 from launcher.model.errors import LaunchError
 from launcher.master import Master, advertised_host
+from launcher.model.graph import Graph
 from launcher.net.allow import AllowList
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
@@ -234,7 +235,14 @@ class MasterSession:
         self.params: Any = None  # LocalParams or RemoteParams
         self.external = False  # a master was already running
         self.run_id = ""
+        self._graph = Graph()  # what is registered with a master found running (its watcher asks)
         self._run_id_known: bool | None = None  # is /run_id set on a running master? (None: not known)
+
+    @property
+    def graph(self) -> Graph:
+        """What is registered with the run's master: ours tells it as it happens; a master found running is
+        asked by the run's watcher (services/masterwatch.py)."""
+        return self.master.graph if self.master is not None else self._graph
 
     # ---- find ------------------------------------------------------------------------------------------
 

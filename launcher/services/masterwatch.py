@@ -11,6 +11,13 @@ rosmaster has none), seen whether or not the master stopped answering in
 between (a restart may fall between two asks). A master that stops answering
 and comes back with the same /run_id has kept its state: it is only said.
 
+The same ask is the launch's one look at such a master's registrations (our
+own master tells them as they happen): the URIs lookupNode gives go to the run's
+graph (`model.graph`, which tells the fleet's records, readiness, hang and stall
+probes and systemd's READY=1), with a lookupNode of each node a held node waits
+for and, while one waits for a topic or a service, getSystemState. Nothing else
+asks a master about registrations.
+
 `MasterState` is the decision (pure: answers in, verdicts out); `MasterWatch`
 is the timer around it. Our own master needs none of this: it lives and dies
 with the launch.
@@ -23,6 +30,7 @@ from typing import Any, NamedTuple
 
 from launcher.fleet import machine
 from launcher.fleet.state import LOCAL_HOST
+from launcher.model.graph import NODE, SERVICE, TOPIC
 from launcher.net.xmlrpc import call
 from launcher.output import console
 
@@ -52,6 +60,8 @@ class Answer(NamedTuple):
     run_id: str | None = None
     asked: tuple[str, ...] = ()
     registered: tuple[str, ...] = ()
+    uris: tuple[tuple[str, str], ...] = ()  # (name, URI) of the registered ones
+    state: tuple[tuple[str, ...], tuple[str, ...]] | None = None  # (topics published, services), when asked
 
 
 class MasterState:
@@ -133,9 +143,21 @@ class MasterWatch:
         return {r.name: r.pid for r in fleet.records.values()
                 if r.state in _UP and r.pid and r.host == LOCAL_HOST}
 
-    async def _ask(self, names: list[str]) -> Answer:
+    def _graph_names(self, asked: list[str]) -> list[str]:
+        """The other names whose registration someone waits for: a node a held node waits for, a node of the
+        launch (here or on another machine) running and not registered yet."""
+        fleet = self.nodes.fleet
+        names = [name for kind, name in sorted(self.session.graph.wanted) if kind == NODE]
+        if fleet is not None:
+            names += [r.name for r in fleet.records.values() if r.state in _UP and not r.registered]
+        seen = set(asked)
+        return [n for n in names if not (n in seen or seen.add(n))]
+
+    async def _ask(self, names: list[str], system_state: bool = False) -> Answer:
         calls = [{"methodName": "getParam", "params": [CALLER_ID, "/run_id"]}]
         calls += [{"methodName": "lookupNode", "params": [CALLER_ID, n]} for n in names]
+        if system_state:
+            calls.append({"methodName": "getSystemState", "params": [CALLER_ID]})
         try:
             results = await call(self.session.uri, "system.multicall", calls, timeout=WATCH_TIMEOUT_S)
         except (OSError, ValueError, asyncio.TimeoutError):
@@ -149,16 +171,30 @@ class MasterWatch:
             ok = isinstance(r, list) and r and isinstance(r[0], list) and len(r[0]) == 3 and r[0][0] == 1
             return r[0][2] if ok else None
         run_id = value(results[0])
-        return Answer(True, str(run_id) if run_id else None, tuple(names),
-                      tuple(n for n, r in zip(names, results[1:]) if value(r)))
+        uris = tuple((n, value(r)) for n, r in zip(names, results[1:]) if isinstance(value(r), str) and value(r))
+        state = None
+        if system_state:
+            got = value(results[-1])
+            if isinstance(got, list) and len(got) == 3:
+                state = (tuple(t for t, nodes in got[0] if nodes), tuple(s for s, nodes in got[2] if nodes))
+        return Answer(True, str(run_id) if run_id else None, tuple(names), tuple(n for n, _ in uris), uris, state)
 
     async def _watch(self) -> None:
         uri = self.session.uri
         while True:
             await asyncio.sleep(self.period)
             running = self._running()
-            answer = await self._ask(self.state.to_ask(running))
+            names = self.state.to_ask(running)
+            graph = self.session.graph
+            answer = await self._ask(names + self._graph_names(names),
+                                     any(kind in (TOPIC, SERVICE) for kind, _ in graph.wanted))
             verdict = self.state.seen(answer, running)
+            if verdict in (SAME, BACK):
+                uris = dict(answer.uris)
+                for name in answer.asked:
+                    graph.node(name, uris.get(name))
+                if answer.state is not None:
+                    graph.replace(topics=answer.state[0], services=answer.state[1])
             if verdict == DOWN:
                 console.printerrlog("WARNING: the master at %s does not answer" % uri)
                 self._event("master_down", "the master at %s does not answer" % uri)
@@ -172,6 +208,7 @@ class MasterWatch:
         session, uri = self.session, self.session.uri
         old = self.state.run_id
         run_id = await session.run_id_after_restart(seen_run_id)
+        session.graph.clear()  # (a new master: nothing is registered with it)
         names = self.state.restarted(run_id, self._running())
         what = "the master at %s restarted (run id %s, was %s)" % (uri, run_id, old)
         console.printlog_bold("%s: setting the launch's parameters again and restarting the %d node(s) that "

@@ -63,8 +63,8 @@ class Snapshot(NamedTuple):
 
     run_id: str
     nodes: tuple[tuple[str, str], ...] = ()
-    # state: its public state (fleet.state.STATES); running: its process runs; registered: with the master (None: not
-    # known); restarts; last_exit_code (None: none); cpu_seconds (None: not sampled here, another machine's); rss
+    # state: its public state (fleet.state.STATES); running: its process runs; registered: with the master; restarts;
+    # last_exit_code (None: none yet); cpu_seconds (None: not sampled here, another machine's); rss
     columns: dict[str, tuple] = {}
     topics: tuple[TopicSample, ...] = ()
     calls: dict[str, MethodStats] | None = None  # the master's calls by method (None: not our master)
@@ -74,33 +74,19 @@ class Snapshot(NamedTuple):
 _get = operator.attrgetter
 
 
-def node_columns(records: tuple, statuses: tuple, registered_names: Any) -> dict[str, tuple]:
-    """The nodes' records (fleet.machine.Record) and statuses (fleet.state.NodeStatus) as a scrape's columns.
-
-    The one place that reads what two changes of the record add (the lead wires them at the merge):
-    - `registered` (issue 33: registration as the fleet's events). Until the record has it, a node is
-      registered when our master's registry has its name (`registered_names`; None with a master found
-      running: the series is then left out).
-    - `last_exit_code` (issue 34: kept while the node runs again). Until then, the exit code of its last
-      run, which the record holds only until the node runs again (the series is left out meanwhile).
-    """
-    fields = getattr(type(records[0]), "_fields", ()) if records else ()
-    names = tuple(map(_get("name"), records))
-    if "registered" in fields:
-        registered = tuple(map(_get("registered"), records))
-    elif registered_names is not None:
-        registered = tuple(map(registered_names.__contains__, names))
-    else:
-        registered = (None,) * len(records)
-    last_exit_code = tuple(map(_get("last_exit_code" if "last_exit_code" in fields else "exit_code"), records))
+def node_columns(records: tuple, statuses: tuple) -> dict[str, tuple]:
+    """The nodes' records (fleet.machine.Record) and statuses (fleet.state.NodeStatus) as a scrape's columns: the
+    values `launcher status` shows (registered: the record's, told by health/registration; last_exit_code: kept
+    while the node runs again)."""
     cpu = tuple(map(_get("cpu_seconds"), statuses))
     hosts = tuple(map(_get("host"), records))
     if any(h != LOCAL_HOST for h in hosts):  # (another machine's nodes are not sampled here)
         cpu = tuple(c if h == LOCAL_HOST else None for c, h in zip(cpu, hosts))
     return {"state": tuple(map(_get("state"), statuses)),
             "running": tuple(map(RUNNING_PHASES.__contains__, map(_get("state"), records))),
-            "registered": registered, "restarts": tuple(map(_get("restarts"), records)),
-            "last_exit_code": last_exit_code, "cpu_seconds": cpu, "rss": tuple(map(_get("rss"), statuses))}
+            "registered": tuple(map(_get("registered"), records)), "restarts": tuple(map(_get("restarts"), records)),
+            "last_exit_code": tuple(map(_get("last_exit_code"), statuses)), "cpu_seconds": cpu,
+            "rss": tuple(map(_get("rss"), statuses))}
 
 
 class Exporter:
@@ -124,7 +110,7 @@ class Exporter:
             statuses = tuple(fleet.nodes.values())
             records = tuple(map(fleet.records.__getitem__, fleet.nodes))
             nodes = tuple(map(_get("name", "host"), records))
-            columns = node_columns(records, statuses, registry.nodes if registry is not None else None)
+            columns = node_columns(records, statuses)
         topics = []
         stall = self.nodes.stall
         if stall is not None:

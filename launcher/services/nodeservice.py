@@ -16,12 +16,14 @@ from launcher.master import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.diff import Difference
 from launcher.plan.specs import node_specs, packages_of
-from launcher.output import console
+from launcher.output import console, screen
 from launcher.process.coredumps import CoreDumpReporter
 from launcher.health.hang import HangDetector
 from launcher.health.stall import StallWatch
 from launcher.output.logrotate import LogRotator
 from launcher.health.readiness import Readiness
+from launcher.health.registration import Registrations
+from launcher.model.graph import Graph
 from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import EVENTS_FILE, Fleet
@@ -53,6 +55,7 @@ class NodeService:
         self.supervisor: Supervisor | None = None
         self.fleet: Fleet | None = None  # every node's state (fleet/state.py)
         self.rotator: LogRotator | None = None  # node output logs under --log-max-size
+        self.registrations: Registrations | None = None  # the master's registrations told as the nodes'
         self.processes = 0  # the local nodes numbered by `start` (roslaunch numbers each process)
         self.first_number = 0  # the processes numbered before the nodes (rosout-1)
         self._packages: dict[str, str] = {}  # process name -> package, for process_info
@@ -77,8 +80,10 @@ class NodeService:
                                    sigterm_timeout=self.opts.sigterm_timeout)
         await self.remote.start(parent_uri)
 
-    def start(self, master_uri: str, first_number: int, *, exit_when_all_dead: bool) -> None:
-        """Spawn every node in order, each supervised from its start.
+    def start(self, master_uri: str, first_number: int, *, exit_when_all_dead: bool, graph: Graph,
+              external: bool = False) -> None:
+        """Spawn every node in order, each supervised from its start. `graph`: what is registered with the
+        master (ours tells it; a master found running, `external`, is asked by its watcher).
 
         Every command line is worked out first: once nodes run, each competes with the
         launcher for the CPU (on 2 cores, 100 starting roscpp nodes leave it a few percent),
@@ -95,10 +100,10 @@ class NodeService:
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=exit_when_all_dead, watchdog=self.watchdog, fleet=self.fleet)
-        self._watch_health(master_uri)
+        self._watch_health(master_uri, graph, external)
         self._packages = packages_of(self.plan.config, specs)
         if self.remote is not None:
-            self.remote.attach(self.fleet)
+            self.remote.attach(self.fleet, graph)
         stop = self.signals.event
         no_start = self.opts.no_start
         for spec in specs:
@@ -146,15 +151,16 @@ class NodeService:
             note("node [%s] (process %s): %s%s" % (spec.node_name, spec.name, cmd.format_args(),
                                                    " (cwd %s)" % cmd.cwd if cmd.cwd else ""))
 
-    def _watch_health(self, master_uri: str) -> None:
-        """wait_for holds, hang probes, stalled-topic watches, core dump reports, and the resource sampling of
-        every node."""
+    def _watch_health(self, master_uri: str, graph: Graph, external: bool) -> None:
+        """The nodes' registrations, wait_for holds, hang probes, stalled-topic watches, core dump reports, and
+        the resource sampling of every node."""
         sup = self.supervisor
-        sup.readiness = Readiness(master_uri, sup)
-        hang = HangDetector(master_uri, sup)
-        stall = self.stall = StallWatch(master_uri, sup)
+        self.registrations = Registrations(graph, self.fleet, verify=external)
+        sup.readiness = Readiness(master_uri, sup, graph, self.fleet)
+        hang = HangDetector(sup)
+        stall = self.stall = StallWatch(sup)
         sup.watchers += [hang, stall, CoreDumpReporter()]
-        self._health += [sup.readiness, hang, stall]
+        self._health += [self.registrations, sup.readiness, hang, stall]
         monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
         self._tasks.append(asyncio.ensure_future(monitor.run()))
 
@@ -192,6 +198,9 @@ class NodeService:
         if self.supervisor is not None:
             self.signals.while_stopping = None
             self.supervisor.close()
+        relayed = screen.relay_note()
+        if relayed is not None:  # (which way the terminal-bound output went: benchmarks/screen_flood.py reads it)
+            self.log.note(relayed)
         if self.fleet is not None:
             self.fleet.launch_ended(self.end_reason(), self.exit_status)
             self.fleet.close()

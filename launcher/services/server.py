@@ -32,10 +32,10 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import sys
 import time
 from typing import Any, Protocol
 
+from launcher.compat import orig_argv
 from launcher.master import advertised_host
 from launcher.net.slave import bind_address
 from launcher.net.xmlrpc import Fault, encode_value
@@ -61,7 +61,7 @@ class RunView(Protocol):
     """What the server sees of its run (`launcher.services.servers.RunView`): its nodes, its identity, its core."""
 
     nodes: Any  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
-    fleet: Any  # every node's state (process/state.Fleet), None before the nodes are started
+    fleet: Any  # every node's state (fleet.state.Fleet), None before the nodes are started
     run_id: str
     master_uri: str
     log_dir: str
@@ -148,7 +148,7 @@ class LaunchServer:
         with a fault: it hands os.environ, not a dict, to the XML-RPC marshaller.)
         """
         master = process_name == "master"
-        return {"spawn_count": 1, "args": list(getattr(sys, "orig_argv", sys.argv)), "env": dict(os.environ),
+        return {"spawn_count": 1, "args": orig_argv(), "env": dict(os.environ),
                 "package": "rosmaster" if master else "rosout", "name": process_name, "alive": True,
                 "respawn": False, "respawn_delay": 0.0, "required": master, "pid": os.getpid(),
                 "run_id": self.run.run_id, "log_output": not master}
@@ -223,9 +223,11 @@ class LaunchServer:
 
     def launcher_changes(self, since: Any, timeout: Any = 0.0) -> Any:
         """The node changes after sequence number `since` (0: all that are kept), waiting up to `timeout`
-        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view reads
-        instead of tailing the events file. [1, text, JSON {"seq": the last one, "complete": false when
-        older changes were dropped (read the status again), "changes": [as in the events file]}]."""
+        seconds (at most CHANGES_WAIT_MAX_S) when there are none yet: a long poll, what a live view, `launcher
+        status --watch` and `launcher events -f` read instead of tailing the events file. The run's own lines
+        (a reload, the master restarted, the launch's end) are in the stream too, with no "node". [1, text, JSON
+        {"seq": the last one, "complete": false when older changes were dropped (read the status again),
+        "changes": [as in the events file; the steps it leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
         fleet = self.run.fleet

@@ -6,9 +6,10 @@ here directly. The words (`message`, `fleet_status`, `not_ready`) are pure
 functions of the fleet; `Notifier` sends them from the launch's loop:
 
 - READY=1 once every node meant to start has started and registered with the
-  master (a program that never registers counts once it has run for its
-  `respawn_min_uptime`), or when `--ready-timeout` (60 s) passes (then STATUS= names
-  the nodes not up), so that systemd's "active" means the robot is up;
+  master (the fleet's records say so: `health/registration.py` tells them as the
+  master does; a node with `registers="false"` counts once it runs), or when
+  `--ready-timeout` (60 s) passes (then STATUS= names the nodes not up), so that
+  systemd's "active" means the robot is up;
 - STATUS= after every change of the fleet ("12/12 nodes running, 1 respawning");
 - WATCHDOG=1 every half of WATCHDOG_USEC from a loop timer: a loop that is stuck
   sends nothing, and systemd restarts the launch (WatchdogSec=);
@@ -25,16 +26,12 @@ import socket
 import time
 from typing import Any, Callable, Iterable
 
-from launcher.net import xmlrpc
 from launcher.fleet import machine
 from launcher.model.runopts import RunOptions
 
 # How long READY=1 waits for the nodes before it is sent anyway, naming the nodes not up (systemd's own
 # TimeoutStartSec, which the unit sets longer, would otherwise kill a robot with one node that is slow)
 READY_TIMEOUT_S = RunOptions().ready_timeout
-POLL_S = 0.2  # the master is asked at most this often while the launch is not ready
-CALL_TIMEOUT_S = 2.0
-CALLER_ID = "/roslaunch"
 # on the way up: a node in one of these is not started yet
 NOT_STARTED = frozenset((machine.NEW, machine.WAITING, machine.HELD)) | machine.ON_THE_WAY
 
@@ -75,17 +72,16 @@ def fleet_status(records: Iterable[machine.Record]) -> str:
     return ", ".join([text] + ["%d %s" % (n, state) for state, n in sorted(counts.items())])
 
 
-def not_ready(records: Iterable[machine.Record], registered: set[str], now: float) -> list[str]:
-    """The nodes that keep the launch from being ready: not started yet, or running but neither registered
-    with the master nor up for their respawn_min_uptime. A node that ended (or was kept stopped) is no
-    longer awaited: it is named in STATUS= instead."""
+def not_ready(records: Iterable[machine.Record]) -> list[str]:
+    """The nodes that keep the launch from being ready: not started yet, or running but not registered with
+    the master (unless `registers="false"` says it never will). A node that ended (or was kept stopped) is
+    no longer awaited: it is named in STATUS= instead."""
     waiting = []
     for r in records:
         if r.state in NOT_STARTED and not r.operator_stopped:
             waiting.append(r.name)
-        elif r.state == machine.RUNNING and r.name not in registered:
-            if r.started is None or now - r.started < r.rules.policy.respawn_min_uptime:
-                waiting.append(r.name)
+        elif r.state == machine.RUNNING and not r.registered and r.rules.policy.registers:
+            waiting.append(r.name)
     return waiting
 
 
@@ -103,12 +99,11 @@ class Notifier:
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
         self._fleet: Any = None
-        self._master_uri = ""
-        self._registered: set[str] = set()
         self._status = ""
         self._status_due = False
         self._ping: asyncio.TimerHandle | None = None
-        self._task: asyncio.Future | None = None
+        self._deadline: asyncio.TimerHandle | None = None  # the ready timeout, while not ready
+        self._stopping = False
 
     @classmethod
     def from_environ(cls, environ: dict[str, str] | None = None, **kw: Any) -> Notifier | None:
@@ -138,16 +133,17 @@ class Notifier:
 
     # ---- readiness and status -------------------------------------------------------------------------------
 
-    def attach(self, fleet: Any, master_uri: str) -> None:
-        """Follow `fleet`: STATUS= at its changes, READY=1 once its nodes are up."""
+    def attach(self, fleet: Any) -> None:
+        """Follow `fleet`: STATUS= at its changes, READY=1 once its nodes are up (each change is looked at:
+        a registration is one), at the latest after the ready timeout."""
         self._fleet = fleet
-        self._master_uri = master_uri
         fleet.listeners.append(self._changed)
-        self._task = asyncio.ensure_future(self._until_ready())
+        self._deadline = asyncio.get_running_loop().call_later(self.ready_timeout, self._timed_out)
+        self._check_ready()
 
     def _changed(self, change: Any) -> None:
-        if change.new.pid != change.old.pid:
-            self._registered.discard(change.new.name)  # a new run registers anew
+        if not self.ready:
+            self._check_ready()
         if not self._status_due:  # (a burst of changes in one loop pass makes one datagram)
             self._status_due = True
             asyncio.get_running_loop().call_soon(self._send_status)
@@ -159,34 +155,30 @@ class Notifier:
             self._status = status
             self.send(message(**more, STATUS=status))
 
-    async def _until_ready(self) -> None:
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.ready_timeout
-        while True:
-            waiting = not_ready(self._fleet.records.values(), self._registered, self._fleet.clock())
-            if not waiting:
-                break
-            if loop.time() >= deadline:
-                self.ready = True
-                self._status = ""
-                self.send(message(READY=1, STATUS="%s; not up after %gs: %s" % (
-                    fleet_status(self._fleet.records.values()), self.ready_timeout, ", ".join(waiting))))
-                return
-            await asyncio.gather(*(self._lookup(name) for name in waiting
-                                   if self._fleet.records[name].state == machine.RUNNING))
-            if not_ready(self._fleet.records.values(), self._registered, self._fleet.clock()):
-                await asyncio.sleep(POLL_S)
-        self.ready = True
+    def _check_ready(self) -> None:
+        if self.ready or self._stopping or self._fleet is None or not_ready(self._fleet.records.values()):
+            return
+        self._ready()
         self._send_status(READY=1)
 
-    async def _lookup(self, name: str) -> None:
-        try:
-            code, _msg, _uri = await xmlrpc.call(self._master_uri, "lookupNode", CALLER_ID, name,
-                                                 timeout=CALL_TIMEOUT_S)
-        except (OSError, asyncio.TimeoutError, xmlrpc.Fault, ValueError, TypeError):
-            return  # the master busy: asked again at the next poll
-        if code == 1:
-            self._registered.add(name)
+    def _ready(self) -> None:
+        self.ready = True
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+
+    def _timed_out(self) -> None:
+        self._deadline = None
+        if self.ready or self._stopping:
+            return
+        waiting = not_ready(self._fleet.records.values())
+        self._ready()
+        if not waiting:
+            self._send_status(READY=1)
+            return
+        self._status = ""
+        self.send(message(READY=1, STATUS="%s; not up after %gs: %s" % (
+            fleet_status(self._fleet.records.values()), self.ready_timeout, ", ".join(waiting))))
 
     # ---- a reload ---------------------------------------------------------------------------------------------
 
@@ -207,13 +199,15 @@ class Notifier:
 
     def stopping(self) -> None:
         """The orderly stop begins (the watchdog keeps pinging: the stop escalation runs on the loop)."""
-        if self._task is not None:
-            self._task.cancel()
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+        self._stopping = True  # (no READY=1 after STOPPING=1: the nodes going down are no launch coming up)
         self.send(message(STOPPING=1, STATUS="stopping"))
 
     def close(self) -> None:
         if self._ping is not None:
             self._ping.cancel()
-        if self._task is not None:
-            self._task.cancel()
+        if self._deadline is not None:
+            self._deadline.cancel()
         self._sock.close()

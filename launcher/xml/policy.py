@@ -212,6 +212,9 @@ POLICY_ATTRS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "watch_window": ("watch_window", _seconds(positive=True)),
     "on_stall": ("on_stall", _choice("restart", "warn")),
     "bind_to": ("bind_to", _node_name),
+    # registers="false": a program that is no ROS node (a shell script, a tool that never calls the master) is up
+    # once it runs; any other node once it has registered (systemd's READY=1 waits for that, up to --ready-timeout)
+    "registers": ("registers", _bool),
     # rosmon's spellings. rosmon stops a node with SIGINT, then SIGKILL after its stop timeout: that is
     # our sigint_timeout (the SIGTERM step after it stays the default).
     "rosmon-stop-timeout": ("sigint_timeout", _seconds(positive=True)),

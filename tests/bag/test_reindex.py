@@ -46,7 +46,7 @@ def test_truncated_bag_is_named_and_recovered(tmp_path):
     for cmd in ("info", "play"):
         out = bag(cmd, path)
         assert out.returncode == 1 and "Traceback" not in out.stderr, out.stderr
-        assert path in out.stderr and "can still be read" in out.stderr and "launcher bag reindex" in out.stderr
+        assert path in out.stderr and "can still read" in out.stderr and "launcher bag reindex" in out.stderr
     fixed = bag("reindex", path)
     assert fixed.returncode == 0, fixed.stderr
     assert os.path.exists(str(tmp_path / "cut.orig.bag"))  # as rosbag reindex: the original is kept
@@ -66,7 +66,7 @@ def test_active_bag_reindexed_beside_it(tmp_path):
         recording.write(conn, 10**18 + n * 10**7, string("m %d" % n))
     recording.abort()
     assert not os.path.exists(str(tmp_path / "run.bag"))
-    target, count, stop = reindex.reindex(active)
+    target, count, stop, skipped = reindex.reindex(active)
     assert target == str(tmp_path / "run.bag") and 0 < count <= COUNT
     with Reader(target) as reader:
         assert [bytes(d[4:]).decode() for _, _, d in reader.messages()] == ["m %d" % n for n in range(count)]
@@ -78,3 +78,33 @@ def test_not_a_bag(tmp_path):
     for cmd in ("info", "play", "reindex"):
         out = bag(cmd, str(junk))
         assert out.returncode == 1 and str(junk) in out.stderr and "Traceback" not in out.stderr, (cmd, out.stderr)
+
+
+def test_a_damaged_copy_of_a_connection_record_is_passed_over(tmp_path):
+    """A connection record whose md5sum is damaged in its chunk: the index's copy is taken; damaged in both, its
+    messages are left out and said so."""
+    import bagmutants
+
+    path = str(tmp_path / "conn.bag")
+    make_bag(path)
+    with open(path, "rb") as f:
+        data = bytearray(f.read())
+    first_chunk = next(r for r in bagmutants.records(bytes(data), len(bagmutants.MAGIC), len(data)) if r.op == 5)
+    # the md5sum of the connection record in the first chunk, and of the index's copy at the end of the file
+    copies = [data.index(b"md5sum=", first_chunk.datapos) + 7, data.rindex(b"md5sum=") + 7]
+    assert copies[0] < copies[1]
+    data[copies[0]] = ord("Z")
+    for name, broken in [("one", data), ("both", bytearray(data))]:
+        if name == "both":
+            broken[copies[1]] = ord("Z")
+        with open(str(tmp_path / (name + ".bag")), "wb") as f:
+            f.write(broken)
+        (tmp_path / name).mkdir()
+        target, count, stop, skipped = reindex.reindex(str(tmp_path / (name + ".bag")), str(tmp_path / name))
+        if name == "one":
+            assert count == COUNT and not skipped
+            with Reader(target) as reader:
+                assert reader.connections[0].digest == "992ce8a1687cec8c8bd883ec73ca41d1"
+        else:
+            assert count == 0 and skipped == ["%d messages of connection 0, whose connection record is lost or "
+                                              "damaged" % COUNT]

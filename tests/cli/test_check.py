@@ -359,3 +359,23 @@ def test_compat_corpus(ros_env, ros_part_missing, monkeypatch):
     # (the corpus holds each kind; if it stops to, this test proves less than it says)
     assert proven_kinds >= {"args", "launch", "branch load", "branch args"}, proven_kinds
     assert clean > 100 and refused > 100 and quiet > 80, (clean, refused, quiet)
+
+
+def test_nodes_that_do_not_register_are_named(ws):
+    tmp, env = ws
+    path = write(tmp, "robot.launch", '<node name="driver" pkg="robot" type="driver.py"/>\n'   # line 3
+                 '<group registers="false">\n'                                                 # line 4
+                 '  <node name="helper" pkg="robot" type="driver.py"/>\n'                      # line 5
+                 '</group>\n'
+                 '<node name="pump" pkg="robot" type="driver.py" registers="false"/>')        # line 7
+    p = run_check(env, path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    notes = [line for line in p.stdout.splitlines() if line.startswith("note: ")]
+    assert notes == ['note: %s:5: <node> [/helper] has registers="false": not a ROS node, up once its process runs '
+                     '(no registration with the master is awaited)' % path,
+                     'note: %s:7: <node> [/pump] has registers="false": not a ROS node, up once its process runs '
+                     '(no registration with the master is awaited)' % path], p.stdout
+    assert p.stdout.rstrip().endswith("0 error(s), 0 warning(s), 2 note(s)")
+    bad = write(tmp, "bad.launch", '<node name="x" pkg="robot" type="driver.py" registers="maybe"/>')
+    p = run_check(env, bad)
+    assert p.returncode == 1 and "bad.launch:3" in p.stdout and "registers" in p.stdout, p.stdout

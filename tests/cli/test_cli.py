@@ -91,6 +91,26 @@ def test_an_input_file_that_does_not_exist_is_a_usage_error_as_in_roslaunch(tmp_
                                    "robot:=r3?)\n")
 
 
+def test_did_you_mean_offers_files_only_where_a_file_is_asked_for(tmp_path):
+    """`launch cam.launch` in a checkout: the directory `launcher` is no launch file to suggest; a file of a close
+    name is, in the folder the command runs in and in the one a path names."""
+    (tmp_path / "launcher").mkdir()
+    (tmp_path / "camera.launch").mkdir()  # (a directory even with a launch file's name)
+
+    def launch(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "launcher", *argv], capture_output=True, text=True, timeout=60,
+                              cwd=str(tmp_path))
+
+    out = launch("cam.launch")
+    assert (out.returncode, out.stderr.strip().splitlines()[-1]) == (1, "[cam.launch] is not a launch file name"), \
+        out.stderr
+    (tmp_path / "cams.launch").write_text("<launch/>")
+    for asked, hint in (("cam.launch", "cams.launch"), (str(tmp_path / "cam.launch"), "cams.launch")):
+        out = launch(asked)
+        assert out.stderr.strip().splitlines()[-1] == "[%s] is not a launch file name (did you mean %s?)" % (
+            asked, hint), out.stderr
+
+
 def test_the_run_options_are_the_command_lines_with_its_defaults():
     """A run reads typed options: every field comes from `launch`'s parsed command line, and a command line
     that says nothing gives RunOptions' own defaults (one set of defaults, not two)."""

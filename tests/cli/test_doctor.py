@@ -122,12 +122,47 @@ def test_env_python3_that_cannot_import_rospy(env, tmp_path, ros_env, first_on_p
     assert rc == 1, out
     problems = [line for line in out.splitlines() if line.startswith("problem")]
     assert problems == [
-        "problem  %s:2: node [/talker]: %s starts with '#!/usr/bin/env python3', which finds %s/python3 first on "
+        "problem  %s:2: node [/talker] (%s): '#!/usr/bin/env python3' finds %s/python3 first on "
         "PATH; that cannot import rospy, std_msgs (%s can)" % (launch, script, bin_dir, ros_env["python"])], out
     assert "fix: take %s off PATH: put only `launch` and `launcher` on it" % bin_dir in out
+    assert out.count("fix: take") == 1 and "fix: as above" in out  # (the note above has the same fix)
     # without a launch file: a note, as any rospy node would meet it
     assert "note     python3 on PATH is %s/python3, which cannot import rospy" % bin_dir in doctor(
         dict(env, PATH="%s:%s" % (bin_dir, ros_env["path"])))[1]
     # the system's python3 first: the same node is sound
     rc, out = doctor(dict(env, PATH=ros_env["path"]), str(launch))
     assert rc == 0 and "python3 on PATH" not in out, out
+
+
+def test_one_cause_is_said_once_with_its_fix_naming_the_nodes_it_concerns(env, tmp_path, ros_env):
+    """Five rospy nodes behind one python3 on PATH that cannot import rospy, and two nodes of one script that is
+    not executable: one problem each, its fix once, and every node it concerns named under it."""
+    pkg = tmp_path / "ws" / "doc_pkg"
+    names = ["talker%d" % i for i in range(5)]
+    for name in names:
+        (pkg / name).write_text(ROSPY_NODE)
+        (pkg / name).chmod(0o755)
+    launch = tmp_path / "robot.launch"
+    launch.write_text("<launch>\n" + "".join('<node pkg="doc_pkg" type="%s" name="%s"/>\n' % (n, n) for n in names)
+                      + '<node pkg="doc_pkg" type="no_x" name="x1"/>\n<node pkg="doc_pkg" type="no_x" name="x2"/>\n'
+                      + "</launch>\n")
+    shims = tmp_path / "shims"
+    shims.mkdir()
+    (shims / "python3").write_text('#!/bin/sh\nexec %s "$@"\n' % sys.executable)
+    (shims / "python3").chmod(0o755)
+    rc, out = doctor(dict(env, PATH="%s:%s" % (shims, ros_env["path"])), str(launch))
+    assert rc == 1, out
+    lines = out.splitlines()
+    problems = [line for line in lines if line.startswith("problem")]
+    assert problems == [
+        "problem  '#!/usr/bin/env python3' finds %s/python3 first on PATH; that cannot import rospy, std_msgs (%s "
+        "can): 5 nodes" % (shims, ros_env["python"]),
+        "problem  the file [%s] is there but not executable: 2 nodes" % (pkg / "no_x")], out
+    first = lines.index(problems[0])
+    assert lines[first + 1:first + 7] == ["           %s:%d: node [/%s] (%s)" % (launch, i + 2, n, pkg / n)
+                                          for i, n in enumerate(names)] + ["           fix: as above"], out
+    second = lines.index(problems[1])
+    assert lines[second + 1:second + 4] == ["           %s:7: node [/x1]" % launch, "           %s:8: node [/x2]" % launch,
+                                            "           fix: chmod +x %s" % (pkg / "no_x")], out
+    assert out.count("fix: take %s off PATH" % shims) == 1 and out.count("fix:") == 3  # (the note's, then these)
+    assert lines[-1] == "2 problems found"

@@ -24,7 +24,7 @@ HANG_TIMEOUT = 3.0
 def run_hang_scenario(tmp_path, required: bool = False):
     async def main():
         master, sup = await supervisor_with_master()
-        hang = HangDetector(master.uri, sup)
+        hang = HangDetector(sup)
         sup.watchers.append(hang)
         events = Events(sup.fleet)
         try:
@@ -74,7 +74,7 @@ def test_a_hung_required_node_ends_the_launch(tmp_path, capsys):
 def test_a_healthy_node_is_not_hung(tmp_path):
     async def main():
         master, sup = await supervisor_with_master()
-        hang = HangDetector(master.uri, sup)
+        hang = HangDetector(sup)
         sup.watchers.append(hang)
         try:
             proc = sup.start(talker(tmp_path, "talker", "/chatter", master.uri, policy=NodePolicy(hang_timeout=0.6)))

@@ -22,7 +22,7 @@ SLEEPER = "import time\ntime.sleep(100)"
 def test_wait_for_holds_a_node_until_a_rospy_publisher_appears(tmp_path):
     async def main():
         master, sup = await supervisor_with_master()
-        sup.readiness = Readiness(master.uri, sup)
+        sup.readiness = Readiness(master.uri, sup, master.graph, sup.fleet)
         events = Events(sup.fleet)
         try:
             policy = NodePolicy(wait_for=(("topic", "/scan"), ("node", "/talker"), ("param", "/robot_description")),
@@ -52,7 +52,7 @@ def test_wait_for_holds_a_node_until_a_rospy_publisher_appears(tmp_path):
 def test_wait_timeout_names_what_was_missing_and_ends_a_required_node(tmp_path, capsys):
     async def main():
         master, sup = await supervisor_with_master()
-        sup.readiness = Readiness(master.uri, sup)
+        sup.readiness = Readiness(master.uri, sup, master.graph, sup.fleet)
         try:
             master.set_param("/present", 1)
             policy = NodePolicy(wait_for=(("param", "/present"), ("service", "/static_map"), ("topic", "/scan")),
@@ -81,7 +81,7 @@ def test_a_waiting_node_keeps_an_external_master_launch_going_and_is_stopped_at_
     async def main():
         master, sup = await supervisor_with_master()
         sup.exit_when_all_dead = True  # an external master: the launch ends when every node has ended
-        sup.readiness = Readiness(master.uri, sup)
+        sup.readiness = Readiness(master.uri, sup, master.graph, sup.fleet)
         try:
             sup.start(python_node(tmp_path, "quick", "pass"))
             sup.start(python_node(tmp_path, "held", SLEEPER, policy=NodePolicy(wait_for=(("node", "/never"),))))

@@ -9,7 +9,7 @@ import os
 from launcher.model.config import NodePolicy
 from launcher.output import console
 from launcher.fleet import state
-from launcher.health.resources import ResourceMonitor, read_groups
+from launcher.health.resources import GroupReader, ResourceMonitor
 from launcher.process.supervisor import Supervisor
 
 from helpers import until_async
@@ -81,6 +81,15 @@ def test_cpu_limit_warns(tmp_path, capsys):
     policy = NodePolicy(cpu_limit=0.2)
     run(tmp_path, [python_node(tmp_path, "spinner", SPINNER, policy=policy)],
         lambda sup, events: "[spinner-1] WARNING: uses " in console_err(capsys) or None)
+
+
+def read_groups(pgids) -> dict:
+    """One reading of `pgids` by a GroupReader of its own."""
+    reader = GroupReader()
+    try:
+        return reader.read(pgids)
+    finally:
+        reader.close()
 
 
 def test_read_groups_sums_a_group_and_ignores_others(tmp_path):

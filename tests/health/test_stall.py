@@ -8,7 +8,7 @@ from launcher.health.stall import TopicWatch
 def test_silence_after_the_last_message_and_before_the_first():
     w = TopicWatch("/image", started_at=0.0, timeout=2.0, min_rate=None, window=5.0)
     assert w.verdict(1.9) == ""  # (a node gets watch_timeout from its start to send a first message)
-    assert w.verdict(2.0).startswith("no message on /image for 2.0 s since the node started")
+    assert w.verdict(2.0).startswith("no message on /image for 2.0 s since the node registered")
     for t in (2.1, 2.2, 2.3):
         w.message(t)
     assert w.verdict(4.2) == ""

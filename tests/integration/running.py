@@ -12,7 +12,7 @@ import sys
 import time
 import xmlrpc.client
 
-from helpers import ROS_PATH, ROS_PYTHON, free_port, until
+from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -199,3 +199,21 @@ def write_launch(tmp: str, body: str, name: str = "test.launch") -> str:
     with open(path, "w") as f:
         f.write('<?xml version="1.0"?>\n<launch>\n%s\n</launch>\n' % body)
     return path
+
+
+def node_processes(log_dir: str) -> dict[str, list[int]]:
+    """The live node processes of a launch, found in /proc by the `__log:=` in `log_dir` its command lines carry:
+    node name (`__name:=`) -> pids (two: a node running twice)."""
+    found: dict[str, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open("/proc/%s/cmdline" % entry, "rb") as f:
+                argv = f.read().decode(errors="replace").split("\0")
+        except OSError:
+            continue
+        names = [a[len("__name:="):] for a in argv if a.startswith("__name:=")]
+        if names and any(a.startswith("__log:=" + log_dir) for a in argv) and pid_alive(int(entry)):
+            found.setdefault(names[0], []).append(int(entry))
+    return found

@@ -17,7 +17,7 @@ import subprocess
 import sys
 
 import pytest
-from rosbags.rosbag1 import Reader
+from rosbags.rosbag1 import Reader, Writer
 
 from bagparts import MOUNT_NS, debian_read, mount_ns_missing
 from helpers import ROOT, free_port, until
@@ -131,3 +131,34 @@ def test_demo_recorded_and_played_on_its_clock_without_ros(tmp_path, no_ros):
     told = [float(t) for t in re.findall(r"sim time (\d+\.\d+)", play.stdout)]
     # the watcher's clock is the recording's
     assert told and all(start - 0.01 <= t <= end + 0.01 for t in told), (start, end, play.stdout)
+
+
+BROKEN = """
+<launch>
+  <arg name="bag"/>
+  <node pkg="rosbag" type="play" name="player" output="screen" required="true" args="-q $(arg bag)"/>
+</launch>
+"""
+
+
+def test_a_play_node_given_a_broken_bag_says_what_is_wrong(tmp_path, no_ros):
+    """The same words as `launcher bag play` in a terminal: the bag and what is wrong where, no traceback."""
+    bag = tmp_path / "cut.bag"
+    writer = Writer(str(bag))
+    writer.open()
+    conn = writer.add_connection("/chatter", "std_msgs/msg/String", msgdef="string data\n",
+                                 md5sum="992ce8a1687cec8c8bd883ec73ca41d1")
+    for n in range(100):
+        writer.write(conn, 10**18 + n * 10**7, b"\x05\x00\x00\x00hello")
+    writer.close()
+    data = bag.read_bytes()
+    bag.write_bytes(data[:len(data) - 100])
+    (tmp_path / "broken.launch").write_text(BROKEN)
+    env = dict(os.environ, ROS_HOME=str(tmp_path / "home"), PYTHONPATH=ROOT,
+               ROS_MASTER_URI="http://127.0.0.1:%d/" % free_port())
+    env.pop("ROS_LOG_DIR", None)
+    run = subprocess.run(no_ros + [sys.executable, "-m", "launcher", str(tmp_path / "broken.launch"), "bag:=%s" % bag],
+                         env=env, capture_output=True, text=True, timeout=120)
+    said = run.stdout + run.stderr
+    assert "Traceback" not in said and run.returncode != 0, said
+    assert "ERROR %s: truncated at byte %d: chunk info " % (bag, len(data) - 100) in said, said

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
-from running import Launcher, compile_roscpp, make_package, ros_env
+from running import Launcher, compile_roscpp, make_package, node_processes, ros_env
 
 pytestmark = pytest.mark.integration
 
@@ -71,21 +71,8 @@ class Run:
 
     def pids(self) -> dict[str, int]:
         """The launch's node processes, found in /proc: ROS node name -> pid (the anonymous one as "anon")."""
-        log_dir = self.env["ROS_LOG_DIR"]
-        found = {}
-        for entry in os.listdir("/proc"):
-            if not entry.isdigit():
-                continue
-            try:
-                with open("/proc/%s/cmdline" % entry, "rb") as f:
-                    argv = f.read().decode(errors="replace").split("\0")
-            except OSError:
-                continue
-            names = [a[len("__name:="):] for a in argv if a.startswith("__name:=")]
-            if names and any(a.startswith("__log:=" + log_dir) for a in argv) and pid_alive(int(entry)):
-                name = "anon" if names[0].startswith("anon_") else names[0]
-                found[name] = int(entry)
-        return found
+        return {("anon" if name.startswith("anon_") else name): pids[-1]
+                for name, pids in node_processes(self.env["ROS_LOG_DIR"]).items()}
 
     def ready(self, expected: set[str]) -> dict[str, int]:
         """Wait until exactly `expected` run, each ready (rospy's init done; the roscpp node wrote its file)."""

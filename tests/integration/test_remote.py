@@ -11,6 +11,7 @@ import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -553,6 +554,7 @@ def test_operator_stop_start_restart_of_a_remote_node_with_our_child(tmp_path, h
                what="both running again")
     assert st["/local_echo"]["pid"] != local_first
     states = [e["state"] for e in events(tmp_path, "/talker")]
+    states = [s for i, s in enumerate(states) if i == 0 or s != states[i - 1]]  # (its registrations: lines too)
     assert states[-4:] == ["stopped", "running", "stopped", "running"] and states.count("stopped") == 2, states
     la.signal(signal.SIGINT)
     assert la.wait(60) == 0, la.stderr
@@ -661,3 +663,172 @@ def test_a_reload_that_must_stop_a_node_under_debians_child_is_refused_by_name(t
     assert r.returncode == 1 and "reload refused, nothing changed" in r.stderr, r.stderr
     st = node_status(env)
     assert set(st) == {"/talker", "/local_echo"} and on_host(h1, "__name:=talker") == [talker]
+
+
+
+# A node that is a shell script (its launch-prefix; the node's own command only gives it its name): at
+# SIGINT its leader, sh, exits at once and leaves its two background jobs, which ignore SIGINT, in the
+# node's process group. Only a stop that knows the group without its leader ends them. Beside it, one
+# whose leader has exited already (a script that starts its jobs and ends), leaving its group behind.
+JOBS_SCRIPT = "sleep %d & sleep %d & wait\n"
+DAEMON_SCRIPT = "sleep %d & sleep %d &\n"
+JOBS_SLEEP_S, DAEMON_SLEEP_S = 1000, 2000  # + the host's index: each node's jobs told apart by their command line
+# who runs the nodes of the other machines: (the parent, the child)
+PARENT_AND_CHILD = [("ours", "ours"), ("ours", "debian"), ("debian", "ours")]
+CUT_RUNS = 20  # cuts in a row (each pass cuts every host of four_hosts)
+
+
+def jobs_left(host) -> list[str]:
+    """What is left on the host of its shell-script nodes: the scripts' shells, their sleeps."""
+    needles = ("__name:=jobs%d" % host.index, "__name:=daemon%d" % host.index,
+               "sleep %d" % (JOBS_SLEEP_S + host.index), "sleep %d" % (DAEMON_SLEEP_S + host.index))
+    return [line for line in host.process_lines() if any(n in line for n in needles)]
+
+
+def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str, args: tuple[str, ...] = ()):
+    """A launch with the two shell-script nodes on each host, under `parent` and `child` (given `args`), once
+    their jobs run and the daemon's leader has gone: a function that kills the parent (SIGKILL, or the signal
+    given) and what it started here."""
+    machines, nodes = "", ""
+    loaders = our_child_loaders(tmp_path, hosts) if child == "ours" else [h.env_loader for h in hosts.hosts]
+    for host, loader in zip(hosts.hosts, loaders):
+        machines += '  <machine name="m%d" address="%s" env-loader="%s"/>\n' % (host.index, host.address, loader)
+        for name, text, sleep in (("jobs", JOBS_SCRIPT, JOBS_SLEEP_S), ("daemon", DAEMON_SCRIPT, DAEMON_SLEEP_S)):
+            script = os.path.join(str(tmp_path), "%s-%d.sh" % (name, host.index))
+            with open(script, "w") as f:
+                f.write(text % (sleep + host.index, sleep + host.index))
+            nodes += ('<node machine="m%d" pkg="rostopic" type="rostopic" name="%s%d" args="list" '
+                      'launch-prefix="sh %s"/>\n' % (host.index, name, host.index, script))
+    path = os.path.join(str(tmp_path), "jobs.launch")
+    with open(path, "w") as f:
+        f.write("<launch>\n%s%s</launch>\n" % (machines, nodes))
+    output = lambda: ""  # noqa: E731
+    if parent == "ours":
+        env = run_env(tmp_path, hosts, **({"LAUNCHER_REMOTE_PROGRAM": "launch"} if child == "ours" else {}))
+        la = Launcher([path, *args], env, str(tmp_path))
+        proc = la.proc
+        output = lambda: la.stdout + la.stderr  # noqa: E731
+    else:
+        env = run_env(tmp_path, hosts, HOME=hosts.home)  # (paramiko reads ~/.ssh)
+        proc = subprocess.Popen(["roslaunch", path, *args], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True)
+
+    def kill(sig: int = signal.SIGKILL) -> None:
+        local = descendants(proc.pid) if parent == "debian" else set()  # Debian's master and rosout
+        proc.send_signal(sig)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            raise AssertionError("the %s parent did not end within 60 s of signal %d" % (parent, sig)) from None
+        finally:
+            for pid in local:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except OSError:
+                    pass
+            if parent == "ours":
+                la.close()
+
+    def running(host) -> bool:
+        jobs, daemon = "sleep %d" % (JOBS_SLEEP_S + host.index), "sleep %d" % (DAEMON_SLEEP_S + host.index)
+        return len(on_host(host, jobs)) == 2 and len(on_host(host, daemon)) == 2 and \
+            not on_host(host, "__name:=daemon%d" % host.index)
+    try:
+        for host in hosts.hosts:
+            until(lambda: running(host), 90, period=0.1, what="the nodes' jobs on %s" % host.address)
+    except AssertionError as e:
+        kill()
+        raise AssertionError("%s\n%s" % (e, output())) from None
+    except BaseException:
+        kill()
+        raise
+    return kill
+
+
+def all_gone_within(hosts: TestHosts, seconds: float, what: str) -> float:
+    """Wait until nothing of the shell-script nodes is left on any host: how long it took."""
+    start = time.monotonic()
+    try:
+        until(lambda: not any(jobs_left(h) for h in hosts.hosts), seconds, period=0.05, what=what)
+    except AssertionError as e:
+        raise AssertionError("%s: %s" % (e, [line for h in hosts.hosts for line in h.process_lines()])) from None
+    return time.monotonic() - start
+
+
+def reachable(address: str) -> bool:
+    try:
+        socket.create_connection((address, 22), timeout=0.5).close()
+        return True
+    except OSError:
+        return False
+
+
+def restore_hosts(hosts: TestHosts) -> None:
+    """Between runs: the links up and the hosts' sshd answering again (the parent's address lookups during the
+    cut failed, and this machine remembers that for a while), and sshd's half of each cut connection, which
+    lingers, gone: the next run starts alone."""
+    for host in hosts.hosts:
+        host.restore()
+    subprocess.run(["ip", "neigh", "flush", "dev", hosts.bridge], capture_output=True, timeout=30)
+    for host in hosts.hosts:
+        until(lambda: reachable(host.address), 30, period=0.1, what="%s reachable again" % host.address)
+        for pid in host.pids():
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+@pytest.fixture(scope="module")
+def four_hosts(ros_env, ros_part_missing):
+    """More hosts for the cuts in a row: each pass cuts all of them (their sessions are apart)."""
+    why = TestHosts.unavailable()
+    if why:
+        ros_part_missing(why)
+    with TestHosts(4) as th:
+        yield th
+
+
+@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
+def test_sigkill_of_the_parent_leaves_nothing_of_a_shell_script_node(tmp_path, hosts, parent, child):
+    try:
+        kill = start_jobs(tmp_path, hosts, parent, child)
+        kill()
+        all_gone_within(hosts, NO_ORPHAN_S, "nothing of the nodes left %g s after their parent's SIGKILL"
+                        % NO_ORPHAN_S)
+    finally:
+        restore_hosts(hosts)
+
+
+@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
+def test_an_orderly_stop_leaves_nothing_of_a_shell_script_node(tmp_path, hosts, parent, child):
+    """Ctrl-C of the parent: the child's stop (SIGINT, SIGTERM after --sigint-timeout to a group whose leader
+    is gone too) under ours; under Debian's child, which waits for each node's leader only, the watch loop's
+    sweep after the child's end."""
+    try:
+        kill = start_jobs(tmp_path, hosts, parent, child, ("--sigint-timeout", "1", "--sigterm-timeout", "1"))
+        kill(signal.SIGINT)
+        all_gone_within(hosts, NO_ORPHAN_S, "nothing of the nodes left %g s after their parent's orderly end"
+                        % NO_ORPHAN_S)
+    finally:
+        restore_hosts(hosts)
+
+
+@pytest.mark.parametrize("parent, child", PARENT_AND_CHILD)
+def test_a_cut_link_leaves_nothing_of_a_shell_script_node_20_runs_in_a_row(tmp_path, four_hosts, parent, child):
+    hosts = four_hosts
+    took = []
+    for run in range(0, CUT_RUNS, len(hosts.hosts)):
+        kill = start_jobs(tmp_path, hosts, parent, child)
+        try:
+            for host in hosts.hosts:
+                host.cut()
+            took.append(all_gone_within(hosts, NO_ORPHAN_S, "runs %d-%d: nothing of the nodes left %g s after "
+                                        "the cut" % (run + 1, run + len(hosts.hosts), NO_ORPHAN_S)))
+        finally:
+            kill()
+            restore_hosts(hosts)
+    print("%s parent, %s child: the nodes gone %.2f-%.2f s after the cut" % (parent, child, min(took), max(took)))
+

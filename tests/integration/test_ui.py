@@ -137,7 +137,8 @@ THREE = """
 
 def running_pid(screen: str, name: str) -> int | None:
     r = row(screen, name)
-    return int(r[2]) if r and r[1] == "running" and r[2].isdigit() else None
+    # (cells: name, state, REG, pid, ...)
+    return int(r[3]) if r and r[1] == "running" and r[2] in ("yes", "no") and r[3].isdigit() else None
 
 
 def steer_and_watch(tmux: Tmux, env: dict) -> None:
@@ -174,7 +175,7 @@ def steer_and_watch(tmux: Tmux, env: dict) -> None:
     gamma = running_pid(screen, "/g/gamma")
     os.kill(gamma, signal.SIGKILL)
     screen = tmux.wait_screen(lambda s: running_pid(s, "/g/gamma") not in (None, gamma), "/g/gamma respawned")
-    assert (row(screen, "/g/gamma") or [])[4] == "1"  # restarts
+    assert (row(screen, "/g/gamma") or [])[5] == "1"  # restarts
     assert "[/g/gamma] running pid %d" % running_pid(screen, "/g/gamma") in screen
 
 
@@ -227,7 +228,7 @@ def test_thirty_nodes_scroll_in_80x24_with_every_column_and_follow_resizes(tmp_p
     def every_column(screen: str, names: list[str]) -> bool:
         # name state pid uptime restarts last-exit cpu rss host: nine cells, the host last
         rows = [row(screen, n) for n in names]
-        return all(r and len(r) == 9 and r[-1] == "localhost" for r in rows)
+        return all(r and len(r) == 10 and r[-1] == "localhost" for r in rows)
     header = next(line for line in screen.splitlines() if line.split()[:2] == ["NODE", "STATE"])
     assert header.split()[-1] == "HOST"
     tmux.wait_screen(lambda s: every_column(s, ["/n%02d" % i for i in range(5)]), "every column of the rows")
@@ -360,6 +361,53 @@ def test_launcher_ui_attached_late_shows_the_cpu_history_at_once(tmp_path, tmux,
         screen = tmux.wait_screen(lambda s: re.search(r"/alpha cpu [\u2581-\u2588 ]+ \u2500", s), "the sparkline")
         bars = re.search(r"/alpha cpu ([\u2581-\u2588 ]+) \u2500", screen).group(1)
         assert len(bars) >= 8, screen
+        tmux.keys("q")
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+    finally:
+        lp.close()
+
+
+def test_the_output_pane_says_each_change_once_in_the_events_words_and_the_filter_applies(tmp_path, tmux, env):
+    """A node restarted by an operator (the `r` key): the pane has exactly one line for each change the events
+    file has of it, in `launcher events`' words, however many internal steps the launch went through; with the
+    filter `/sub`, no line of another node (state or output) is left in the pane."""
+    # (sub says a line every 2 s: the pane keeps every line of the test in view)
+    make_package(str(tmp_path / "pkgs"), "pane_tests",
+                 {"greeter": "#!/bin/sh\nwhile true; do echo hello from sub; sleep 2; done\n"})
+    lp = Launcher([write_launch(str(tmp_path), '<group ns="r2"><node pkg="ui_tests" type="sleeper" name="talker"/>'
+                                '<node pkg="pane_tests" type="greeter" name="sub" output="screen"/></group>')],
+                  env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[r2/sub-\d+\]: started", 60)
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"), 160, 40)
+        screen = tmux.wait_screen(lambda s: running_pid(s, "/r2/talker") and "[/r2/sub] hello from sub" in s,
+                                  "both nodes running, sub's output")
+        old = running_pid(screen, "/r2/talker")
+        assert row(screen, "/r2/talker")[0] == "/r2/talker"  # (the first row: selected)
+        tmux.keys("r")
+        screen = tmux.wait_screen(lambda s: running_pid(s, "/r2/talker") not in (None, old), "/r2/talker restarted")
+        new = running_pid(screen, "/r2/talker")
+
+        def talker_lines(s: str) -> list[str]:
+            return [line.rstrip() for line in s.splitlines() if line.startswith("[/r2/talker] ")]
+
+        def said() -> list[str]:  # what `launcher events` says of the node, its time left out
+            out = tool(env, "events").stdout.splitlines()
+            return ["[/r2/talker] " + line.split(" /r2/talker ", 1)[1] for line in out if " /r2/talker " in line]
+        expected = said()
+        # its first run, its stop by the operator, its run again: each once (the sleeper writes no output)
+        assert len(expected) == 3 and expected[-1].startswith("[/r2/talker] running pid %d " % new), expected
+        assert expected[1].startswith("[/r2/talker] stopped pid %d " % old) and expected[1].endswith(
+            "(stopped by operator)"), expected
+        screen = tmux.wait_screen(lambda s: talker_lines(s) == expected, "one line per change of the events file")
+        assert row(screen, "/r2/talker")[6] == "SIGINT"  # (LAST EXIT: how its last run ended, while it runs again)
+        # the filter applies to every line of the pane: no other node's, state or output
+        tmux.keys("/", "s", "u", "b", "Enter")
+        screen = tmux.wait_screen(lambda s: "filter [sub]" in s and not talker_lines(s), "only /r2/sub's lines")
+        pane = screen.split("\u2500\u2500 output", 1)[1].splitlines()[1:-1]
+        assert pane and all(line.startswith("[/r2/sub] ") for line in pane if line.strip()), screen
+        assert any(re.match(r"\[/r2/sub\] running pid \d+ restarts 0$", line.rstrip()) for line in pane), screen
+        assert "[/r2/sub] hello from sub" in pane
         tmux.keys("q")
         tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
     finally:

@@ -35,3 +35,5 @@ def test_near_file(tmp_path):
     assert near_file(str(tmp_path / "bringup.lanch")) == "did you mean bringup.launch?"
     assert near_file(str(tmp_path / "nothing_like_it.xml")) == ""
     assert near_file(str(tmp_path / "no_such_dir" / "a.launch")) == ""
+    (tmp_path / "launcher").mkdir()  # (a folder is no file: never offered for one)
+    assert near_file(str(tmp_path / "launche")) == ""

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import asyncio
+import gc
+import logging
 import os
+import struct
 
 import pytest
 
 from launcher.net.slave import SlaveNode, Subscription, bind_address
-from launcher.net.tcpros import Publication, TopicType
+from launcher.net import tcpros
+from launcher.net.tcpros import Publication, TopicType, encode_frame, encode_header
 from launcher.net.xmlrpc import Fault, call
 
 from helpers import until_async
@@ -153,3 +157,114 @@ def test_bind_address_stays_on_loopback_for_loopback_names():
     assert bind_address("127.0.0.1") == "127.0.0.1"
     assert bind_address("localhost") == "127.0.0.1"
     assert bind_address("robot.example") == "0.0.0.0"
+
+
+async def _liar(behaviour, accepts: list[float]) -> tuple[SlaveNode, asyncio.AbstractServer]:
+    """A node whose requestTopic sends subscribers to a TCPROS port that lies as `behaviour(reader, writer)` does."""
+    loop = asyncio.get_running_loop()
+
+    async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        accepts.append(loop.time())
+        try:
+            (size,) = struct.unpack("<I", await reader.readexactly(4))
+            await reader.readexactly(size)
+            await behaviour(reader, writer)
+        except (OSError, asyncio.IncompleteReadError):
+            pass
+        finally:
+            writer.close()
+
+    server = await asyncio.start_server(handle, "127.0.0.1", 0)
+    node = await _node("/liar%d" % id(accepts))
+    node.publications["/chat"] = Publication("/chat", CHAT, node.name)
+    node.tcpros.port = server.sockets[0].getsockname()[1]  # (its requestTopic answers with this port)
+    return node, server
+
+
+def _valid_header() -> bytes:
+    return encode_header({"callerid": "/liar", "topic": "/chat", "type": CHAT.name, "md5sum": CHAT.md5sum,
+                          "message_definition": CHAT.definition})
+
+
+async def _refuse(reader, writer):
+    writer.write(encode_header({"error": "go away"}))
+
+
+async def _huge(reader, writer):
+    writer.write(_valid_header() + struct.pack("<I", 0x7FFFFFFF))
+    await reader.read()
+
+
+async def _slow(reader, writer):
+    writer.write(_valid_header()[:3])
+    await reader.read()
+
+
+async def _cut(reader, writer):
+    writer.write(_valid_header() + encode_frame(b"m") + struct.pack("<I", 500_000_000) + b"x" * 1000)
+
+
+def test_lying_publishers_are_dropped_and_tried_again_as_each_deserves(monkeypatch, caplog):
+    """Each lie is one warning naming the publisher and the topic, and no future is left with an exception nobody
+    retrieves; a refusal waits for the publisher's next listing, a broken link is tried again after doubling
+    delays (here shortened), the handshake has a deadline, a good publisher beside them is read on."""
+    monkeypatch.setattr(tcpros, "RETRY_FIRST_S", 0.1)
+    monkeypatch.setattr(tcpros, "HANDSHAKE_TIMEOUT_S", 0.3)
+    caplog.set_level(logging.WARNING, logger="launcher.slave")
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        unhandled: list[dict] = []
+        loop.set_exception_handler(lambda _loop, context: unhandled.append(context))
+        accepts: dict[str, list[float]] = {k: [] for k in ("refuse", "huge", "slow", "cut")}
+        liars = {k: await _liar(b, accepts[k]) for k, b in
+                 (("refuse", _refuse), ("huge", _huge), ("slow", _slow), ("cut", _cut))}
+        good_node = await _node("/talker")
+        good = Publication("/chat", CHAT, "/talker")
+        good_node.publications["/chat"] = good
+        sub_node = await _node("/listener")
+        received: list[tuple[str, bytes]] = []
+        sub = Subscription(sub_node, "/chat", TopicType("*", tcpros.ANY_MD5, ""),
+                           lambda data, link: received.append((link.publisher_uri, bytes(data))))
+        sub_node.subscriptions["/chat"] = sub
+        uris = [good_node.uri] + [node.uri for node, _ in liars.values()]
+        sub.update(uris)
+        await until_async(lambda: len(good.links) == 1, 5)
+        for n in range(20):
+            good.publish(b"good %d" % n)
+            await asyncio.sleep(0.05)
+        await until_async(lambda: len(accepts["huge"]) >= 4 and len(accepts["slow"]) >= 2, 10)
+        assert [d for u, d in received if u == good_node.uri] == [b"good %d" % n for n in range(20)]
+        assert list(sub.links) == [good_node.uri]
+        # doubling delays: 0.1, 0.2, 0.4 s (each measured from the failure, which follows the accept at once)
+        gaps = [b - a for a, b in zip(accepts["huge"], accepts["huge"][1:])]
+        assert all(d - 0.01 <= g <= d + 0.15 for d, g in zip((0.1, 0.2, 0.4), gaps[:3])), gaps
+        assert len(accepts["refuse"]) == 1
+        sub.update(uris)  # the master lists it again (it advertised again): tried once more, at once
+        await until_async(lambda: len(accepts["refuse"]) == 2, 5)
+        assert [d for u, d in received if u == liars["cut"][0].uri][:2] == [b"m", b"m"]
+        await sub_node.stop()
+        for node, server in liars.values():
+            server.close()
+            await node.stop()
+        await good_node.stop()
+        gc.collect()
+        await asyncio.sleep(0.05)
+        return unhandled, {k: node.uri for k, (node, _) in liars.items()}
+
+    unhandled, uris = asyncio.run(main())
+    assert unhandled == []
+    lines = [r.getMessage() for r in caplog.records]
+    assert all("\n" not in line for line in lines)
+
+    def said(kind: str) -> list[str]:
+        return [line for line in lines if line.startswith("publisher %s" % uris[kind])]
+    assert said("refuse") == ["publisher %s on /chat: refused the connection: go away; dropping the connection until "
+                              "it advertises again" % uris["refuse"]] * 2
+    assert said("huge")[:2] == ["publisher %s (/liar) on /chat: frame of 2147483647 bytes exceeds the 1000000000 "
+                                "byte limit; dropping the connection, trying again in %s s" % (uris["huge"], d)
+                                for d in ("0.1", "0.2")]
+    assert said("slow")[0] == ("publisher %s on /chat: sent no whole connection header in 0.3 s (3 bytes came); "
+                               "dropping the connection, trying again in 0.1 s" % uris["slow"])
+    assert said("cut")[0] == ("publisher %s (/liar) on /chat: closed the connection in the middle of a frame (1000 of "
+                              "its 500000000 bytes); dropping the connection, trying again in 0.1 s" % uris["cut"])

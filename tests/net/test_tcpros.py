@@ -5,10 +5,12 @@ from __future__ import annotations
 import asyncio
 import struct
 
+import psutil
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from launcher.net import tcpros
 from launcher.net.tcpros import (WATCH_LOWAT, FrameCounter, FrameDecoder, FrameReader, InboundConnection, Publication, PublisherLink,
                              ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
                              decode_header, encode_frame, encode_header, transport_info, watch_publisher)
@@ -139,6 +141,37 @@ def test_frame_read_in_place_waits_for_the_rest_and_refuses_absurd_lengths():
     assert read_in_place(reader, frame[70_000:] + frame[:2], []) == [b"y" * 100_000] and reader.pending == 2
     with pytest.raises(TcprosError, match="exceeds"):
         read_in_place(FrameReader(limit=1000), struct.pack("<I", 0xFFFFFFF0) + b"xx", [])
+
+
+def test_a_claimed_length_costs_memory_only_as_its_bytes_come():
+    """A publisher may announce a frame up to the limit (roscpp's 10^9 bytes) and send little of it: the frame's
+    buffer grows with what came (1 MiB, then 16 times what came), not with what was announced."""
+    rss = psutil.Process().memory_info().rss
+    readers = [FrameReader() for _ in range(3)]
+    for reader in readers:  # 2.7 GB announced in all
+        assert read_in_place(reader, struct.pack("<I", 900_000_000) + b"z" * 100_000, []) == []
+        assert reader.partial() == "100000 of its 900000000 bytes" and reader.held == tcpros.FIRST_BODY
+    assert psutil.Process().memory_info().rss - rss < 50 << 20
+    # as more comes, the buffer grows to TRUST_FACTOR times what came, never to what was announced
+    reader = readers[0]
+    for sent in (1 << 20, 3 << 20, 20 << 20):
+        read_in_place(reader, b"z" * (sent - (reader.pending - 4)), [])
+        assert reader.pending - 4 == sent and sent <= reader.held <= tcpros.TRUST_FACTOR * sent, (sent, reader.held)
+    # and a large frame that does come whole is what was sent
+    big = bytes(range(256)) * ((3 << 20) // 256)
+    reader = FrameReader()
+    (got,) = read_in_place(reader, encode_frame(big), [1000, 2 << 20])
+    assert len(got) == len(big) and bytes(got) == big and reader.partial() == ""
+
+
+def test_what_a_close_would_cut_is_said_by_the_reader_and_the_counter():
+    for cut, words in ((0, ""), (2, "2 of the 4 bytes of its length"), (4, "0 of its 100000 bytes"),
+                       (70_004, "70000 of its 100000 bytes"), (100_004, "")):
+        stream = encode_frame(b"q" * 100_000)[:cut]
+        reader, counter = FrameReader(), FrameCounter()
+        read_in_place(reader, stream, [])
+        counter.feed(stream)
+        assert reader.partial() == counter.partial() == words, cut
 
 
 def test_transport_info_has_rosnode_info_shape():

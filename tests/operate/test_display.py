@@ -20,8 +20,16 @@ def node(name: str, state: str, **kw) -> dict:
 def test_a_node_that_does_not_run_shows_no_pid_cpu_or_rss(state):
     """The state model keeps the last sample of a run that ended: it is no node's use now."""
     rows = table({"nodes": [node("/a", "running", cpu=0.25, uptime=5.0), node("/b", state, cpu=0.5)]}).splitlines()[1:]
-    assert rows[1].split() == ["/a", "running", "123", "5s", "0", "-", "25%", "32.5MB", "localhost"]
-    assert rows[2].split() == ["/b", state, "-", "-", "0", "-", "-", "-", "localhost"]
+    assert rows[1].split() == ["/a", "running", "no", "123", "5s", "0", "-", "25%", "32.5MB", "localhost"]
+    assert rows[2].split() == ["/b", state, "no" if state == "hung" else "-", "-", "-", "0", "-", "-", "-",
+                               "localhost"]
+
+
+def test_registered_is_shown_apart_from_running():
+    rows = table({"nodes": [node("/a", "running", registered=True, uri="http://h:1/"),
+                            node("/b", "running", registered=False), node("/c", "waiting")]}).splitlines()[1:]
+    assert rows[0].split()[:3] == ["NODE", "STATE", "REG"]
+    assert [r.split()[2] for r in rows[1:]] == ["yes", "no", "-"]
 
 
 def test_colour_codes_are_taken_out_even_when_cut_between_two_reads():

@@ -122,12 +122,48 @@ def test_a_unit_not_ours_is_not_replaced(tmp_path, launch_file):
     assert gone.returncode == 1 and (units / "robot.service").exists()
 
 
+def test_a_dry_run_writes_the_unit_for_a_user_this_machine_does_not_have(tmp_path, launch_file):
+    """The README's `--run-as robot --dry-run`, on a machine without that user: the unit for the machine that has
+    it (its home taken as /home/USER), and a warning naming the user; a real install still refuses."""
+    path, _ = launch_file
+    user = "no-such-user-x"
+    dry = tool("install", str(path), "--run-as", user, "--system", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    assert "\nUser=%s\n" % user in dry.stdout and "\nEnvironment=ROS_HOME=/home/%s/.ros\n" % user in dry.stdout
+    assert dry.stderr.count("\n") == 1 and "warning: no user '%s' on this machine" % user in dry.stderr
+    done = tool("install", str(path), "--run-as", user, "--system", "--unit-dir", str(tmp_path / "units"))
+    assert done.returncode == 2 and "no user '%s' on this machine" % user in done.stderr
+    assert not (tmp_path / "units").exists()
+
+
+def test_installed_says_when_there_is_none(tmp_path):
+    units = tmp_path / "units"
+    listed = tool("installed", "--unit-dir", str(units), "--system")
+    assert (listed.returncode, listed.stdout) == (0, "no unit written by `launcher install` in %s\n" % units)
+    units.mkdir()
+    (units / "other.service").write_text("[Service]\nExecStart=/bin/true\n")  # (not ours: not listed)
+    assert tool("installed", "--unit-dir", str(units)).stdout.startswith("no unit written by `launcher install`")
+
+
 def test_bad_options_are_said(tmp_path, launch_file):
     path, _ = launch_file
-    assert "no user" in tool("install", str(path), "--run-as", "no-such-user-x", "--system", "--dry-run").stderr
+    assert "no user" in tool("install", str(path), "--run-as", "no-such-user-x", "--system").stderr
     assert "KEY=VALUE" in tool("install", str(path), "--env", "NOEQUALS", "--dry-run").stderr
     assert "--run-as is for a system unit" in tool("install", str(path), "--run-as", "root", "--user-unit",
                                                    "--dry-run").stderr
+
+
+def test_start_timeout_stays_above_the_launch_ready_timeout(tmp_path, launch_file):
+    assert install.timeout_start(install.UnitOptions("a", ())) == install.START_TIMEOUT_S
+    assert install.timeout_start(install.UnitOptions("a", (), ready_timeout=300.5)) == 301 + install.START_MARGIN_S
+    path, _ = launch_file
+    dry = tool("install", str(path), "--system", "--ready-timeout", "200", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    assert "TimeoutStartSec=%d\n" % (200 + install.START_MARGIN_S) in dry.stdout
+    exec_start = next(line for line in dry.stdout.splitlines() if line.startswith("ExecStart="))
+    assert exec_start.endswith("--screen --ready-timeout 200")  # the launch is told the same timeout
+    assert "TimeoutStartSec=120\n" in tool("install", str(path), "--system", "--dry-run").stdout
+    assert "greater than zero" in tool("install", str(path), "--ready-timeout", "0", "--dry-run").stderr
 
 
 def test_install_metrics_puts_the_address_on_the_launch_command(launch_file):

@@ -55,7 +55,32 @@ def test_a_run_killed_ended_without_a_word(tmp_path):
     assert last.ended_at is None and not last.still_running
     assert last.headline().split("\n")[0] == ("the last run, run-2, ended without a word after its last event at "
                                               "%s: its launch (pid 4242) was killed" % lastrun.when(T0 + 2))
-    assert [n["state"] for n in last.nodes()] == ["running", "running"]
+    # its nodes went with it (its watchdog kills them): never shown running
+    assert [(n["state"], n["reason"]) for n in last.nodes()] == [("stopped", "the launch was killed")] * 2
+
+
+def test_a_killed_launch_leaves_the_nodes_that_were_down_as_they_were(tmp_path):
+    run = make_run(tmp_path, "run-2b", [event(T0 + 1, "/a", "running"), event(T0 + 2, "/a", "respawning", exit_code=3),
+                                        event(T0 + 1, "/b", "fatal", exit_code=1, reason="failed 3 starts")],
+                   ["%s ... logging to x" % stamp(T0)])
+    nodes = lastrun.read(run).nodes()
+    assert [(n["name"], n["state"], n["reason"]) for n in nodes] == [("/a", "stopped", "the launch was killed"),
+                                                                     ("/b", "fatal", "failed 3 starts")]
+
+
+def test_each_nodes_last_exit_is_kept_from_its_events(tmp_path):
+    """The events file has no last_exit_*: the run's end of each node is where its exit fields are set anew."""
+    run = make_run(tmp_path, "run-2c", [event(T0 + 1, "/a", "running"), event(T0 + 2, "/a", "respawning", exit_code=3),
+                                        event(T0 + 3, "/a", "running", pid=101, restarts=1),
+                                        event(T0 + 4, "/a", "respawning", pid=101, exit_signal=11, restarts=1),
+                                        event(T0 + 5, "/a", "running", pid=102, restarts=2),
+                                        event(T0 + 1, "/b", "running"), event(T0 + 9, "/b", "stopped", exit_code=0),
+                                        {"event": "launch_ended", "time": T0 + 10, "reason": "SIGINT"}],
+                   ["%s ... logging to x" % stamp(T0)])
+    a, b = lastrun.read(run).nodes()
+    assert (a["state"], a["exit_code"], a["last_exit_code"], a["last_exit_signal"], a["last_exit_at"]) == (
+        "running", None, None, 11, T0 + 4)
+    assert (b["last_exit_code"], b["last_exit_signal"], b["last_exit_at"]) == (0, None, T0 + 9)
 
 
 def test_a_launch_ended_event_marks_the_end(tmp_path):

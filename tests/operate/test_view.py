@@ -27,13 +27,13 @@ def test_rows_are_launcher_status_columns_with_uptime_from_the_clock():
     v = view(node("/a", cpu=0.25, rss=50 * 1000 * 1000), node("/b", "stopped", None, exit_code=0))
     rows = v.table_rows(10, T0 + 75)
     a = rows[0][0].split()
-    assert a == [">", "/a", "running", "100", "1m15s", "0", "-", "25%", "50MB", "localhost"]
+    assert a == [">", "/a", "running", "no", "100", "1m15s", "0", "-", "25%", "50MB", "localhost"]
     assert rows[0][1:] == ("green", True)
-    assert rows[1][0].split() == ["/b", "stopped", "-", "-", "0", "code", "0", "-", "-", "localhost"]
+    assert rows[1][0].split() == ["/b", "stopped", "-", "-", "-", "0", "code", "0", "-", "-", "localhost"]
     assert rows[1][1:] == ("grey", False)
     # the same cells as `launcher status` gives for that node
     assert tuple(a[1:]) == status.row(dict(v.nodes["/a"], uptime=75.0))
-    assert v.table_header(T0).split() == list(status.HEADER[:5]) + ["LAST", "EXIT"] + list(status.HEADER[6:])
+    assert v.table_header(T0).split() == list(status.HEADER[:6]) + ["LAST", "EXIT"] + list(status.HEADER[7:])
 
 
 def test_a_change_updates_the_row_and_says_it_in_the_pane():
@@ -43,11 +43,17 @@ def test_a_change_updates_the_row_and_says_it_in_the_pane():
                {"seq": 4, "time": T0 + 6, "node": "/a", "state": "running", "pid": 222, "restarts": 1}])
     assert v.seq == 4
     row = v.table_rows(5, T0 + 16)[0][0].split()
-    assert row[2:6] == ["running", "222", "10s", "1"]  # uptime from the new run's start
-    assert v.output_rows(10) == ["[/a] respawning SIGKILL", "[/a] running pid 222"]
-    v.changes([{"seq": 5, "time": T0 + 7, "node": "/a", "state": "stopped", "pid": 222, "exit_code": 0}])
-    assert v.table_rows(5, T0 + 20)[0][0].split()[2:5] == ["stopped", "-", "-"]
-    v.changes([{"seq": 6, "time": T0, "node": "/unknown", "state": "running"}])  # (not in the status: ignored)
+    assert row[2:7] == ["running", "no", "222", "10s", "1"]  # uptime from the new run's start
+    # each change in the events file's words (`launcher events` without its time and node)
+    assert v.output_rows(10) == ["[/a] respawning pid 100 signal 9 restarts 0", "[/a] running pid 222 restarts 1"]
+    v.changes([{"seq": 5, "time": T0 + 6.5, "node": "/a", "state": "running", "pid": 222, "restarts": 1,
+                "registered": True, "uri": "http://h:5/"}])
+    assert v.table_rows(5, T0 + 16)[0][0].split()[2:4] == ["running", "yes"]
+    assert v.output_rows(10)[-1] == "[/a] running pid 222 registered at http://h:5/ restarts 1"
+    v.changes([{"seq": 6, "time": T0 + 7, "node": "/a", "state": "stopped", "pid": 222, "exit_code": 0,
+                "registered": False, "uri": ""}])
+    assert v.table_rows(5, T0 + 20)[0][0].split()[2:6] == ["stopped", "-", "-", "-"]
+    v.changes([{"seq": 7, "time": T0, "node": "/unknown", "state": "running"}])  # (not in the status: ignored)
     assert list(v.nodes) == ["/a"]
 
 
@@ -134,11 +140,11 @@ def test_rows_fit_80_columns_with_every_column_and_follow_the_width():
     rows = v.table_rows(10, T0 + 86399, 80)
     header = v.table_header(T0)
     assert all(len(text) <= 80 for text, _, _ in rows) and len(header) <= 80
-    assert header.split() == ["NODE", "STATE", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
+    assert header.split() == ["NODE", "STATE", "REG", "PID", "UP", "RST", "EXIT", "CPU", "RSS", "HOST"]
     a, b = rows[0][0].split(), rows[1][0].split()
     assert a[1].startswith("\u2026") and long.endswith(a[1][1:]) and len(a[1]) >= 10  # (the name's end)
-    assert a[2:] == ["running", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
-    assert b[:6] == ["/b", "respawning", "-", "-", "0", "SIGKILL"]
+    assert a[2:] == ["running", "no", "4194301", "23h59m", "12", "-", "125%", "1.5GB", "localhost"]
+    assert b[:7] == ["/b", "respawning", "-", "-", "-", "0", "SIGKILL"]
     assert b[-1].startswith("robot-arm-") and b[-1].endswith("\u2026")  # (a long host cut, still there)
     # wide enough: nothing shortened, the header's own words
     rows = v.table_rows(10, T0 + 86399, 200)
@@ -165,3 +171,45 @@ def test_the_title_leaves_out_the_run_id_when_narrow():
     assert v.title() == "launch http://127.0.0.1:35315/  run 147fb780-e92a-11f1-9e20-02fc00000001  1/2 running"
     assert v.title(80) == "launch http://127.0.0.1:35315/  1/2 running"
     assert v.title(120) == v.title()
+
+
+def test_the_pane_has_one_line_per_change_of_the_events_file_and_the_filter_applies_to_it():
+    """A restart by an operator: the steps the events file leaves out (the long poll marks them internal:
+    running -> stopping, stopped -> starting) give no line; the others one each, in `launcher events`' words."""
+    v = view(node("/r2/talker", pid=21006), node("/r2/sub", pid=300))
+    base = {"node": "/r2/talker", "host": "localhost", "exit_code": None, "exit_signal": None, "failures": 0,
+            "over_limit": {}, "next_start": None}
+    v.changes([dict(base, seq=1, time=T0, state="running", phase="stopping", pid=21006, restarts=0, reason="",
+                    internal=True),
+               dict(base, seq=2, time=T0 + 1, state="stopped", phase="stopped", pid=21006, exit_code=0, restarts=0,
+                    reason="stopped by operator"),
+               dict(base, seq=3, time=T0 + 1, state="waiting", phase="starting", pid=21006, exit_code=0, restarts=0,
+                    reason="started by operator", internal=True),
+               dict(base, seq=4, time=T0 + 2, state="running", phase="running", pid=21010, restarts=1, reason=""),
+               dict(base, seq=5, time=T0 + 2, node="/r2/sub", state="stopped", phase="stopped", pid=300,
+                    restarts=0, reason="stopped by operator")])
+    assert v.output_rows(10) == ["[/r2/talker] stopped pid 21006 exit code 0 restarts 0 (stopped by operator)",
+                                 "[/r2/talker] running pid 21010 restarts 1",
+                                 "[/r2/sub] stopped pid 300 restarts 0 (stopped by operator)"]
+    v.output("/r2/sub", "a line of sub's\n")
+    v.output("/r2/talker", "hello\n")
+    v.set_filter("SUB")
+    assert v.output_rows(10) == ["[/r2/sub] stopped pid 300 restarts 0 (stopped by operator)",
+                                 "[/r2/sub] a line of sub's"]
+    v.set_filter("")
+    assert len(v.output_rows(10)) == 5
+
+
+def test_the_last_exit_stays_while_the_node_runs_again():
+    """LAST EXIT is the last run that ended, not the current one: a crash loop shows its code between crashes."""
+    v = view(node("/crasher", last_exit_code=None, last_exit_signal=None, last_exit_at=None))
+    for i, (t, state, code) in enumerate([(1, "respawning", 3), (2, "running", None), (3, "respawning", 3),
+                                          (4, "running", None)]):
+        v.changes([{"seq": i + 1, "time": T0 + t, "node": "/crasher", "state": state, "pid": 100 + i,
+                    "exit_code": code, "exit_signal": None, "restarts": i // 2}])
+        n = v.nodes["/crasher"]
+        assert (n["exit_code"], n["last_exit_code"], n["last_exit_at"]) == (code, 3, T0 + 1 + i // 2 * 2)
+        assert v.table_rows(1, T0 + 5)[0][0].split()[7:9] == ["code", "3"]
+    v.changes([{"seq": 9, "time": T0 + 9, "node": "/crasher", "state": "respawning", "pid": None, "exit_code": None,
+                "exit_signal": 11}])
+    assert status.last_exit(v.nodes["/crasher"]) == "SIGSEGV" and v.nodes["/crasher"]["last_exit_at"] == T0 + 9

@@ -11,8 +11,10 @@ from launcher.model.config import NodePolicy
 from launcher.services.masterlink import start_master
 from launcher.output import console
 from launcher.process.spawn import ProcessSpec
+from launcher.fleet import machine
 from launcher.fleet.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor
+from launcher.health.registration import Registrations
 
 from helpers import ROS_PYTHON
 
@@ -45,14 +47,18 @@ def python_node(tmp_path, name: str, code: str, **kw) -> ProcessSpec:
 
 
 class Events:
-    """Every fleet change as (monotonic time, node, state, reason)."""
+    """Every fleet change as (monotonic time, node, state, reason); `registrations`: (monotonic time, node, uri
+    or "" when it went) of each registration's coming and going."""
 
     def __init__(self, fleet: Fleet):
         self.items: list[tuple[float, str, str, str]] = []
+        self.registrations: list[tuple[float, str, str]] = []
         fleet.listeners.append(self._changed)
 
     def _changed(self, change: Change) -> None:
-        if visible(change):
+        if change.event.kind in (machine.REGISTERED, machine.UNREGISTERED):
+            self.registrations.append((time.monotonic(), change.new.name, change.new.uri))
+        elif visible(change):
             s = change.status
             self.items.append((time.monotonic(), s.name, s.state, s.reason))
 
@@ -64,6 +70,7 @@ async def supervisor_with_master(environ=None):
     """(our master on a free port, a supervisor) on the running loop."""
     master = await start_master(0, dict(environ or os.environ))
     sup = Supervisor(exit_when_all_dead=False, sigint_timeout=5.0, sigterm_timeout=1.0)
+    Registrations(master.graph, sup.fleet)  # (its records told of their registrations, as a run's are)
     return master, sup
 
 

@@ -18,6 +18,7 @@ import textwrap
 
 from helpers import until_async
 from launcher.model.config import Machine, Node
+from launcher.model.graph import Graph
 from launcher.fleet import machine as m
 from launcher.fleet.state import Fleet
 from launcher.remote import parent as remote_parent
@@ -96,7 +97,7 @@ def test_a_session_cut_during_a_launch_call_queues_the_node_once(tmp_path, monke
                                             program=script(tmp_path / "child", CHILD))
         fleet = Fleet()
         await parent.start()
-        parent.attach(fleet)
+        parent.attach(fleet, Graph())
         try:
             child = next(iter(parent.children.values()))
             await until_async(lambda: launches(log) == [(1, 1)], 20, what="the first launch call under way")

@@ -34,7 +34,8 @@ def test_remote_command_runs_roslaunchs_child_command_under_the_watch_loop():
                              "http://10.0.0.1:11311/", 15.0, 2.0)
     argv = shlex.split(cmd)
     assert argv[:2] == ["sh", "-c"]
-    assert ("\nenv ROS_MASTER_URI=http://10.0.0.1:11311/ /opt/ros/env.sh roslaunch -c arm.local-0 "
+    # (marked with the watch loop's pid, which its stop looks for in /proc/*/environ)
+    assert ("\nenv LAUNCHER_SESSION=$$ ROS_MASTER_URI=http://10.0.0.1:11311/ /opt/ros/env.sh roslaunch -c arm.local-0 "
                               "-u http://10.0.0.1:4000/ --run_id RID --sigint-timeout 15.0 --sigterm-timeout 2.0 & child=$!\n" in argv[2])
 
 

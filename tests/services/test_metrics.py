@@ -7,7 +7,6 @@ import asyncio
 import threading
 import time
 import urllib.request
-from typing import NamedTuple
 
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -50,32 +49,17 @@ def _status(record: Record, state: str, cpu_seconds: float = 0.0, rss: int | Non
     return status
 
 
-class LaterRecord(NamedTuple):
-    """A record as issues 33 and 34 make it (registered, last_exit_code), for the one place that reads them."""
-
-    name: str
-    host: str
-    state: str
-    restarts: int
-    exit_code: int | None
-    registered: bool
-    last_exit_code: int | None
-
-
-def test_node_columns_read_the_record_and_the_masters_registry_until_the_record_says():
-    r = Record("/a", "a-1", "localhost", machine.Rules(), state=machine.RESPAWNING, restarts=4, exit_code=3)
+def test_node_columns_are_what_launcher_status_shows():
+    r = Record("/a", "a-1", "localhost", machine.Rules(), state=machine.RUNNING, restarts=4, registered=True)
     b = Record("/b", "b-1", "localhost", machine.Rules(), state=machine.STOPPING)
-    statuses = (_status(r, "respawning", 1.5), _status(b, "running", 2.0, 1000))
-    assert metrics.node_columns((r, b), statuses, {"/a": object()}) == {
-        "state": ("respawning", "running"), "running": (False, True), "registered": (True, False),
-        "restarts": (4, 0), "last_exit_code": (3, None), "cpu_seconds": (1.5, 2.0), "rss": (None, 1000)}
-    assert metrics.node_columns((r, b), statuses, None)["registered"] == (None, None)  # (a master found running)
-    # once the record holds them (issues 33, 34), its own fields win
-    later = LaterRecord("/a", "localhost", machine.RUNNING, 4, None, False, 7)
-    got = metrics.node_columns((later,), statuses[:1], {"/a": object()})
-    assert got["registered"] == (False,) and got["last_exit_code"] == (7,)
-    remote = r._replace(host="arm.local")
-    assert metrics.node_columns((remote, b), statuses, None)["cpu_seconds"] == (None, 2.0)
+    c = Record("/c", "c-1", "arm.local", machine.Rules(), state=machine.RESPAWNING, exit_code=3)
+    statuses = (_status(r, "running", 1.5), _status(b, "running", 2.0, 1000), _status(c, "respawning"))
+    statuses[0].last_exit_code = 3  # (kept while it runs again)
+    statuses[2].last_exit_code = 3
+    assert metrics.node_columns((r, b, c), statuses) == {
+        "state": ("running", "running", "respawning"), "running": (True, True, False),
+        "registered": (True, False, False), "restarts": (4, 0, 0), "last_exit_code": (3, None, 3),
+        "cpu_seconds": (1.5, 2.0, None), "rss": (None, 1000, None)}  # (another machine's CPU is not sampled here)
 
 
 def snapshot(rows: list, **kw) -> Snapshot:

@@ -125,6 +125,7 @@ def sandbox(tmp_path_factory):
 
 
 _LOCATED = re.compile(r"^(.+?):(\d+): ", re.S)
+_INCLUDED = re.compile(r"\n  included from (.+):(\d+)$")
 
 
 def load_and_compute(path, env, packages):
@@ -138,7 +139,9 @@ def load_and_compute(path, env, packages):
         config = load([str(path)], [], environ=env, packages=packages, core=False)
     except LaunchError as e:
         text = str(e)
-        m = _LOCATED.match(text)  # (the launch file, or a file it reads: a YAML file, an include)
+        # the launch file, or a file it reads (a YAML file, an include); an include that cannot be read at all is
+        # located by the chain's `included from FILE:LINE` (<include file="////">: "Is a directory")
+        m = _LOCATED.match(text) or (e.include_chain and _INCLUDED.search(text))
         assert m and os.path.isfile(m.group(1)) and int(m.group(2)) >= 1, text[:500]
         assert len(text) < 5000, "a %d-character error message" % len(text)
         return e

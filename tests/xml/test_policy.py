@@ -29,7 +29,7 @@ def test_every_attribute_on_a_node(ld):
                 on_fatal="shutdown" restart_warn_threshold="7" sigint_timeout="3" sigterm_timeout="0.5"
                 spawn_delay="1.5" wait_for="topic:/scan service:/static_map param:/robot_description node:/amcl"
                 wait_timeout="20" hang_timeout="6" memory_limit="500MB" cpu_limit="0.9" on_limit="restart"
-                enable_coredumps="true"/>
+                enable_coredumps="true" registers="false"/>
         </launch>""")
     assert not c.warnings
     assert policies(c)["/n"] == NodePolicy(
@@ -38,7 +38,7 @@ def test_every_attribute_on_a_node(ld):
         sigint_timeout=3.0, sigterm_timeout=0.5, spawn_delay=1.5,
         wait_for=(("topic", "/scan"), ("service", "/static_map"), ("param", "/robot_description"), ("node", "/amcl")),
         wait_timeout=20.0, hang_timeout=6.0, memory_limit=500_000_000, cpu_limit=0.9, on_limit="restart",
-        enable_coredumps=True)
+        enable_coredumps=True, registers=False)
 
 
 def test_scoped_defaults_nearest_wins(ld):

@@ -23,10 +23,19 @@ function size(n) {
   for (const [scale, unit] of [[1e9, "GB"], [1e6, "MB"], [1e3, "kB"]]) if (n >= scale) return (n / scale).toFixed(1) + unit;
   return n + "B";
 }
-function lastExit(n) {
-  if (n.exit_signal !== null && n.exit_signal !== undefined) return SIGNALS[n.exit_signal] || "signal " + n.exit_signal;
-  if (n.exit_code !== null && n.exit_code !== undefined) return "code " + n.exit_code;
+const given = (v) => v !== null && v !== undefined;
+function lastExit(n) {  // how its last run that ended did end, also while it runs again (launcher status's LAST EXIT)
+  const [code, sig] = "last_exit_code" in n ? [n.last_exit_code, n.last_exit_signal] : [n.exit_code, n.exit_signal];
+  if (given(sig)) return SIGNALS[sig] || "signal " + sig;
+  if (given(code)) return "code " + code;
   return "-";
+}
+function keepLastExit(n, c) {  // a change whose exit fields are set anew is a run's end (status.keep_last_exit)
+  const before = [n.exit_code, n.exit_signal].map((v) => given(v) ? v : null);
+  const after = [c.exit_code, c.exit_signal].map((v) => given(v) ? v : null);
+  if ((after[0] !== null || after[1] !== null) && (after[0] !== before[0] || after[1] !== before[1])) {
+    [n.last_exit_code, n.last_exit_signal, n.last_exit_at] = [after[0], after[1], c.time];
+  }
 }
 function spark(values, max, color) {
   const w = 60, h = 16;
@@ -42,7 +51,7 @@ function rowOf(name) {
     tr = document.createElement("tr");
     tr.id = "row-" + name;
     tr.dataset.node = name;
-    tr.innerHTML = '<td class="name"></td><td class="state"></td><td class="pid num"></td><td class="uptime num"></td>' +
+    tr.innerHTML = '<td class="name"></td><td class="state"></td><td class="reg"></td><td class="pid num"></td><td class="uptime num"></td>' +
       '<td class="restarts num"></td><td class="exit"></td><td class="cpu num"></td><td class="rss num"></td>' +
       '<td class="host"></td><td class="hist"><svg class="spark" width="60" height="16"></svg></td><td class="actions">' +
       '<button data-verb="start">start</button> <button data-verb="stop">stop</button> ' +
@@ -61,6 +70,8 @@ function draw(name) {
   cell("state").textContent = n.state + (n.over_limit && Object.keys(n.over_limit).length ? " (over " +
     Object.keys(n.over_limit).join(", ") + ")" : "");
   cell("state").className = "state state-" + n.state + (n.over_limit && Object.keys(n.over_limit).length ? " over" : "");
+  // a process runs ("running"); a ROS node is up once its run is registered with the master too
+  cell("reg").textContent = ["running", "stalled", "hung"].includes(n.state) ? (n.registered ? "yes" : "no") : "-";
   cell("pid").textContent = running && n.pid ? n.pid : "-";
   cell("uptime").textContent = running && n.started_at ? duration(Date.now() / 1000 - n.started_at) : "-";
   cell("restarts").textContent = text(n.restarts || 0);
@@ -97,14 +108,17 @@ function handle(ev) {
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
+      if (!c.node) continue;  // (a line of the run's own: a reload, the launch's end)
       let n = nodes.get(c.node);
       if (!n) { n = {name: c.node}; nodes.set(c.node, n); }  // (a node a reload added)
       const newRun = c.state === "running" && (n.state !== "running" || n.pid !== c.pid);
+      keepLastExit(n, c);
       Object.assign(n, c);
       if (newRun) n.started_at = c.time;
       if (c.state !== "running") { n.cpu = null; n.rss = null; }
       draw(c.node);
-      addOutput(c.node, c.state + (c.state === "running" && c.pid ? " pid " + c.pid : "") + "\n");
+      addOutput(c.node, c.state + (c.state === "running" && c.pid ? " pid " + c.pid : "") +
+        (c.registered ? " registered at " + c.uri : "") + "\n");
     }
   } else if (ev.type === "samples") {
     for (const [name, s] of Object.entries(ev.samples)) {
@@ -131,6 +145,18 @@ setInterval(() => {
     draw(name);
   }
 }, 1000);
+
+// The address `launcher web` printed on its terminal carries the run's token in its fragment (#token=...: a
+// fragment never reaches a server or a Referer): kept in this tab, and taken out of the address bar (and history).
+function takeToken() {
+  const m = /(?:^#|&)token=([^&]*)/.exec(location.hash);
+  if (!m) return;
+  const t = decodeURIComponent(m[1]).trim();
+  if (t) sessionStorage.setItem("launcher-token", t);
+  const rest = location.hash.slice(1).split("&").filter((p) => !p.startsWith("token=")).join("&");
+  history.replaceState(null, "", location.pathname + location.search + (rest ? "#" + rest : ""));
+}
+takeToken();
 
 function token() {
   let t = sessionStorage.getItem("launcher-token");

@@ -1,0 +1,98 @@
+"""Which node a registration on our master is: by its name, or by the process that made it (getPid at its URI,
+in the node's process group), told to the fleet as the master tells it; a master found running is checked by
+the process answering at the URI (an earlier run's registration left behind does not count)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+
+from launcher.fleet import machine as m
+from launcher.fleet.machine import Event, Rules
+from launcher.fleet.state import Fleet
+from launcher.health.registration import Registrations
+from launcher.model.config import NodePolicy
+from launcher.model.graph import Graph
+from launcher.net.slave import SlaveNode
+from launcher.net.tcpros import TopicType
+from launcher.services.masterlink import start_master
+
+from helpers import until_async
+
+CHAT = TopicType("std_msgs/String", "992ce8a1687cec8c8bd883ec73ca41d1", "string data\n")
+
+
+def running(fleet: Fleet, name: str, pid: int, rules: Rules = Rules()) -> None:
+    fleet.add(name, rules=rules)
+    fleet.apply(name, Event(m.START))
+    fleet.apply(name, Event(m.SPAWNED, pid=pid))
+
+
+async def node(name: str, master_uri: str) -> SlaveNode:
+    """An in-process node (this process: getPid answers os.getpid(), of the group os.getpgrp()) that registers."""
+    n = SlaveNode(name, master_uri, host="127.0.0.1")
+    await n.start()
+    await n.advertise("/chatter", CHAT)
+    return n
+
+
+def test_a_registration_is_a_nodes_by_its_name_or_by_its_process():
+    async def main():
+        master = await start_master(0, dict(os.environ))
+        fleet = Fleet()
+        registrations = Registrations(master.graph, fleet)
+        nodes = []
+        try:
+            # /wrapper's process group is this process's: whatever registers from here is its run
+            running(fleet, "/wrapper", os.getpgrp())
+            running(fleet, "/talker", 99999999)  # (by name: its process is not asked)
+            running(fleet, "/helper", os.getpgrp(), Rules(policy=NodePolicy(registers=False)))
+            talker = await node("/talker", master.uri)
+            nodes.append(talker)
+            assert (fleet.records["/talker"].registered, fleet.records["/talker"].uri) == (True, talker.uri)
+            anonymous = await node("/wrapped_4321_1700000000", master.uri)
+            nodes.append(anonymous)
+            await until_async(lambda: fleet.records["/wrapper"].registered, 10, what="found by its process")
+            assert fleet.records["/wrapper"].uri == anonymous.uri
+            assert not fleet.records["/helper"].registered  # (it awaits no registration: never looked for)
+            # the registrations go with the nodes' own unregistering
+            await anonymous.stop()
+            await talker.stop()
+            nodes.clear()
+            assert not fleet.records["/wrapper"].registered and not fleet.records["/talker"].registered
+            # a registration no node of the launch waits for is nobody's (and nobody's process is asked)
+            fleet.apply("/wrapper", Event(m.EXITED_, exit_code=0))
+            stranger = await node("/stranger", master.uri)
+            nodes.append(stranger)
+            await asyncio.sleep(0.3)
+            assert not registrations.by_uri and not any(r.registered for r in fleet.records.values())
+        finally:
+            for n in nodes:
+                await n.stop()
+            registrations.close()
+            await master.stop()
+    asyncio.run(main())
+
+
+def test_on_a_master_found_running_a_registration_by_name_counts_once_its_process_is_the_runs():
+    async def main():
+        graph = Graph()  # (a watcher's, as services/masterwatch writes it)
+        fleet = Fleet()
+        registrations = Registrations(graph, fleet, verify=True)
+        master = await start_master(0, dict(os.environ))  # (somewhere for the in-process node to register)
+        left = await node("/left", master.uri)
+        try:
+            running(fleet, "/driver", 99999999)  # an earlier run's URI answers with a process not of this run
+            graph.node("/driver", left.uri)
+            await asyncio.sleep(0.3)
+            assert not fleet.records["/driver"].registered
+            running(fleet, "/arm", os.getpgrp())  # this run's process answers there
+            graph.node("/arm", left.uri)
+            await until_async(lambda: fleet.records["/arm"].registered, 10, what="checked by its process")
+            graph.node("/arm", None)  # (gone from the master)
+            assert not fleet.records["/arm"].registered
+        finally:
+            await left.stop()
+            registrations.close()
+            await master.stop()
+    asyncio.run(main())
