@@ -77,6 +77,7 @@ ONLY = {_ + module: {_ + d for d in deps.split()} for module, deps in {
     "model.names": "", "model.errors": "", "model.units": "", "model.suggest": "", "model.shellwords": "",
     "model.runopts": "", "model.token": "", "model.patterns": "", "model.config": "model.names",
     "workspace.roshome": "", "workspace.nodepython": "", "workspace.crawlcache": "workspace.roshome",
+    "master.callstats": "",
 }.items()}
 
 
@@ -150,3 +151,19 @@ def test_only_the_master_and_its_watcher_ask_about_registrations():
     assert asking == {}, "asks the master about registrations (listen to model.graph / the fleet instead)"
     assert "launcher.services.masterwatch" in calls  # (the check sees what it looks for)
     assert set(CLIENTS) <= set(calls), "a client no longer asks: take it off the list"
+
+
+def test_the_metrics_are_made_in_one_module():
+    """prometheus_client is the exporter's (services/metrics.py) alone: the rest of the launch counts in plain
+    data (master/callstats.py, the fleet) and never pays for the library's import or its locks."""
+    users = set()
+    for dirpath, _dirs, files in os.walk(ROOT):
+        for f in files:
+            if f.endswith(".py"):
+                tree = ast.parse(open(os.path.join(dirpath, f)).read())
+                for node in ast.walk(tree):
+                    names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                             [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+                    if any(n.split(".")[0] == "prometheus_client" for n in names):
+                        users.add(os.path.relpath(os.path.join(dirpath, f), ROOT))
+    assert users == {os.path.join("services", "metrics.py")}

@@ -99,6 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "state, CPU, RSS and output; keys start, stop and restart nodes (q or Ctrl-C stops the launch)")
     p.add_argument("--web", metavar="[ADDR:]PORT", help="the live view as a web page at this address (loopback "
                    "unless an address is given; start/stop/restart need the run's token)")
+    p.add_argument("--metrics", metavar="[ADDR:]PORT", help="serve Prometheus metrics at http://ADDR:PORT/metrics "
+                   "(loopback unless an address is given)")
     p.add_argument("--master-allow", "--allow", dest="master_allow", action="append", metavar="CIDR",
                    help="the master started here answers only clients from these networks (repeat the "
                         "option or separate with commas), loopback and this machine's addresses")

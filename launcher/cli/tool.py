@@ -32,6 +32,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
            "keys (q leaves it running)"),
     "web": ("launcher.operate.web", "the live view of a running launch as a web page ([ADDR:]PORT, loopback unless "
             "an address is given)"),
+    "report": ("launcher.operate.report", "one .tar.gz of a run (the last one by default) for a bug report: logs, "
+               "output, parameters, files, versions; secrets left out"),
     "check": ("launcher.cli.check", "check launch files without running them, over every if/unless branch"),
     "bag": ("launcher.bag.main", "record, play, inspect and reindex ROS 1 bags (rosbag's options; no ROS needed)"),
     "install": ("launcher.operate.install", "write a systemd unit that runs a launch at boot (--dry-run prints it)"),
@@ -51,7 +53,7 @@ def usage() -> str:
 
 
 # The third-party packages launcher depends on (pyproject.toml), by their import names.
-REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml", "prompt_toolkit")
+REQUIRED_PACKAGES = ("yaml", "psutil", "rosbags", "lxml", "prompt_toolkit", "prometheus_client")
 
 
 def main(argv: list[str] | None = None) -> int:

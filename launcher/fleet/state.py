@@ -68,7 +68,8 @@ class NodeStatus:
 
     __slots__ = ("name", "process", "host", "state", "phase", "pid", "started_at", "restarts", "spawn_count",
                  "exit_code", "exit_signal", "next_start", "reason", "failures", "cpu", "rss", "history",
-                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at", "registered", "uri")
+                 "over_limit", "last_exit_code", "last_exit_signal", "last_exit_at", "registered", "uri",
+                 "cpu_seconds")
 
     def __init__(self, name: str, process: str = "", host: str = LOCAL_HOST):
         self.name = name  # the ROS node name, e.g. /robot/driver
@@ -92,6 +93,8 @@ class NodeStatus:
         self.failures = 0  # failed starts in a row (runs shorter than respawn_min_uptime), for backoff and FATAL
         self.cpu: float | None = None  # cores used over the last sample period
         self.rss: int | None = None  # bytes, the node's whole process group
+        # CPU seconds used by all its runs so far, as sampled (a counter: it never goes down across respawns)
+        self.cpu_seconds = 0.0
         self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
         # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
         self.over_limit: dict[str, float] = {}
@@ -112,7 +115,8 @@ class NodeStatus:
                 "next_start": self.next_start, "reason": self.reason, "failures": self.failures, "cpu": self.cpu,
                 "rss": self.rss, "over_limit": dict(self.over_limit), "last_exit_code": self.last_exit_code,
                 "last_exit_signal": self.last_exit_signal, "last_exit_at": self.last_exit_at,
-                "registered": self.registered, "uri": self.uri}
+                "registered": self.registered, "uri": self.uri,
+                "cpu_seconds": round(self.cpu_seconds, 3)}
 
 
 class Change(NamedTuple):
@@ -281,10 +285,13 @@ class Fleet:
             status.cpu = status.rss = None  # (a stopped node uses nothing: no stale sample)
         return status
 
-    def sample(self, name: str, cpu: float, rss: int) -> None:
+    def sample(self, name: str, cpu: float, rss: int, cpu_time: float = 0.0) -> None:
+        """A running node's CPU (cores over the last period), RSS (bytes), and the CPU seconds it used since its
+        previous sample (`cpu_time`, added to its counter)."""
         status = self.nodes.get(name)
         if status is not None and status.state == RUNNING:
             status.cpu, status.rss = cpu, rss
+            status.cpu_seconds += cpu_time
             status.history.append((time.time(), cpu, rss))
 
     def __iter__(self) -> Iterable[NodeStatus]:

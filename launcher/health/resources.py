@@ -174,10 +174,11 @@ class ResourceMonitor:
         for pgid, (ticks, pages) in totals.items():
             proc = running[pgid]
             since, before = self._last.get(pgid, (self.supervisor.fleet.records[proc.spec.node_name].started, 0))
-            cpu = max(0, ticks - before) / CLOCK_TICKS / max(now - since, 1e-3)
+            used = max(0, ticks - before) / CLOCK_TICKS  # (a member reaped by another process: its ticks leave)
+            cpu = used / max(now - since, 1e-3)
             rss = pages * PAGE_SIZE
             last[pgid] = (now, ticks)
-            self.supervisor.fleet.sample(proc.spec.node_name, cpu, rss)
+            self.supervisor.fleet.sample(proc.spec.node_name, cpu, rss, used)
             self._check_limits(proc, cpu, rss)
         self._last = last
 

@@ -85,6 +85,11 @@ class TopicWatch:
                                                                                       self.min_rate)
         return ""
 
+    def rate(self, now: float) -> float:
+        """Messages a second over the last `window` seconds (over the time since the run started, when shorter)."""
+        self._trim(now)
+        return len(self.times) / max(min(self.window, now - self.started_at), 1e-3)
+
     def period(self) -> float:
         """How often the verdict is worth asking for."""
         shortest = min(x for x in (self.timeout, self.window) if x is not None)
@@ -99,6 +104,8 @@ class StallWatch:
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
         self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
+        # node name -> its watched topics' TopicWatch, while its run is watched (what launch --metrics reads)
+        self.watches: dict[str, dict[str, TopicWatch]] = {}
         self.watched: set[Any] = set()  # the NodeProcesses whose current run is watched once registered
         supervisor.fleet.listeners.append(self._changed)
 
@@ -144,6 +151,7 @@ class StallWatch:
         links: dict[str, PublisherWatch] = {}
         period = min(w.period() for w in watches.values())
         stalled = False
+        self.watches[proc.spec.node_name] = watches
         try:
             while self._current(proc, popen):
                 for topic, watch in watches.items():
@@ -163,6 +171,8 @@ class StallWatch:
                     self.supervisor.unstalled(proc, "every watched topic is published as it should be")
                 await asyncio.sleep(period)
         finally:
+            if self.watches.get(proc.spec.node_name) is watches:
+                del self.watches[proc.spec.node_name]
             for link in links.values():
                 link.close()
 

@@ -9,6 +9,7 @@ from typing import Any, Mapping, NamedTuple
 
 from launcher import compat
 from launcher.master.api import MasterApi, unsendable
+from launcher.master.callstats import CallStats
 from launcher.master.masterlog import mlog
 from launcher.master.notify import Notifier
 from launcher.model.graph import Graph
@@ -107,6 +108,7 @@ class Master:
         self._api: Any = None
         self._tree = ParamTree()
         self._purges: set[asyncio.Task] = set()  # (process_ended's checks under way)
+        self.calls = CallStats()  # its calls by method and their latency (launch --metrics)
         # what is registered, told as it changes: the launch listens here rather than asking over XML-RPC
         self.graph = Graph()
 
@@ -125,8 +127,10 @@ class Master:
         self._notifier = Notifier(timeout=self._notify_timeout)
         self._api = MasterApi(self._notifier, self._tree, graph=self.graph)
         self._api.on_shutdown = self._on_shutdown
+        self.calls = CallStats(list(self._api.methods) + ["system.multicall"])
         self._server = XmlRpcServer(self._api.dispatch, self.host, self.port, multicall=True,
-                                    allow=self._allow.allows if self._allow is not None else None)
+                                    allow=self._allow.allows if self._allow is not None else None,
+                                    on_call=self.calls.observe)
         try:
             await self._server.start()
         except OSError:

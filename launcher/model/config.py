@@ -142,6 +142,7 @@ class _LaunchConfigFields(NamedTuple):
     # <rosparam command="delete|dump">, in document order, to run before params are set
     # (as roslaunch's setup executables): ("delete", key, None) or ("dump", key, file)
     rosparam_commands: tuple[tuple[str, str, str | None], ...]
+    yaml_files: tuple[str, ...]  # the YAML files its <rosparam file=...> loaded (what `launcher report` copies)
 
 
 class LaunchConfig(_LaunchConfigFields):
@@ -159,9 +160,10 @@ class LaunchConfig(_LaunchConfigFields):
                 params: dict[str, Param] | None = None, clear_params: tuple[str, ...] = (),
                 machines: dict[str, Machine] | None = None, files: tuple[str, ...] = (),
                 warnings: tuple[str, ...] = (),
-                rosparam_commands: tuple[tuple[str, str, str | None], ...] = ()) -> LaunchConfig:
+                rosparam_commands: tuple[tuple[str, str, str | None], ...] = (),
+                yaml_files: tuple[str, ...] = ()) -> LaunchConfig:
         return _tuple_new(cls, (nodes, tests, {} if params is None else params, clear_params,
-                                {} if machines is None else machines, files, warnings, rosparam_commands))
+                                {} if machines is None else machines, files, warnings, rosparam_commands, yaml_files))
 
     def find_node(self, full_name: str) -> Node | None:
         for n in self.nodes + self.tests:

@@ -34,6 +34,7 @@ class RunOptions(NamedTuple):
     no_start: bool = False  # start no node: an operator does (`launcher start`)
     no_diagnostics: bool = False  # publish no /diagnostics
     master_allow: tuple[str, ...] = ()  # networks (CIDR) the master started here answers
+    metrics: str | None = None  # [ADDR:]PORT where Prometheus metrics are served (services/metrics.py)
 
     @classmethod
     def from_args(cls, ns: Any) -> RunOptions:

@@ -19,6 +19,7 @@ import inspect
 import logging
 import os
 import socket
+import time
 from typing import Any, Awaitable, Callable, NamedTuple
 
 from launcher.net.http import CONTINUE, NEED_DATA, HttpError, RequestLimits, RequestReader, format_response
@@ -253,19 +254,31 @@ class _Connection(asyncio.Protocol):
             self._handle(event.body, event.keep_alive)
 
     def _handle(self, body: bytes, keep_alive: bool) -> None:
+        on_call = self.server.on_call
+        if on_call is None:
+            self._answer(body, keep_alive)
+            return
+        started = time.perf_counter()
+        method = self._answer(body, keep_alive)
+        if method is not None:
+            on_call(method, time.perf_counter() - started)
+
+    def _answer(self, body: bytes, keep_alive: bool) -> str | None:
+        """Reply to one request (or start its reply); the method called, None for a request that was none or is
+        answered later (a large one, an awaitable's answer)."""
         server = self.server
         if len(body) > LARGE_REQUEST:
             # parsed in a worker thread, so that other clients are served meanwhile
             self.busy = True
             task = asyncio.ensure_future(self._handle_large(body))
             task.add_done_callback(lambda t: self._async_done(t, keep_alive))
-            return
+            return None
         try:
             method, params = loads_request(body)
         except XmlRpcError as e:
             self._reply(format_response(200, "OK", dumps_fault(
                 1, "<class 'xml.parsers.expat.ExpatError'>:%s" % e), keep_alive), keep_alive)
-            return
+            return None
         try:
             if method == "system.multicall" and server.multicall:
                 result = multicall(server.dispatch, params[0] if len(params) == 1 else None)
@@ -275,13 +288,14 @@ class _Connection(asyncio.Protocol):
             f = _exception_fault(e)
             self._reply(format_response(200, "OK", dumps_fault(f.faultCode, f.faultString), keep_alive),
                         keep_alive)
-            return
+            return method
         if type(result) is not tuple and inspect.isawaitable(result):
             self.busy = True
             task = asyncio.ensure_future(result)
             task.add_done_callback(lambda t: self._async_done(t, keep_alive))
-            return
+            return None
         self._reply(format_response(200, "OK", self._encode(result), keep_alive), keep_alive)
+        return method
 
     async def _handle_large(self, body: bytes) -> Any:
         server = self.server
@@ -391,8 +405,12 @@ class XmlRpcServer:
                  multicall: bool = False, max_request_size: int = 64 * 1024 * 1024,
                  max_header_size: int = 16 * 1024, max_header_count: int = 100,
                  header_timeout: float = 10.0, request_timeout: float = 30.0, idle_timeout: float = 3600.0,
-                 max_connections: int | None = None, allow: Callable[[str], bool] | None = None):
+                 max_connections: int | None = None, allow: Callable[[str], bool] | None = None,
+                 on_call: Callable[[str, float], None] | None = None):
         self.dispatch = dispatch
+        # told each call answered at once: its method and the seconds from its complete request to its reply
+        # written (the master's latency histogram, master/callstats.py)
+        self.on_call = on_call
         # who may connect (launcher.net.allow): others are closed at accept, unanswered
         self.allow = allow
         self.host = host

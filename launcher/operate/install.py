@@ -176,6 +176,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--after", action="append", default=[], metavar="UNIT")
     p.add_argument("--wants-network", dest="wants_network", action="store_true",
                    help="(always: the unit wants and comes after network-online.target)")
+    p.add_argument("--metrics", metavar="[ADDR:]PORT", help="the launch serves Prometheus metrics there (loopback "
+                   "unless an address is given)")
     p.add_argument("--master", metavar="URI", help="use this master (the launch waits for it) instead of the "
                    "launch's own")
     where = p.add_mutually_exclusive_group()
@@ -230,6 +232,10 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
             raise InstallError("--env %r: give KEY=VALUE" % item)
         env.append((key, value))
     # --screen: every node's output, INFO included, reaches the journal (and still its <name>-stdout.log)
+    if ns.metrics is not None:
+        host, _sep, port = ns.metrics.rpartition(":")
+        if not port.isdigit() or int(port) > 65535:
+            raise InstallError("--metrics: the address is [ADDR:]PORT, not %r" % ns.metrics)
     launch = launch_executable() + files + args + ["--screen"] + (["--wait"] if ns.master else [])
     ready_timeout = RunOptions().ready_timeout
     if ns.ready_timeout is not None:
@@ -237,6 +243,8 @@ def options(ns: argparse.Namespace, cwd: str | None = None) -> UnitOptions:
             raise InstallError("--ready-timeout must be greater than zero")
         ready_timeout = ns.ready_timeout
         launch += ["--ready-timeout", "%g" % ready_timeout]
+    if ns.metrics is not None:
+        launch += ["--metrics", ns.metrics]
     return UnitOptions(name=name, launch=tuple(launch), description=ns.description or "", files=tuple(files),
                        user=user, ros_home=ros_home,
                        setup=os.path.abspath(ns.setup) if ns.setup else "", env=tuple(env),

@@ -17,6 +17,8 @@ run's token gets 403 saying where the token file is. The address printed to a
 terminal carries the token in its fragment (`#token=...`, which no server log
 or Referer ever sees); the page keeps it in the tab and takes it out of the
 address bar. The page's files (operate/webpage/) ship in the package, no CDN.
+`/metrics` is the launch's Prometheus metrics (`launcher_metrics`, services/metrics.py),
+read-only as the page, so without the token.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ PAGE_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "webpage")
 FILES = {"/": ("index.html", "text/html; charset=utf-8"), "/app.js": ("app.js", "text/javascript; charset=utf-8"),
          "/style.css": ("style.css", "text/css; charset=utf-8"), "/icon.svg": ("icon.svg", "image/svg+xml"),
          "/favicon.ico": ("icon.svg", "image/svg+xml")}  # (asked for by clients that do not read the page's link)
+METRICS_TYPE = "text/plain; version=0.0.4; charset=utf-8"  # Prometheus's text format (launcher_metrics' answer)
 SAMPLE_PERIOD_S = 1.0
 HISTORY = 60  # samples a sparkline shows (a minute)
 KEEPALIVE_S = 15.0  # an event stream's comment line while nothing happens (proxies close silent connections)
@@ -201,6 +204,11 @@ class Hub:
             t["type"] = type_of.get(t["topic"], "")
         return sorted(topics.values(), key=lambda t: t["topic"])
 
+    async def metrics(self) -> str:
+        """The launch's Prometheus metrics, as its server makes them (launcher_metrics)."""
+        async with self.reads:  # type: ignore[union-attr]
+            return await read(self.uri, "launcher_metrics")
+
     async def control(self, method: str, *params: Any) -> Any:
         """A start/stop/restart/reload call with the operator's token: (code, message, value)."""
         async with self.controls:  # type: ignore[union-attr]
@@ -257,6 +265,7 @@ class Page:
         self.get[b"/events"] = Route(lambda request: self.hub.subscribe())
         self.get[b"/api/output"] = Route(self._output)
         self.get[b"/api/topics"] = Route(self._topics)
+        self.get[b"/metrics"] = Route(self._metrics)  # (Prometheus's scrape: read-only, as the page)
         self.post: dict[bytes, Route] = {b"/api/" + verb: Route(self._control, token=True)
                                          for verb in (b"start", b"stop", b"restart", b"reload")}
 
@@ -308,6 +317,12 @@ class Page:
             return json_reply(await self.hub.topics())
         except ERRORS as e:
             return json_reply({"error": str(e)}, 502)
+
+    async def _metrics(self, request: Request) -> Reply:
+        try:
+            return Reply(200, (await self.hub.metrics()).encode(), METRICS_TYPE)
+        except ERRORS as e:
+            return text_reply(502, "the launch does not answer: %s" % (str(e) or type(e).__name__))
 
     async def _control(self, request: Request) -> Reply:
         verb = request.target.rpartition(b"/")[2].decode()

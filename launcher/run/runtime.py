@@ -32,6 +32,7 @@ from launcher.model.errors import LaunchError
 from launcher.master import advertised_host
 from launcher.services.masterlink import MasterSession
 from launcher.services.masterwatch import MasterWatch
+from launcher.services.metrics import Exporter, MetricsServer
 from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
@@ -299,6 +300,9 @@ class Run:
         self.api = ApiServer(self.view, self.master, env)
         if not self.core and plan.files:
             self.view.reload = Reloader(self).reload
+        # the run's metrics: read by a scrape of `--metrics`, or through the API server (the web page's /metrics)
+        self.view.metrics = Exporter(self.master, self.nodes, lambda: self.master.run_id or "")
+        self.metrics = MetricsServer(self.view.metrics, opts.metrics) if opts.metrics else None
         self.diagnostics = (DiagnosticsService(self.master, self.nodes, env)
                             if diagnostics and not self.core and not opts.no_diagnostics else None)
         self.log_disk = (LogDiskCheck(env, plan.log_threshold)
@@ -319,7 +323,7 @@ class Run:
     def services(self) -> list[Any]:
         """In start order; each has `start()` and `stop()` (the stop undoes what a start did, if anything)."""
         return [s for s in (self.master, self.api, self.rosout, self.nodes, self.master_watch, self.diagnostics,
-                            self.log_disk) if s is not None]  # (rosout outlives the nodes: their last words reach its log)
+                            self.log_disk, self.metrics) if s is not None]  # (rosout outlives the nodes: their last words reach its log)
 
     @property
     def process_count(self) -> int:
@@ -394,7 +398,7 @@ class Run:
             await self.master_watch.start()
         if self.rosout is not None:
             self.rosout.warm_up()
-        for service in (self.diagnostics, self.log_disk):
+        for service in (self.diagnostics, self.log_disk, self.metrics):
             if service is not None:
                 up(service)
                 await guard(service.start())

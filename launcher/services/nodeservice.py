@@ -28,6 +28,7 @@ from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
+from launcher.services import runrecord
 from launcher.remote.parent import RemoteParent
 from launcher.model.runopts import RunOptions
 
@@ -60,6 +61,7 @@ class NodeService:
         self._packages: dict[str, str] = {}  # process name -> package, for process_info
         self._tasks: list[asyncio.Future] = []
         self._health: list[Any] = []  # readiness and hang detection, closed before the nodes are stopped
+        self.stall: StallWatch | None = None  # the watched topics (launch --metrics reads their rates)
 
     # ---- start -----------------------------------------------------------------------------------------
 
@@ -119,6 +121,21 @@ class NodeService:
             if spec.stdout_path:
                 self.rotator.watch(spec.stdout_path, spec.policy.log_max_size, spec.policy.log_backups)
         self.rotator.start()
+        self._write_record()
+
+    def _write_record(self) -> None:
+        """The run's record and parameters into its log directory (services/runrecord.py), in a worker thread."""
+        run_dir = self.log.run_dir
+        if not run_dir:
+            return
+        run = runrecord.record(self.plan.config, os.path.basename(run_dir), self.plan.environ, self._packages, sys.argv)
+
+        def written(done: asyncio.Future) -> None:
+            problem = done.result() if not done.cancelled() and done.exception() is None else str(done.exception())
+            if problem:
+                console.printerrlog("WARNING: %s (launcher report will miss it)" % problem)
+        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config)
+        task.add_done_callback(written)
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:
         """What this run is, for the launch log: files, args, environment, parameters, command lines."""
@@ -141,7 +158,7 @@ class NodeService:
         self.registrations = Registrations(graph, self.fleet, verify=external)
         sup.readiness = Readiness(master_uri, sup, graph, self.fleet)
         hang = HangDetector(sup)
-        stall = StallWatch(sup)
+        stall = self.stall = StallWatch(sup)
         sup.watchers += [hang, stall, CoreDumpReporter()]
         self._health += [self.registrations, sup.readiness, hang, stall]
         monitor = ResourceMonitor(sup, self.opts.monitor_period or DEFAULT_PERIOD_S)
@@ -199,6 +216,7 @@ class NodeService:
             return
         await asyncio.gather(self._reload_here(diff, plan), self._reload_remote(diff, plan))
         self.plan = plan
+        self._write_record()  # (the parameters the launch set are now the reloaded files')
 
     async def _reload_remote(self, diff: Difference, plan: Any) -> None:
         """The other machines' part (remote.parent: the operator's stop and start calls)."""

@@ -15,7 +15,9 @@ every second; or the last minute of them, what a view attaching late starts its
 sparklines with), `launcher_output` (the nodes' output from their
 `-stdout.log` files after the offsets a reader has, and for output="log" nodes
 their WARN/ERROR/FATAL lines from /rosout: a long poll too, so a view on
-another machine shows output from files it cannot read), and
+another machine shows output from files it cannot read), `launcher_metrics`
+(the run's Prometheus metrics as text, services/metrics.py: the web page's
+server serves them at /metrics), and
 `start_nodes`/`stop_nodes`/`restart_nodes(token, pattern)` and
 `launcher_reload(token, args, dry_run)` (the launch's files read again and the
 difference applied, run/reload.py), which are refused with a fault unless
@@ -395,9 +397,21 @@ class LaunchServer:
             return [1, "reload", text] if answer["ok"] else [-1, answer["error"], text]
         return reloaded()
 
+    def launcher_metrics(self) -> Any:
+        """[1, text, the run's metrics in Prometheus's text format] (services/metrics.py: the values copied on the
+        loop, the text made in a worker thread): what the web page's server serves at /metrics."""
+        metrics = getattr(self.run, "metrics", None)
+        if metrics is None:
+            raise Fault(1, "this run has no metrics")
+
+        async def text() -> list:
+            return [1, "metrics", await metrics.text()]
+        return text()
+
     _API: dict[str, Any] = {}
 
 
 LaunchServer._API = {name: getattr(LaunchServer, name) for name in (
     "list_processes", "process_info", "get_pid", "get_node_names", "launcher_status", "launcher_changes",
-    "launcher_samples", "launcher_output", "start_nodes", "stop_nodes", "restart_nodes", "launcher_reload")}
+    "launcher_samples", "launcher_output", "start_nodes", "stop_nodes", "restart_nodes", "launcher_reload",
+    "launcher_metrics")}

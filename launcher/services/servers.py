@@ -33,6 +33,8 @@ class RunView:
         self.launch_files = list(launch_files)
         # a reload of the run (run/reload.py: `async reload(args, dry_run) -> answer`), when it can have one
         self.reload: Any = None
+        # the run's metrics (services/metrics.Exporter: `async text()`), for `launcher_metrics`
+        self.metrics: Any = None
 
     @property
     def fleet(self) -> Any:

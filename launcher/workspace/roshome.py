@@ -7,6 +7,21 @@ import os
 from typing import Mapping
 
 
+# What a launch keeps of itself in its run's log directory, for after the run (services/runrecord.py writes them,
+# `launcher report` reads them): its files, arguments, environment and packages; the parameters it set, as YAML.
+RUN_RECORD_FILE = "launcher-run.json"
+PARAMS_FILE = "launcher-params.yaml"
+# the environment variables that matter to a ROS run: these names, and those starting with a prefix of ROS_ENV_PREFIXES
+ROS_ENV_NAMES = ("PATH", "PYTHONPATH", "LD_LIBRARY_PATH", "CMAKE_PREFIX_PATH", "PKG_CONFIG_PATH", "PYTHONHOME",
+                 "VIRTUAL_ENV", "HOME", "USER", "LANG", "LC_ALL", "TZ", "DISPLAY", "NOTIFY_SOCKET", "JOURNAL_STREAM")
+ROS_ENV_PREFIXES = ("ROS", "CATKIN", "GAZEBO", "LAUNCHER_", "ROSLAUNCH_", "ROSCONSOLE_", "RMW_")
+
+
+def ros_environment(environ: Mapping[str, str]) -> dict[str, str]:
+    """The variables of `environ` that matter to a ROS run (what `launcher report` keeps), by name."""
+    return {k: v for k, v in sorted(environ.items()) if k in ROS_ENV_NAMES or k.startswith(ROS_ENV_PREFIXES)}
+
+
 def ros_home(environ: Mapping[str, str]) -> str:
     """`$ROS_HOME`, default `~/.ros` (rospkg.get_ros_home)."""
     return environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")

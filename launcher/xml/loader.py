@@ -75,6 +75,7 @@ class XmlLoader:
         self.clear_params: list[str] = []
         self.machines: dict[str, Machine] = {}
         self.files: list[str] = []
+        self.yaml_files: dict[str, None] = {}  # <rosparam file=...> loaded, in order, once each
         self.rosparam_commands: list[tuple[str, str, str | None]] = []
         self._commands: list[CommandParam] = []  # <param command=...>, run at the end (xml/commands.py)
         self.node_names: set[str] = set(CORE_NODE_NAMES) if core else set()
@@ -104,7 +105,7 @@ class XmlLoader:
         return LaunchConfig(nodes=tuple(self.nodes), tests=tuple(self.tests), params=self.params,
                             clear_params=tuple(self.clear_params), machines=self.machines,
                             files=tuple(seen), warnings=tuple(self.warnings),
-                            rosparam_commands=tuple(self.rosparam_commands))
+                            rosparam_commands=tuple(self.rosparam_commands), yaml_files=tuple(self.yaml_files))
 
     def _late_warnings(self) -> None:
         """What roslaunch silently ignores and can only be seen once everything is loaded."""
@@ -619,6 +620,7 @@ class XmlLoader:
             self.rosparam_commands.append(("delete", full_param, None))
             return
         if file_:
+            self.yaml_files.setdefault(os.path.abspath(file_))
             try:
                 text = _read_text(file_)
             except (OSError, UnicodeDecodeError) as e:

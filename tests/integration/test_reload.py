@@ -190,6 +190,10 @@ def test_a_changed_global_param_is_set_and_nothing_restarts_and_run_time_params_
     params = run.params()
     assert (params["/g"], params["/h"], params["/set_at_run_time"]) == (2, "new", 7)
     run.assert_params_are_the_files(runtime=("/set_at_run_time",))
+    # what the launch keeps for `launcher report` is the reloaded files' parameters (not the run-time one)
+    kept = os.path.join(run.env["ROS_LOG_DIR"], "latest", "launcher-params.yaml")
+    until(lambda: (yaml.safe_load(open(kept)) or {}).get("/h") == "new", 10, what="the kept parameters reloaded")
+    assert yaml.safe_load(open(kept))["/g"] == 2 and "/set_at_run_time" not in yaml.safe_load(open(kept))
 
 
 def test_a_yaml_edit_restarts_only_the_node_it_loads_into(run):

@@ -164,3 +164,13 @@ def test_start_timeout_stays_above_the_launch_ready_timeout(tmp_path, launch_fil
     assert exec_start.endswith("--screen --ready-timeout 200")  # the launch is told the same timeout
     assert "TimeoutStartSec=120\n" in tool("install", str(path), "--system", "--dry-run").stdout
     assert "greater than zero" in tool("install", str(path), "--ready-timeout", "0", "--dry-run").stderr
+
+
+def test_install_metrics_puts_the_address_on_the_launch_command(launch_file):
+    path, _ = launch_file
+    dry = tool("install", str(path), "--user-unit", "--metrics", "0.0.0.0:9180", "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    exec_start = next(line for line in dry.stdout.splitlines() if line.startswith("ExecStart="))
+    assert exec_start.endswith(" --screen --metrics 0.0.0.0:9180"), exec_start
+    bad = tool("install", str(path), "--user-unit", "--metrics", "localhost:http", "--dry-run")
+    assert bad.returncode == 2 and "--metrics: the address is [ADDR:]PORT" in bad.stderr
