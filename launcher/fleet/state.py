@@ -160,6 +160,16 @@ def run_ended(before: tuple, after: tuple) -> bool:
     return after != (None, None) and after != before
 
 
+def keep_last_exit(node: dict, change: dict) -> None:
+    """A node's `last_exit_*` after a change of the stream or a line of the events file (which do not carry
+    them: a run's end is where its exit fields are set), applied before the change's own fields."""
+    before = (node.get("exit_code"), node.get("exit_signal"))
+    after = (change.get("exit_code"), change.get("exit_signal"))
+    if run_ended(before, after):
+        node["last_exit_code"], node["last_exit_signal"] = after
+        node["last_exit_at"] = change.get("time")
+
+
 def visible(change: Change) -> bool:
     """Is this a change a reader of the events file sees? (Internal steps, e.g. running -> stopping, or
     pending -> launching, are not written: the outside's states and their fields are the file's.)"""

@@ -28,28 +28,14 @@ from typing import Any, Callable, Mapping, NamedTuple
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.model.suggest import did_you_mean
+from launcher.operate.errors import (EXIT_FAILED, EXIT_NO_LAUNCH, EXIT_OK, EXIT_REFUSED, EXIT_USAGE,  # noqa: F401
+                                     NotOurs, ToolError)
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_LAUNCH, EXIT_REFUSED = 0, 1, 2, 3, 4
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 PROBE_TIMEOUT_S = 2.0
 # A launch of ours answers launcher_status at once (a cached text); one that does not, within this, is wedged
 # or gone, and is no candidate (with several launches registered, each is probed so).
 LAUNCH_PROBE_TIMEOUT_S = 1.0
-
-
-class ToolError(Exception):
-    """A message for the user and the exit status that goes with it."""
-
-    def __init__(self, message: str, status: int = EXIT_FAILED):
-        super().__init__(message)
-        self.status = status
-
-
-class NotOurs(ToolError):
-    """The run asked about is roslaunch's or roscore's (operate/lastrun.py): no events file, no states to tell."""
-
-    def __init__(self, message: str):
-        super().__init__(message, EXIT_NO_LAUNCH)
 
 
 def add_launch_options(parser: argparse.ArgumentParser) -> None:

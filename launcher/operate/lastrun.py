@@ -22,8 +22,8 @@ import socket
 import time
 from typing import Any, Mapping, NamedTuple
 
-from launcher.operate import client
-from launcher.operate.status import keep_last_exit
+from launcher.fleet.state import keep_last_exit
+from launcher.operate import errors
 from launcher.fleet.state import EVENTS_FILE, LAUNCH_ENDED
 from launcher.workspace.roshome import log_root
 from launcher.model.suggest import did_you_mean
@@ -115,7 +115,7 @@ class LastRun(NamedTuple):
         if not found:
             names = set(final_states(self.events)) | set(files.values())
             hint = did_you_mean(wanted, sorted(names))
-            raise client.ToolError("unknown node [%s]: it has no output file in %s%s"
+            raise errors.ToolError("unknown node [%s]: it has no output file in %s%s"
                                    % (name, self.run_dir, "; " + hint if hint else ""))
         # (several launches on one master share a run's directory: the newest file is the last launch's)
         return max((os.path.join(self.run_dir, f) for f in found), key=_mtime)
@@ -137,7 +137,7 @@ def read_events(path: str) -> list[dict[str, Any]]:
 
 def node_states(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Each node's last state change, with `name`, and how its last run that ended did end (`last_exit_*`,
-    which the events file does not write: status.keep_last_exit follows its lines)."""
+    which the events file does not write: fleet.state.keep_last_exit follows its lines)."""
     nodes: dict[str, dict[str, Any]] = {}
     for event in events:
         name = event.get("node")
@@ -176,12 +176,12 @@ def find_run(environ: Mapping[str, str], run_id: str | None = None) -> str:
     if os.path.isdir(path):
         return os.path.realpath(path)
     if not run_id:
-        raise client.ToolError("no run has logged in %s (no %s)" % (root, path), client.EXIT_NO_LAUNCH)
+        raise errors.ToolError("no run has logged in %s (no %s)" % (root, path), errors.EXIT_NO_LAUNCH)
     try:
         hint = did_you_mean(run_id, os.listdir(root))
     except OSError:
         hint = ""
-    raise client.ToolError("no run [%s] in %s%s" % (run_id, root, "; " + hint if hint else ""))
+    raise errors.ToolError("no run [%s] in %s%s" % (run_id, root, "; " + hint if hint else ""))
 
 
 def read(run_dir: str, latest: bool = True) -> LastRun:
@@ -194,10 +194,10 @@ def read(run_dir: str, latest: bool = True) -> LastRun:
     except FileNotFoundError:
         has_events = False
     except OSError as e:
-        raise client.ToolError("cannot read %s: %s" % (os.path.join(run_dir, EVENTS_FILE), e.strerror)) from None
+        raise errors.ToolError("cannot read %s: %s" % (os.path.join(run_dir, EVENTS_FILE), e.strerror)) from None
     ours = _our_launch_logs(run_dir)
     if not has_events and not ours:
-        raise client.NotOurs("%s, %s, is roslaunch's (or roscore's), not a run of `launch`: it has no %s, and "
+        raise errors.NotOurs("%s, %s, is roslaunch's (or roscore's), not a run of `launch`: it has no %s, and "
                                "`launcher` cannot tell its nodes' states; its logs are in %s"
                                % ("the last run" if latest else "the run", run_id, EVENTS_FILE, run_dir))
     pid, host, (line_at, line) = None, "", (None, "")

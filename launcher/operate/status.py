@@ -23,7 +23,7 @@ import sys
 from typing import Any
 
 from launcher.operate import client
-from launcher.fleet.state import over_limit_text, run_ended
+from launcher.fleet.state import over_limit_text
 from launcher.model.units import format_size
 
 
@@ -67,16 +67,6 @@ def last_exit(node: dict[str, Any]) -> str:
     if "last_exit_code" in node or "last_exit_signal" in node:
         return exit_text(node.get("last_exit_code"), node.get("last_exit_signal"))
     return exit_text(node.get("exit_code"), node.get("exit_signal"))
-
-
-def keep_last_exit(node: dict[str, Any], change: dict[str, Any]) -> None:
-    """A node's `last_exit_*` after a change of the stream or a line of the events file (which do not carry
-    them: a run's end is where its exit fields are set), applied before the change's own fields."""
-    before = (node.get("exit_code"), node.get("exit_signal"))
-    after = (change.get("exit_code"), change.get("exit_signal"))
-    if run_ended(before, after):
-        node["last_exit_code"], node["last_exit_signal"] = after
-        node["last_exit_at"] = change.get("time")
 
 
 def table(info: dict[str, Any]) -> str:

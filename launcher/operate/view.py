@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 from typing import Any, Iterable
 
+from launcher.fleet.state import keep_last_exit
 from launcher.operate import events
 from launcher.operate import status as status_columns
 
@@ -79,7 +80,7 @@ class ViewState:
             if node is None:
                 continue
             was_running, old_pid = node.get("state") == "running", node.get("pid")
-            status_columns.keep_last_exit(node, c)
+            keep_last_exit(node, c)
             for key in ("state", "pid", "exit_code", "exit_signal", "restarts", "failures", "next_start",
                         "over_limit", "reason", "phase", "registered", "uri"):
                 if key in c:

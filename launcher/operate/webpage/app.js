@@ -30,7 +30,7 @@ function lastExit(n) {  // how its last run that ended did end, also while it ru
   if (given(code)) return "code " + code;
   return "-";
 }
-function keepLastExit(n, c) {  // a change whose exit fields are set anew is a run's end (status.keep_last_exit)
+function keepLastExit(n, c) {  // a change whose exit fields are set anew is a run's end (fleet.state.keep_last_exit)
   const before = [n.exit_code, n.exit_signal].map((v) => given(v) ? v : null);
   const after = [c.exit_code, c.exit_signal].map((v) => given(v) ? v : null);
   if ((after[0] !== null || after[1] !== null) && (after[0] !== before[0] || after[1] !== before[1])) {
