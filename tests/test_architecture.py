@@ -167,3 +167,25 @@ def test_the_metrics_are_made_in_one_module():
                     if any(n.split(".")[0] == "prometheus_client" for n in names):
                         users.add(os.path.relpath(os.path.join(dirpath, f), ROOT))
     assert users == {os.path.join("services", "metrics.py")}
+
+
+def test_no_import_cycle_between_modules():
+    """Inside a package too (issue 33): no module imports one that imports it back, through any chain. A module
+    names a sibling by its own path (`import launcher.master.registry as reg`), not through the package's
+    __init__, which imports the package's modules."""
+    seen: dict[str, int] = {}
+
+    def visit(m: str, path: list[str]) -> None:
+        seen[m] = 1
+        for d in sorted(GRAPH.get(m, ())):
+            if d not in GRAPH:
+                continue
+            if seen.get(d) == 1:
+                raise AssertionError("import cycle: %s" % " -> ".join(path[path.index(d):] + [m, d]))
+            if d not in seen:
+                visit(d, path + [m])
+        seen[m] = 2
+
+    for m in sorted(GRAPH):
+        if m not in seen:
+            visit(m, [])

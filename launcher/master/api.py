@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from typing import Any, Callable
 
-from launcher.master import registry as reg
+import launcher.master.registry as reg
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier, since_boot
 from launcher.model.names import ANYTYPE, SEP, canonicalize_name, resolve_name

@@ -720,7 +720,7 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
     # (imported here: the sandbox and `ast` cost ~2.5 ms to import, and most launches have no $(eval))
-    from launcher.xml import sandbox
+    import launcher.xml.sandbox as sandbox
 
     def lookup(name: str) -> Any:  # roslaunch's _DictWrapper: its names, then the args auto-typed
         if name in _ROSLAUNCH_CONSTANTS:
