@@ -16,24 +16,29 @@ def _unit(module: str) -> str:
     return ".".join(parts[:2])
 
 
+def _modules():
+    """(module name, its syntax tree) for every module of the package."""
+    for dirpath, _dirs, files in os.walk(ROOT):
+        for f in files:
+            if f.endswith(".py"):
+                path = os.path.join(dirpath, f)
+                rel = os.path.relpath(path, os.path.dirname(ROOT))[:-3].replace(os.sep, ".")
+                with open(path) as source:
+                    yield rel[:-9] if rel.endswith(".__init__") else rel, ast.parse(source.read())
+
+
 def _imports() -> dict[str, set[str]]:
     """module -> the launcher modules it imports (at any depth in the file)."""
     graph: dict[str, set[str]] = {}
-    for dirpath, _dirs, files in os.walk(ROOT):
-        for f in files:
-            if not f.endswith(".py"):
-                continue
-            path = os.path.join(dirpath, f)
-            rel = os.path.relpath(path, os.path.dirname(ROOT))[:-3].replace(os.sep, ".")
-            module = rel[:-9] if rel.endswith(".__init__") else rel
-            found = set()
-            for node in ast.walk(ast.parse(open(path).read())):
-                if isinstance(node, ast.Import):
-                    found.update(a.name for a in node.names if a.name.startswith("launcher"))
-                elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("launcher"):
-                    found.add(node.module)
-                    found.update("%s.%s" % (node.module, a.name) for a in node.names)
-            graph[module] = {m for m in found if m != "launcher"}
+    for module, tree in _modules():
+        found = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names if a.name.startswith("launcher"))
+            elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("launcher"):
+                found.add(node.module)
+                found.update("%s.%s" % (node.module, a.name) for a in node.names)
+        graph[module] = {m for m in found if m != "launcher"}
     return graph
 
 
@@ -129,18 +134,12 @@ CLIENTS = {"launcher.bag.record": "rosbag record --node", "launcher.operate.web"
 def _registration_calls() -> dict[str, list[int]]:
     """module -> the lines where it names a registration call (a method name given to a call, or an attribute)."""
     found: dict[str, list[int]] = {}
-    for dirpath, _dirs, files in os.walk(ROOT):
-        for f in files:
-            if not f.endswith(".py"):
-                continue
-            path = os.path.join(dirpath, f)
-            rel = os.path.relpath(path, os.path.dirname(ROOT))[:-3].replace(os.sep, ".")
-            module = rel[:-9] if rel.endswith(".__init__") else rel
-            for node in ast.walk(ast.parse(open(path).read())):
-                named = (node.value if isinstance(node, ast.Constant) else
-                         node.attr if isinstance(node, ast.Attribute) else None)
-                if named in REGISTRATION_CALLS:
-                    found.setdefault(module, []).append(node.lineno)
+    for module, tree in _modules():
+        for node in ast.walk(tree):
+            named = (node.value if isinstance(node, ast.Constant) else
+                     node.attr if isinstance(node, ast.Attribute) else None)
+            if named in REGISTRATION_CALLS:
+                found.setdefault(module, []).append(node.lineno)
     return found
 
 
