@@ -5,6 +5,7 @@ The scripts run as `python3 benchmarks/NAME.py`, so this folder is on their impo
 
 from __future__ import annotations
 
+import os
 import socket
 
 ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"  # Debian's ROS scripts need Debian's python: its bin first
@@ -14,3 +15,35 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def idle_launch(root: str, package: str, n: int) -> str:
+    """A package `package` under `root` with an idle node (`exec sleep`: one process per node) and a launch file of
+    `n` of them; the launch file's path."""
+    pkg = os.path.join(root, package)
+    os.makedirs(pkg)
+    with open(os.path.join(pkg, "package.xml"), "w") as f:
+        f.write('<?xml version="1.0"?><package format="2"><name>%s</name><version>0.0.1</version>'
+                '<description>b</description><maintainer email="b@example.com">b</maintainer>'
+                '<license>BSD</license></package>\n' % package)
+    idle = os.path.join(pkg, "idle")
+    with open(idle, "w") as f:
+        f.write("#!/bin/sh\nexec sleep 100000\n")
+    os.chmod(idle, 0o755)
+    launch = os.path.join(root, "idle.launch")
+    with open(launch, "w") as f:
+        f.write("<launch>\n%s</launch>\n" % "".join('  <node pkg="%s" type="idle" name="n%d"/>\n' % (package, i)
+                                                    for i in range(n)))
+    return launch
+
+
+def cpu_seconds(pid: int) -> float:
+    """CPU time of all the process's threads, in ns resolution (stat's ticks are 10 ms: 1 % of a second)."""
+    total = 0
+    for tid in os.listdir("/proc/%d/task" % pid):
+        try:
+            with open("/proc/%d/task/%s/schedstat" % (pid, tid)) as f:
+                total += int(f.read().split()[0])
+        except OSError:
+            pass  # a thread that just ended (a scrape's)
+    return total / 1e9

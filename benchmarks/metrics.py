@@ -36,45 +36,19 @@ import sys
 import tempfile
 import threading
 import time
-import urllib.request
 import xmlrpc.client
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
 
-from common import free_port  # noqa: E402  (this folder is on the path of a script run from it)
+from common import cpu_seconds, free_port, idle_launch  # noqa: E402  (this folder is on the path of a script run from it)
 
 ACCEPT = "application/openmetrics-text;version=1.0.0,text/plain;version=0.0.4;q=0.5,*/*;q=0.1"  # Prometheus's
 
 
 def make_launch(root: str, n: int) -> str:
-    pkg = os.path.join(root, "metrics_bench")
-    os.makedirs(pkg)
-    with open(os.path.join(pkg, "package.xml"), "w") as f:
-        f.write('<?xml version="1.0"?><package format="2"><name>metrics_bench</name><version>0.0.1</version>'
-                '<description>b</description><maintainer email="b@example.com">b</maintainer>'
-                '<license>BSD</license></package>\n')
-    idle = os.path.join(pkg, "idle")
-    with open(idle, "w") as f:
-        f.write("#!/bin/sh\nexec sleep 100000\n")
-    os.chmod(idle, 0o755)
-    launch = os.path.join(root, "idle.launch")
-    with open(launch, "w") as f:
-        f.write("<launch>\n%s</launch>\n" % "".join('  <node pkg="metrics_bench" type="idle" name="n%d"/>\n' % i
-                                                    for i in range(n)))
-    return launch
-
-
-def cpu_seconds(pid: int) -> float:
-    total = 0
-    for tid in os.listdir("/proc/%d/task" % pid):
-        try:
-            with open("/proc/%d/task/%s/schedstat" % (pid, tid)) as f:
-                total += int(f.read().split()[0])
-        except OSError:
-            pass  # a thread that just ended (a scrape's)
-    return total / 1e9
+    return idle_launch(root, "metrics_bench", n)
 
 
 class Caller(threading.Thread):

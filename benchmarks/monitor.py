@@ -28,39 +28,13 @@ import sys
 import tempfile
 import time
 
-from common import free_port  # (this folder is on the path of a script run from it)
+from common import cpu_seconds, free_port, idle_launch  # (this folder is on the path of a script run from it)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def make_launch(root: str, n: int) -> str:
-    pkg = os.path.join(root, "monitor_bench")
-    os.makedirs(pkg)
-    with open(os.path.join(pkg, "package.xml"), "w") as f:
-        f.write('<?xml version="1.0"?><package format="2"><name>monitor_bench</name><version>0.0.1</version>'
-                '<description>b</description><maintainer email="b@example.com">b</maintainer>'
-                '<license>BSD</license></package>\n')
-    idle = os.path.join(pkg, "idle")
-    with open(idle, "w") as f:
-        f.write("#!/bin/sh\nexec sleep 100000\n")  # (exec: one process per node)
-    os.chmod(idle, 0o755)
-    launch = os.path.join(root, "idle.launch")
-    with open(launch, "w") as f:
-        f.write("<launch>\n%s</launch>\n" % "".join('  <node pkg="monitor_bench" type="idle" name="n%d"/>\n' % i
-                                                    for i in range(n)))
-    return launch
-
-
-def cpu_seconds(pid: int) -> float:
-    """CPU time of all the process's threads, in ns resolution (stat's ticks are 10 ms: 1 % of a second)."""
-    total = 0
-    for tid in os.listdir("/proc/%d/task" % pid):
-        try:
-            with open("/proc/%d/task/%s/schedstat" % (pid, tid)) as f:
-                total += int(f.read().split()[0])
-        except OSError:
-            pass  # a thread that just ended
-    return total / 1e9
+    return idle_launch(root, "monitor_bench", n)
 
 
 def measure(cmd: list[str], launch: str, root: str, n: int, seconds: float, extra: list[str],
