@@ -104,6 +104,8 @@ class Notifier:
         self._ping: asyncio.TimerHandle | None = None
         self._deadline: asyncio.TimerHandle | None = None  # the ready timeout, while not ready
         self._stopping = False
+        self._queued: list[bytes] = []  # messages the socket could not take yet, oldest first
+        self._waiting_writable = False
 
     @classmethod
     def from_environ(cls, environ: dict[str, str] | None = None, **kw: Any) -> Notifier | None:
@@ -114,12 +116,30 @@ class Notifier:
         return cls(socket_address(value), watchdog_period(dict(env), os.getpid()), **kw)
 
     def send(self, data: bytes) -> None:
-        try:
-            self._sock.sendto(data, self.address)
-        except OSError as e:  # the service manager gone or busy: the robot runs on, said once
-            if not self._warned:
-                self._warned = True
-                self._warn("cannot notify the service manager at %r: %s" % (self.address, e.strerror or e))
+        """Send one message, in order after any that wait. A full socket (the manager busy, as systemd is at
+        boot) keeps it for when the socket can take it: READY=1 lost there would have systemd kill the launch
+        at TimeoutStartSec (sd_notify blocks instead; the launch's loop must not)."""
+        self._queued.append(data)
+        if len(self._queued) == 1:
+            self._flush()
+
+    def _flush(self) -> None:
+        while self._queued:
+            try:
+                self._sock.sendto(self._queued[0], self.address)
+            except BlockingIOError:
+                if not self._waiting_writable:
+                    self._waiting_writable = True
+                    asyncio.get_running_loop().add_writer(self._sock.fileno(), self._flush)
+                return
+            except OSError as e:  # the service manager gone: the robot runs on, said once
+                if not self._warned:
+                    self._warned = True
+                    self._warn("cannot notify the service manager at %r: %s" % (self.address, e.strerror or e))
+            del self._queued[0]
+        if self._waiting_writable:
+            self._waiting_writable = False
+            asyncio.get_running_loop().remove_writer(self._sock.fileno())
 
     # ---- the watchdog: pings from the loop itself, so a stuck loop sends none --------------------------------
 
@@ -210,4 +230,15 @@ class Notifier:
             self._ping.cancel()
         if self._deadline is not None:
             self._deadline.cancel()
+        if self._waiting_writable:
+            self._waiting_writable = False
+            asyncio.get_running_loop().remove_writer(self._sock.fileno())
+        if self._queued:  # (the last words, STOPPING=1 among them: a second for the manager to take them)
+            self._sock.settimeout(1.0)
+            for data in self._queued:
+                try:
+                    self._sock.sendto(data, self.address)
+                except OSError:
+                    break
+            self._queued.clear()
         self._sock.close()

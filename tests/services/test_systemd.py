@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
+import socket
+
+from helpers import until_async
 from launcher.model.config import NodePolicy
 from launcher.services import systemd
 from launcher.fleet import machine
@@ -48,3 +52,54 @@ def test_not_ready_until_started_and_registered_unless_it_never_registers():
     # (a node up for a long time but not registered is awaited all the same: only its registration says up)
     assert systemd.not_ready(records) == ["/starting", "/held", "/young", "/old"]
     assert systemd.not_ready([rec("/a", machine.RUNNING, registered=True), records[-1]]) == []
+
+
+def test_a_full_socket_keeps_the_messages_in_order_until_it_takes_them(tmp_path):
+    # the service manager's end, filled until it takes no more (as systemd busy at boot)
+    path = str(tmp_path / "notify")
+    manager = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    manager.bind(path)
+    manager.setblocking(False)
+    fillers: list[socket.socket] = []  # (a sender's own buffer fills too: a new sender each time it does)
+    filled = 0
+    while True:
+        fillers.append(socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM))
+        fillers[-1].setblocking(False)
+        sent = 0
+        while True:
+            try:
+                fillers[-1].sendto(b"X=%d" % filled, path)
+            except BlockingIOError:
+                break
+            filled += 1
+            sent += 1
+        if sent == 0:  # a fresh sender refused at once: the manager's queue is full
+            break
+    warnings: list[str] = []
+
+    def received() -> list[bytes]:
+        out = []
+        while True:
+            try:
+                out.append(manager.recv(4096))
+            except BlockingIOError:
+                return out
+
+    async def main() -> list[bytes]:
+        notifier = systemd.Notifier(path, None, warn=warnings.append)
+        notifier.send(systemd.message(STATUS="1/2 nodes running"))
+        notifier.send(systemd.message(READY=1, STATUS="2/2 nodes running"))
+        notifier.send(systemd.message(STATUS="stopping"))
+        await asyncio.sleep(0.05)
+        got = received()  # (makes room: the three follow once the loop sees the socket writable)
+        await until_async(lambda: len(got) >= filled + 3 or got.extend(received()), 5, what="the kept messages")
+        notifier.close()
+        return got
+
+    got = asyncio.run(main())
+    assert got[:filled] == [b"X=%d" % i for i in range(filled)]
+    assert got[filled:] == [b"STATUS=1/2 nodes running", b"READY=1\nSTATUS=2/2 nodes running", b"STATUS=stopping"]
+    assert warnings == []
+    manager.close()
+    for filler in fillers:
+        filler.close()
