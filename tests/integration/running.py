@@ -171,6 +171,14 @@ class Launcher:
             return m
         return until(found, timeout, what="%r in launcher %s" % (pattern, stream))
 
+    def until(self, cond, timeout: float, what: str) -> object:
+        """helpers.until, and when it fails the launcher's own output with the failure (what it said of why)."""
+        try:
+            return until(cond, timeout, what=what)
+        except AssertionError as e:
+            raise AssertionError("%s\nlauncher (exit %s) stdout, its end:\n%s\nstderr, its end:\n%s"
+                                 % (e, self.proc.poll(), self.stdout[-6000:], self.stderr[-6000:])) from None
+
     def started_pids(self) -> dict[str, int]:
         """process name -> pid of its latest start."""
         return {m.group(1): int(m.group(2))

@@ -84,7 +84,7 @@ def test_ready_after_registration_status_through_respawn_and_stopping(tmp_path, 
     body += '\n<node pkg="sd_tests" type="crasher" name="crasher" respawn="true" respawn_delay="1" registers="false"/>'
     launch = Launcher([write_launch(str(tmp_path), body), "-p", str(port_of(env))], env, str(tmp_path))
     try:
-        when_ready, fields = until(lambda: notify.first("READY", "1"), 60, what="READY=1")
+        when_ready, fields = launch.until(lambda: notify.first("READY", "1"), 60, what="READY=1")
         # READY=1 came after every rospy node began to register (and each is registered now) ...
         for i in range(3):
             began = float((stamps / ("n%d" % i)).read_text())
@@ -93,12 +93,13 @@ def test_ready_after_registration_status_through_respawn_and_stopping(tmp_path, 
         # ... and said so: all four up (the crasher, which never registers, counts once it runs)
         assert fields["STATUS"] == "4/4 nodes running", fields
         # the crash and the respawn are told as they happen
-        crashed, _ = until(lambda: notify.first("STATUS", "3/4 nodes running, 1 respawning"), 30,
+        crashed, _ = launch.until(lambda: notify.first("STATUS", "3/4 nodes running, 1 respawning"), 30,
                            what="STATUS= of the crash")
-        until(lambda: notify.first("STATUS", "4/4 nodes running", after=crashed), 30, what="STATUS= of the respawn")
+        launch.until(lambda: notify.first("STATUS", "4/4 nodes running", after=crashed), 30,
+                     what="STATUS= of the respawn")
         # Ctrl-C: STOPPING=1 comes first, before the launch has ended
         launch.signal(signal.SIGINT)
-        until(lambda: notify.first("STOPPING", "1"), 20, what="STOPPING=1")
+        launch.until(lambda: notify.first("STOPPING", "1"), 20, what="STOPPING=1")
         assert launch.wait(30) == 0
         stopping = next(i for i, (_, f) in enumerate(notify.read()) if "STOPPING" in f)
         assert not any("READY" in f for _, f in notify.read()[stopping:])
@@ -114,7 +115,7 @@ def test_watchdog_at_half_the_period_and_none_while_the_loop_is_held(tmp_path, s
     body = '<node pkg="sd_tests" type="slow_spinner" name="n0" args="0 n0"/>'
     launch = Launcher([write_launch(str(tmp_path), body), "-p", str(port_of(env))], env, str(tmp_path))
     try:
-        until(lambda: notify.first("READY", "1"), 60, what="READY=1")
+        launch.until(lambda: notify.first("READY", "1"), 60, what="READY=1")
         pings = lambda: [t for t, f in notify.read() if f.get("WATCHDOG") == "1"]  # noqa: E731
         n = len(pings())
         until(lambda: len(pings()) >= n + 10, 10, what="10 more pings")
@@ -176,7 +177,7 @@ def test_ready_timeout_sends_ready_naming_the_nodes_not_up(tmp_path, setup):
     launch = Launcher([write_launch(str(tmp_path), body), "--ready-timeout", "3"], env, str(tmp_path))
     try:
         started = time.time()
-        when, fields = until(lambda: notify.first("READY", "1"), 30, what="READY=1 at the ready timeout")
+        when, fields = launch.until(lambda: notify.first("READY", "1"), 30, what="READY=1 at the ready timeout")
         assert 2.5 < when - started < 10, when - started
         assert fields["STATUS"] == "2/2 nodes running; not up after 3s: /late", fields
     finally:
