@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -51,11 +52,28 @@ async def until_async(cond: Callable[[], Any], timeout: float, period: float = 0
     return value
 
 
+def _ephemeral_low() -> int:
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
 def free_port() -> int:
-    """A loopback port nobody listens on (as of now)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback port no socket has (as of now), below the kernel's ephemeral range: a port the kernel
+    hands out itself could become some client connection's own port (a node's, a test's) before the server
+    the test starts binds it, and that server would then fail to start."""
+    top = min(_ephemeral_low(), 65536)
+    for _ in range(1000):
+        port = random.randrange(max(1024, top // 2), top)
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise AssertionError("no free port below %d" % top)
 
 
 def post_once(port: int, body: bytes, timeout: float = 10.0, headers: bytes = b"") -> bytes:

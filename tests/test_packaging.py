@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import subprocess
 import sys
 import zipfile
@@ -13,7 +12,7 @@ import pytest
 
 from launcher.cli import tool
 
-from helpers import ROOT
+from helpers import ROOT, free_port
 
 try:
     import tomllib
@@ -119,9 +118,7 @@ def test_the_wheel_installed_in_a_fresh_venv_runs_the_demo(dist, tmp_path):
     from this repository's examples to its end, exit status 0."""
     # nothing of this tree's (PYTHONPATH) nor of a ROS set-up: what a new user's shell has
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "ROS_")) and k != "VIRTUAL_ENV"}
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     # the demo's plain-Python nodes run the system's python3, as README's install leaves them
     env.update(PATH="/usr/bin:/bin", ROS_PACKAGE_PATH=os.path.join(ROOT, "examples"), ROS_HOME=str(tmp_path / "home"),
                ROS_MASTER_URI="http://127.0.0.1:%d/" % port)
