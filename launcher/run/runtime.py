@@ -29,7 +29,7 @@ from launcher.services import masterlink
 from launcher.process.command import master_uri
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.services.masterlink import MasterSession
 from launcher.services.masterwatch import MasterWatch
 from launcher.services.metrics import Exporter, MetricsServer

@@ -15,7 +15,7 @@ import urllib.parse
 from typing import Any, Mapping
 
 from launcher.model.errors import LaunchError
-from launcher.master import Master, advertised_host
+from launcher.master.server import Master, advertised_host
 from launcher.model.graph import Graph
 from launcher.net.allow import AllowList
 from launcher.net.xmlrpc import Fault, call

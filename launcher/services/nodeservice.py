@@ -12,7 +12,7 @@ import os
 import sys
 from typing import Any, Callable
 
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.diff import Difference
 from launcher.plan.specs import node_specs, packages_of

@@ -36,9 +36,9 @@ import time
 from typing import Any, Protocol
 
 from launcher.compat import orig_argv
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.net.slave import bind_address
-from launcher.net.xmlrpc import Fault, encode_value
+from launcher.net.xmlrpc_codec import Fault, encode_value
 from launcher.model import patterns, token as run_token
 from launcher.fleet import processes
 from launcher.fleet.state import EVENTS_FILE, LOCAL_HOST
