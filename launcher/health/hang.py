@@ -15,10 +15,13 @@ A node hung before it registered is not noticed: there is nothing to ask yet.
 from __future__ import annotations
 
 import asyncio
-from typing import Any
+from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import xmlrpc
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.runner import ChildProcess, Runner, RunningNode
 
 CALLER_ID = "/roslaunch"
 
@@ -27,17 +30,17 @@ class HangDetector:
     """Probes every running node that has a `hang_timeout` once its run has registered (a supervisor watcher:
     `started`, `exiting`; and a listener of the supervisor's fleet)."""
 
-    def __init__(self, supervisor: Any):
+    def __init__(self, supervisor: Runner):
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
-        self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the probe of its current run
-        self.registered: dict[Any, str] = {}  # NodeProcess -> XML-RPC URI of its current run, probed
+        self.tasks: dict[RunningNode, asyncio.Task] = {}  # NodeProcess -> the probe of its current run
+        self.registered: dict[RunningNode, str] = {}  # NodeProcess -> XML-RPC URI of its current run, probed
         supervisor.fleet.listeners.append(self._changed)
 
-    def started(self, proc: Any) -> None:
+    def started(self, proc: RunningNode) -> None:
         self._cancel(proc)  # (a new run is probed once it registers)
 
-    def exiting(self, proc: Any) -> None:
+    def exiting(self, proc: RunningNode) -> None:
         self._cancel(proc)
 
     def close(self) -> None:
@@ -61,16 +64,16 @@ class HangDetector:
             self.tasks[proc] = self.loop.create_task(self._probe(proc, proc.popen, new.uri,
                                                                  proc.spec.policy.hang_timeout))
 
-    def _cancel(self, proc: Any) -> None:
+    def _cancel(self, proc: RunningNode) -> None:
         self.registered.pop(proc, None)
         task = self.tasks.pop(proc, None)
         if task is not None:
             task.cancel()
 
-    def _current(self, proc: Any, popen: Any) -> bool:
+    def _current(self, proc: RunningNode, popen: ChildProcess | None) -> bool:
         return proc.popen is popen and proc.alive and not proc.stopping and not self.supervisor.shutting_down
 
-    async def _probe(self, proc: Any, popen: Any, uri: str, timeout: float) -> None:
+    async def _probe(self, proc: RunningNode, popen: ChildProcess | None, uri: str, timeout: float) -> None:
         period = timeout / 3.0
         last_answer = self.loop.time()
         while self._current(proc, popen):
@@ -91,7 +94,7 @@ class HangDetector:
             return None
         return pid if code == 1 and isinstance(pid, int) else None
 
-    def _hung(self, proc: Any, timeout: float) -> None:
+    def _hung(self, proc: RunningNode, timeout: float) -> None:
         self.tasks.pop(proc, None)
         self.registered.pop(proc, None)
         self.supervisor.hung(proc, "no answer to getPid for %g s" % timeout)  # (reported, and killed)

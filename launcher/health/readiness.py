@@ -31,14 +31,17 @@ as failed to start, naming what was missing (`give_up_waiting`). The runner
 from __future__ import annotations
 
 import asyncio
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from launcher import compat
 from launcher.net import xmlrpc
 from launcher.fleet.machine import describe
-from launcher.fleet.state import Fleet
+from launcher.fleet.state import Change, Fleet
 from launcher.health.outputwatch import OutputFollower
 from launcher.model.graph import NODE, Graph
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.runner import HeldNode, ReadinessRunner
 
 # While a parameter or an output line is waited for, it is looked for at most this often.
 POLL_S = 0.2
@@ -52,14 +55,15 @@ class Readiness:
     """The nodes of one runner whose start is held, and what releases them: the graph's and the fleet's
     changes, and the poll of parameters and output lines while one is waited for."""
 
-    def __init__(self, master_uri: str, runner: Any, graph: Graph, fleet: Fleet, period: float = POLL_S):
+    def __init__(self, master_uri: str, runner: ReadinessRunner, graph: Graph, fleet: Fleet,
+                 period: float = POLL_S):
         self.master_uri = master_uri
         self.runner = runner
         self.graph = graph
         self.fleet = fleet
         self.period = period
         self.loop = asyncio.get_running_loop()
-        self.waiting: dict[Any, float] = {}  # NodeProcess -> loop time of its wait_timeout
+        self.waiting: dict[HeldNode, float] = {}  # NodeProcess -> loop time of its wait_timeout
         self._task: asyncio.Task | None = None
         self._wake = compat.Event()  # set by a change that may meet a condition
         graph.listeners.append(self._changed)
@@ -67,14 +71,14 @@ class Readiness:
         # node name -> its output file followed, while an output condition waits (runner.output_path(name))
         self.outputs: dict[str, OutputFollower] = {}
 
-    def hold(self, proc: Any) -> None:
+    def hold(self, proc: HeldNode) -> None:
         """Hold `proc` (anything with a `spec.policy`) until its conditions are met; the poll starts with
         the first one."""
         self.waiting[proc] = self.loop.time() + proc.spec.policy.wait_timeout
         if self._task is None or self._task.done():
             self._task = self.loop.create_task(self._poll())
 
-    def drop(self, proc: Any) -> None:
+    def drop(self, proc: HeldNode) -> None:
         self.waiting.pop(proc, None)
 
     def close(self) -> None:
@@ -88,7 +92,7 @@ class Readiness:
         self.waiting.clear()
         self.outputs.clear()
 
-    def _changed(self, _change: Any) -> None:
+    def _changed(self, _change: Change) -> None:
         if self.waiting:
             self._wake.set()
 

@@ -24,9 +24,12 @@ from __future__ import annotations
 import asyncio
 import errno
 import os
-from typing import Any
+from typing import TYPE_CHECKING
 
 from launcher.model.units import format_size
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.runner import Runner, RunningNode
 
 DEFAULT_PERIOD_S = 1.0
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -146,7 +149,7 @@ class GroupReader:
 class ResourceMonitor:
     """Samples a supervisor's running nodes into its Fleet and applies their limits."""
 
-    def __init__(self, supervisor: Any, period: float = DEFAULT_PERIOD_S):
+    def __init__(self, supervisor: Runner, period: float = DEFAULT_PERIOD_S):
         self.supervisor = supervisor
         self.period = period
         self.loop = asyncio.get_running_loop()
@@ -182,7 +185,7 @@ class ResourceMonitor:
             self._check_limits(proc, cpu, rss)
         self._last = last
 
-    def _check_limits(self, proc: Any, cpu: float, rss: int) -> None:
+    def _check_limits(self, proc: RunningNode, cpu: float, rss: int) -> None:
         policy = proc.spec.policy
         if policy.memory_limit is not None:
             over = rss > policy.memory_limit
@@ -193,7 +196,7 @@ class ResourceMonitor:
             self._limit(proc, "cpu_limit", policy.cpu_limit, over, "uses %.2f CPU cores, %s its limit of %g"
                         % (cpu, "over" if over else "under", policy.cpu_limit))
 
-    def _limit(self, proc: Any, limit: str, maximum: float, over: bool, what: str) -> None:
+    def _limit(self, proc: RunningNode, limit: str, maximum: float, over: bool, what: str) -> None:
         if over and proc.spec.policy.on_limit == "restart":
             self.supervisor.restart(proc, what)
             return

@@ -32,10 +32,13 @@ import asyncio
 import collections
 import logging
 import urllib.parse
-from typing import Any
+from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import tcpros, xmlrpc
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.runner import ChildProcess, Runner, RunningNode
 
 log = logging.getLogger("launcher.stall")
 
@@ -100,21 +103,21 @@ class StallWatch:
     """Watches the watched topics of every running node of a supervisor once its run has registered (a
     watcher: `started`, `exiting`; and a listener of the supervisor's fleet)."""
 
-    def __init__(self, supervisor: Any):
+    def __init__(self, supervisor: Runner):
         self.supervisor = supervisor
         self.loop = asyncio.get_running_loop()
-        self.tasks: dict[Any, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
+        self.tasks: dict[RunningNode, asyncio.Task] = {}  # NodeProcess -> the watch of its current run
         # node name -> its watched topics' TopicWatch, while its run is watched (what launch --metrics reads)
         self.watches: dict[str, dict[str, TopicWatch]] = {}
-        self.watched: set[Any] = set()  # the NodeProcesses whose current run is watched once registered
+        self.watched: set[RunningNode] = set()  # the NodeProcesses whose current run is watched once registered
         supervisor.fleet.listeners.append(self._changed)
 
-    def started(self, proc: Any) -> None:
+    def started(self, proc: RunningNode) -> None:
         if proc.spec.policy.watch_topics:
             self._cancel(proc)
             self.watched.add(proc)
 
-    def exiting(self, proc: Any) -> None:
+    def exiting(self, proc: RunningNode) -> None:
         self._cancel(proc)
         self.watched.discard(proc)
 
@@ -136,15 +139,15 @@ class StallWatch:
         if new.registered and self._current(proc, proc.popen):  # (silence counts from here)
             self.tasks[proc] = self.loop.create_task(self._watch(proc, proc.popen, new.uri, self.loop.time()))
 
-    def _cancel(self, proc: Any) -> None:
+    def _cancel(self, proc: RunningNode) -> None:
         task = self.tasks.pop(proc, None)
         if task is not None:
             task.cancel()
 
-    def _current(self, proc: Any, popen: Any) -> bool:
+    def _current(self, proc: RunningNode, popen: ChildProcess | None) -> bool:
         return proc.popen is popen and proc.alive and not proc.stopping and not self.supervisor.shutting_down
 
-    async def _watch(self, proc: Any, popen: Any, uri: str, started_at: float) -> None:
+    async def _watch(self, proc: RunningNode, popen: ChildProcess | None, uri: str, started_at: float) -> None:
         policy = proc.spec.policy
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}

@@ -17,7 +17,7 @@ from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier, since_boot
 from launcher.model.names import ANYTYPE, SEP, canonicalize_name, resolve_name
 from launcher.params.tree import ParamTree, copy_tree
-from launcher.net.xmlrpc import MAXINT, MININT, Encoded, Fault, encode_value
+from launcher.net.xmlrpc_codec import MAXINT, MININT, Encoded, Fault, encode_value
 
 
 NO_CHECK = None  # an argument passed on as it is

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from launcher.net.xmlrpc import Encoded, encode_value
+from launcher.net.xmlrpc_codec import Encoded, encode_value
 
 PUBLICATIONS = 1
 SUBSCRIPTIONS = 2

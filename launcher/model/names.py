@@ -6,7 +6,6 @@ the master and every client library agree on them.
 
 from __future__ import annotations
 
-import os
 import re
 import sys
 
@@ -90,7 +89,8 @@ def resolve_name(name: str, namespace_: str, remappings: dict[str, str] | None =
 
 def anonymous_name(id_: str) -> str:
     """`id_<host>_<pid>_<random>`, as rosgraph.names.anonymous_name makes it."""
-    import random  # lazy: only $(anon) needs these, and socket costs ~2 ms to import
+    import os  # lazy: only $(anon) needs these (socket costs ~2 ms to import), and the pure modules that
+    import random  # import this one (the node state machine, the plan diff) load no I/O module through it
     import socket
     name = "%s_%s_%s_%s" % (id_, socket.gethostname(), os.getpid(), random.randint(0, sys.maxsize))
     return name.replace(".", "_").replace("-", "_").replace(":", "_")

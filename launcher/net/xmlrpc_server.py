@@ -24,7 +24,7 @@ from typing import Any, Awaitable, Callable, NamedTuple
 
 from launcher.net.http import CONTINUE, NEED_DATA, HttpError, RequestLimits, RequestReader, format_response
 from launcher.net.open_files import connection_cap
-from launcher.net.xmlrpc import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
+from launcher.net.xmlrpc_codec import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
 
 log = logging.getLogger("launcher.xmlrpc_server")
 

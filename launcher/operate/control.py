@@ -12,7 +12,7 @@ import argparse
 import re
 import sys
 
-from launcher.net.xmlrpc import Fault
+from launcher.net.xmlrpc_codec import Fault
 from launcher.operate import client
 from launcher.model import token as run_token
 from launcher.model.suggest import did_you_mean

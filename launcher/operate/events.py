@@ -18,7 +18,7 @@ import time
 
 from launcher.operate import client
 from launcher.operate.logs import tail
-from launcher.fleet.state import LOCAL_HOST
+from launcher.operate.columns import words
 
 
 def parser() -> argparse.ArgumentParser:
@@ -37,29 +37,6 @@ def describe(event: dict) -> str:
         return " ".join([when, str(event["event"]).replace("_", " ")] + (
             ["(%s)" % event["reason"]] if event.get("reason") else []))
     return "%s %s %s" % (when, event.get("node", "?"), words(event))
-
-
-def words(event: dict) -> str:
-    """A node's change in words, after its name: "running pid 21006 restarts 1 (started by operator)" (the
-    live view's output pane says each change so too)."""
-    parts = []
-    if event.get("host") not in (None, "", LOCAL_HOST):  # a node on another machine (<machine>)
-        parts.append("on %s" % event["host"])
-    parts.append(event.get("state", "?"))
-    if event.get("pid"):
-        parts.append("pid %s" % event["pid"])
-    if event.get("registered"):  # (its run registered with the master: up, not only running)
-        parts.append("registered at %s" % event.get("uri", "?"))
-    if event.get("exit_signal") is not None:
-        parts.append("signal %s" % event["exit_signal"])
-    elif event.get("exit_code") is not None:
-        parts.append("exit code %s" % event["exit_code"])
-    parts.append("restarts %s" % event.get("restarts", 0))
-    if event.get("over_limit"):
-        parts.append("over %s" % ", ".join(sorted(event["over_limit"])))
-    if event.get("reason"):
-        parts.append("(%s)" % event["reason"])
-    return " ".join(parts)
 
 
 def _main(argv: list[str]) -> int:

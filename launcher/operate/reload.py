@@ -17,7 +17,7 @@ import json
 import sys
 
 from launcher.model import token as run_token
-from launcher.net.xmlrpc import Fault
+from launcher.net.xmlrpc_codec import Fault
 from launcher.operate import client
 from launcher.operate.control import CONTROL_TIMEOUT_S, read_token
 

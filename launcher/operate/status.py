@@ -18,13 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import sys
 from typing import Any
 
 from launcher.operate import client
 from launcher.fleet.state import over_limit_text
-from launcher.model.units import format_size
+from launcher.operate.columns import HEADER, row
 
 
 def parser() -> argparse.ArgumentParser:
@@ -36,39 +35,6 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def duration(seconds: float | None) -> str:
-    if seconds is None:
-        return "-"
-    s = int(seconds)
-    if s < 60:
-        return "%ds" % s
-    if s < 3600:
-        return "%dm%02ds" % (s // 60, s % 60)
-    if s < 86400:
-        return "%dh%02dm" % (s // 3600, s % 3600 // 60)
-    return "%dd%02dh" % (s // 86400, s % 86400 // 3600)
-
-
-def exit_text(code: int | None, sig: int | None) -> str:
-    """How a run ended: SIGSEGV, code 3, or - (not ended)."""
-    if sig is not None:
-        try:
-            return signal.Signals(sig).name
-        except ValueError:
-            return "signal %d" % sig
-    if code is not None:
-        return "code %d" % code
-    return "-"
-
-
-def last_exit(node: dict[str, Any]) -> str:
-    """The LAST EXIT column: how the node's last run that ended did end, also while it runs again (a status
-    from a launch without `last_exit_*`: the current run's exit fields)."""
-    if "last_exit_code" in node or "last_exit_signal" in node:
-        return exit_text(node.get("last_exit_code"), node.get("last_exit_signal"))
-    return exit_text(node.get("exit_code"), node.get("exit_signal"))
-
-
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
     text = title + "\n" + node_table(info["nodes"])
@@ -77,27 +43,6 @@ def table(info: dict[str, Any]) -> str:
                  "%d waiting" % (" ".join(u["names"]) or "?", u["api"], u["failures"], u["failing_s"],
                                  u["last_error"], u["queued"]))
     return text
-
-
-HEADER = ("NODE", "STATE", "REG", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
-
-
-def registered(n: dict[str, Any]) -> str:
-    """The REG column: a running node's run registered with the master ("yes"), or not yet ("no")."""
-    if n["state"] not in ("running", "stalled", "hung"):
-        return "-"
-    return "yes" if n.get("registered") else "no"
-
-
-def row(n: dict[str, Any]) -> tuple[str, ...]:
-    """A node's columns (HEADER), as text: `launcher status` and the live view (operate/view.py) show these."""
-    # pid, CPU and RSS are the current run's: a node that is not running has none (the state model
-    # keeps the last sample of a run that ended)
-    running = n["state"] == "running"
-    return (n["name"], n["state"], registered(n), str(n["pid"]) if n.get("pid") and running else "-",
-            duration(n.get("uptime")), str(n.get("restarts", 0)), last_exit(n),
-            "-" if n.get("cpu") is None or not running else "%.0f%%" % (100 * n["cpu"]),
-            "-" if n.get("rss") is None or not running else format_size(n["rss"], measured=True), n.get("host", ""))
 
 
 def node_table(nodes: list[dict[str, Any]]) -> str:

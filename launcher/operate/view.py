@@ -14,8 +14,7 @@ import collections
 from typing import Any, Iterable
 
 from launcher.fleet.state import keep_last_exit
-from launcher.operate import events
-from launcher.operate import status as status_columns
+from launcher.operate import columns
 
 OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
 STATE_STYLE = {"running": "green", "waiting": "yellow", "respawning": "yellow", "hung": "red", "fatal": "red",
@@ -59,7 +58,7 @@ class ViewState:
         self.message = ""  # the answer to the operator's last action
         self.seq = 0  # the last change of the stream applied
         self.history: dict[str, collections.deque] = {}  # node -> its CPU samples (cores; None: not running)
-        self.header: list[str] = list(status_columns.HEADER)  # the table's header as the last rows were fitted
+        self.header: list[str] = list(columns.HEADER)  # the table's header as the last rows were fitted
         self.sep = "  "
 
     # ---- fed by the launch ---------------------------------------------------------------------------
@@ -203,7 +202,7 @@ class ViewState:
 
     def table_rows(self, height: int, now: float, width: int = 0) -> list[tuple[str, str, bool]]:
         """(row text, the state's style, selected) of the visible nodes, `height` rows at most, scrolled so that
-        the selection shows. The columns are `launcher status`'s (operate/status.row); in `width` columns
+        the selection shows. The columns are `launcher status`'s (operate/columns.row); in `width` columns
         (0: no limit) they are fitted as `fit_columns` does, every column kept."""
         shown = self.visible()
         if height <= 0 or not shown:
@@ -216,8 +215,8 @@ class ViewState:
                 self.table_top = i - height + 1
         self.table_top = max(0, min(self.table_top, len(shown) - height))
         window = shown[self.table_top:self.table_top + height]
-        rows = [status_columns.row(self._with_uptime(self.nodes[name], now)) for name in window]
-        self.header, rows, sep = fit_columns(status_columns.HEADER, rows, width - len(MARK) if width else 0)
+        rows = [columns.row(self._with_uptime(self.nodes[name], now)) for name in window]
+        self.header, rows, sep = fit_columns(columns.HEADER, rows, width - len(MARK) if width else 0)
         self.sep = sep
         out = []
         for name, r in zip(window, rows):
@@ -305,4 +304,4 @@ def cut_right(text: str, n: int) -> str:
 
 def change_text(c: dict[str, Any]) -> str:
     """A change as one line of the pane: as `launcher events` says it (its time and node aside)."""
-    return events.words(c)
+    return columns.words(c)

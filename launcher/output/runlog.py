@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping
 
 from launcher.output import console
 from launcher.output.logdir import make_run_log_dir
-from launcher.fleet.state import visible
+from launcher.fleet.state import Change, visible
 
 
 class RunLog:
@@ -52,7 +52,7 @@ class RunLog:
         """`what` happened, this long after the run started (time.monotonic() then)."""
         self.note("+%.3f s: %s" % (time.monotonic() - started, what))
 
-    def state_change(self, change: Any) -> None:
+    def state_change(self, change: Change) -> None:
         """A Fleet listener: each node's state change a reader outside sees, with what a reader of the
         log needs."""
         if not visible(change):

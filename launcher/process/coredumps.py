@@ -21,10 +21,13 @@ import os
 import resource
 import socket
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from launcher.compat import P_PIDFD
 from launcher.output import console
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.runner import RunningNode
 
 CORE_PATTERN = "/proc/sys/kernel/core_pattern"
 CORE_USES_PID = "/proc/sys/kernel/core_uses_pid"
@@ -88,10 +91,10 @@ def core_location(pid: int, cwd: str, executable: str, pattern: str | None = Non
 class CoreDumpReporter:
     """A supervisor watcher: says where the core of a node with `enable_coredumps` went."""
 
-    def started(self, proc: Any) -> None:
+    def started(self, proc: RunningNode) -> None:
         pass
 
-    def exiting(self, proc: Any) -> None:
+    def exiting(self, proc: RunningNode) -> None:
         if not proc.spec.policy.enable_coredumps or proc.pidfd is None:
             return
         try:

@@ -29,13 +29,14 @@ from launcher.services import masterlink
 from launcher.process.command import master_uri
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.services.masterlink import MasterSession
 from launcher.services.masterwatch import MasterWatch
 from launcher.services.metrics import Exporter, MetricsServer
 from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
+from launcher.services.service import Service
 from launcher.run.reload import Reloader
 from launcher.workspace.packages import PackageIndex
 from launcher.plan.machines import remote_machines
@@ -310,7 +311,7 @@ class Run:
         self.body = body if body is not None else Run.wait_for_the_end
         self.first_number = first_number  # roslaunch numbers processes (rosout-1, then the nodes)
         self._started = time.monotonic()  # (the launch log's timings count from here)
-        self._up: list[Any] = []  # the services started (or starting)
+        self._up: list[Service] = []  # the services started (or starting)
         # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
         self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
         # orphans re-parented to the launch are reaped (process/reaper.py); a front-end that waits for a
@@ -320,7 +321,7 @@ class Run:
         self.master_watch: MasterWatch | None = None  # a master found running: its restarts (services/masterwatch)
 
     @property
-    def services(self) -> list[Any]:
+    def services(self) -> list[Service]:
         """In start order; each has `start()` and `stop()` (the stop undoes what a start did, if anything)."""
         return [s for s in (self.master, self.api, self.rosout, self.nodes, self.master_watch, self.diagnostics,
                             self.log_disk, self.metrics) if s is not None]  # (rosout outlives the nodes: their last words reach its log)

@@ -16,9 +16,12 @@ from __future__ import annotations
 import asyncio
 import struct
 import time
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 from launcher.fleet import state
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.master.server import Master
 
 TOPIC = "/diagnostics"
 TYPE = "diagnostic_msgs/DiagnosticArray"
@@ -134,8 +137,8 @@ def topic_type() -> Any:
 class Diagnostics:
     """A node of the launcher that publishes the fleet's states on /diagnostics."""
 
-    def __init__(self, master_uri: str, fleet: Any, *, environ: Mapping[str, str] | None = None,
-                 period: float = PERIOD_S, master: Any = None):
+    def __init__(self, master_uri: str, fleet: state.Fleet, *, environ: Mapping[str, str] | None = None,
+                 period: float = PERIOD_S, master: Master | None = None):
         self.master_uri = master_uri
         self.fleet = fleet
         self.master = master  # our master (None: a master found running), for the nodes it cannot reach

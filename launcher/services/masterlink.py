@@ -12,16 +12,19 @@ from __future__ import annotations
 import asyncio
 import os
 import urllib.parse
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from launcher.model.errors import LaunchError
-from launcher.master import Master, advertised_host
+from launcher.master.server import Master, advertised_host
 from launcher.model.graph import Graph
 from launcher.net.allow import AllowList
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
 from launcher.output import console
 from launcher.model.runopts import RunOptions
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.services.service import Params
 
 CALLER_ID = "/roslaunch"
 DEFAULT_MASTER_PORT = 11311
@@ -119,7 +122,7 @@ async def started_by_roscore(uri: str) -> bool:
 class LocalParams:
     """The parameter server of our own, in-process master."""
 
-    def __init__(self, master: Any):
+    def __init__(self, master: Master):
         self.master = master
 
     async def has(self, key: str) -> bool:
@@ -200,7 +203,7 @@ class RemoteParams:
                 raise LaunchError("Failed to set parameter: %s" % msg)
 
 
-async def start_master(port: int, environ: Mapping[str, str], allow: Any = None) -> Any:
+async def start_master(port: int, environ: Mapping[str, str], allow: Any = None) -> Master:
     """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken.
 
     `allow` (a launcher.net.allow.AllowList) closes it to clients from other networks."""
@@ -231,8 +234,8 @@ class MasterSession:
         self.signals = signals
         self.core = plan.core
         self.uri = plan.master_uri
-        self.master: Any = None  # ours, when we run it
-        self.params: Any = None  # LocalParams or RemoteParams
+        self.master: Master | None = None  # ours, when we run it
+        self.params: Params | None = None  # LocalParams or RemoteParams
         self.external = False  # a master was already running
         self.run_id = ""
         self._graph = Graph()  # what is registered with a master found running (its watcher asks)

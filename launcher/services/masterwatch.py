@@ -26,13 +26,16 @@ with the launch.
 from __future__ import annotations
 
 import asyncio
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from launcher.fleet import machine
 from launcher.fleet.state import LOCAL_HOST
 from launcher.model.graph import NODE, SERVICE, TOPIC
 from launcher.net.xmlrpc import call
 from launcher.output import console
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.services.service import MasterLink, RunNodes
 
 CALLER_ID = "/roslaunch"
 # One call a second: a restart is noticed within about a second, and a master serving hundreds of nodes
@@ -116,9 +119,9 @@ class MasterState:
 class MasterWatch:
     """The launch's service that watches a master found running (see the module's text)."""
 
-    def __init__(self, session: Any, nodes: Any, period: float = WATCH_PERIOD_S):
-        self.session = session  # masterlink.MasterSession: the URI, the parameters, the run id
-        self.nodes = nodes  # nodeservice.NodeService: the fleet and the supervisor
+    def __init__(self, session: MasterLink, nodes: RunNodes, period: float = WATCH_PERIOD_S):
+        self.session = session  # the URI, the parameters, the run id
+        self.nodes = nodes  # the fleet and the supervisor
         self.period = period
         self.state = MasterState(session.run_id)
         self._task: asyncio.Task | None = None

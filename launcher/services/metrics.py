@@ -32,7 +32,7 @@ import operator
 import socket
 import sys
 import threading
-from typing import Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from launcher import __version__
 from launcher.fleet import machine
@@ -40,6 +40,9 @@ from launcher.fleet.state import LOCAL_HOST, STATES
 from launcher.master.callstats import BUCKETS, MethodStats
 from launcher.model.errors import LaunchError
 from launcher.output import console
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.services.service import MasterLink, RunNodes
 
 SNAPSHOT_WAIT_S = 2.0  # a scrape waits this long for the loop's snapshot, then serves the last one
 RUNNING_PHASES = frozenset((machine.RUNNING, machine.HUNG, machine.STALLED, machine.STOPPING))  # a process runs
@@ -92,9 +95,9 @@ def node_columns(records: tuple, statuses: tuple) -> dict[str, tuple]:
 class Exporter:
     """What a run's metrics are read from: its master session and its nodes (the fleet, the stall watch)."""
 
-    def __init__(self, master: Any, nodes: Any, run_id: Callable[[], str]):
-        self.master = master  # masterlink.MasterSession
-        self.nodes = nodes  # nodeservice.NodeService
+    def __init__(self, master: MasterLink, nodes: RunNodes, run_id: Callable[[], str]):
+        self.master = master
+        self.nodes = nodes
         self.run_id = run_id
         self.formatter = Formatter()  # (what each family's text was at the last scrape, for both servers)
 

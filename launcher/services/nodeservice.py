@@ -10,9 +10,9 @@ from __future__ import annotations
 import asyncio
 import os
 import sys
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.diff import Difference
 from launcher.plan.specs import node_specs, packages_of
@@ -32,6 +32,9 @@ from launcher.services import runrecord
 from launcher.remote.parent import RemoteParent
 from launcher.model.runopts import RunOptions
 
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.output.runlog import RunLog
+
 
 def _short_repr(value: Any, limit: int = 200) -> str:
     text = repr(value)
@@ -43,11 +46,11 @@ class NodeService:
     sets up its master), `start` spawns this machine's nodes and hands the others to their children,
     `stop` stops them all (the machines while this one stops its own) and writes the launch's end."""
 
-    def __init__(self, opts: RunOptions, plan: Any, log: Any, signals: Any, watchdog: Any,
+    def __init__(self, opts: RunOptions, plan: Any, log: RunLog, signals: Any, watchdog: Any,
                  end_reason: Callable[[], str]):
         self.opts = opts
         self.plan = plan
-        self.log = log  # runlog.RunLog: where the launch log is, what it notes
+        self.log = log  # where the launch log is, what it notes
         self.signals = signals
         self.watchdog = watchdog
         self.end_reason = end_reason  # why the run ends, in words (the events file's last line)

@@ -33,15 +33,19 @@ import asyncio
 import json
 import os
 import time
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from launcher.compat import orig_argv
-from launcher.master import advertised_host
+from launcher.master.server import advertised_host
 from launcher.net.slave import bind_address
-from launcher.net.xmlrpc import Fault, encode_value
+from launcher.net.xmlrpc_codec import Fault, encode_value
 from launcher.model import patterns, token as run_token
 from launcher.fleet import processes
 from launcher.fleet.state import EVENTS_FILE, LOCAL_HOST
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.state import Fleet
+    from launcher.services.service import RunNodes
 
 OUTPUT_CHECK_S = 0.5  # how often a waiting launcher_output looks at the files' sizes (a node writes its own file)
 ROSOUT_KEY = "@rosout"  # in launcher_output's offsets: the /rosout warnings' number (no node name has an "@")
@@ -60,8 +64,8 @@ def rosname_of_host(host: str) -> str:
 class RunView(Protocol):
     """What the server sees of its run (`launcher.services.servers.RunView`): its nodes, its identity, its core."""
 
-    nodes: Any  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
-    fleet: Any  # every node's state (fleet.state.Fleet), None before the nodes are started
+    nodes: RunNodes  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
+    fleet: Fleet | None  # every node's state, None before the nodes are started
     run_id: str
     master_uri: str
     log_dir: str

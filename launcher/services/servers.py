@@ -7,7 +7,7 @@ stop is then nothing), as roslaunch goes on without a log collector.
 from __future__ import annotations
 
 import asyncio
-from typing import Any
+from typing import TYPE_CHECKING, Awaitable, Callable
 
 from launcher.model.errors import LaunchError
 from launcher.net.rosout import Rosout
@@ -18,6 +18,12 @@ from launcher.output import console
 from launcher.output.logdir import watch_log_disk
 from launcher.workspace.roshome import log_root
 
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.state import Fleet
+    from launcher.output.runlog import RunLog
+    from launcher.services.metrics import Exporter
+    from launcher.services.service import MasterLink, RunNodes
+
 SERVER_UNREGISTER_S = 3.0  # a master that outlives the run is told the server is gone, if it answers by then
 
 
@@ -25,19 +31,20 @@ class RunView:
     """The narrow view of a run that its API server reads: the nodes (the fleet, their control), the run's
     identity (run id, master URI, log directory, launch files), and the core processes it started."""
 
-    def __init__(self, master: Any, nodes: Any, log: Any, rosout: Any, launch_files: tuple[str, ...]):
-        self._master = master  # masterlink.MasterSession
-        self.nodes = nodes  # nodeservice.NodeService
+    def __init__(self, master: MasterLink, nodes: RunNodes, log: RunLog, rosout: RosoutService | None,
+                 launch_files: tuple[str, ...]):
+        self._master = master
+        self.nodes = nodes
         self._log = log
         self._rosout = rosout  # RosoutService, or None
         self.launch_files = list(launch_files)
         # a reload of the run (run/reload.py: `async reload(args, dry_run) -> answer`), when it can have one
-        self.reload: Any = None
+        self.reload: Callable[[list[str], bool], Awaitable[dict]] | None = None
         # the run's metrics (services/metrics.Exporter: `async text()`), for `launcher_metrics`
-        self.metrics: Any = None
+        self.metrics: Exporter | None = None
 
     @property
-    def fleet(self) -> Any:
+    def fleet(self) -> Fleet | None:
         return self.nodes.fleet
 
     @property
@@ -63,7 +70,7 @@ class RunView:
         return core
 
     @property
-    def warnings(self) -> Any:
+    def warnings(self) -> RosoutTail | None:
         """The recent WARN/ERROR/FATAL lines of /rosout (services.rosouttail.RosoutTail), None without our rosout."""
         return self._rosout.tail if self._rosout is not None and self._rosout.rosout is not None else None
 
@@ -77,7 +84,7 @@ class ApiServer:
     """roslaunch's XML-RPC API (roscore's too): started first, as roslaunch's, registered on the master
     once /run_id is set, and unregistered from a master that outlives the run."""
 
-    def __init__(self, view: RunView, master: Any, environ: dict[str, str]):
+    def __init__(self, view: RunView, master: MasterLink, environ: dict[str, str]):
         self.view = view
         self.master = master  # masterlink.MasterSession
         self.environ = environ
@@ -123,7 +130,7 @@ class RosoutService:
     """The built-in rosout, with a master of ours (roslaunch starts its core nodes only with its own master);
     roslaunch runs it as process "rosout-1", so the nodes' numbers (and log file names) start after it."""
 
-    def __init__(self, master: Any, log: Any, environ: dict[str, str]):
+    def __init__(self, master: MasterLink, log: RunLog, environ: dict[str, str]):
         self.master = master  # masterlink.MasterSession
         self.log = log
         self.environ = environ
@@ -169,7 +176,7 @@ class RosoutService:
 class DiagnosticsService:
     """/diagnostics of the nodes' health, published from the fleet."""
 
-    def __init__(self, master: Any, nodes: Any, environ: dict[str, str]):
+    def __init__(self, master: MasterLink, nodes: RunNodes, environ: dict[str, str]):
         self.master = master
         self.nodes = nodes
         self.environ = environ

@@ -24,10 +24,13 @@ import asyncio
 import os
 import socket
 import time
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from launcher.fleet import machine
 from launcher.model.runopts import RunOptions
+
+if TYPE_CHECKING:  # (annotations only)
+    from launcher.fleet.state import Change, Fleet
 
 # How long READY=1 waits for the nodes before it is sent anyway, naming the nodes not up (systemd's own
 # TimeoutStartSec, which the unit sets longer, would otherwise kill a robot with one node that is slow)
@@ -98,7 +101,7 @@ class Notifier:
         self._warned = False
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._sock.setblocking(False)
-        self._fleet: Any = None
+        self._fleet: Fleet | None = None
         self._status = ""
         self._status_due = False
         self._ping: asyncio.TimerHandle | None = None
@@ -153,7 +156,7 @@ class Notifier:
 
     # ---- readiness and status -------------------------------------------------------------------------------
 
-    def attach(self, fleet: Any) -> None:
+    def attach(self, fleet: Fleet) -> None:
         """Follow `fleet`: STATUS= at its changes, READY=1 once its nodes are up (each change is looked at:
         a registration is one), at the latest after the ready timeout."""
         self._fleet = fleet
@@ -161,7 +164,7 @@ class Notifier:
         self._deadline = asyncio.get_running_loop().call_later(self.ready_timeout, self._timed_out)
         self._check_ready()
 
-    def _changed(self, change: Any) -> None:
+    def _changed(self, change: Change) -> None:
         if not self.ready:
             self._check_ready()
         if not self._status_due:  # (a burst of changes in one loop pass makes one datagram)

@@ -141,7 +141,7 @@ class MasterThread:
     """The launcher's own embedded master, on its own loop in a thread."""
 
     def __init__(self, port: int):
-        from launcher.master import Master
+        from launcher.master.server import Master
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()

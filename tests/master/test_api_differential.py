@@ -15,7 +15,7 @@ import xmlrpc.client
 
 
 from launcher.master.api import MasterApi
-from launcher.net.xmlrpc import dumps_response
+from launcher.net.xmlrpc_codec import dumps_response
 
 REFERENCE = r'''
 import copy, json, sys, xmlrpc.client

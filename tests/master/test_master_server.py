@@ -12,7 +12,7 @@ from xmlrpc.server import SimpleXMLRPCRequestHandler, SimpleXMLRPCServer
 
 import pytest
 
-from launcher.master import Master
+from launcher.master.server import Master
 
 from helpers import post_once
 

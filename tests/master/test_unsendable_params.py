@@ -60,7 +60,7 @@ def test_unsendable_value_is_refused_and_the_tree_stays_readable(core_uri, value
 def test_in_process_set_param_refuses_it_too():
     import asyncio
 
-    from launcher.master import Master
+    from launcher.master.server import Master
 
     async def scenario():
         master = Master(host="127.0.0.1", port=0, environ={"ROS_IP": "127.0.0.1"})

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from launcher.net import xmlrpc as X
+from launcher.net import xmlrpc_codec as C
 from launcher.net import xmlrpc_server as S
 
 from helpers import ROOT, free_port, until
@@ -381,7 +382,7 @@ flat_values = st.one_of(st.integers(X.MININT, X.MAXINT), st.booleans(), st.float
 
 
 def _expat_only(body: bytes):
-    u = X._parse(body)
+    u = C._parse(body)
     return u.method, u.stack
 
 

@@ -3,7 +3,7 @@ the change stream and the output pane, against a fake clock."""
 
 from __future__ import annotations
 
-from launcher.operate import status
+from launcher.operate import columns
 from launcher.operate.view import NODE_OUTPUT, ViewState
 
 T0 = 1000.0
@@ -32,8 +32,8 @@ def test_rows_are_launcher_status_columns_with_uptime_from_the_clock():
     assert rows[1][0].split() == ["/b", "stopped", "-", "-", "-", "0", "code", "0", "-", "-", "localhost"]
     assert rows[1][1:] == ("grey", False)
     # the same cells as `launcher status` gives for that node
-    assert tuple(a[1:]) == status.row(dict(v.nodes["/a"], uptime=75.0))
-    assert v.table_header(T0).split() == list(status.HEADER[:6]) + ["LAST", "EXIT"] + list(status.HEADER[7:])
+    assert tuple(a[1:]) == columns.row(dict(v.nodes["/a"], uptime=75.0))
+    assert v.table_header(T0).split() == list(columns.HEADER[:6]) + ["LAST", "EXIT"] + list(columns.HEADER[7:])
 
 
 def test_a_change_updates_the_row_and_says_it_in_the_pane():
@@ -212,4 +212,4 @@ def test_the_last_exit_stays_while_the_node_runs_again():
         assert v.table_rows(1, T0 + 5)[0][0].split()[7:9] == ["code", "3"]
     v.changes([{"seq": 9, "time": T0 + 9, "node": "/crasher", "state": "respawning", "pid": None, "exit_code": None,
                 "exit_signal": 11}])
-    assert status.last_exit(v.nodes["/crasher"]) == "SIGSEGV" and v.nodes["/crasher"]["last_exit_at"] == T0 + 9
+    assert columns.last_exit(v.nodes["/crasher"]) == "SIGSEGV" and v.nodes["/crasher"]["last_exit_at"] == T0 + 9

@@ -44,7 +44,7 @@ def test_type_is_rosbags_diagnostic_array():
 
 
 def test_nodes_the_master_cannot_reach_are_one_warn_status():
-    from launcher.master import UnresponsiveNode
+    from launcher.master.server import UnresponsiveNode
     fleet = Fleet()
     assert diagnostics.master_status([]) is None  # every node answers: no entry at all
     u = UnresponsiveNode(["/wedged"], "http://10.0.0.9:4242/", 3, 12.0, "timed out", 2)
