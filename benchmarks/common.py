@@ -1,4 +1,4 @@
-"""What the benchmark scripts share: Debian's ROS tools first on PATH, and a free port.
+"""What the benchmark scripts share: Debian's ROS tools first on PATH, a free port, a process's CPU and peak memory.
 
 The scripts run as `python3 benchmarks/NAME.py`, so this folder is on their import path.
 """
@@ -47,3 +47,19 @@ def cpu_seconds(pid: int) -> float:
         except OSError:
             pass  # a thread that just ended (a scrape's)
     return total / 1e9
+
+
+def vm_hwm_mb(pid: int) -> float:
+    """A running process's peak resident memory (VmHWM), in MB: every startup figure is reported beside it."""
+    with open("/proc/%d/status" % pid) as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def vmhwm_note(metrics: dict, labels: tuple = ("new", "roslaunch", "floor")) -> str:
+    """ "VmHWM new 20.1 MB, roslaunch 47.3 MB" from a bench.py summary's metrics (its launcher_vmhwm_mb), or ''."""
+    found = ["%s %.1f MB" % (label, metrics[label]["launcher_vmhwm_mb"]["median"]) for label in labels
+             if metrics.get(label, {}).get("launcher_vmhwm_mb", {}).get("median") is not None]
+    return "VmHWM " + ", ".join(found) if found else ""

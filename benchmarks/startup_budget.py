@@ -6,7 +6,8 @@
 It reports; it asserts nothing (what a start imports is a cost to watch, not a
 rule to test). For each of `launch --nodes small.launch` and `launch
 small.launch` (our own master on a free port, stopped by SIGINT once its first
-node runs) it prints the median and min wall time over `--reps` runs, then, from
+node runs) it prints the median and min wall time over `--reps` runs and the median
+VmHWM (peak resident memory, at the first spawn for a run), then, from
 one extra run under `python -X importtime`, which modules of HEAVY got
 imported and the ten largest imports by cumulative time.
 """
@@ -24,6 +25,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+from common import vm_hwm_mb  # (this folder is on the path of a script run from it)
 
 # Modules a start should not need, or needs only for a reason worth seeing.
 HEAVY = ("argparse", "asyncio", "dataclasses", "email", "http.client", "lxml", "psutil", "uuid", "xmlrpc.client",
@@ -55,19 +58,27 @@ def make_launch(root: str, nodes: int) -> tuple[str, dict[str, str]]:
     return launch, env
 
 
-def time_nodes(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, bytes]:
+def time_nodes(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, float, bytes]:
+    """Seconds, peak resident MB (its VmHWM: the rusage of the ended process), stderr."""
     t0 = time.perf_counter()
-    out = subprocess.run(cmd + ["--nodes", launch], env=env, capture_output=True, check=True)
-    return time.perf_counter() - t0, out.stderr
+    p = subprocess.Popen(cmd + ["--nodes", launch], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    err = p.stderr.read()
+    _, status, usage = os.wait4(p.pid, 0)
+    elapsed = time.perf_counter() - t0
+    p.returncode = status
+    if status:
+        raise RuntimeError("launch --nodes failed:\n%s" % err.decode(errors="replace"))
+    return elapsed, usage.ru_maxrss / 1024.0, err
 
 
-def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, bytes]:
-    """Seconds from Popen to the first 'started with pid' line; the launch is then stopped."""
+def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, float, bytes]:
+    """Seconds from Popen to the first 'started with pid' line, the launch's VmHWM then (MB), stderr; the
+    launch is then stopped."""
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd + ["--skip-log-check", launch], env=env, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
     out = b""
-    elapsed = float("nan")
+    elapsed = hwm = float("nan")
     try:
         os.set_blocking(p.stdout.fileno(), True)
         while True:
@@ -77,11 +88,12 @@ def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[
             out += line
             if STARTED.search(line):
                 elapsed = time.perf_counter() - t0
+                hwm = vm_hwm_mb(p.pid)
                 break
     finally:
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=60)
-    return elapsed, err
+    return elapsed, hwm, err
 
 
 def imports(stderr: bytes) -> list[tuple[int, str]]:
@@ -94,11 +106,11 @@ def imports(stderr: bytes) -> list[tuple[int, str]]:
     return found
 
 
-def report(name: str, times: list[float], stderr: bytes) -> None:
+def report(name: str, times: list[float], hwms: list[float], stderr: bytes) -> None:
     mods = imports(stderr)
     names = {m for _, m in mods}
-    print("%-12s median %.1f ms  min %.1f ms  (%d runs)" % (name, statistics.median(times) * 1e3,
-                                                           min(times) * 1e3, len(times)))
+    print("%-12s median %.1f ms  min %.1f ms  VmHWM median %.1f MB  (%d runs)" % (
+        name, statistics.median(times) * 1e3, min(times) * 1e3, statistics.median(hwms), len(times)))
     print("  heavy modules imported: %s" % (", ".join(h for h in HEAVY if h in names) or "none"))
     top = sorted(mods, reverse=True)[:10]
     print("  largest imports (cumulative): %s" % ", ".join("%s %.1f ms" % (m, us / 1e3) for us, m in top))
@@ -115,9 +127,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="startup-budget-") as root:
         launch, env = make_launch(root, args.nodes)
         for name, measure in (("--nodes", time_nodes), ("first spawn", time_first_spawn)):
-            times = [measure(cmd, launch, env)[0] for _ in range(args.reps)]
+            runs = [measure(cmd, launch, env) for _ in range(args.reps)]
             traced = [py, "-X", "importtime"] + cmd[1:] if py else cmd
-            report(name, times, measure(traced, launch, env)[1])
+            report(name, [r[0] for r in runs], [r[1] for r in runs], measure(traced, launch, env)[2])
     return 0
 
 

@@ -23,7 +23,7 @@ import subprocess
 import sys
 import tempfile
 
-from common import ROS_PATH  # (this folder is on the path of a script run from it)
+from common import ROS_PATH, vmhwm_note  # (this folder is on the path of a script run from it)
 
 # the project's shared driver, beside the checkout
 SHARED_BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "bench",
@@ -112,10 +112,10 @@ def main() -> int:
                 continue
             ratio = ratios.get("new", {}).get(metric)
             ok = None if check is None or ratio is None else check(ratio)
-            print("%-24s %s: ours %.3f s, roslaunch %.3f s, paired ratio %s  [%s]  (%s)"
+            print("%-24s %s: ours %.3f s, roslaunch %.3f s, paired ratio %s  [%s]  (%s)  %s"
                   % (name, metric, mine.get("median", float("nan")), ref.get("median", float("nan")),
                      "%.3f" % ratio if ratio is not None else "n/a",
-                     "-" if ok is None else ("ok" if ok else "MISSED"), goal))
+                     "-" if ok is None else ("ok" if ok else "MISSED"), goal, vmhwm_note(metrics)))
             failed |= ok is False
         sys.stdout.flush()
     return 1 if failed else 0

@@ -5,9 +5,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import struct
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 from launcher.net.slave import SlaveNode, default_host
 from launcher.net.tcpros import PublisherLink, ServiceServer, TopicType
@@ -15,7 +16,6 @@ from launcher.net.tcpros import PublisherLink, ServiceServer, TopicType
 log = logging.getLogger("launcher.rosout")
 
 LOG_TYPE = "rosgraph_msgs/Log"
-_LOG_TYPE_RB = "rosgraph_msgs/msg/Log"
 # rosout.cpp's defaults: rotate at 100 MB, keep rosout.log.1 .. rosout.log.10.
 MAX_FILE_SIZE = 100 * 1024 * 1024
 MAX_BACKUPS = 10
@@ -51,16 +51,6 @@ _LOGGER_SERVICE_TYPES = {
     "roscpp/msg/SetLoggerLevel_Request": "string logger\nstring level",
     "roscpp/msg/SetLoggerLevel_Response": "",
 }
-# rosgraph_msgs/Log seen as bytes: a ROS 1 `string` and a `uint8[]` are the same on the wire
-# (length, then bytes), so this type reads a Log whose strings are not UTF-8 (roscpp sends any
-# bytes) and lets us write them out untouched, as rosout.cpp does, instead of losing the line.
-_RAW_LOG = "launcher_rosout/msg/RawLog"
-_RAW_LOG_TYPES = {
-    "launcher_rosout/msg/RawString": "uint8[] data",
-    "launcher_rosout/msg/RawHeader": "uint32 seq\ntime stamp\nuint8[] frame_id",
-    _RAW_LOG: "launcher_rosout/RawHeader header\nbyte level\nuint8[] name\nuint8[] msg\n"
-              "uint8[] file\nuint8[] function\nuint32 line\nlauncher_rosout/RawString[] topics",
-}
 # What our Python loggers are called in roscpp's level words, and back.
 _PY_TO_ROS_LEVEL = {logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warn",
                     logging.ERROR: "error", logging.CRITICAL: "fatal"}
@@ -75,8 +65,8 @@ def format_stamp(sec: int, nsec: int) -> str:
 
 
 def _bytes(value: Any) -> bytes:
-    # A str from rosgraph_msgs/Log, or a uint8 array from the byte-level RawLog view.
-    return value.encode("utf-8") if isinstance(value, str) else value.tobytes()
+    # A str of a UTF-8 Log, or the bytes of one that is not (decode_log).
+    return value.encode("utf-8") if isinstance(value, str) else bytes(value)
 
 
 _LEVEL_TEXT = {k: v.decode() for k, v in _LEVEL_NAMES.items()}
@@ -86,6 +76,80 @@ def peek_level(payload: bytes) -> int:
     """A serialized Log's level without decoding it: after the header's seq, stamp and frame_id."""
     at = 16 + int.from_bytes(payload[12:16], "little")
     return payload[at] if len(payload) > at else 0
+
+
+class Stamp(NamedTuple):
+    sec: int
+    nanosec: int  # (rosbags' name: what format_log_line reads of a message from either)
+
+
+class Header(NamedTuple):
+    seq: int
+    stamp: Stamp
+    frame_id: Any
+
+
+class LogMessage(NamedTuple):
+    """A decoded rosgraph_msgs/Log: its strings str, or all bytes when any is not UTF-8."""
+    header: Header
+    level: int
+    name: Any
+    msg: Any
+    file: Any
+    function: Any
+    line: int
+    topics: list
+
+
+_U32 = struct.Struct("<I")
+_HEAD = struct.Struct("<III")  # header.seq, stamp.secs, stamp.nsecs
+
+
+def decode_log(payload: bytes) -> LogMessage:
+    """A serialized rosgraph_msgs/Log, decoded; ValueError if it is not one.
+
+    By hand rather than by rosbags: its type store and deserializer import numpy and cost ~10 MB
+    and ~0.1 s of CPU at every launch's start, for one fixed message of strings. roscpp may send
+    text that is not UTF-8; rosout.cpp writes it as it is, so such a message keeps its bytes.
+    """
+    view = memoryview(payload)
+    try:
+        seq, sec, nsec = _HEAD.unpack_from(view, 0)
+        at = 12
+        strings = []
+        for i in range(6):  # frame_id; then level; name, msg, file, function
+            if i == 1:
+                strings.append(view[at])
+                at += 1
+                continue
+            n, = _U32.unpack_from(view, at)
+            at += 4
+            if at + n > len(view):
+                raise ValueError("a string runs past the message's end")
+            strings.append(bytes(view[at:at + n]))
+            at += n
+        line, count = struct.unpack_from("<II", view, at)
+        at += 8
+        if count > len(view) - at:
+            raise ValueError("more topics than bytes")
+        topics = []
+        for _ in range(count):
+            n, = _U32.unpack_from(view, at)
+            at += 4
+            if at + n > len(view):
+                raise ValueError("a topic runs past the message's end")
+            topics.append(bytes(view[at:at + n]))
+            at += n
+    except (struct.error, IndexError) as exc:
+        raise ValueError("truncated rosgraph_msgs/Log (%s)" % exc) from None
+    frame_id, level, name, msg, file, function = strings
+    try:
+        text = [s.decode("utf-8") for s in (frame_id, name, msg, file, function, *topics)]
+        frame_id, name, msg, file, function = text[:5]
+        topics = text[5:]
+    except UnicodeDecodeError:
+        pass  # (all kept as bytes)
+    return LogMessage(Header(seq, Stamp(sec, nsec), frame_id), level, name, msg, file, function, line, topics)
 
 
 def _text(value: Any) -> str:
@@ -113,7 +177,7 @@ def format_log_line(msg: Any, omit_topics: bool = False) -> bytes:
              _bytes(msg.name), b" [", _bytes(msg.file), b":", str(msg.line).encode(), b"(",
              _bytes(msg.function), b")] "]
     if not omit_topics:
-        topics = [_bytes(t if isinstance(t, str) else t.data) for t in msg.topics]
+        topics = [_bytes(t) for t in msg.topics]
         parts += [b"[topics: ", b", ".join(topics), b"] "]
     parts += [_bytes(msg.msg), b"\n"]
     return b"".join(parts)
@@ -126,7 +190,7 @@ def rosout_typestore() -> Any:
 
     typestore = get_typestore(Stores.EMPTY)  # builtin time/duration only
     types: dict[str, Any] = {}
-    for name, text in {**_ROSOUT_MSG_TYPES, **_LOGGER_SERVICE_TYPES, **_RAW_LOG_TYPES}.items():
+    for name, text in {**_ROSOUT_MSG_TYPES, **_LOGGER_SERVICE_TYPES}.items():
         types.update(get_types_from_msg(text, name))
     typestore.register(types)
     return typestore
@@ -269,11 +333,8 @@ class Rosout:
     def log_path(self) -> str | None:
         return self.file.path if self.file is not None else None
 
-    async def start(self, *, warm_up: bool = True) -> None:
-        """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout.
-
-        With `warm_up=False` the caller calls `warm_up()` itself, when it suits (see there).
-        """
+    async def start(self) -> None:
+        """Open rosout.log, then register /rosout: publish /rosout_agg, subscribe /rosout."""
         mtype = TopicType(LOG_TYPE, LOG_MD5, LOG_DEFINITION)
         if self.file is not None:
             try:
@@ -282,50 +343,22 @@ class Rosout:
                 log.error("Error opening rosout log file '%s': %s", self.file.path, exc)
                 self.file = None
         await self._start_node(mtype)
-        if warm_up:
-            self.warm_up()
-
-    def warm_up(self) -> None:
-        """Build the type store and Log decoder on a worker thread now, not on the event loop at the
-        first message.
-
-        rosbags' import, and the deserializer it compiles on first use (numpy's import and code
-        generation), are ~100 ms of Python. The thread holds the GIL for most of that, and every
-        fork/exec releases and retakes it, so `launch` calls this once its nodes are spawned, not
-        while it spawns them.
-        """
-        if self._typestore is None and self._typestore_error is None:
-            future = asyncio.get_running_loop().run_in_executor(None, self._build_typestore)
-            future.add_done_callback(self._warmed_up)
-
-    def _warmed_up(self, future: asyncio.Future) -> None:
-        # (retrieved here: an interpreter without rosbags gets one error line, not "Future exception
-        # was never retrieved" and a traceback)
-        if not future.cancelled() and future.exception() is not None:
-            self._unusable(future.exception())
 
     def _unusable(self, exc: BaseException) -> None:
         if self._typestore_error is None:
             self._typestore_error = exc
-            log.error("rosout cannot decode rosgraph_msgs/Log (rosbags: %s): rosout.log gets no lines; "
-                      "/rosout_agg still carries every message", exc)
-
-    def _build_typestore(self) -> Any:
-        # On the worker thread (warm_up) or, if a message comes first, on the loop. Two threads may
-        # both build one; each store is complete and either may be kept.
-        typestore = rosout_typestore()
-        typestore.get_msgdef(_LOG_TYPE_RB)
-        self._typestore = typestore
-        return typestore
+            log.error("rosout cannot serve its logger services (rosbags: %s)", exc)
 
     def _types(self) -> Any:
-        """The type store (built here if warm_up has not finished); raises what building it raised."""
+        """The type store of the logger services, built at their first call (rosbags is heavy, and
+        rarely asked for: rqt_logger_level, rosnode); raises what building it raised."""
         if self._typestore is not None:
             return self._typestore
         if self._typestore_error is not None:
             raise self._typestore_error
         try:
-            return self._build_typestore()
+            self._typestore = rosout_typestore()
+            return self._typestore
         except Exception as exc:
             self._unusable(exc)
             raise
@@ -398,19 +431,11 @@ class Rosout:
         if self.file is None and (not self.warning_listeners or peek_level(payload) < WARN):
             return  # (nothing to decode it for)
         try:
-            ts = self._types()
-        except Exception:  # rosbags unusable: nothing can be decoded (said once, by _unusable)
+            msg = decode_log(payload)
+        except ValueError as exc:
             self.undecodable += 1
+            log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
             return
-        try:
-            msg = ts.deserialize_ros1(payload, _LOG_TYPE_RB)
-        except Exception:
-            try:  # most likely text that is not UTF-8: keep its bytes as they are
-                msg = ts.deserialize_ros1(payload, _RAW_LOG)
-            except Exception as exc:
-                self.undecodable += 1
-                log.warning("undecodable rosgraph_msgs/Log from %s: %s", link.publisher_uri, exc)
-                return
         if msg.level >= WARN and self.warning_listeners:
             name, text = _text(msg.name), _text(msg.msg)
             for listener in self.warning_listeners:

@@ -243,7 +243,9 @@ def dump_yaml(value: Any) -> str:
     the entries of a top-level mapping that are plain scalars or flat lists of them are
     written here, exactly as PyYAML writes them; every other entry goes through PyYAML.
     """
-    if type(value) is not dict or not value or _shares_containers(value):
+    if type(value) is dict and not value:
+        return "{}\n"  # (as PyYAML writes it: a launch without parameters imports no PyYAML)
+    if type(value) is not dict or _shares_containers(value):
         return _pyyaml_dump(value)
     try:
         keys = sorted(value)  # safe_dump's sort_keys=True

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
-import ctypes.util
 import os
 import signal
 from typing import Callable, Iterable
@@ -27,7 +26,9 @@ PR_SET_CHILD_SUBREAPER = 36
 def become_subreaper() -> bool:
     """Have orphans of our descendants re-parented to us (Linux 3.4+); False where it cannot be done."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        # (the process's own symbols, libc's among them: ctypes.util.find_library would run
+        # ldconfig and import tempfile, shutil and their compressors at every launch's start)
+        libc = ctypes.CDLL(None, use_errno=True)
         return libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) == 0
     except (OSError, AttributeError):
         return False

@@ -49,8 +49,6 @@ from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import Change
 from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.watchdog import Watchdog
-from launcher.remote import ssh
-from launcher.remote.parent import check_addresses, machine_nodes, policy_warnings
 from launcher.output.runlog import RunLog, summary
 from launcher.model.runopts import RunOptions
 from launcher.services.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
@@ -206,17 +204,23 @@ class Plan:
                                   node.filename or None, node.line or None)
         if not opts.local:
             machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
-            for machine in sorted(machines, key=lambda m: m.name):
-                ssh.check_machine(machine)
             if machines:
+                # (the remote machinery is imported only by a launch with other machines' nodes)
+                from launcher.remote import ssh
+                from launcher.remote.parent import check_addresses, policy_warnings
+                for machine in sorted(machines, key=lambda m: m.name):
+                    ssh.check_machine(machine)
                 check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
-            for node in self.config.nodes:
-                if self.remote(node):
-                    for warning in policy_warnings(node, self.config.machines[node.machine_name]):
-                        console.printerrlog("WARNING: %s" % warning)
+                for node in self.config.nodes:
+                    if self.remote(node):
+                        for warning in policy_warnings(node, self.config.machines[node.machine_name]):
+                            console.printerrlog("WARNING: %s" % warning)
 
     def remote_nodes(self) -> dict[str, list[Any]]:
         """The nodes to launch on other machines, by machine name."""
+        if not self.remote_machines:
+            return {}  # (no node can be remote: remote.parent is not imported)
+        from launcher.remote.parent import machine_nodes
         return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
@@ -397,8 +401,6 @@ class Run:
             self.master_watch = MasterWatch(master, self.nodes)
             up(self.master_watch)
             await self.master_watch.start()
-        if self.rosout is not None:
-            self.rosout.warm_up()
         for service in (self.diagnostics, self.log_disk, self.metrics):
             if service is not None:
                 up(service)

@@ -29,11 +29,11 @@ from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.services import runrecord
-from launcher.remote.parent import RemoteParent
 from launcher.model.runopts import RunOptions
 
-if TYPE_CHECKING:  # (annotations only)
+if TYPE_CHECKING:  # (annotations only; the remote machinery is imported where a node runs on another machine)
     from launcher.output.runlog import RunLog
+    from launcher.remote.parent import RemoteParent
 
 
 def _short_repr(value: Any, limit: int = 200) -> str:
@@ -77,6 +77,8 @@ class NodeService:
         by_machine = self.plan.remote_nodes()
         if not by_machine:
             return
+        # (the remote machinery is imported only by a launch with other machines' nodes)
+        from launcher.remote.parent import RemoteParent
         self.remote = RemoteParent(by_machine, self.plan.config.machines, run_id=run_id,
                                    master_uri=master_uri, host=advertised_host(self.plan.environ),
                                    environ=self.plan.environ, watchdog=self.watchdog, sigint_timeout=self.opts.sigint_timeout,

@@ -146,7 +146,7 @@ class RosoutService:
             return
         rosout = Rosout(self.master.uri, self.log.run_dir, environ=self.environ)
         try:
-            await rosout.start(warm_up=False)  # warmed up once the nodes are spawned (warm_up)
+            await rosout.start()
         except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector
             console.printerrlog("could not start the built-in rosout: %s" % e)
             try:
@@ -157,10 +157,6 @@ class RosoutService:
         rosout.warning_listeners.append(self.tail.add)
         self.rosout = rosout
         console.printlog("started core service [/rosout]")
-
-    def warm_up(self) -> None:
-        if self.rosout is not None:
-            self.rosout.warm_up()
 
     async def stop(self) -> None:
         if self.rosout is None:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 from typing import Iterable, Mapping
 
@@ -52,6 +51,7 @@ def env_python(script: str) -> str | None:
 
 
 def on_path(name: str, environ: Mapping[str, str]) -> str | None:
+    import shutil  # (with its compressors: only for a node dead of the PATH trap, not at every start)
     return shutil.which(name, path=environ.get("PATH", os.defpath))
 
 

@@ -1,0 +1,73 @@
+"""A plain `launch file.launch` imports only what its run needs (issue 36: the launcher's memory at start).
+
+Each module a run imports costs memory for as long as the launch runs (a robot's computer shares it with
+the nodes); what a run does not use is imported where it is used (the views, bag, remote machinery, the
+metrics server, rostest, rosbags for rosout). The test runs a real launch under `python -X importtime`,
+which names every module as it is imported, lazy ones included, and reads what was imported by the time
+its roscpp node is registered and its log line is in rosout.log.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+
+from helpers import free_port, until
+
+from running import compile_roscpp, make_package, master_proxy, ros_env, stop_group, write_launch
+
+# A plain launch of local nodes, with no parameters, no --metrics, no view attached: none of these.
+NOT_NEEDED = (
+    "rosbags", "numpy",  # rosout decodes rosgraph_msgs/Log itself (net/rosout.decode_log)
+    "yaml",  # no <rosparam>, no parameter PyYAML must write
+    "prometheus_client", "launcher.services.metrics_server",
+    "psutil",  # /proc is read directly (health/resources)
+    "launcher.remote",  # no node on another machine
+    "launcher.operate", "launcher.bag", "launcher.rostest", "launcher.cli.introspect", "launcher.cli.check",
+    "launcher.xml.sandbox",  # no $(eval)
+    "http.server", "xmlrpc.server", "lxml", "prompt_toolkit", "argparse", "email",
+)
+IMPORTED = re.compile(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", re.M)
+
+
+def _unneeded(modules: set[str]) -> list[str]:
+    return sorted(m for m in modules if any(m == n or m.startswith(n + ".") for n in NOT_NEEDED))
+
+
+def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
+    tmp = str(tmp_path)
+    pkgs = os.path.join(tmp, "pkgs")
+    make_package(pkgs, "lean_pkg", {})
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "lean_pkg", "info_cpp"))
+    launch = write_launch(tmp, '<node pkg="lean_pkg" type="info_cpp" name="talker"/>')
+    port = free_port()
+    env = ros_env(tmp, port, pkgs)
+    err_path = os.path.join(tmp, "importtime.err")
+    with open(err_path, "wb") as err:
+        proc = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "launcher", launch], env=env,
+                                stdout=subprocess.DEVNULL, stderr=err, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
+    try:
+        def registered() -> bool:
+            try:
+                return proc.poll() is None and master_proxy(port).lookupNode("/t", "/talker")[0] == 1
+            except OSError:
+                return False
+        until(registered, 60, 0.05, what="the node registered")
+        log_dir = os.path.join(tmp, "log", "latest")
+        rosout_log = os.path.join(log_dir, "rosout.log")
+
+        def logged() -> bool:  # (rosout has decoded one of the node's Log messages)
+            return os.path.exists(rosout_log) and "tick" in open(rosout_log, errors="replace").read()
+        until(logged, 30, 0.05, what="the node's line in rosout.log")
+        with open(err_path, errors="replace") as f:
+            modules = set(IMPORTED.findall(f.read()))
+        assert "launcher.run.runtime" in modules and "launcher.net.rosout" in modules  # (what a run does import)
+        assert _unneeded(modules) == []
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0
+    finally:
+        stop_group(proc, 10)
