@@ -224,6 +224,8 @@ PURE = [_ + module for module in (
     "master.outbox",  # which callback to a node goes when
     "net.http",  # HTTP/1.1 framing
     "net.xmlrpc_codec",  # XML-RPC requests, responses and faults
+    "net.tcpros",  # TCPROS connection headers and frames
+    "net.linkstate",  # a TCPROS connection's handshake and end, at either side, and when a publisher is tried again
     "operate.view",  # the live view's state
     "operate.columns",  # a node's columns and a change's words, which the view draws
 )]

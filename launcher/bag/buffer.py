@@ -21,7 +21,7 @@ class Queued(NamedTuple):
     topic: str
     header: dict[str, str]
     stamp_ns: int
-    payload: Any  # bytes, bytearray or mmap (net.tcpros.frame_buffer)
+    payload: Any  # bytes, bytearray or mmap (net.tcpros.FrameReader)
 
 
 class Buffer:

@@ -26,7 +26,8 @@ from launcher.bag import rosargs
 from launcher.bag.info import open_bag, warn
 from launcher.bag.reader import Bag, BagError
 from launcher.net.slave import SlaveNode, default_host
-from launcher.net.tcpros import Publication, TopicType
+from launcher.net.publication import Publication
+from launcher.net.tcpros import TopicType
 
 CLOCK_TOPIC = "/clock"
 CLOCK_TYPE = TopicType("rosgraph_msgs/Clock", "a9c97c1d230cfc112e270351a944ee47", "time clock\n")

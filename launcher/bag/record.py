@@ -39,7 +39,8 @@ from launcher.bag import rosargs
 from launcher.bag.buffer import Buffer, Queued
 from launcher.bag.msgtypes import rosbags_type
 from launcher.net.slave import SlaveNode, default_host
-from launcher.net.tcpros import ANY_MD5, PublisherLink, TopicType
+from launcher.net.publisher_link import PublisherLink
+from launcher.net.tcpros import ANY_MD5, TopicType
 from launcher.net.xmlrpc import call
 
 log = logging.getLogger("launcher.bag")

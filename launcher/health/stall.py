@@ -6,7 +6,7 @@ which URI: health/registration.py): the launcher asks the node
 itself for each topic (`requestTopic`, as any subscriber does) and subscribes
 over TCPROS with any type (`*`: no message package, nothing deserialized), so
 another publisher on the same topic cannot hide a stall. The messages are
-counted, not kept (`tcpros.CountingLink`): the socket wakes the loop once 64 kB
+counted, not kept (`net.topic_watch.CountingLink`): the socket wakes the loop once 64 kB
 wait, and each verdict first drains it, so a quiet topic costs a read per
 verdict and a 30 MB/s one a read per 256 kB. `TopicWatch` decides,
 fed the times of the messages and a clock:
@@ -35,7 +35,7 @@ import urllib.parse
 from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
-from launcher.net import tcpros, xmlrpc
+from launcher.net import linkstate, tcpros, topic_watch, xmlrpc
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
@@ -183,9 +183,9 @@ class StallWatch:
 class PublisherWatch:
     """The watch's connection to a node's own publisher of one topic, opened in the background (a verdict never
     waits for a handshake). A node that does not publish the topic yet, or whose port does not answer, is asked
-    again at the next verdict; a connection that ended is tried again as tcpros.PublisherRetry says (a refusal or
-    a header of no message type: not in this run of the node), each lie one warning line naming the publisher and
-    the topic."""
+    again at the next verdict; a connection that ended is tried again as linkstate.PublisherRetry says (a refusal
+    or a header of no message type: not in this run of the node), each lie one warning line naming the publisher
+    and the topic."""
 
     def __init__(self, uri: str, topic: str, watch: TopicWatch, timeout: float):
         self.loop = asyncio.get_running_loop()
@@ -193,8 +193,8 @@ class PublisherWatch:
         self.topic = topic
         self.watch = watch
         self.timeout = timeout
-        self.retry = tcpros.PublisherRetry()
-        self.link: tcpros.CountingLink | None = None
+        self.retry = linkstate.PublisherRetry()
+        self.link: topic_watch.CountingLink | None = None
         self.task: asyncio.Task | None = None
         self.timer: asyncio.TimerHandle | None = None   # the next attempt after a connection ended
         self.given_up = False                           # refused: none in this run
@@ -223,9 +223,9 @@ class PublisherWatch:
                 return
             if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
                 return  # (not published yet: asked again at the next verdict)
-            link = await tcpros.watch_publisher(proto[1] or urllib.parse.urlsplit(self.uri).hostname, int(proto[2]),
-                                                self.topic, CALLER_ID, self.uri, self._messages, timeout=self.timeout,
-                                                on_close=self._closed)
+            host = proto[1] or urllib.parse.urlsplit(self.uri).hostname
+            link = await topic_watch.watch_publisher(host, int(proto[2]), self.topic, CALLER_ID, self.uri,
+                                                     self._messages, timeout=self.timeout, on_close=self._closed)
             if self.closed:
                 link.close()
             else:
@@ -241,14 +241,14 @@ class PublisherWatch:
     def _messages(self, count: int) -> None:
         self.watch.messages(count, self.loop.time())
 
-    def _closed(self, link: tcpros.CountingLink) -> None:
+    def _closed(self, link: topic_watch.CountingLink) -> None:
         if link is self.link:
             self.link = None
         assert link.state is not None
-        self._ended(link.ending or tcpros.ENDED, link.state.opened_at, link.why)
+        self._ended(link.ending or linkstate.ENDED, link.state.opened_at, link.why)
 
     def _ended(self, how: str, opened_at: float, why: str) -> None:
-        if self.closed or how == tcpros.CLOSED:
+        if self.closed or how == linkstate.CLOSED:
             return
         now = self.loop.time()
         due = self.retry.ended(how, opened_at, now)
@@ -258,7 +258,7 @@ class PublisherWatch:
         else:
             self.timer = self.loop.call_at(due, self._open_soon)
             what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
-        log.log(logging.DEBUG if how == tcpros.ENDED else logging.WARNING, "%s", what)
+        log.log(logging.DEBUG if how == linkstate.ENDED else logging.WARNING, "%s", what)
 
     def close(self) -> None:
         self.closed = True

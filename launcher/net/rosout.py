@@ -11,7 +11,9 @@ from collections.abc import Callable, Mapping
 from typing import Any, BinaryIO, NamedTuple
 
 from launcher.net.slave import SlaveNode, default_host
-from launcher.net.tcpros import PublisherLink, ServiceServer, TopicType
+from launcher.net.publisher_link import PublisherLink
+from launcher.net.service import ServiceServer
+from launcher.net.tcpros import TopicType
 
 log = logging.getLogger("launcher.rosout")
 

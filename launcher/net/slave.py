@@ -13,8 +13,12 @@ from launcher import compat
 from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.net.tcpros import (BROKEN, CLOSED, ENDED, REFUSED, Publication, PublisherLink, PublisherRetry,
-                                 ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher)
+from launcher.net.linkstate import BROKEN, CLOSED, ENDED, REFUSED, PublisherRetry
+from launcher.net.publication import Publication
+from launcher.net.publisher_link import PublisherLink, connect_publisher
+from launcher.net.service import ServiceServer
+from launcher.net.tcpros import TcprosError, TopicType
+from launcher.net.tcpros_server import TcprosServer
 
 log = logging.getLogger("launcher.slave")
 

@@ -151,53 +151,36 @@ def read_token(info: dict[str, Any], path: str | None = None) -> str:
             from None
 
 
-def run_view(uri: str, on_quit: Callable[[], None] | None = None,
-             launch_proc: subprocess.Popen | None = None, token_file: str | None = None, note: str = "") -> None:
-    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends); `note`
-    is the output pane's first lines."""
-    try:
-        from prompt_toolkit.application import Application
-    except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
-        raise client.ToolError("the live view needs prompt_toolkit, which this Python (%s) lacks: pip install "
-                               "prompt_toolkit, or run launcher with the Python it was installed for"
-                               % sys.executable) from None
-    from prompt_toolkit.key_binding import KeyBindings
-    from prompt_toolkit.layout import HSplit, Layout, Window
-    from prompt_toolkit.layout.controls import FormattedTextControl
-    from prompt_toolkit.layout.dimension import Dimension
-    from prompt_toolkit.styles import Style
+class Panes:
+    """The view's panes from top to bottom (title, table header, table, rule, output, help line), each drawn from
+    the state and the terminal's size (`size()`: rows, columns) whenever prompt_toolkit redraws; `filtering`: the
+    operator is typing a filter (`/`), which the help line shows."""
 
-    state = ViewState()
-    info = client.status(uri)
-    state.load(info)
-    state.past_samples(past_samples(uri))
-    for line in note.splitlines():
-        state.lines.append(Line("launch", line, "state"))
-    filtering = [False]
+    def __init__(self, state: ViewState, size: Callable[[], tuple[int, int]]):
+        self.state = state
+        self.size = size
+        self.filtering = False
 
-    def size() -> tuple[int, int]:
-        s = app.output.get_size()
-        return s.rows, s.columns
-
-    def table_height() -> int:
-        rows, _ = size()
+    def table_height(self) -> int:
+        rows, _ = self.size()
         # the table takes what it needs up to half the screen; the output pane the rest (title, header,
         # rule and help line take 4)
-        return max(1, min(len(state.visible()) or 1, (rows - 4) // 2))
+        return max(1, min(len(self.state.visible()) or 1, (rows - 4) // 2))
 
-    def title() -> list:
-        return [("class:title", state.title(size()[1]).ljust(size()[1]))]
+    def title(self) -> list:
+        cols = self.size()[1]
+        return [("class:title", self.state.title(cols).ljust(cols))]
 
-    def fitted_rows() -> list:
-        return state.table_rows(table_height(), time.time(), size()[1])
+    def _fitted_rows(self) -> list:
+        return self.state.table_rows(self.table_height(), time.time(), self.size()[1])
 
-    def header() -> list:
-        fitted_rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
-        return [("class:header", state.table_header(time.time())[:size()[1]])]
+    def header(self) -> list:
+        self._fitted_rows()  # (the header is drawn first: it takes the widths the rows are fitted to now)
+        return [("class:header", self.state.table_header(time.time())[:self.size()[1]])]
 
-    def table() -> list:
+    def table(self) -> list:
         out: list = []
-        rows = fitted_rows()
+        rows = self._fitted_rows()
         for i, (text, style, selected) in enumerate(rows):
             cls = "class:state.%s" % style if style else ""
             if selected:
@@ -206,15 +189,17 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
             if i < len(rows) - 1:
                 out.append(("", "\n"))
         if not rows:
+            state = self.state
             out.append(("class:dim", "no node matches the filter [%s]" % state.filter if state.filter else "no nodes"))
         return out
 
-    def rule() -> list:
+    def rule(self) -> list:
+        state = self.state
         what = ("recent output of %s (o: back)" % state.selected if state.mode == NODE_OUTPUT
                 else "output%s" % (" (%d muted)" % len(state.muted) if state.muted else ""))
         if state.scroll:
             what += "  [scrolled back %d lines; End follows]" % state.scroll
-        cols = size()[1]
+        cols = self.size()[1]
         left = "\u2500\u2500 %s " % what
         # the selected node's CPU over the last minute, at the right end (when there is room)
         spark = state.spark(state.selected, min(HISTORY, cols // 4)) if state.selected else ""
@@ -223,46 +208,98 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
             right = ""
         return [("class:rule", left.ljust(cols - len(right), "\u2500") + right)]
 
-    def output() -> list:
-        rows, cols = size()
-        height = max(1, rows - 4 - table_height())
-        entries = state.output_entries(height)
+    def output(self) -> list:
+        rows, cols = self.size()
+        height = max(1, rows - 4 - self.table_height())
+        entries = self.state.output_entries(height)
         return [("class:level.%s" % style if style else "", line[:cols] + ("\n" if i < len(entries) - 1 else ""))
                 for i, (line, style) in enumerate(entries)]
 
-    def help_line() -> list:
-        if filtering[0]:
-            return [("class:title", "filter: %s\u2588  (Enter keeps it, Esc clears it)" % state.filter)]
-        if state.message:
-            return [("class:message", state.message[:size()[1]])]
-        return [("class:help", HELP[:size()[1]])]
+    def help_line(self) -> list:
+        if self.filtering:
+            return [("class:title", "filter: %s\u2588  (Enter keeps it, Esc clears it)" % self.state.filter)]
+        if self.state.message:
+            return [("class:message", self.state.message[:self.size()[1]])]
+        return [("class:help", HELP[:self.size()[1]])]
 
-    kb = KeyBindings()
-    not_filtering = _Cond(lambda: not filtering[0])
-    in_filter = _Cond(lambda: filtering[0])
+    def layout(self) -> Any:
+        from prompt_toolkit.layout import HSplit, Layout, Window
+        from prompt_toolkit.layout.controls import FormattedTextControl
+        from prompt_toolkit.layout.dimension import Dimension
+        return Layout(HSplit([
+            Window(FormattedTextControl(self.title), height=1),
+            Window(FormattedTextControl(self.header), height=1, style="class:header"),
+            Window(FormattedTextControl(self.table), height=lambda: Dimension.exact(self.table_height())),
+            Window(FormattedTextControl(self.rule), height=1),
+            Window(FormattedTextControl(self.output), wrap_lines=False),
+            Window(FormattedTextControl(self.help_line), height=1),
+        ]))
 
-    def control(verb: str, pattern: str) -> None:
-        state.message = "%s %s ..." % (verb, pattern)
-        steer(verb, lambda: call_blocking(uri, "%s_nodes" % verb, read_token(info, token_file), pattern,
-                                          timeout=CONTROL_TIMEOUT_S)[1])
 
-    def reload() -> None:
+STYLE = {"title": "reverse bold", "header": "bold", "rule": "ansiblue", "help": "ansicyan",
+         "message": "ansiyellow bold", "dim": "ansibrightblack",
+         "state.green": "ansigreen", "state.yellow": "ansiyellow", "state.red": "ansired bold",
+         "state.grey": "ansibrightblack", "level.warn": "ansiyellow", "level.error": "ansired",
+         "level.fatal": "ansired bold reverse"}
+
+
+class Steering:
+    """What the operator asks of the launch from the view (start, stop, restart, reload, a node's recent output):
+    each call made off the view's thread (the view never waits on the network), its answer handed to `post`."""
+
+    def __init__(self, uri: str, info: dict[str, Any], token_file: str | None, state: ViewState,
+                 post: Callable[[Callable[[], None]], None]):
+        self.uri = uri
+        self.info = info
+        self.token_file = token_file
+        self.state = state
+        self.post = post
+
+    def control(self, verb: str, every: bool = False) -> None:
+        """`verb` (start, stop, restart) of the selected node, or of every node."""
+        pattern = "*" if every else self.state.selected
+        if not pattern:
+            return
+        self.state.message = "%s %s ..." % (verb, pattern)
+        self._steer(verb, lambda: call_blocking(self.uri, "%s_nodes" % verb, self._token(), pattern,
+                                                timeout=CONTROL_TIMEOUT_S)[1])
+
+    def reload(self) -> None:
         """`launcher reload`: the launch reads its files again and applies the difference."""
-        state.message = "reload ..."
+        self.state.message = "reload ..."
 
         def answer() -> str:
-            code, msg, text = call_blocking(uri, "launcher_reload", read_token(info, token_file), [], False,
+            code, msg, text = call_blocking(self.uri, "launcher_reload", self._token(), [], False,
                                             timeout=CONTROL_TIMEOUT_S)
             lines = json.loads(text).get("lines", [])
             if code != 1:
                 return "reload refused, nothing changed: %s" % msg
             if lines:  # (nodes added and removed: the whole status again)
-                status = json.loads(call_blocking(uri, "launcher_status")[2])
-                post(lambda: state.load(status))
+                status = json.loads(call_blocking(self.uri, "launcher_status")[2])
+                self.post(lambda: self.state.load(status))
             return "reloaded: %s" % "; ".join(lines) if lines else "reload: nothing changed"
-        steer("reload", answer)
+        self._steer("reload", answer)
 
-    def steer(verb: str, call: Any) -> None:
+    def node_output(self) -> None:
+        """The end of the selected node's output in the output pane, or back to every node's (`o`)."""
+        state = self.state
+        if state.mode == NODE_OUTPUT or not state.selected:
+            state.show_node_output(None)
+            return
+        node = state.selected
+
+        def work() -> None:
+            try:
+                text = recent_output(self.uri, node)
+            except (OSError, XmlRpcError, Fault, ValueError) as e:
+                text = "cannot read the output of %s: %s" % (node, e)
+            self.post(lambda: state.show_node_output(text or "(%s has written nothing)" % node))
+        threading.Thread(target=work, daemon=True).start()
+
+    def _token(self) -> str:
+        return read_token(self.info, self.token_file)
+
+    def _steer(self, verb: str, call: Callable[[], str]) -> None:
         """Make the call off the view's thread; its answer (or why not) becomes the message."""
         def work() -> None:
             try:
@@ -273,125 +310,107 @@ def run_view(uri: str, on_quit: Callable[[], None] | None = None,
                 text = e.faultString
             except (OSError, XmlRpcError) as e:
                 text = "%s: the launch does not answer: %s" % (verb, e)
-            post(lambda: setattr(state, "message", text))
+            self.post(lambda: setattr(self.state, "message", text))
         threading.Thread(target=work, daemon=True).start()
 
-    def selected_pattern() -> str | None:
-        return state.selected or None
 
-    @kb.add("up", filter=not_filtering)
-    @kb.add("k", filter=not_filtering)
-    def _up(event: Any) -> None:
-        state.move(-1)
+def key_bindings(state: ViewState, panes: Panes, steering: Steering) -> Any:
+    """The keys (view.HELP names them): while a filter is typed (`/`), keys go to it; else they move, steer and
+    quit. `q` and Ctrl-C leave the view (under `launch --ui`, stopping the launch)."""
+    from prompt_toolkit.key_binding import KeyBindings
 
-    @kb.add("down", filter=not_filtering)
-    @kb.add("j", filter=not_filtering)
-    def _down(event: Any) -> None:
-        state.move(1)
+    def half_page() -> int:
+        return max(1, panes.size()[0] // 2)
 
-    @kb.add("home", filter=not_filtering)
-    def _home(event: Any) -> None:
-        state.move(-len(state.nodes))
+    def start_filter(event: Any) -> None:
+        panes.filtering = True
 
-    @kb.add("pageup", filter=not_filtering)
-    def _pgup(event: Any) -> None:
-        state.scroll_output(max(1, size()[0] // 2))
-
-    @kb.add("pagedown", filter=not_filtering)
-    def _pgdn(event: Any) -> None:
-        state.scroll_output(-max(1, size()[0] // 2))
-
-    @kb.add("end", filter=not_filtering)
-    def _end(event: Any) -> None:
-        state.scroll = 0
-
-    for key, verb, every in (("s", "stop", False), ("t", "start", False), ("r", "restart", False),
-                             ("S", "stop", True), ("T", "start", True)):
-        def act(event: Any, verb: str = verb, every: bool = every) -> None:
-            pattern = "*" if every else selected_pattern()
-            if pattern:
-                control(verb, pattern)
-        kb.add(key, filter=not_filtering)(act)
-
-    @kb.add("R", filter=not_filtering)
-    def _reload(event: Any) -> None:
-        reload()
-
-    @kb.add("m", filter=not_filtering)
-    def _mute(event: Any) -> None:
-        state.toggle_mute()
-
-    @kb.add("o", filter=not_filtering)
-    def _node_output(event: Any) -> None:
-        if state.mode == NODE_OUTPUT or not state.selected:
-            state.show_node_output(None)
-            return
-        node = state.selected
-
-        def work() -> None:
-            try:
-                text = recent_output(uri, node)
-            except (OSError, XmlRpcError, Fault, ValueError) as e:
-                text = "cannot read the output of %s: %s" % (node, e)
-            post(lambda: state.show_node_output(text or "(%s has written nothing)" % node))
-        threading.Thread(target=work, daemon=True).start()
-
-    @kb.add("/", filter=not_filtering)
-    def _filter(event: Any) -> None:
-        filtering[0] = True
-
-    @kb.add("<any>", filter=in_filter)
-    def _filter_char(event: Any) -> None:
+    def type_filter(event: Any) -> None:
         if event.data.isprintable():
             state.set_filter(state.filter + event.data)
 
-    @kb.add("backspace", filter=in_filter)
-    def _filter_back(event: Any) -> None:
-        state.set_filter(state.filter[:-1])
+    def keep_filter(event: Any) -> None:
+        panes.filtering = False
 
-    @kb.add("enter", filter=in_filter)
-    def _filter_done(event: Any) -> None:
-        filtering[0] = False
-
-    @kb.add("escape", filter=in_filter)
-    def _filter_clear(event: Any) -> None:
-        filtering[0] = False
+    def clear_filter(event: Any) -> None:
+        panes.filtering = False
         state.set_filter("")
 
-    @kb.add("q", filter=not_filtering)
-    @kb.add("c-c")
-    def _quit(event: Any) -> None:
+    def quit_view(event: Any) -> None:
         event.app.exit()
 
-    layout = Layout(HSplit([
-        Window(FormattedTextControl(title), height=1),
-        Window(FormattedTextControl(header), height=1, style="class:header"),
-        Window(FormattedTextControl(table), height=lambda: Dimension.exact(table_height())),
-        Window(FormattedTextControl(rule), height=1),
-        Window(FormattedTextControl(output), wrap_lines=False),
-        Window(FormattedTextControl(help_line), height=1),
-    ]))
-    style = Style.from_dict({"title": "reverse bold", "header": "bold", "rule": "ansiblue", "help": "ansicyan",
-                             "message": "ansiyellow bold", "dim": "ansibrightblack",
-                             "state.green": "ansigreen", "state.yellow": "ansiyellow", "state.red": "ansired bold",
-                             "state.grey": "ansibrightblack", "level.warn": "ansiyellow", "level.error": "ansired",
-                             "level.fatal": "ansired bold reverse"})
-    # (refresh_interval: the uptimes tick; mouse off: the terminal's own selection keeps working)
-    app: Any = Application(layout=layout, key_bindings=kb, style=style, full_screen=True, refresh_interval=1.0)
+    browsing: list[tuple[str, Callable[[Any], Any]]] = [
+        ("up", lambda e: state.move(-1)), ("k", lambda e: state.move(-1)),
+        ("down", lambda e: state.move(1)), ("j", lambda e: state.move(1)),
+        ("home", lambda e: state.move(-len(state.nodes))),
+        ("pageup", lambda e: state.scroll_output(half_page())),
+        ("pagedown", lambda e: state.scroll_output(-half_page())),
+        ("end", lambda e: setattr(state, "scroll", 0)),
+        ("s", lambda e: steering.control("stop")), ("t", lambda e: steering.control("start")),
+        ("r", lambda e: steering.control("restart")),
+        ("S", lambda e: steering.control("stop", every=True)), ("T", lambda e: steering.control("start", every=True)),
+        ("R", lambda e: steering.reload()),
+        ("m", lambda e: state.toggle_mute()),
+        ("o", lambda e: steering.node_output()),
+        ("/", start_filter),
+        ("q", quit_view),
+    ]
+    typing = [("<any>", type_filter), ("backspace", lambda e: state.set_filter(state.filter[:-1])),
+              ("enter", keep_filter), ("escape", clear_filter)]
+    kb = KeyBindings()
+    for keys, when in ((browsing, _Cond(lambda: not panes.filtering)), (typing, _Cond(lambda: panes.filtering))):
+        for key, handler in keys:
+            kb.add(key, filter=when)(handler)
+    kb.add("c-c")(quit_view)
+    return kb
+
+
+def _post(app: Any, fn: Callable[[], None]) -> None:
+    """Run `fn` on the view's loop (from a feed's or a call's thread), then redraw; nothing once the view ended."""
+    loop = getattr(app, "loop", None)
+    if loop is None or loop.is_closed():
+        return
+
+    def run() -> None:
+        fn()
+        app.invalidate()
+    try:
+        loop.call_soon_threadsafe(run)
+    except RuntimeError:  # (the loop ended meanwhile)
+        pass
+
+
+def run_view(uri: str, on_quit: Callable[[], None] | None = None,
+             launch_proc: subprocess.Popen | None = None, token_file: str | None = None, note: str = "") -> None:
+    """The full-screen view of the launch at `uri` until the operator quits (or `launch_proc` ends); `note`
+    is the output pane's first lines."""
+    try:
+        from prompt_toolkit.application import Application
+    except ModuleNotFoundError:  # (an interpreter other than the one launcher was installed for)
+        raise client.ToolError("the live view needs prompt_toolkit, which this Python (%s) lacks: pip install "
+                               "prompt_toolkit, or run launcher with the Python it was installed for"
+                               % sys.executable) from None
+    from prompt_toolkit.styles import Style
+
+    state = ViewState()
+    info = client.status(uri)
+    state.load(info)
+    state.past_samples(past_samples(uri))
+    for line in note.splitlines():
+        state.lines.append(Line("launch", line, "state"))
+
+    def size() -> tuple[int, int]:
+        s = app.output.get_size()
+        return s.rows, s.columns
 
     def post(fn: Callable[[], None]) -> None:
-        loop = getattr(app, "loop", None)
-        if loop is None or loop.is_closed():
-            return
+        _post(app, fn)
 
-        def run() -> None:
-            fn()
-            app.invalidate()
-        try:
-            loop.call_soon_threadsafe(run)
-        except RuntimeError:  # (the loop ended meanwhile)
-            pass
-
+    panes = Panes(state, size)
+    steering = Steering(uri, info, token_file, state, post)
+    # (refresh_interval: the uptimes tick; mouse off: the terminal's own selection keeps working)
+    app: Any = Application(layout=panes.layout(), key_bindings=key_bindings(state, panes, steering),
+                           style=Style.from_dict(STYLE), full_screen=True, refresh_interval=1.0)
     feed = Feed(uri, state, post)
 
     def pre_run() -> None:

@@ -412,3 +412,65 @@ def test_the_output_pane_says_each_change_once_in_the_events_words_and_the_filte
         tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
     finally:
         lp.close()
+
+
+def test_every_key_of_the_help_line_moves_shows_mutes_scrolls_filters_and_steers_all(tmp_path, tmux, env):
+    """The keys the tests above do not press: k and Home move back, o shows the selected node's log and back,
+    PageUp scrolls the pane and End follows again, m mutes and unmutes, a filter typed and taken back with
+    Backspace and Esc, S stops every node and T starts every one."""
+    lp = Launcher([write_launch(str(tmp_path), '<node pkg="ui_tests" type="ticker" name="a" output="screen"/>'
+                                '<node pkg="ui_tests" type="sleeper" name="b"/>')], env, str(tmp_path))
+    try:
+        lp.wait_output(r"process\[b-\d+\]: started", 60)
+        tmux.start([sys.executable, "-m", "launcher.cli.tool", "ui"], dict(env, TERM="xterm"), 160, 40)
+        screen = tmux.wait_screen(lambda s: running_pid(s, "/a") and running_pid(s, "/b") and
+                                  re.search(r"^\[/a\] .*tick \d+", s, re.M), "both running, /a's output")
+        pids = {n: running_pid(screen, n) for n in ("/a", "/b")}
+
+        def selected(s: str) -> str:
+            return next((line.split()[1] for line in s.splitlines() if line.startswith("> ")), "")
+
+        def rule(s: str) -> str:
+            return next((line for line in s.splitlines() if line.startswith("\u2500\u2500 ")), "")
+
+        def pane(s: str) -> list[str]:
+            return s.split(rule(s), 1)[1].splitlines()[1:-1] if rule(s) else []
+        for keys, name in ((["j"], "/b"), (["k"], "/a"), (["Down"], "/b"), (["Up"], "/a"), (["j", "Home"], "/a")):
+            tmux.keys(*keys)
+            tmux.wait_screen(lambda s: selected(s) == name, "%s: %s selected" % (keys, name))
+        tmux.keys("o")
+        screen = tmux.wait_screen(lambda s: rule(s).startswith("\u2500\u2500 recent output of /a (o: back)"),
+                                  "/a's recent output")
+        assert any(re.search(r"tick \d+", line) for line in pane(screen)) and not any(
+            line.startswith("[/") for line in pane(screen)), screen  # (its log's own lines, untagged)
+        tmux.keys("o")
+        tmux.wait_screen(lambda s: rule(s).startswith("\u2500\u2500 output \u2500"), "every node's output again")
+        tmux.keys("PageUp")
+        tmux.wait_screen(lambda s: "[scrolled back " in rule(s) and "End follows]" in rule(s), "scrolled back")
+        tmux.keys("End")
+        tmux.wait_screen(lambda s: "scrolled back" not in rule(s), "following again")
+        tmux.keys("m")
+        screen = tmux.wait_screen(lambda s: rule(s).startswith("\u2500\u2500 output (1 muted)") and
+                                  "/a muted: its output is not shown" in s, "/a muted")
+        assert not any(line.startswith("[/a] ") for line in pane(screen)), screen
+        tmux.keys("m")
+        tmux.wait_screen(lambda s: "/a unmuted" in s and rule(s).startswith("\u2500\u2500 output \u2500") and
+                         any(line.startswith("[/a] ") for line in pane(s)), "/a unmuted")
+        tmux.keys("/", "z")
+        tmux.wait_screen(lambda s: "filter: z\u2588" in s and "no node matches the filter [z]" in s, "filter z")
+        tmux.keys("BSpace")
+        screen = tmux.wait_screen(lambda s: "filter: \u2588" in s and running_pid(s, "/a"), "the filter emptied")
+        tmux.keys("b", "Escape")
+        tmux.wait_screen(lambda s: "filter [" not in s and "filter:" not in s and running_pid(s, "/a") and
+                         running_pid(s, "/b"), "the filter cleared")
+        tmux.keys("S")
+        tmux.wait_screen(lambda s: all((row(s, n) or [""])[1:2] == ["stopped"] for n in pids), "every node stopped")
+        assert not any(pid_alive(p) for p in pids.values())
+        tmux.keys("T")
+        tmux.wait_screen(lambda s: all(running_pid(s, n) not in (None, pids[n]) for n in pids),
+                         "every node running anew")
+        tmux.keys("q")
+        tmux.wait_screen(lambda s: tmux.pane_dead(), "the view ended")
+        assert lp.proc.poll() is None
+    finally:
+        lp.close()

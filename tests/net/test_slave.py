@@ -11,8 +11,9 @@ import struct
 import pytest
 
 from launcher.net.slave import SlaveNode, Subscription, bind_address
-from launcher.net import tcpros
-from launcher.net.tcpros import Publication, TopicType, encode_frame, encode_header
+from launcher.net import linkstate, tcpros
+from launcher.net.publication import Publication
+from launcher.net.tcpros import TopicType, encode_frame, encode_header
 from launcher.net.xmlrpc import Fault, call
 
 from helpers import until_async
@@ -208,8 +209,8 @@ def test_lying_publishers_are_dropped_and_tried_again_as_each_deserves(monkeypat
     """Each lie is one warning naming the publisher and the topic, and no future is left with an exception nobody
     retrieves; a refusal waits for the publisher's next listing, a broken link is tried again after doubling
     delays (here shortened), the handshake has a deadline, a good publisher beside them is read on."""
-    monkeypatch.setattr(tcpros, "RETRY_FIRST_S", 0.1)
-    monkeypatch.setattr(tcpros, "HANDSHAKE_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(linkstate, "RETRY_FIRST_S", 0.1)
+    monkeypatch.setattr(linkstate, "HANDSHAKE_TIMEOUT_S", 0.3)
     caplog.set_level(logging.WARNING, logger="launcher.slave")
 
     async def main():

@@ -1,4 +1,5 @@
-"""TCPROS headers and framing (sans-I/O), and the asyncio links over real loopback sockets."""
+"""TCPROS headers and framing (sans-I/O: net/tcpros.py), and the asyncio links over real loopback sockets (a
+subscriber's publisher_link, topic_watch, publication, service, tcpros_server)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from launcher.net import tcpros
-from launcher.net.tcpros import (WATCH_LOWAT, FrameCounter, FrameDecoder, FrameReader, InboundConnection, Publication, PublisherLink,
-                             ServiceServer, TcprosError, TcprosServer, TopicType, connect_publisher,
-                             decode_header, encode_frame, encode_header, transport_info, watch_publisher)
+from launcher.net import publication
+from launcher.net.publication import Publication
+from launcher.net.publisher_link import PublisherLink, connect_publisher
+from launcher.net.service import ServiceServer
+from launcher.net.tcpros import (FrameCounter, FrameDecoder, FrameReader, TcprosError, TopicType, decode_header,
+                                 encode_frame, encode_header)
+from launcher.net.tcpros_server import InboundConnection, TcprosServer
+from launcher.net.topic_watch import WATCH_LOWAT, watch_publisher
+from launcher.net.transport import transport_info
 
 from helpers import until_async
 
@@ -277,8 +284,7 @@ def test_garbage_client_does_not_disturb_a_good_subscriber():
 
 
 def test_a_subscriber_that_stops_reading_is_dropped_from_not_waited_for(monkeypatch):
-    import launcher.net.tcpros as tcpros
-    monkeypatch.setattr(tcpros, "MAX_WRITE_BACKLOG", 64 * 1024)
+    monkeypatch.setattr(publication, "MAX_WRITE_BACKLOG", 64 * 1024)
 
     async def main():
         server, pub = await _server_with_publication()

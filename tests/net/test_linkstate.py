@@ -7,9 +7,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from launcher.net import tcpros
-from launcher.net.tcpros import (ANY_MD5, BROKEN, CLOSED, ENDED, FAILED, HEADER, MESSAGES, REFUSED, InboundState,
-                                 PublisherLinkState, PublisherRetry, TopicType, encode_frame, encode_header)
+from launcher.net import linkstate, tcpros
+from launcher.net.linkstate import (BROKEN, CLOSED, ENDED, FAILED, HEADER, MESSAGES, REFUSED, InboundState,
+                                    PublisherLinkState, PublisherRetry)
+from launcher.net.tcpros import ANY_MD5, TopicType, encode_frame, encode_header
 
 STRING = TopicType("std_msgs/String", "992ce8a1687cec8c8bd883ec73ca41d1", "string data\n")
 
@@ -107,7 +108,7 @@ def test_one_limit_for_headers_and_messages():
 
 def test_the_header_is_due_by_the_handshake_deadline():
     state = link(now=100.0)
-    assert state.deadline == 100.0 + tcpros.HANDSHAKE_TIMEOUT_S
+    assert state.deadline == 100.0 + linkstate.HANDSHAKE_TIMEOUT_S
     state.receive(their_header()[:10], 101.0)
     assert state.expire(state.deadline - 0.001) == [] and state.phase == HEADER
     assert state.expire(state.deadline) == [("failed", "publisher http://pub:1/ on /chatter: sent no whole connection "
@@ -182,7 +183,7 @@ def test_publisher_retry_every_cell(before, ending, after):
 def test_publisher_retry_doubles_to_thirty_seconds_starts_over_after_a_long_life_and_waits_for_a_listing():
     retry = PublisherRetry()
     assert [retry.ended(BROKEN, 0.0, 0.0) for _ in range(7)] == [1.0, 2.0, 4.0, 8.0, 16.0, 30.0, 30.0]
-    assert retry.ended(BROKEN, 0.0, tcpros.RETRY_MAX_S) == tcpros.RETRY_MAX_S + 1.0  # healthy 30 s: over again
+    assert retry.ended(BROKEN, 0.0, linkstate.RETRY_MAX_S) == linkstate.RETRY_MAX_S + 1.0  # healthy 30 s: over again
     assert retry.listed() is False  # listed, not refused: nothing to do (its timer stands)
     assert retry.ended(REFUSED, 0.0, 50.0) is None
     assert retry.listed() is True and retry.listed() is False
