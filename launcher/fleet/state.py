@@ -42,6 +42,7 @@ from typing import Callable, Iterable, NamedTuple
 from launcher import compat
 from launcher.fleet import machine
 from launcher.fleet.machine import Event, Record, Rules
+from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
 
 WAITING = "waiting"
@@ -59,7 +60,12 @@ LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, wri
 RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
 LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
-CHANGES_KEPT = 10000  # changes a long-polling reader can ask for again
+# The change stream a long-polling reader can ask for again: each change kept as the one line of JSON it is
+# served as (a few hundred bytes; the objects it was made of took 1.3 kB), for a minute at least and at most
+# CHANGES_KEPT of them. A view polls every second; one that falls further behind reads the status again
+# (`complete` false). In a crash loop of 4 kills a second that is 1,000 lines, a quarter of the maximum.
+CHANGES_KEPT = 10000
+CHANGES_KEPT_S = 60.0
 
 
 class NodeStatus:
@@ -95,7 +101,7 @@ class NodeStatus:
         self.rss: int | None = None  # bytes, the node's whole process group
         # CPU seconds used by all its runs so far, as sampled (a counter: it never goes down across respawns)
         self.cpu_seconds = 0.0
-        self.history: collections.deque[tuple[float, float, int]] = collections.deque(maxlen=HISTORY)
+        self.history = Samples(HISTORY)  # (time, cpu, rss) of its last samples, in arrays: 24 bytes each
         # the limits the current run is over: "memory_limit" (bytes) or "cpu_limit" (cores) -> the limit
         self.over_limit: dict[str, float] = {}
         # its current run is registered with the master, at this XML-RPC URI ("running" says that a process
@@ -130,14 +136,6 @@ class Change(NamedTuple):
     actions: list  # the machine's actions (a NOTE among them is for the console)
     status: NodeStatus  # the node's view now (it changes with later changes)
     line: dict  # the change as the events file writes it
-
-
-class RunEvent(NamedTuple):
-    """A line of the run's own (a reload, the master restarted, the launch's end) in the change stream: a long
-    poll's reader follows it as the events file has it."""
-
-    seq: int
-    line: dict
 
 
 def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | None) -> str:
@@ -197,7 +195,8 @@ class Fleet:
         self.say = say  # the outcome's words ("all processes on machine have died ...")
         self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
         self.seq = 0
-        self.changes: collections.deque[Change | RunEvent] = collections.deque(maxlen=CHANGES_KEPT)
+        # the change stream's backlog: (seq, when kept (self.clock), the change's JSON line as it is served)
+        self.changes: collections.deque[tuple[int, float, str]] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
         # the outcome
         self.done = compat.Event()
@@ -250,9 +249,10 @@ class Fleet:
         self.seq += 1
         when = time.time()
         change = Change(self.seq, when, old, new, event, actions, status, self._line(self.seq, when, new, status))
-        self.changes.append(change)
         if visible(change):
-            self._write(change)
+            self._write(self._keep(change.line))
+        else:  # (a step the events file leaves out: served marked internal)
+            self._keep(dict(change.line, internal=True))
         for listener in self.listeners:
             try:
                 listener(change)
@@ -309,15 +309,34 @@ class Fleet:
 
     # ---- the change stream, for readers outside -----------------------------------------------------------
 
+    def changes_json(self, seq: int) -> tuple[str, bool]:
+        """The changes after `seq` as a JSON array, each as the events file has it (a step it leaves out, such
+        as running -> stopping, marked `"internal": true`: a view that shows the file's lines skips it; the
+        run's own lines, a reload's, the master's restart, the launch's end, as the file has them too), and
+        whether they are all there (False: older ones were dropped; a reader should read the status again)."""
+        lines = []
+        for kept_seq, _, text in reversed(self.changes):  # (a reader is near the end: read from there)
+            if kept_seq <= seq:
+                break
+            lines.append(text)
+        complete = not self.changes or self.changes[0][0] <= seq + 1 or seq >= self.seq
+        return "[" + ",".join(reversed(lines)) + "]", complete
+
     def changes_since(self, seq: int) -> tuple[list[dict], bool]:
-        """The changes after `seq`, as the events file has them (a step it leaves out, such as running ->
-        stopping, marked `"internal": true`: a view that shows the file's lines skips it; the run's own lines, a
-        reload's, the master's restart, the launch's end, as the file has them too), and whether they
-        are all there (False: older ones were dropped; a reader should read the status again)."""
-        changes = [c for c in self.changes if c.seq > seq]
-        complete = not self.changes or self.changes[0].seq <= seq + 1 or seq >= self.seq
-        return [c.line if isinstance(c, RunEvent) or visible(c) else dict(c.line, internal=True)
-                for c in changes], complete
+        """`changes_json`'s changes as dicts."""
+        text, complete = self.changes_json(seq)
+        return json.loads(text), complete
+
+    def _keep(self, line: dict) -> str:
+        """A change (or a run's line) in the backlog, as the JSON line it is served and written as; those past
+        the backlog's bounds dropped."""
+        text = json.dumps(line, separators=(",", ":"), default=str)
+        now = self.clock()
+        changes = self.changes
+        changes.append((self.seq, now, text))
+        while changes[0][1] < now - CHANGES_KEPT_S:
+            changes.popleft()
+        return text
 
     async def wait_change(self, seq: int, timeout: float) -> None:
         """Return when there is a change after `seq`, or after `timeout` seconds."""
@@ -370,32 +389,19 @@ class Fleet:
 
     def run_event(self, event: str, **fields: object) -> None:
         """A line in the events file about the run, not one node (`event`: its name, `reason`: its words)."""
-        line = self._stream({"event": event, "time": round(time.time(), 6), **fields})
-        if self._events is not None:
-            try:
-                self._events.write(json.dumps(line, separators=(",", ":")) + "\n")
-            except OSError as e:
-                self._warning("cannot write the events file: %s" % e.strerror)
-                self._close()
+        self._write(self._stream({"event": event, "time": round(time.time(), 6), **fields}))
 
     def reloaded(self, reason: str, **what: list) -> None:
         """A reload's line in the events file: what it changed, in words (`reason`) and by name."""
-        line = self._stream({"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what})
-        if self._events is not None:
-            try:
-                self._events.write(json.dumps(line, separators=(",", ":"), default=str) + "\n")
-            except OSError as e:
-                self._warning("cannot write the events file: %s" % e.strerror)
-                self._close()
+        self._write(self._stream({"event": RELOAD, "time": round(time.time(), 6), "reason": reason, **what}))
 
-    def _stream(self, line: dict) -> dict:
-        """A run's line numbered in the change stream (`seq`), for the long poll's readers too."""
+    def _stream(self, line: dict) -> str:
+        """A run's line numbered in the change stream (`seq`), for the long poll's readers too: its JSON."""
         self.seq += 1
-        line = {"seq": self.seq, **line}
-        self.changes.append(RunEvent(self.seq, line))
+        text = self._keep({"seq": self.seq, **line})
         if self._changed is not None:
             self._changed.set()
-        return line
+        return text
 
     @staticmethod
     def _line(seq: int, when: float, r: Record, status: NodeStatus) -> dict:
@@ -405,11 +411,12 @@ class Fleet:
                 "restarts": r.restarts, "failures": r.failures, "next_start": status.next_start,
                 "over_limit": dict(r.over_limit), "reason": r.reason, "registered": r.registered, "uri": r.uri}
 
-    def _write(self, change: Change) -> None:
+    def _write(self, text: str) -> None:
+        """A line of the events file: the change stream's JSON of a change or a run's line."""
         if self._events is None:
             return
         try:
-            self._events.write(json.dumps(change.line, separators=(",", ":")) + "\n")
+            self._events.write(text + "\n")
         except OSError as e:  # a full disk: say so once, keep supervising
             self._warning("cannot write the events file: %s" % e.strerror)
             self._close()

@@ -56,7 +56,11 @@ class TopicWatch:
         self.timeout = timeout if timeout is not None or min_rate is not None else window
         self.min_rate = min_rate
         self.window = window
+        # the window's messages as gulps, (when read, how many): one entry a read, not one a message (a 10 kHz
+        # topic over a 5 s window held 50,000 of them)
         self.times: collections.deque[float] = collections.deque()
+        self.counts: collections.deque[int] = collections.deque()
+        self.count = 0  # the messages in the window
         self.last: float | None = None
 
     def message(self, now: float) -> None:
@@ -65,12 +69,16 @@ class TopicWatch:
     def messages(self, count: int, now: float) -> None:
         """`count` messages read at `now` (a watch reads what has come in gulps)."""
         self.last = now
-        self.times.extend([now] * count)
+        if count > 0:
+            self.times.append(now)
+            self.counts.append(count)
+            self.count += count
         self._trim(now)
 
     def _trim(self, now: float) -> None:
         while self.times and self.times[0] <= now - self.window:
             self.times.popleft()
+            self.count -= self.counts.popleft()
 
     def verdict(self, now: float) -> str:
         """Why the topic is stalled now, in words; "" while it is healthy."""
@@ -82,7 +90,7 @@ class TopicWatch:
                 return "no message on %s for %.1f s %s (watch_timeout %g)" % (self.topic, now - since, what,
                                                                               self.timeout)
         if self.min_rate is not None and now - self.started_at >= self.window:
-            rate = len(self.times) / self.window
+            rate = self.count / self.window
             if rate < self.min_rate:
                 return "%s at %.1f Hz over the last %g s, under watch_min_rate %g" % (self.topic, rate, self.window,
                                                                                       self.min_rate)
@@ -91,7 +99,7 @@ class TopicWatch:
     def rate(self, now: float) -> float:
         """Messages a second over the last `window` seconds (over the time since the run started, when shorter)."""
         self._trim(now)
-        return len(self.times) / max(min(self.window, now - self.started_at), 1e-3)
+        return self.count / max(min(self.window, now - self.started_at), 1e-3)
 
     def period(self) -> float:
         """How often the verdict is worth asking for."""

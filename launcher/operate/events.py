@@ -97,8 +97,21 @@ def _main(argv: list[str]) -> int:
             raise client.ToolError("no events yet (%s)" % path) from None
     if opts.follow:
         printed = max(printed, seq)  # (the file held every event up to `seq` when it was read)
-        client.follow_changes(uri, printed, lambda answer: show(  # (the steps the file leaves out: not shown)
-            [(json.dumps(c, separators=(",", ":")), c) for c in answer["changes"] if not c.get("internal")]))
+
+        def follow(answer: dict) -> None:
+            nonlocal offset
+            if not answer["complete"]:  # (this reader fell behind the stream's backlog: the events it dropped
+                try:  # are in the file, before the stream's; those printed already are skipped)
+                    with open(path, "rb") as f:
+                        f.seek(offset)
+                        data = f.read()
+                    offset += len(data)
+                    write(data)
+                except OSError:
+                    pass
+            show([(json.dumps(c, separators=(",", ":")), c) for c in answer["changes"]
+                  if not c.get("internal")])  # (the steps the file leaves out: not shown)
+        client.follow_changes(uri, printed, follow)
         try:  # the launch has ended: what its file has after the events the stream gave (its end)
             with open(path, "rb") as f:
                 f.seek(offset)

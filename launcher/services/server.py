@@ -240,9 +240,9 @@ class LaunchServer:
             if fleet is None:
                 return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
             await fleet.wait_change(since, min(float(timeout), CHANGES_WAIT_MAX_S))
-            lines, complete = fleet.changes_since(since)
-            return [1, "changes", json.dumps({"seq": fleet.seq, "complete": complete, "changes": lines},
-                                             separators=(",", ":"), default=str)]
+            lines, complete = fleet.changes_json(since)  # (the lines as the fleet keeps them: JSON already)
+            return [1, "changes", '{"seq":%d,"complete":%s,"changes":%s}'
+                    % (fleet.seq, "true" if complete else "false", lines)]
         return changes()
 
     def launcher_samples(self, history: Any = False) -> list:

@@ -33,3 +33,26 @@ def test_a_watch_with_neither_bound_stalls_after_a_window_of_silence():
     w = TopicWatch("/t", started_at=10.0, timeout=None, min_rate=None, window=5.0)
     assert w.verdict(14.9) == "" and w.verdict(15.0) != ""
     assert 0.05 <= w.period() <= 1.0
+
+
+def test_a_fast_topics_window_is_kept_as_its_reads_not_its_messages():
+    """100,000 messages a second, read in gulps of 1,000: the 5 s window holds 500 reads (it held 500,000 times,
+    4 MB a watched topic), and the rate is the messages'."""
+    import gc
+    import tracemalloc
+    w = TopicWatch("/points", started_at=0.0, timeout=1.0, min_rate=50000.0, window=5.0)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for i in range(1000):  # 10 s
+            w.messages(1000, i * 0.01)
+        gc.collect()
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 100_000, "%d bytes" % grown
+    assert w.rate(9.99) == 100000.0 and w.verdict(9.99) == ""
+    for i in range(1000, 1500):  # 5 s at a tenth of that: under the minimum once the window has only them
+        w.messages(100, i * 0.01)
+    assert w.verdict(14.99) == "/points at 10000.0 Hz over the last 5 s, under watch_min_rate 50000"
