@@ -23,7 +23,8 @@ does (checked side by side); sending SIGINT again would not help.
 
 What happens to a node (its first start, what follows a run, operator stops and
 starts, the launch's end) is decided by its state machine (`launcher.fleet.machine`,
-stepped by the fleet, `launcher.fleet.state`); the supervisor tells the fleet what
+stepped by the fleet, `launcher.fleet.state`), and whether the launch is stopping by
+the launch's phase (`launcher.fleet.launchphase`); the supervisor tells the fleet what
 happened to each process and carries out the actions it gets back: spawn, a timer,
 a readiness hold, the stop escalation, SIGKILL. It decides nothing of its own but
 the mechanics: pidfds, process groups, pacing, escalation.
@@ -41,7 +42,7 @@ from typing import Callable
 
 from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
-from launcher.fleet import machine, restart, state
+from launcher.fleet import launchphase, machine, restart, state
 from launcher.fleet.machine import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
@@ -196,7 +197,6 @@ class Supervisor:
         self.relay_output = relay_output
         self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
         self.shutdown_errors: list[str] = []
-        self.shutting_down = False
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
         # health hooks (see "health" below): what holds a node's start, and what watches each run
@@ -209,6 +209,11 @@ class Supervisor:
     @property
     def done(self) -> asyncio.Event:
         return self.fleet.done
+
+    @property
+    def shutting_down(self) -> bool:
+        """The launch's nodes are being stopped: its phase says (fleet.launchphase), for every runner and watcher."""
+        return self.fleet.stopping
 
     @property
     def exit_status(self) -> int:
@@ -281,7 +286,7 @@ class Supervisor:
 
     def _due(self, proc: NodeProcess) -> None:
         proc.respawn_handle = None
-        if not (self.shutting_down or self.done.is_set()):
+        if self.fleet.starts_allowed:
             self._tell(proc, Event(machine.DUE))
 
     def _cancel(self, proc: NodeProcess) -> None:
@@ -428,7 +433,7 @@ class Supervisor:
 
     def release(self, proc: NodeProcess) -> None:
         """A held node's wait_for conditions are met: start it now."""
-        if not (self.shutting_down or self.done.is_set()):
+        if self.fleet.starts_allowed:
             self._tell(proc, Event(machine.READY))
 
     def output_path(self, node_name: str) -> str | None:
@@ -499,8 +504,13 @@ class Supervisor:
 
         A node that another running node waited for (`wait_for="node:..."`, `bind_to`) is stopped once
         that one is down: a controller spawner stops before its controller manager, a nodelet loader before
-        its manager. Nodes with no such relation stop together, as before."""
-        self.shutting_down = True
+        its manager. Nodes with no such relation stop together, as before.
+
+        The launch's runner has stepped its phase to stopping (STOP_ALL is this call); a supervisor that is its
+        own launch's runner (a remote child, a test) steps it here."""
+        own = not self.fleet.stopping
+        if own:
+            self.fleet.launch_step(launchphase.STOP)
         dependents = self._dependents()
         self._deferred = []
         for p in reversed(self.procs):
@@ -524,6 +534,8 @@ class Supervisor:
             self._pace()
         if self.shutdown_errors:
             console.printerrlog("Shutdown errors:\n" + "\n".join(" * %s" % e for e in self.shutdown_errors))
+        if own:
+            self.fleet.launch_step(launchphase.ALL_STOPPED)
         return self.shutdown_errors
 
     def _dependents(self) -> dict[NodeProcess, list[NodeProcess]]:

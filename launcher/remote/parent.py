@@ -60,7 +60,7 @@ from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.fleet import processes
 from launcher.output import console
-from launcher.fleet import machine, state
+from launcher.fleet import launchphase, machine, state
 from launcher.fleet.machine import Event
 from launcher.health.readiness import Readiness
 from launcher.model.graph import Graph
@@ -222,8 +222,14 @@ class RemoteParent:
             self.children[child.name] = child
         self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
         self.uri = ""
-        self.stopping = False
+        self._shut = False  # shutdown() began (before attach() too: a stop signal during the start-up)
         self.readiness: Readiness | None = None  # holds the first start of nodes with wait_for (set by attach)
+
+    @property
+    def stopping(self) -> bool:
+        """The launch's nodes are being stopped: its phase says (fleet.launchphase), as the supervisor's; before
+        the fleet is attached, this parent's shutdown."""
+        return self._shut or (self.fleet is not None and self.fleet.stopping)
 
     # ---- running ------------------------------------------------------------------------------------
 
@@ -729,8 +735,12 @@ class RemoteParent:
     # ---- stopping -----------------------------------------------------------------------------------
 
     async def shutdown(self) -> None:
-        """Ask every child to stop its nodes, then close the sessions."""
-        self.stopping = True
+        """Ask every child to stop its nodes, then close the sessions (the launch's runner has stepped its phase
+        to stopping; a parent that is its launch's runner, in a test, steps it here)."""
+        own = self.fleet is not None and not self.fleet.stopping
+        if own:
+            self.fleet.launch_step(launchphase.STOP)
+        self._shut = True
         if self.fleet is not None:
             for child in self.children.values():
                 for rn in child.nodes:
@@ -768,3 +778,5 @@ class RemoteParent:
                     pass
         if self.server is not None:
             await self.server.stop()
+        if own:
+            self.fleet.launch_step(launchphase.ALL_STOPPED)
