@@ -43,6 +43,7 @@ from typing import Callable
 from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
 from launcher.fleet import launchphase, machine, restart, state
+from launcher.fleet.actions import carry_out
 from launcher.fleet.machine import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
@@ -232,23 +233,7 @@ class Supervisor:
         old = self._state(proc)
         actions = self.fleet.apply(proc.spec.node_name, event)
         new = self._state(proc)  # (before the actions are carried out: they tell their own events)
-        for action in actions:
-            kind = action.kind
-            if kind == machine.SPAWN:
-                self._spawn(proc)
-            elif kind == machine.SCHEDULE:
-                self._schedule(proc, action.delay)
-            elif kind == machine.CANCEL:
-                self._cancel(proc)
-            elif kind == machine.HOLD:
-                if self.readiness is None:
-                    self._tell(proc, Event(machine.READY))
-                else:
-                    self.readiness.hold(proc)
-            elif kind == machine.BEGIN_STOP:
-                self._begin_stop(proc)
-            elif kind == machine.KILL:
-                _signal_group(proc.pgid, signal.SIGKILL)
+        carry_out(self, proc, actions)
         if old != new and not self.shutting_down:  # (at shutdown, bound nodes are stopped first anyway)
             self._tell_bound(proc, old, new)
         return actions
@@ -277,7 +262,21 @@ class Supervisor:
     def _state(self, proc: NodeProcess) -> str:
         return self.fleet.records[proc.spec.node_name].state
 
-    def _schedule(self, proc: NodeProcess, delay: float) -> None:
+    # ---- the node table's actions (fleet.actions.ActionRunner) ------------------------------------------
+
+    def launch(self, proc: NodeProcess) -> None:
+        """(LAUNCH is for a node of another machine: none runs here.)"""
+
+    def hold(self, proc: NodeProcess) -> None:
+        if self.readiness is None:
+            self._tell(proc, Event(machine.READY))
+        else:
+            self.readiness.hold(proc)
+
+    def kill(self, proc: NodeProcess) -> None:
+        _signal_group(proc.pgid, signal.SIGKILL)
+
+    def schedule(self, proc: NodeProcess, delay: float) -> None:
         if delay == 0.0:
             # on the next turn of the loop, not now: the change that asked for it is still being told
             proc.respawn_handle = self.loop.call_soon(self._due, proc)
@@ -289,7 +288,7 @@ class Supervisor:
         if self.fleet.starts_allowed:
             self._tell(proc, Event(machine.DUE))
 
-    def _cancel(self, proc: NodeProcess) -> None:
+    def cancel(self, proc: NodeProcess) -> None:
         if proc.respawn_handle is not None:
             proc.respawn_handle.cancel()
             proc.respawn_handle = None
@@ -337,7 +336,7 @@ class Supervisor:
         """Every node of the launch has been started (or failed to)."""
         self.fleet.registrations_complete()
 
-    def _spawn(self, proc: NodeProcess) -> None:
+    def spawn(self, proc: NodeProcess) -> None:
         """Start the node's process; a start that fails is a run that ended at once."""
         append = proc.spawn_count > 0
         channels = self._open_channels(proc.spec)
@@ -482,7 +481,7 @@ class Supervisor:
 
     # ---- stopping ---------------------------------------------------------------------------------
 
-    def _begin_stop(self, proc: NodeProcess) -> None:
+    def begin_stop(self, proc: NodeProcess) -> None:
         """The stop escalation of one node, on its own clock: at shutdown through the pacing queue."""
         if proc.stopped is None or proc.stopped.done():
             proc.stopped = self.loop.create_future()
