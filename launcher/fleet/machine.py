@@ -613,12 +613,3 @@ REFUSED = frozenset(
 )
 assert not REFUSED & (TABLE.keys() | IGNORED)
 
-
-def outcome_all_dead(records) -> bool:
-    """roslaunch's "all processes on machine have died": some node ended by itself and none is alive."""
-    any_ended = False
-    for r in records:
-        if r.state in ALIVE:
-            return False
-        any_ended = any_ended or r.state in ENDED
-    return any_ended

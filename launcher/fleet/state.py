@@ -11,9 +11,10 @@ time, node, host, state, pid, exit code or signal, restarts, failures, limits
 over, reason, and the machine's own `phase`), so a reader can follow a launch
 from outside; `changes_since` serves the same stream to a reader that asks
 (the long poll of the launch's server). It returns the actions for the runner
-to carry out. The launch's outcome is the fleet's too: `done` is set when a
-node ends the launch (required, on_fatal="shutdown") or, with
-`exit_when_all_dead`, when every node has ended.
+to carry out. The launch's own phase is the fleet's too (`launch`, stepped by
+`fleet.launchphase`'s table): `done` is set by its END action, when a node ends
+the launch (required, on_fatal="shutdown") or, with `exit_when_all_dead`, when
+every node has ended; its runner carries out the rest (`launch_step`).
 
 The outside sees eight states (README), each internal state mapping onto one
 (`machine.PUBLIC`):
@@ -40,7 +41,7 @@ import time
 from typing import Callable, Iterable, NamedTuple
 
 from launcher import compat
-from launcher.fleet import machine
+from launcher.fleet import launchphase, machine
 from launcher.fleet.machine import Event, Record, Rules
 from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
@@ -198,13 +199,9 @@ class Fleet:
         # the change stream's backlog: (seq, when kept (self.clock), the change's JSON line as it is served)
         self.changes: collections.deque[tuple[int, float, str]] = collections.deque(maxlen=CHANGES_KEPT)
         self._changed: asyncio.Event | None = None  # set at a change while a long poll waits
-        # the outcome
+        # the launch's phase (launchphase), and its outcome: `done`, set by the phase's END
+        self.launch = launchphase.Launch(exit_when_all_dead=exit_when_all_dead)
         self.done = compat.Event()
-        # the launch's exit status when a node ended it: a required node's own exit code (128 + the
-        # signal when one killed it, as ROS-O's roslaunch, ros/ros_comm#2082), 1 for a start that failed
-        self.exit_status = 0
-        self.exit_when_all_dead = exit_when_all_dead
-        self._registrations_complete = False
         self._unstarted = 0  # nodes that never got a record (their command could not be made)
         if events_path:
             try:
@@ -350,13 +347,49 @@ class Fleet:
         except asyncio.TimeoutError:
             pass
 
-    # ---- the launch's outcome ------------------------------------------------------------------------
+    # ---- the launch's phase and outcome ---------------------------------------------------------------
+
+    @property
+    def exit_status(self) -> int:
+        """The launch's exit status: the first non-zero status a node ended it with (launchphase), else 0."""
+        return self.launch.exit_status
+
+    @property
+    def exit_when_all_dead(self) -> bool:
+        return self.launch.exit_when_all_dead
+
+    @exit_when_all_dead.setter
+    def exit_when_all_dead(self, value: bool) -> None:
+        self.launch = self.launch._replace(exit_when_all_dead=value)
+
+    @property
+    def stopping(self) -> bool:
+        """The launch's nodes are being stopped (or are down): nothing but that stop touches them."""
+        return launchphase.stopping(self.launch)
+
+    @property
+    def starts_allowed(self) -> bool:
+        """No node starts again by itself (a timer's start, a hold let go) once the launch is to end."""
+        return launchphase.starts_allowed(self.launch)
+
+    def launch_step(self, kind: str, status: int = 0) -> list[launchphase.Action]:
+        """Step the launch's phase; carry out END (`done`) and SAY; return the actions for the launch's runner
+        (STOP_ALL, KILL_ALL)."""
+        try:
+            self.launch, actions = launchphase.step(self.launch, launchphase.Event(kind, status))
+        except launchphase.InvalidTransition as e:  # a runner's bug: said, and the launch is left as it was
+            self._warning("internal error: %s" % e)
+            return []
+        for action in actions:
+            if action.kind == launchphase.END:
+                self.done.set()
+            elif action.kind == launchphase.SAY and self.say is not None:
+                self.say(action.text)
+        return actions
 
     def end(self, status: int) -> None:
         """A node (here or elsewhere) ends the launch with `status` (the first one that fails decides)."""
-        if not self.done.is_set() or (status and not self.exit_status):
-            self.exit_status = status
-        self.done.set()
+        self.launch_step(launchphase.NODE_ENDED_IT, status)
 
     def not_started(self, required: bool) -> None:
         """A node whose command could not even be made (already reported by name): it has no record."""
@@ -368,17 +401,13 @@ class Fleet:
 
     def registrations_complete(self) -> None:
         """Every node of the launch has been started (or failed to)."""
-        self._registrations_complete = True
+        self.launch_step(launchphase.ALL_STARTED)
         self._check_all_dead()
 
     def _check_all_dead(self) -> None:
-        if not (self.exit_when_all_dead and self._registrations_complete) or self.done.is_set():
-            return
         local = [r for r in self.records.values() if r.host == LOCAL_HOST]
-        if self._unstarted and not any(r.state in machine.ALIVE for r in local) or machine.outcome_all_dead(local):
-            if self.say is not None:
-                self.say("all processes on machine have died, roslaunch will exit")
-            self.done.set()
+        if launchphase.all_dead(local, machine.ALIVE, machine.ENDED, self._unstarted):
+            self.launch_step(launchphase.ALL_DEAD)  # (the phase decides whether that ends the launch)
 
     # ---- the events file -----------------------------------------------------------------------------------
 

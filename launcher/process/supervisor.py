@@ -23,7 +23,8 @@ does (checked side by side); sending SIGINT again would not help.
 
 What happens to a node (its first start, what follows a run, operator stops and
 starts, the launch's end) is decided by its state machine (`launcher.fleet.machine`,
-stepped by the fleet, `launcher.fleet.state`); the supervisor tells the fleet what
+stepped by the fleet, `launcher.fleet.state`), and whether the launch is stopping by
+the launch's phase (`launcher.fleet.launchphase`); the supervisor tells the fleet what
 happened to each process and carries out the actions it gets back: spawn, a timer,
 a readiness hold, the stop escalation, SIGKILL. It decides nothing of its own but
 the mechanics: pidfds, process groups, pacing, escalation.
@@ -41,7 +42,8 @@ from typing import Callable
 
 from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
-from launcher.fleet import machine, restart, state
+from launcher.fleet import launchphase, machine, restart, state
+from launcher.fleet.actions import carry_out
 from launcher.fleet.machine import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
@@ -196,7 +198,6 @@ class Supervisor:
         self.relay_output = relay_output
         self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
         self.shutdown_errors: list[str] = []
-        self.shutting_down = False
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
         # health hooks (see "health" below): what holds a node's start, and what watches each run
@@ -209,6 +210,11 @@ class Supervisor:
     @property
     def done(self) -> asyncio.Event:
         return self.fleet.done
+
+    @property
+    def shutting_down(self) -> bool:
+        """The launch's nodes are being stopped: its phase says (fleet.launchphase), for every runner and watcher."""
+        return self.fleet.stopping
 
     @property
     def exit_status(self) -> int:
@@ -227,23 +233,7 @@ class Supervisor:
         old = self._state(proc)
         actions = self.fleet.apply(proc.spec.node_name, event)
         new = self._state(proc)  # (before the actions are carried out: they tell their own events)
-        for action in actions:
-            kind = action.kind
-            if kind == machine.SPAWN:
-                self._spawn(proc)
-            elif kind == machine.SCHEDULE:
-                self._schedule(proc, action.delay)
-            elif kind == machine.CANCEL:
-                self._cancel(proc)
-            elif kind == machine.HOLD:
-                if self.readiness is None:
-                    self._tell(proc, Event(machine.READY))
-                else:
-                    self.readiness.hold(proc)
-            elif kind == machine.BEGIN_STOP:
-                self._begin_stop(proc)
-            elif kind == machine.KILL:
-                _signal_group(proc.pgid, signal.SIGKILL)
+        carry_out(self, proc, actions)
         if old != new and not self.shutting_down:  # (at shutdown, bound nodes are stopped first anyway)
             self._tell_bound(proc, old, new)
         return actions
@@ -272,7 +262,21 @@ class Supervisor:
     def _state(self, proc: NodeProcess) -> str:
         return self.fleet.records[proc.spec.node_name].state
 
-    def _schedule(self, proc: NodeProcess, delay: float) -> None:
+    # ---- the node table's actions (fleet.actions.ActionRunner) ------------------------------------------
+
+    def launch(self, proc: NodeProcess) -> None:
+        """(LAUNCH is for a node of another machine: none runs here.)"""
+
+    def hold(self, proc: NodeProcess) -> None:
+        if self.readiness is None:
+            self._tell(proc, Event(machine.READY))
+        else:
+            self.readiness.hold(proc)
+
+    def kill(self, proc: NodeProcess) -> None:
+        _signal_group(proc.pgid, signal.SIGKILL)
+
+    def schedule(self, proc: NodeProcess, delay: float) -> None:
         if delay == 0.0:
             # on the next turn of the loop, not now: the change that asked for it is still being told
             proc.respawn_handle = self.loop.call_soon(self._due, proc)
@@ -281,10 +285,10 @@ class Supervisor:
 
     def _due(self, proc: NodeProcess) -> None:
         proc.respawn_handle = None
-        if not (self.shutting_down or self.done.is_set()):
+        if self.fleet.starts_allowed:
             self._tell(proc, Event(machine.DUE))
 
-    def _cancel(self, proc: NodeProcess) -> None:
+    def cancel(self, proc: NodeProcess) -> None:
         if proc.respawn_handle is not None:
             proc.respawn_handle.cancel()
             proc.respawn_handle = None
@@ -332,7 +336,7 @@ class Supervisor:
         """Every node of the launch has been started (or failed to)."""
         self.fleet.registrations_complete()
 
-    def _spawn(self, proc: NodeProcess) -> None:
+    def spawn(self, proc: NodeProcess) -> None:
         """Start the node's process; a start that fails is a run that ended at once."""
         append = proc.spawn_count > 0
         channels = self._open_channels(proc.spec)
@@ -428,7 +432,7 @@ class Supervisor:
 
     def release(self, proc: NodeProcess) -> None:
         """A held node's wait_for conditions are met: start it now."""
-        if not (self.shutting_down or self.done.is_set()):
+        if self.fleet.starts_allowed:
             self._tell(proc, Event(machine.READY))
 
     def output_path(self, node_name: str) -> str | None:
@@ -477,7 +481,7 @@ class Supervisor:
 
     # ---- stopping ---------------------------------------------------------------------------------
 
-    def _begin_stop(self, proc: NodeProcess) -> None:
+    def begin_stop(self, proc: NodeProcess) -> None:
         """The stop escalation of one node, on its own clock: at shutdown through the pacing queue."""
         if proc.stopped is None or proc.stopped.done():
             proc.stopped = self.loop.create_future()
@@ -499,8 +503,13 @@ class Supervisor:
 
         A node that another running node waited for (`wait_for="node:..."`, `bind_to`) is stopped once
         that one is down: a controller spawner stops before its controller manager, a nodelet loader before
-        its manager. Nodes with no such relation stop together, as before."""
-        self.shutting_down = True
+        its manager. Nodes with no such relation stop together, as before.
+
+        The launch's runner has stepped its phase to stopping (STOP_ALL is this call); a supervisor that is its
+        own launch's runner (a remote child, a test) steps it here."""
+        own = not self.fleet.stopping
+        if own:
+            self.fleet.launch_step(launchphase.STOP)
         dependents = self._dependents()
         self._deferred = []
         for p in reversed(self.procs):
@@ -524,6 +533,8 @@ class Supervisor:
             self._pace()
         if self.shutdown_errors:
             console.printerrlog("Shutdown errors:\n" + "\n".join(" * %s" % e for e in self.shutdown_errors))
+        if own:
+            self.fleet.launch_step(launchphase.ALL_STOPPED)
         return self.shutdown_errors
 
     def _dependents(self) -> dict[NodeProcess, list[NodeProcess]]:

@@ -60,7 +60,8 @@ from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.fleet import processes
 from launcher.output import console
-from launcher.fleet import machine, state
+from launcher.fleet import launchphase, machine, state
+from launcher.fleet.actions import carry_out
 from launcher.fleet.machine import Event
 from launcher.health.readiness import Readiness
 from launcher.model.graph import Graph
@@ -222,8 +223,14 @@ class RemoteParent:
             self.children[child.name] = child
         self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
         self.uri = ""
-        self.stopping = False
+        self._shut = False  # shutdown() began (before attach() too: a stop signal during the start-up)
         self.readiness: Readiness | None = None  # holds the first start of nodes with wait_for (set by attach)
+
+    @property
+    def stopping(self) -> bool:
+        """The launch's nodes are being stopped: its phase says (fleet.launchphase), as the supervisor's; before
+        the fleet is attached, this parent's shutdown."""
+        return self._shut or (self.fleet is not None and self.fleet.stopping)
 
     # ---- running ------------------------------------------------------------------------------------
 
@@ -257,21 +264,35 @@ class RemoteParent:
 
     def _tell(self, rn: RemoteNode, event: Event) -> list[machine.Action]:
         actions = self.fleet.apply(rn.name, event)
-        for action in actions:
-            if action.kind == machine.LAUNCH:
-                self._wanted(rn.child)
-            elif action.kind == machine.SCHEDULE:
-                rn.timer = asyncio.get_running_loop().call_later(action.delay, self._due, rn)
-            elif action.kind == machine.CANCEL:
-                if rn.timer is not None:
-                    rn.timer.cancel()
-                    rn.timer = None
-                if self.readiness is not None:
-                    self.readiness.drop(rn)
-            elif action.kind == machine.HOLD:
-                self.readiness.hold(rn)
-            # (BEGIN_STOP: the caller, an operator's stop or the shutdown, asks the child)
+        carry_out(self, rn, actions)
         return actions
+
+    # ---- the node table's actions (fleet.actions.ActionRunner) ------------------------------------------
+
+    def launch(self, rn: RemoteNode) -> None:
+        self._wanted(rn.child)
+
+    def schedule(self, rn: RemoteNode, delay: float) -> None:
+        rn.timer = asyncio.get_running_loop().call_later(delay, self._due, rn)
+
+    def cancel(self, rn: RemoteNode) -> None:
+        if rn.timer is not None:
+            rn.timer.cancel()
+            rn.timer = None
+        if self.readiness is not None:
+            self.readiness.drop(rn)
+
+    def hold(self, rn: RemoteNode) -> None:
+        self.readiness.hold(rn)
+
+    def begin_stop(self, rn: RemoteNode) -> None:
+        """(The caller, an operator's stop or the shutdown, asks the child: it waits for the answer.)"""
+
+    def spawn(self, rn: RemoteNode) -> None:
+        """(SPAWN is for a node of this machine: its child spawns a remote one.)"""
+
+    def kill(self, rn: RemoteNode) -> None:
+        """(KILL follows a hang, stall or limit verdict: the health watchers watch this machine's nodes.)"""
 
     def _state(self, rn: RemoteNode) -> str:
         return self.fleet.records[rn.name].state
@@ -729,8 +750,12 @@ class RemoteParent:
     # ---- stopping -----------------------------------------------------------------------------------
 
     async def shutdown(self) -> None:
-        """Ask every child to stop its nodes, then close the sessions."""
-        self.stopping = True
+        """Ask every child to stop its nodes, then close the sessions (the launch's runner has stepped its phase
+        to stopping; a parent that is its launch's runner, in a test, steps it here)."""
+        own = self.fleet is not None and not self.fleet.stopping
+        if own:
+            self.fleet.launch_step(launchphase.STOP)
+        self._shut = True
         if self.fleet is not None:
             for child in self.children.values():
                 for rn in child.nodes:
@@ -768,3 +793,5 @@ class RemoteParent:
                     pass
         if self.server is not None:
             await self.server.stop()
+        if own:
+            self.fleet.launch_step(launchphase.ALL_STOPPED)

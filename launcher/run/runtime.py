@@ -230,8 +230,9 @@ class StopSignals:
     def __init__(self) -> None:
         self.loop: asyncio.AbstractEventLoop | None = None
         self.event = compat.Event()  # (bound to the loop that first waits on it)
-        # set while nodes are being stopped: a stop signal then means "now" (the second Ctrl-C)
-        self.while_stopping: Callable[[], None] | None = None
+        # told of each stop signal once the launch's nodes exist: the launch's phase (fleet.launchphase) says
+        # what it means (while its nodes are being stopped, "now": the second Ctrl-C)
+        self.on_signal: Callable[[], None] | None = None
         self.received = ""  # the first stop signal's name
 
     def install(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -243,8 +244,8 @@ class StopSignals:
     def _on_signal(self, sig: int = 0) -> None:
         if not self.received and sig:
             self.received = signal.Signals(sig).name
-        if self.while_stopping is not None:
-            self.while_stopping()
+        if self.on_signal is not None:
+            self.on_signal()
         self.event.set()
 
     def check(self) -> None:

@@ -26,6 +26,7 @@ from launcher.health.registration import Registrations
 from launcher.model.graph import Graph
 from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
 from launcher.process.spawn import ProcessSpec
+from launcher.fleet import launchphase
 from launcher.fleet.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.services import runrecord
@@ -105,6 +106,7 @@ class NodeService:
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=exit_when_all_dead, watchdog=self.watchdog, fleet=self.fleet)
+        self.signals.on_signal = self._stop_signal  # (the launch's phase says what a stop signal means from now on)
         self._watch_health(master_uri, graph, external)
         self._packages = packages_of(self.plan.config, specs)
         if self.remote is not None:
@@ -180,6 +182,13 @@ class NodeService:
     def exit_status(self) -> int:
         return self.supervisor.exit_status if self.supervisor is not None else 0
 
+    def _stop_signal(self) -> None:
+        """A stop signal, as the launch's phase takes it: the launch is to end (the run's body waits for the
+        signal itself); while its nodes are being stopped, KILL_ALL."""
+        for action in self.fleet.launch_step(launchphase.STOP_SIGNAL):
+            if action.kind == launchphase.KILL_ALL:
+                self._kill_now()
+
     def _kill_now(self) -> None:
         """A stop signal while nodes are being stopped: kill what is left, and say so."""
         killed = self.supervisor.kill_now() if self.supervisor is not None else []
@@ -195,13 +204,17 @@ class NodeService:
         for h in self._health:
             h.close()
         # (the diagnostics publisher, which reads the fleet, is stopped before this)
-        stops = [self.remote.shutdown()] if self.remote is not None else []
+        # the launch's phase: its nodes are stopped now (STOP_ALL); with no fleet yet (a stop signal during the
+        # start-up) only the other machines' children, started at `prepare`, are there to stop
+        fleet = self.fleet
+        if fleet is None or any(a.kind == launchphase.STOP_ALL for a in fleet.launch_step(launchphase.STOP)):
+            stops = [self.remote.shutdown()] if self.remote is not None else []
+            if self.supervisor is not None:
+                stops.append(self.supervisor.shutdown())
+            await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
+            if fleet is not None:
+                fleet.launch_step(launchphase.ALL_STOPPED)
         if self.supervisor is not None:
-            self.signals.while_stopping = self._kill_now
-            stops.append(self.supervisor.shutdown())
-        await asyncio.gather(*stops)  # the machines stop their nodes while this one stops its own
-        if self.supervisor is not None:
-            self.signals.while_stopping = None
             self.supervisor.close()
         relayed = screen.relay_note()
         if relayed is not None:  # (which way the terminal-bound output went: benchmarks/screen_flood.py reads it)

@@ -80,7 +80,7 @@ def test_wait_timeout_names_what_was_missing_and_ends_a_required_node(tmp_path, 
 def test_a_waiting_node_keeps_an_external_master_launch_going_and_is_stopped_at_shutdown(tmp_path):
     async def main():
         master, sup = await supervisor_with_master()
-        sup.exit_when_all_dead = True  # an external master: the launch ends when every node has ended
+        sup.fleet.exit_when_all_dead = True  # an external master: the launch ends when every node has ended
         sup.readiness = Readiness(master.uri, sup, master.graph, sup.fleet)
         try:
             sup.start(python_node(tmp_path, "quick", "pass"))
