@@ -14,11 +14,9 @@ import os
 import sys
 from typing import Any, Mapping
 
-from launcher.process.command import master_uri, node_command
 from launcher.model.errors import LaunchError
 from launcher.model.names import SEP, make_global_ns, ns_join
 from launcher.workspace.packages import PackageIndex
-from launcher.params.dump import dump_yaml
 from launcher.model.suggest import did_you_mean
 from launcher.xml import load, load_arg_docs, resolve_launch_arguments
 from launcher.xml.arguments import root_namespace
@@ -85,6 +83,8 @@ def _main(opts: Any) -> int:
             raise LaunchError("ERROR: Cannot find node named [%s] in [%s].\nNode names are:\n%s%s"
                               % (name, ", ".join(files), "\n".join(" * %s" % n for n in names),
                                  "\n" + hint if hint else ""))
+        # (only --args needs the command line's module; the other options do not pay for its import)
+        from launcher.process.command import master_uri, node_command
         cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
         out.write(cmd.format_args() + "\n")
         return 0
@@ -159,6 +159,7 @@ _PLAIN_SCALARS = frozenset((str, int, float, bool, type(None)))
 
 def dump_params(config: Any) -> str:
     """`--dump-params`: YAML of the flat {key: value} dict, as roslaunch prints it."""
+    from launcher.params.dump import dump_yaml  # (its regexes cost --nodes ~1 ms when imported at the top)
     data = {k: p.value for k, p in config.params.items()}
     try:
         text = dump_yaml(data)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import pyexpat
-import shlex
 import stat
 from collections.abc import Callable, Iterator, Mapping
 
@@ -63,6 +62,7 @@ class ExecutableNotFound(LaunchError):
         text = ("Cannot locate node of type [%s] in package [%s]. Make sure file exists in package path "
                 "and permission is set to executable (chmod +x)" % (node_type, package))
         if not_executable:
+            import shlex  # (for this message only: a run that finds its nodes does not import it)
             # roslaunch stops at the sentence above; the usual cause is a script committed without its
             # exec bit, and the file is right there
             text += "\nThe file [%s] exists but is not executable: run chmod +x %s" % (

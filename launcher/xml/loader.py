@@ -661,36 +661,17 @@ class XmlLoader:
                 add(full, v, scope, el)
 
     # ------------------------------------------------------------------ <node>, <test>
+    # A <node> or <test> is read in roslaunch's order, so the same input meets the same first
+    # error: its own attributes (the test ones or the extension ones), its namespace and params
+    # scope, the run attributes, its children, then the launch-level ~params it picks up, the
+    # remaining checks, and the record.
     def _node_tag(self, el: Any, scope: Scope, default_machine: Machine | None, is_test: bool) -> None:
-        a = self._attr
-        test_name = None
-        time_limit: float | None = None
-        retry = 0
-        own_policy: dict[str, Any] = {}  # the node's own extension attributes
         if is_test:
-            self._check_attrs(el, scope, TEST_ATTRS)
-            name = a(el, "name", scope)
-            for bad in ("respawn", "respawn_delay", "output"):
-                if bad in el.attrib:
-                    raise self._fail(scope, el, "Invalid <test> tag: <test> tags cannot have '%s' attribute" % bad)
-            test_name = self._reqd(el, "test-name", scope)
-            tl = a(el, "time-limit", scope)
-            rt = a(el, "retry", scope)
-            if tl:
-                try:
-                    time_limit = float(tl)
-                except ValueError:
-                    raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a number: [%s]" % tl) from None
-                if time_limit <= 0.0:
-                    raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a positive number")
-            if rt:
-                try:
-                    retry = int(rt)
-                except ValueError:
-                    raise self._fail(scope, el, "Invalid <test> tag: 'retry' must be a number: [%s]" % rt) from None
-            if not name:
-                name = test_name
+            name, test = self._test_attrs(el, scope)
+            own_policy: dict[str, Any] = {}
         else:
+            test = None
+            own_policy = {}  # the node's own extension attributes
             if not ROSLAUNCH_NODE_ATTRS.issuperset(el.attrib):  # (the usual case: no extension either)
                 self._check_attrs(el, scope, NODE_ATTRS)
                 own_policy = self._policy(el, scope)
@@ -704,6 +685,67 @@ class XmlLoader:
         except ScopeError as e:
             raise self._fail(scope, el, "Invalid <%s> tag: %s" % (el.tag, e)) from None
         param_scope.params = []
+        run = self._run_attrs(el, scope, default_machine, is_test, own_policy)
+        node_remaps, env_scope = self._node_children(el, scope, param_scope)
+        self._node_params(scope, param_scope)
+        self._check_node(el, scope, name, run, is_test)
+        namespace = child.ns
+        if "//" in namespace:
+            namespace = _MULTISLASH.sub("/", namespace)
+        remaps = scope.remap_args_with(node_remaps)
+        env_args = tuple((env_scope or scope).env_args)
+        pkg, node_type, machine, args, output, respawn, respawn_delay, required, cwd, launch_prefix = run
+        if is_test:
+            test_name, time_limit, retry = test  # type: ignore[misc]
+            node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
+                        required, "log", cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
+                        el.sourceline or 0, test_name, time_limit or TEST_TIME_LIMIT_DEFAULT, retry, None)
+            self.tests.append(node)
+            return
+        node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
+                    required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
+                    el.sourceline or 0, None, None, 0,
+                    self._node_policy(scope.policy, own_policy, namespace, name or "", remaps))
+        if name:
+            full = ns_join(namespace, name)
+            if full in self.node_names:
+                raise self._fail(scope, el, "roslaunch file contains multiple nodes named [%s].\nPlease check all "
+                                            "<node> 'name' attributes to make sure they are unique.\nAlso check "
+                                            "that $(anon id) use different ids." % full)
+            self.node_names.add(full)
+        self.nodes.append(node)
+
+    def _test_attrs(self, el: Any, scope: Scope) -> tuple[str, tuple[str, float | None, int]]:
+        """A <test>'s name (its test-name when it has none) and (test-name, time limit, retries)."""
+        a = self._attr
+        self._check_attrs(el, scope, TEST_ATTRS)
+        name = a(el, "name", scope)
+        for bad in ("respawn", "respawn_delay", "output"):
+            if bad in el.attrib:
+                raise self._fail(scope, el, "Invalid <test> tag: <test> tags cannot have '%s' attribute" % bad)
+        test_name = self._reqd(el, "test-name", scope)
+        tl = a(el, "time-limit", scope)
+        rt = a(el, "retry", scope)
+        time_limit: float | None = None
+        retry = 0
+        if tl:
+            try:
+                time_limit = float(tl)
+            except ValueError:
+                raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a number: [%s]" % tl) from None
+            if time_limit <= 0.0:
+                raise self._fail(scope, el, "Invalid <test> tag: 'time-limit' must be a positive number")
+        if rt:
+            try:
+                retry = int(rt)
+            except ValueError:
+                raise self._fail(scope, el, "Invalid <test> tag: 'retry' must be a number: [%s]" % rt) from None
+        return name or test_name, (test_name, time_limit, retry)
+
+    def _run_attrs(self, el: Any, scope: Scope, default_machine: Machine | None, is_test: bool,
+                   own_policy: dict[str, Any]) -> tuple:
+        """(pkg, type, machine, args, output, respawn, respawn_delay, required, cwd, launch-prefix): the
+        attributes of how the node runs, substituted and typed (output and cwd are checked later)."""
         pkg = self._reqd(el, "pkg", scope)
         node_type = self._reqd(el, "type", scope)
         get = el.attrib.get
@@ -711,6 +753,8 @@ class XmlLoader:
             v if (not v or "$" not in v) else self._sub(v, scope, el)
             for v in (get("machine"), get("args"), get("output"), get("respawn"), get("respawn_delay"),
                       get("cwd"), get("launch-prefix"), get("required"))]
+        if cwd == "ros_home":
+            cwd = "ROS_HOME"
         if not machine and default_machine is not None:
             machine = default_machine.name
         if respawn_delay_s is not None and respawn_s is None and not is_test:
@@ -730,9 +774,12 @@ class XmlLoader:
             except ValueError:
                 raise self._fail(scope, el, "Invalid <%s> tag: invalid float value for respawn_delay: %s"
                                  % (el.tag, respawn_delay_s)) from None
+        return pkg, node_type, machine, args, output, respawn, respawn_delay, required, cwd, launch_prefix
 
-        # children: remaps and env build on the enclosing scope; params go under the node's name
-        node_remaps: list[tuple[str, str]] = []  # the node's own <remap>s, on top of the scope's
+    def _node_children(self, el: Any, scope: Scope, param_scope: Scope) -> tuple[list[tuple[str, str]], Scope | None]:
+        """A node's <remap>, <param>, <rosparam> and <env> children: its own remaps (on top of the scope's)
+        and the scope holding its env (None: the enclosing scope's); its params go to `param_scope`."""
+        node_remaps: list[tuple[str, str]] = []
         env_scope: Scope | None = None
         for c in el:
             ctag = c.tag.lower()  # roslaunch matches a node's child tags case-insensitively
@@ -759,8 +806,10 @@ class XmlLoader:
                     self._env_tag(c, env_scope)
             else:
                 self._warn(scope, c, "unrecognized <%s> child tag of <%s> (ignored)" % (ctag, el.tag))
+        return node_remaps, env_scope
 
-        # launch-level ~params declared earlier in this scope, then the node's own
+    def _node_params(self, scope: Scope, param_scope: Scope) -> None:
+        """The node's private params: the launch-level ~params declared earlier in its scope, then its own."""
         node_params = param_scope.params
         if scope.params:
             for key, value, pfile, pline in scope.params:
@@ -779,6 +828,9 @@ class XmlLoader:
             key_lengths.add(len(full))
         self._clean_ns = None
 
+    def _check_node(self, el: Any, scope: Scope, name: str, run: tuple, is_test: bool) -> None:
+        """roslaunch's checks of a node once its children are read (the same messages, in the same order)."""
+        pkg, node_type, _machine, _args, output, respawn, _delay, required, cwd, _prefix = run
         if respawn and required:
             raise self._fail(scope, el, "Invalid <%s> tag: respawn and required cannot both be set to true" % el.tag)
         if name and SEP in name:
@@ -787,36 +839,11 @@ class XmlLoader:
             raise self._fail(scope, el, "Invalid <%s> tag: package must be non-empty" % el.tag)
         if not node_type.strip():
             raise self._fail(scope, el, "Invalid <%s> tag: type must be non-empty" % el.tag)
-        if is_test:
-            output = "log"
-        elif output not in ("log", "screen", None):
+        if not is_test and output not in ("log", "screen", None):
             raise self._fail(scope, el, "Invalid <node> tag: output must be one of 'log', 'screen' (got '%s')" % output)
-        if cwd == "ros_home":
-            cwd = "ROS_HOME"
         if cwd not in ("ROS_HOME", "node", None):
             raise self._fail(scope, el, "Invalid <%s> tag: cwd must be one of 'ROS_HOME', 'node' (got '%s')"
                              % (el.tag, cwd))
-        namespace = child.ns
-        if "//" in namespace:
-            namespace = _MULTISLASH.sub("/", namespace)
-        remaps = scope.remap_args_with(node_remaps)
-        env_args = tuple((env_scope or scope).env_args)
-        node = Node(pkg, node_type, name or "", namespace, args or "", remaps, env_args, respawn, respawn_delay,
-                     required, output, cwd, launch_prefix or None, machine or None, scope.filename or scope.source,
-                     el.sourceline or 0, test_name, (time_limit or TEST_TIME_LIMIT_DEFAULT) if is_test else None,
-                     retry, None if is_test else self._node_policy(scope.policy, own_policy, namespace, name or "",
-                                                                   remaps))
-        if is_test:
-            self.tests.append(node)
-            return
-        if name:
-            full = ns_join(node.namespace, name)
-            if full in self.node_names:
-                raise self._fail(scope, el, "roslaunch file contains multiple nodes named [%s].\nPlease check all "
-                                            "<node> 'name' attributes to make sure they are unique.\nAlso check "
-                                            "that $(anon id) use different ids." % full)
-            self.node_names.add(full)
-        self.nodes.append(node)
 
     @staticmethod
     def _node_policy(defaults: dict[str, Any] | None, own: dict[str, Any], namespace: str,

@@ -117,9 +117,10 @@ def _choice(*choices: str) -> Callable[[str], str]:
 
 
 # a wait_for item: unquoted runs and quoted parts ('...' or "..."), up to a space outside quotes; group 1: a
-# quote left open
-_WAIT_ITEM = re.compile(r"""(?:[^\s'"]+|'[^']*'|"[^"]*")+|(['"].*)""", re.S)
-_QUOTED = re.compile(r"'([^']*)'|\"([^\"]*)\"")
+# quote left open. (Patterns, compiled by `re` at their first use: every launch imports this module, few
+# use wait_for.)
+_WAIT_ITEM = r"""(?:[^\s'"]+|'[^']*'|"[^"]*")+|(['"].*)"""
+_QUOTED = r"'([^']*)'|\"([^\"]*)\""
 
 
 def parse_wait_for(text: str) -> tuple[tuple[str, str], ...]:
@@ -130,11 +131,11 @@ def parse_wait_for(text: str) -> tuple[tuple[str, str], ...]:
     double quotes keeps its spaces (`output:driver:'ready to go'`). There are no escapes: a backslash is
     the pattern's (`output:driver:'port \\d+'`)."""
     words = []
-    for m in _WAIT_ITEM.finditer(text):
+    for m in re.finditer(_WAIT_ITEM, text, re.S):
         if m.group(1) is not None:
             raise PolicyError("kind:name items, a pattern with spaces in quotes (an unclosed quote: %s)"
                               % m.group(1))
-        words.append(_QUOTED.sub(lambda q: q.group(1) if q.group(1) is not None else q.group(2), m.group(0)))
+        words.append(re.sub(_QUOTED, lambda q: q.group(1) if q.group(1) is not None else q.group(2), m.group(0)))
     out = []
     for word in words:
         kind, sep, name = word.partition(":")
