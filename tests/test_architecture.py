@@ -221,6 +221,7 @@ PURE = [_ + module for module in (
     "fleet.launchphase",  # the launch's phase
     "fleet.actions",  # the node table's actions carried out
     "fleet.restart",  # the restart decision
+    "fleet.lastexit",  # a node's last exit, kept by every reader of its changes
     "plan.diff",  # a reload's difference of two plans
     "remote.session",  # a machine's session with its child
     "master.outbox",  # which callback to a node goes when
@@ -232,15 +233,6 @@ PURE = [_ + module for module in (
     "operate.columns",  # a node's columns and a change's words, which the view draws
 )]
 I_O_MODULES = {"asyncio", "socket", "os", "time", "subprocess", "threading"}
-# a pure module that still loads one of those through a module it must not be changed here: the module in the way
-NOT_PURE_YET = {
-    # keep_last_exit and LOCAL_HOST live beside the Fleet (asyncio, time) in fleet/state.py: pure functions to be
-    # moved to a pure module of fleet/ of their own
-    _ + "operate.view": _ + "fleet.state",
-    _ + "operate.columns": _ + "fleet.state",
-}
-
-
 def _stdlib_imports(tree: ast.AST, top_only: bool) -> set[str]:
     """The top-level names of the modules a syntax tree imports: at any depth, or what runs at import only."""
     nodes = ast.walk(tree) if not top_only else _run_at_import(tree)
@@ -293,7 +285,7 @@ def _packages_of(module: str) -> set[str]:
     return {".".join(parts[:i]) for i in range(2, len(parts))}
 
 
-def _io_loaded_by(module: str, stop_at: str = "") -> dict[str, set[str]]:
+def _io_loaded_by(module: str) -> dict[str, set[str]]:
     """module -> the I/O modules it imports: `module` itself at any depth (and by name), then each module of ours
     it loads, at import (not followed past `stop_at`)."""
     bad = {}
@@ -310,17 +302,13 @@ def _io_loaded_by(module: str, stop_at: str = "") -> dict[str, set[str]]:
         found = _stdlib_imports(TREES[m], top_only=True) & I_O_MODULES
         if found:
             bad[m] = found
-        if m != stop_at:
-            todo.extend(_imports_at_import(TREES[m]))
+        todo.extend(_imports_at_import(TREES[m]))
     return bad
 
 
 @pytest.mark.parametrize("module", PURE)
 def test_pure_modules_import_no_io(module):
-    bad = _io_loaded_by(module, stop_at=NOT_PURE_YET.get(module, ""))
-    if module in NOT_PURE_YET:
-        assert set(bad) - {NOT_PURE_YET[module]} == set(), bad  # nothing else in the way
-        pytest.xfail("%s still loads %s through %s" % (module, sorted(bad[NOT_PURE_YET[module]]), NOT_PURE_YET[module]))
+    bad = _io_loaded_by(module)
     assert bad == {}, "loads I/O: %s" % bad
 
 

@@ -129,12 +129,16 @@ class Rules(NamedTuple):
     owned: bool = True
 
 
+# the host of the nodes this machine runs (a remote node's is its machine's address)
+LOCAL_HOST = "localhost"
+
+
 class Record(NamedTuple):
     """One node, as the fleet keeps it. Times are the runner's clock (`now` of each step)."""
 
     name: str  # the ROS node name, /robot/driver
     process: str  # roslaunch's process name, robot/driver-2
-    host: str
+    host: str  # LOCAL_HOST, or its machine's address
     rules: Rules
     state: str = NEW
     pid: int | None = None

@@ -42,7 +42,8 @@ from typing import Callable, Iterable, NamedTuple
 
 from launcher import compat
 from launcher.fleet import launchphase, machine
-from launcher.fleet.machine import Event, Record, Rules
+from launcher.fleet.lastexit import run_ended
+from launcher.fleet.machine import LOCAL_HOST, Event, Record, Rules
 from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
 
@@ -59,7 +60,6 @@ STATES = (WAITING, RUNNING, RESPAWNING, EXITED, FATAL, HUNG, STALLED, STOPPED)
 EVENTS_FILE = "launcher-events.jsonl"  # in the run's log directory (a remote child's: launcher-events-NAME.jsonl)
 LAUNCH_ENDED = "launch_ended"  # the `event` of the events file's last line, written when the launch ends
 RELOAD = "reload"  # the `event` of a reload's line: what it set, deleted, restarted, started, stopped
-LOCAL_HOST = "localhost"  # the host of the nodes this machine runs (a remote node's is its machine's address)
 HISTORY = 60  # resource samples kept per node (a minute at the default period)
 # The change stream a long-polling reader can ask for again: each change kept as the one line of JSON it is
 # served as (a few hundred bytes; the objects it was made of took 1.3 kB), for a minute at least and at most
@@ -150,23 +150,6 @@ def over_limit_text(over_limit: dict[str, float], cpu: float | None, rss: int | 
         else:
             parts.append("%s %g cores (uses %s)" % (limit, maximum, "?" if cpu is None else "%.2f" % cpu))
     return ", ".join(parts)
-
-
-def run_ended(before: tuple, after: tuple) -> bool:
-    """Whether a node's (exit_code, exit_signal) going from `before` to `after` is a run's end: a run clears
-    them when it starts, and its end sets them (a view of the change stream or of the events file keeps
-    `last_exit_*` by the same rule)."""
-    return after != (None, None) and after != before
-
-
-def keep_last_exit(node: dict, change: dict) -> None:
-    """A node's `last_exit_*` after a change of the stream or a line of the events file (which do not carry
-    them: a run's end is where its exit fields are set), applied before the change's own fields."""
-    before = (node.get("exit_code"), node.get("exit_signal"))
-    after = (change.get("exit_code"), change.get("exit_signal"))
-    if run_ended(before, after):
-        node["last_exit_code"], node["last_exit_signal"] = after
-        node["last_exit_at"] = change.get("time")
 
 
 def visible(change: Change) -> bool:

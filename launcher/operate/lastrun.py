@@ -22,7 +22,7 @@ import socket
 import time
 from typing import Any, Mapping, NamedTuple
 
-from launcher.fleet.state import keep_last_exit
+from launcher.fleet.lastexit import keep_last_exit
 from launcher.operate import errors
 from launcher.fleet.state import EVENTS_FILE, LAUNCH_ENDED
 from launcher.workspace.roshome import log_root
@@ -137,7 +137,7 @@ def read_events(path: str) -> list[dict[str, Any]]:
 
 def node_states(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Each node's last state change, with `name`, and how its last run that ended did end (`last_exit_*`,
-    which the events file does not write: fleet.state.keep_last_exit follows its lines)."""
+    which the events file does not write: fleet.lastexit.keep_last_exit follows its lines)."""
     nodes: dict[str, dict[str, Any]] = {}
     for event in events:
         name = event.get("node")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 from typing import Any, Iterable
 
-from launcher.fleet.state import keep_last_exit
+from launcher.fleet.lastexit import keep_last_exit
 from launcher.operate import columns
 
 OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
