@@ -217,7 +217,7 @@ def test_no_import_cycle_between_modules():
 # those run when imported: a function's own lazy import, such as `model.names.anonymous_name`'s socket, is that
 # function's, which no pure module calls).
 PURE = [_ + module for module in (
-    "fleet.machine",  # the node state machine
+    "fleet.lifecycle",  # the node state machine
     "fleet.launchphase",  # the launch's phase
     "fleet.actions",  # the node table's actions carried out
     "fleet.restart",  # the restart decision
@@ -263,7 +263,8 @@ TREES = dict(_modules())
 
 
 def _ours(names: set[str]) -> set[str]:
-    """The modules of ours among imported names (`from launcher.fleet import machine` names launcher.fleet.machine)."""
+    """The modules of ours among imported names (`from launcher.fleet import lifecycle` names
+    launcher.fleet.lifecycle)."""
     return {n if n in GRAPH else n.rpartition(".")[0] for n in names
             if n not in ("launcher", "launcher.__init__") and (n in GRAPH or n.rpartition(".")[0] in GRAPH)} - {"launcher"}
 

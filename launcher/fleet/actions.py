@@ -1,6 +1,6 @@
 """What carries out the node table's actions, and the one place that reads them: `ActionRunner` and `carry_out`.
 
-The node state machine (`fleet.machine`) decides; a runner does. Two runners
+The node state machine (`fleet.lifecycle`) decides; a runner does. Two runners
 implement `ActionRunner`: the supervisor (`process.supervisor`, this machine's nodes:
 processes, pidfds, signals) and the remote parent (`remote.parent`, the other
 machines' nodes: `launch` calls to their children). Each tells the fleet what
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable, Protocol
 
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 
 
 class ActionRunner(Protocol):
@@ -46,16 +46,17 @@ class ActionRunner(Protocol):
 
 
 # each action kind a runner carries out, and its method (END_LAUNCH, NOTE: not a runner's)
-METHODS = {machine.SPAWN: "spawn", machine.LAUNCH: "launch", machine.SCHEDULE: "schedule",
-           machine.CANCEL: "cancel", machine.HOLD: "hold", machine.BEGIN_STOP: "begin_stop", machine.KILL: "kill"}
-NOT_A_RUNNERS = frozenset((machine.END_LAUNCH, machine.NOTE))
+METHODS = {lifecycle.SPAWN: "spawn", lifecycle.LAUNCH: "launch", lifecycle.SCHEDULE: "schedule",
+           lifecycle.CANCEL: "cancel", lifecycle.HOLD: "hold", lifecycle.BEGIN_STOP: "begin_stop",
+           lifecycle.KILL: "kill"}
+NOT_A_RUNNERS = frozenset((lifecycle.END_LAUNCH, lifecycle.NOTE))
 
 
-def carry_out(runner: ActionRunner, node: Any, actions: Iterable[machine.Action]) -> None:
+def carry_out(runner: ActionRunner, node: Any, actions: Iterable[lifecycle.Action]) -> None:
     """Do what the node's step said, in its order."""
     for action in actions:
         kind = action.kind
-        if kind == machine.SCHEDULE:
+        if kind == lifecycle.SCHEDULE:
             runner.schedule(node, action.delay)
         elif kind in METHODS:
             getattr(runner, METHODS[kind])(node)

@@ -1,6 +1,6 @@
 """The launch's own phase as a transition table: `step(launch, event) -> (launch, actions)`.
 
-A node's life is `fleet.machine`'s; this is the launch's, in roslaunch's terms: it
+A node's life is `fleet.lifecycle`'s; this is the launch's, in roslaunch's terms: it
 starts its nodes, runs once every node has been started (roslaunch's "registrations
 complete"), is to end when a node ends it (a required node died or could not start,
 on_fatal="shutdown": "Initiating shutdown!"), when every node of this machine has died

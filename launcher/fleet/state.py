@@ -1,4 +1,4 @@
-"""Every node's state, in one home: the records the node state machine (`fleet.machine`) steps, and the
+"""Every node's state, in one home: the records the node state machine (`fleet.lifecycle`) steps, and the
 stream of their changes that every view listens to.
 
 A runner (the supervisor for this machine's nodes, `remote.parent` for the
@@ -17,7 +17,7 @@ the launch (required, on_fatal="shutdown") or, with `exit_when_all_dead`, when
 every node has ended; its runner carries out the rest (`launch_step`).
 
 The outside sees eight states (README), each internal state mapping onto one
-(`machine.PUBLIC`):
+(`lifecycle.PUBLIC`):
 
     waiting     its start is held (spawn_delay, wait_for, or on its way to its machine)
     running     its process runs (also while it is being stopped)
@@ -41,9 +41,9 @@ import time
 from typing import Callable, Iterable, NamedTuple
 
 from launcher import compat
-from launcher.fleet import launchphase, machine
+from launcher.fleet import launchphase, lifecycle
 from launcher.fleet.lastexit import run_ended
-from launcher.fleet.machine import LOCAL_HOST, Event, Record, Rules
+from launcher.fleet.lifecycle import LOCAL_HOST, Event, Record, Rules
 from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
 
@@ -83,7 +83,7 @@ class NodeStatus:
         self.process = process or name  # roslaunch's process name, e.g. robot/driver-2
         self.host = host
         self.state = WAITING
-        self.phase = machine.NEW  # the state machine's own state (machine.STATES)
+        self.phase = lifecycle.NEW  # the state machine's own state (machine.STATES)
         self.pid: int | None = None
         self.started_at: float | None = None  # the current (or last) run's start
         self.restarts = 0  # starts after the first
@@ -156,9 +156,9 @@ def visible(change: Change) -> bool:
     """Is this a change a reader of the events file sees? (Internal steps, e.g. running -> stopping, or
     pending -> launching, are not written: the outside's states and their fields are the file's.)"""
     old, new = change.old, change.new
-    if new.state in machine.ON_THE_WAY or new.state == machine.STOPPING:
+    if new.state in lifecycle.ON_THE_WAY or new.state == lifecycle.STOPPING:
         return False  # (what follows says more: running, stopped, or why not)
-    return (machine.PUBLIC[old.state] != machine.PUBLIC[new.state] or old.pid != new.pid
+    return (lifecycle.PUBLIC[old.state] != lifecycle.PUBLIC[new.state] or old.pid != new.pid
             or old.spawn_count != new.spawn_count or old.exit_code != new.exit_code
             or old.exit_signal != new.exit_signal or old.over_limit != new.over_limit
             or old.failures != new.failures or (old.reason != new.reason and new.reason != "")
@@ -209,17 +209,17 @@ class Fleet:
         record = self.records.get(name)
         if record is None:
             return
-        if record.state in machine.ALIVE and record.state != machine.NEW:
+        if record.state in lifecycle.ALIVE and record.state != lifecycle.NEW:
             raise ValueError("node [%s] is %s: it is stopped before it is removed" % (name, record.state))
         del self.records[name], self.nodes[name]
 
-    def apply(self, name: str, event: Event) -> list[machine.Action]:
+    def apply(self, name: str, event: Event) -> list[lifecycle.Action]:
         """Step the node with `event`; tell every listener; return what the runner is to do."""
         old = self.records[name]
         now = self.clock()
         try:
-            new, actions = machine.step(old, event, now)
-        except machine.InvalidTransition as e:  # a runner's bug: said, and the node is left as it was
+            new, actions = lifecycle.step(old, event, now)
+        except lifecycle.InvalidTransition as e:  # a runner's bug: said, and the node is left as it was
             self._warning("internal error: %s" % e)
             return []
         if new is old:
@@ -241,23 +241,23 @@ class Fleet:
         if self._changed is not None:
             self._changed.set()
         for action in actions:
-            if action.kind == machine.END_LAUNCH:
+            if action.kind == lifecycle.END_LAUNCH:
                 self.end(action.status)
-        if new.state in machine.ENDED and old.state not in machine.ENDED:
+        if new.state in lifecycle.ENDED and old.state not in lifecycle.ENDED:
             self._check_all_dead()
         return actions
 
     def registration(self, name: str, uri: str, present: bool) -> None:
         """The master's word about a node's current run (health/registration.py): registered at `uri`, or that
-        registration gone. No runner is needed: the machine answers these with no action."""
+        registration gone. No runner is needed: the lifecycle table answers these with no action."""
         if name in self.records:
-            self.apply(name, Event(machine.REGISTERED if present else machine.UNREGISTERED, uri=uri))
+            self.apply(name, Event(lifecycle.REGISTERED if present else lifecycle.UNREGISTERED, uri=uri))
 
     def _mirror(self, r: Record, now: float) -> NodeStatus:
         status = self.nodes[r.name]
         wall = time.time() - now  # this clock's zero on the wall clock
         status.process = r.process
-        status.state = machine.PUBLIC[r.state]
+        status.state = lifecycle.PUBLIC[r.state]
         status.phase = r.state
         status.pid = r.pid
         status.started_at = None if r.started is None or r.spawn_count == 0 else wall + r.started
@@ -389,7 +389,7 @@ class Fleet:
 
     def _check_all_dead(self) -> None:
         local = [r for r in self.records.values() if r.host == LOCAL_HOST]
-        if launchphase.all_dead(local, machine.ALIVE, machine.ENDED, self._unstarted):
+        if launchphase.all_dead(local, lifecycle.ALIVE, lifecycle.ENDED, self._unstarted):
             self.launch_step(launchphase.ALL_DEAD)  # (the phase decides whether that ends the launch)
 
     # ---- the events file -----------------------------------------------------------------------------------

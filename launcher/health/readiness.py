@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 from launcher import compat
 from launcher.net import xmlrpc
-from launcher.fleet.machine import describe
+from launcher.fleet.lifecycle import describe
 from launcher.fleet.state import Change, Fleet
 from launcher.health.outputwatch import OutputFollower
 from launcher.model.graph import NODE, Graph

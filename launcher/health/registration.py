@@ -19,7 +19,7 @@ import asyncio
 import os
 from typing import Any
 
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST, Change, Fleet
 from launcher.model.graph import NODE, Graph, GraphChange
 from launcher.net import xmlrpc
@@ -29,10 +29,10 @@ CALL_TIMEOUT_S = 2.0
 # a master found running: a registration whose process does not answer getPid is asked again this often, while
 # the master still says it is there
 RETRY_S = 1.0
-_UP = (machine.RUNNING, machine.STALLED, machine.HUNG)
+_UP = (lifecycle.RUNNING, lifecycle.STALLED, lifecycle.HUNG)
 
 
-def awaits(r: machine.Record) -> bool:
+def awaits(r: lifecycle.Record) -> bool:
     """Is this node's current run, of this machine, still expected to register?"""
     return r.state in _UP and r.host == LOCAL_HOST and not r.registered and r.pid is not None \
         and r.rules.policy.registers

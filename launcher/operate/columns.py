@@ -10,7 +10,7 @@ from __future__ import annotations
 import signal
 from typing import Any
 
-from launcher.fleet.machine import LOCAL_HOST
+from launcher.fleet.lifecycle import LOCAL_HOST
 from launcher.model.units import format_size
 
 

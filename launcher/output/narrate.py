@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Callable
 
 from launcher.output import console
-from launcher.fleet import machine as m
+from launcher.fleet import lifecycle as m
 from launcher.fleet.state import Change, Fleet
 
 BAR = "=" * 80
@@ -34,8 +34,8 @@ def lines(change: Change) -> list[tuple[str, str]]:
     notes = [a.text for a in change.actions if a.kind == m.NOTE]
     ends = any(a.kind == m.END_LAUNCH for a in change.actions)
 
-    if kind in (m.EXITED_, m.SPAWN_FAILED) and old.state in (m.RUNNING, m.HUNG, m.STARTING, m.LAUNCHING):
-        started = kind == m.EXITED_
+    if kind in (m.PROCESS_EXITED, m.SPAWN_FAILED) and old.state in (m.RUNNING, m.HUNG, m.STARTING, m.LAUNCHING):
+        started = kind == m.PROCESS_EXITED
         if started and old.restart_reason:
             return out  # (said when the restart was asked for)
         if rules.required:
@@ -58,7 +58,7 @@ def lines(change: Change) -> list[tuple[str, str]]:
             out.append((ERROR, BAR + "FATAL process [%s] has failed (on_fatal=\"shutdown\")!\nInitiating shutdown!\n"
                         % proc + BAR))
         return out
-    if kind == m.START and new.state == m.WAITING:
+    if kind == m.START and new.state == m.DELAYED:
         out.append((INFO, "[%s] waiting %g s before starting%s (spawn_delay)"
                     % (proc, rules.policy.spawn_delay, on)))
     elif kind == m.NOT_READY:

@@ -22,7 +22,7 @@ is the same code. Only SIGKILL ends it, after sigint_timeout + sigterm_timeout, 
 does (checked side by side); sending SIGINT again would not help.
 
 What happens to a node (its first start, what follows a run, operator stops and
-starts, the launch's end) is decided by its state machine (`launcher.fleet.machine`,
+starts, the launch's end) is decided by its state machine (`launcher.fleet.lifecycle`,
 stepped by the fleet, `launcher.fleet.state`), and whether the launch is stopping by
 the launch's phase (`launcher.fleet.launchphase`); the supervisor tells the fleet what
 happened to each process and carries out the actions it gets back: spawn, a timer,
@@ -42,9 +42,9 @@ from typing import Callable
 
 from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
-from launcher.fleet import launchphase, machine, restart, state
+from launcher.fleet import launchphase, lifecycle, restart, state
 from launcher.fleet.actions import carry_out
-from launcher.fleet.machine import Event
+from launcher.fleet.lifecycle import Event
 from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
@@ -62,10 +62,10 @@ MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy p
 GROUP_POLL_S = 0.02
 # A node in one of these runs for the nodes bound to it; in one of the others it is down for them (its bound
 # nodes stop and wait for its next start). How it is down, in the words told to them:
-_UP = frozenset((machine.RUNNING, machine.STALLED))
-_DOWN_FOR_BOUND = {machine.RESPAWNING: "is respawning", machine.HUNG: "is hung", machine.STOPPING: "is being stopped",
-                   machine.EXITED: "exited", machine.FATAL: "is fatal", machine.STOPPED: "is stopped",
-                   machine.DETACHED: "is stopped"}
+_UP = frozenset((lifecycle.RUNNING, lifecycle.STALLED))
+_DOWN_FOR_BOUND = {lifecycle.RESPAWNING: "is respawning", lifecycle.HUNG: "is hung",
+                   lifecycle.STOPPING: "is being stopped", lifecycle.EXITED: "exited", lifecycle.FATAL: "is fatal", lifecycle.STOPPED: "is stopped",
+                   lifecycle.DETACHED: "is stopped"}
 
 
 class NodeProcess:
@@ -125,9 +125,9 @@ class NodeProcess:
         return text
 
 
-def rules_of(spec: ProcessSpec) -> machine.Rules:
+def rules_of(spec: ProcessSpec) -> lifecycle.Rules:
     """What the state machine reads of a node of this machine."""
-    return machine.Rules(required=spec.required, respawn=spec.respawn, respawn_delay=spec.respawn_delay,
+    return lifecycle.Rules(required=spec.required, respawn=spec.respawn, respawn_delay=spec.respawn_delay,
                          policy=spec.policy)
 
 
@@ -227,7 +227,7 @@ class Supervisor:
 
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
-    def _tell(self, proc: NodeProcess, event: Event) -> list[machine.Action]:
+    def _tell(self, proc: NodeProcess, event: Event) -> list[lifecycle.Action]:
         if proc.leftover:
             return []  # (a late timer or watcher of a node a reload removed: no longer the fleet's)
         old = self._state(proc)
@@ -245,15 +245,15 @@ class Supervisor:
         if new in _DOWN_FOR_BOUND:
             why = "bound to [%s], which %s" % (name, _DOWN_FOR_BOUND[new])
             for bound in self._bound_nodes(name):
-                self._tell(bound, Event(machine.BOUND_ENDED, reason=why))
-        elif new == machine.RUNNING and old not in _UP:
+                self._tell(bound, Event(lifecycle.BOUND_ENDED, reason=why))
+        elif new == lifecycle.RUNNING and old not in _UP:
             for bound in self._bound_nodes(name):
-                self._tell(bound, Event(machine.BOUND_STARTED))
-        if new == machine.DETACHED:
+                self._tell(bound, Event(lifecycle.BOUND_STARTED))
+        if new == lifecycle.DETACHED:
             partner = self._by_name.get(proc.spec.policy.bind_to)
             if partner is not None and not partner.leftover and self._state(partner) in _UP \
                     and partner.spec.node_name not in self._stopping_after_bound:
-                self._tell(proc, Event(machine.BOUND_STARTED))
+                self._tell(proc, Event(lifecycle.BOUND_STARTED))
 
     def _bound_nodes(self, name: str) -> list[NodeProcess]:
         procs = (self._by_name.get(n) for n in self._bound.get(name, ()))
@@ -269,7 +269,7 @@ class Supervisor:
 
     def hold(self, proc: NodeProcess) -> None:
         if self.readiness is None:
-            self._tell(proc, Event(machine.READY))
+            self._tell(proc, Event(lifecycle.READY))
         else:
             self.readiness.hold(proc)
 
@@ -286,7 +286,7 @@ class Supervisor:
     def _due(self, proc: NodeProcess) -> None:
         proc.respawn_handle = None
         if self.fleet.starts_allowed:
-            self._tell(proc, Event(machine.DUE))
+            self._tell(proc, Event(lifecycle.DUE))
 
     def cancel(self, proc: NodeProcess) -> None:
         if proc.respawn_handle is not None:
@@ -316,13 +316,13 @@ class Supervisor:
         """Start a node (now, or after its spawn_delay or wait_for). A failure is reported by name and
         the rest carry on (unless required). None if it could not start and will not be tried again."""
         proc = self._record(spec)
-        self._tell(proc, Event(machine.START))
-        return None if self._state(proc) in (machine.EXITED, machine.FATAL) else proc
+        self._tell(proc, Event(lifecycle.START))
+        return None if self._state(proc) in (lifecycle.EXITED, lifecycle.FATAL) else proc
 
     def add(self, spec: ProcessSpec) -> NodeProcess:
         """A node that is not started now (`--no-start`): stopped until an operator starts it."""
         proc = self._record(spec)
-        self._tell(proc, Event(machine.KEEP_STOPPED))
+        self._tell(proc, Event(lifecycle.KEEP_STOPPED))
         return proc
 
     def not_started(self, name: str, required: bool = False) -> None:
@@ -347,10 +347,10 @@ class Supervisor:
             else:
                 self._relay(proc, channels, append)
         if popen is None:
-            self._tell(proc, Event(machine.SPAWN_FAILED))
+            self._tell(proc, Event(lifecycle.SPAWN_FAILED))
             return
         self._watch(proc, popen)
-        self._tell(proc, Event(machine.SPAWNED, pid=popen.pid, process=proc.spec.name))
+        self._tell(proc, Event(lifecycle.SPAWNED, pid=popen.pid, process=proc.spec.name))
         if self.on_spawn is not None:
             self.on_spawn(proc)
         for watcher in self.watchers:
@@ -416,7 +416,8 @@ class Supervisor:
         self._check_group(proc)
         if not proc.leftover:  # (a record given over to a newer one speaks for the node no more)
             code, sig = _exit_code_and_signal(rc)
-            self._tell(proc, Event(machine.EXITED_, exit_code=code, exit_signal=sig, detail=proc.exit_description()))
+            self._tell(proc, Event(lifecycle.PROCESS_EXITED, exit_code=code, exit_signal=sig,
+                                   detail=proc.exit_description()))
         if proc.stopping:
             self._stopping_progress(proc)
 
@@ -433,7 +434,7 @@ class Supervisor:
     def release(self, proc: NodeProcess) -> None:
         """A held node's wait_for conditions are met: start it now."""
         if self.fleet.starts_allowed:
-            self._tell(proc, Event(machine.READY))
+            self._tell(proc, Event(lifecycle.READY))
 
     def output_path(self, node_name: str) -> str | None:
         """The file that holds a node's output (readiness' `output:` conditions), None for no node here."""
@@ -442,28 +443,28 @@ class Supervisor:
 
     def give_up_waiting(self, proc: NodeProcess, why: str) -> None:
         """A held node's conditions were not met in time: it failed to start (a required one ends the launch)."""
-        self._tell(proc, Event(machine.NOT_READY, reason=why))
+        self._tell(proc, Event(lifecycle.NOT_READY, reason=why))
 
     def hung(self, proc: NodeProcess, reason: str) -> None:
         """The hang probe's verdict on the current run: reported, and the run killed."""
         if proc.alive and not self.shutting_down:
-            self._tell(proc, Event(machine.HANG, reason=reason))
+            self._tell(proc, Event(lifecycle.HANG, reason=reason))
 
     def stalled(self, proc: NodeProcess, reason: str) -> None:
         """The stall watch's verdict on the current run (health/stall.py): reported, and killed unless
         its on_stall is "warn"."""
         if proc.alive and not self.shutting_down:
-            self._tell(proc, Event(machine.STALL, reason=reason))
+            self._tell(proc, Event(lifecycle.STALL, reason=reason))
 
     def unstalled(self, proc: NodeProcess, reason: str) -> None:
         if proc.alive and not self.shutting_down:
-            self._tell(proc, Event(machine.UNSTALL, reason=reason))
+            self._tell(proc, Event(lifecycle.UNSTALL, reason=reason))
 
     def restart(self, proc: NodeProcess, reason: str) -> None:
         """Kill the node's current run and start it again, respawn or not (`on_limit="restart"`): at once
         rather than by the stop escalation, as a node past its memory limit may be taking the machine down."""
         if proc.alive and not self.shutting_down:
-            self._tell(proc, Event(machine.RESTART, reason=reason))
+            self._tell(proc, Event(lifecycle.RESTART, reason=reason))
 
     def limit_crossed(self, proc: NodeProcess, limit: str, maximum: float | None, what: str) -> None:
         """The node's run went over `limit` ("memory_limit", "cpu_limit"; `maximum` its value) or, with
@@ -477,7 +478,7 @@ class Supervisor:
         else:
             over.pop(limit, None)
             reason, detail = "back under %s: %s" % (limit, what), "back under its %s: %s" % (limit, what)
-        self._tell(proc, Event(machine.LIMIT, over_limit=tuple(over.items()), reason=reason, detail=detail))
+        self._tell(proc, Event(lifecycle.LIMIT, over_limit=tuple(over.items()), reason=reason, detail=detail))
 
     # ---- stopping ---------------------------------------------------------------------------------
 
@@ -550,7 +551,7 @@ class Supervisor:
 
     def _shut(self, p: NodeProcess) -> None:
         if not p.leftover:
-            self._tell(p, Event(machine.SHUTDOWN))
+            self._tell(p, Event(lifecycle.SHUTDOWN))
         if not p.stopping and (p.alive or (p.group_alive and self._check_group(p))):
             # a leftover group (or what an ended run left in its group): stopped as a node is
             console.printlog("[%s] killing on exit" % p.name)
@@ -615,9 +616,9 @@ class Supervisor:
         self._release_slot(p)
         if p.stopping:
             p.stopped.set_result(None)
-            if not p.leftover and self._state(p) == machine.STOPPING:
+            if not p.leftover and self._state(p) == lifecycle.STOPPING:
                 code, sig = _exit_code_and_signal(p.exit_code)
-                self._tell(p, Event(machine.DOWN, exit_code=code, exit_signal=sig, killed=p.sigkilled))
+                self._tell(p, Event(lifecycle.DOWN, exit_code=code, exit_signal=sig, killed=p.sigkilled))
 
     def kill_now(self) -> list[str]:
         """A second Ctrl-C: SIGKILL to every node still stopping (and to those waiting for their turn); their
@@ -644,7 +645,7 @@ class Supervisor:
         proc = self.node(node_name)
         if proc is None or self.shutting_down:
             return False
-        return bool(self._tell(proc, Event(machine.OPERATOR_START)))
+        return bool(self._tell(proc, Event(lifecycle.OPERATOR_START)))
 
     def stop_node(self, node_name: str) -> asyncio.Future | None:
         """Stop a node with the shutdown escalation (SIGINT, SIGTERM, SIGKILL) and keep it stopped: a
@@ -660,7 +661,7 @@ class Supervisor:
         bound = [b for b in self._bound_nodes(proc.spec.node_name) if self._state(b) in _UP or b.stopping]
         if bound and self._state(proc) in _UP:
             return asyncio.ensure_future(self._stop_bound_first(proc, bound))
-        self._tell(proc, Event(machine.STOP))
+        self._tell(proc, Event(lifecycle.STOP))
         return proc.stopped if proc.stopping else None
 
     async def _stop_bound_first(self, proc: NodeProcess, bound: list[NodeProcess]) -> None:
@@ -671,14 +672,14 @@ class Supervisor:
         self._stopping_after_bound.add(name)
         try:
             for b in bound:
-                self._tell(b, Event(machine.BOUND_ENDED, reason=why))
+                self._tell(b, Event(lifecycle.BOUND_ENDED, reason=why))
             stopping = [b.stopped for b in bound if b.stopping]
             if stopping:
                 await asyncio.wait(stopping)
         finally:
             self._stopping_after_bound.discard(name)
         if not proc.stopping:
-            self._tell(proc, Event(machine.STOP))
+            self._tell(proc, Event(lifecycle.STOP))
         if proc.stopping:
             await proc.stopped
 
@@ -697,7 +698,7 @@ class Supervisor:
         proc = self.node(node_name)
         if proc is None or proc.stopping:
             return None if proc is None else proc.stopped
-        self._tell(proc, Event(machine.RELOAD_STOP, reason=reason))
+        self._tell(proc, Event(lifecycle.RELOAD_STOP, reason=reason))
         return proc.stopped if proc.stopping else None
 
     def renew(self, spec: ProcessSpec, reason: str) -> None:
@@ -706,8 +707,8 @@ class Supervisor:
         if proc is None or self.shutting_down:
             return
         proc.spec = spec
-        self._tell(proc, Event(machine.RENEW, rules=rules_of(spec), reason=reason))
-        self._tell(proc, Event(machine.START))
+        self._tell(proc, Event(lifecycle.RENEW, rules=rules_of(spec), reason=reason))
+        self._tell(proc, Event(lifecycle.START))
 
     def new_rules(self, spec: ProcessSpec, reason: str) -> None:
         """A node whose supervision settings alone a reload changed: they hold from its next decision on (its
@@ -717,7 +718,7 @@ class Supervisor:
             return
         proc.spec.respawn, proc.spec.respawn_delay = spec.respawn, spec.respawn_delay
         proc.spec.required, proc.spec.policy = spec.required, spec.policy
-        self._tell(proc, Event(machine.RULES, rules=rules_of(spec), reason=reason))
+        self._tell(proc, Event(lifecycle.RULES, rules=rules_of(spec), reason=reason))
 
     def remove(self, node_name: str) -> None:
         """A node a reload took out of the launch, stopped already: its process record only has its process

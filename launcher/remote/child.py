@@ -34,7 +34,7 @@ from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.fleet import processes
 from launcher.output import console
-from launcher.fleet import machine, state
+from launcher.fleet import lifecycle, state
 from launcher.fleet.state import Change, Fleet
 from launcher.process.supervisor import Supervisor
 from launcher.process.watchdog import Watchdog
@@ -226,7 +226,7 @@ class Child:
         """A run that ended by itself is told to the parent (roslaunch's `process_died`; a stop the parent
         asked for is answered by `stop_process` instead)."""
         new = change.new
-        if change.event.kind == machine.EXITED_ and change.old.state in (machine.RUNNING, machine.HUNG):
+        if change.event.kind == lifecycle.PROCESS_EXITED and change.old.state in (lifecycle.RUNNING, lifecycle.HUNG):
             code = new.exit_code if new.exit_code is not None else -(new.exit_signal or 0)
             self._to_parent.put_nowait(("process_died", new.process, code))
 

@@ -27,7 +27,7 @@ again then gets a new session. What a child cannot be told (limits, core dumps,
 hang probes, per-node stop timeouts, log rotation) is warned about at load.
 
 What happens to each node is decided by its state machine
-(`launcher.fleet.machine`, kept by the fleet), as for a local node, with the
+(`launcher.fleet.lifecycle`, kept by the fleet), as for a local node, with the
 remote states: pending (queued for its machine's child), launching (in a
 `launch` call), lost (its machine dropped). The nodes queued for a machine are
 those in pending or lost, so a node cannot be queued twice. The parent tells
@@ -60,9 +60,9 @@ from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.fleet import processes
 from launcher.output import console
-from launcher.fleet import launchphase, machine, state
+from launcher.fleet import launchphase, lifecycle, state
 from launcher.fleet.actions import carry_out
-from launcher.fleet.machine import Event
+from launcher.fleet.lifecycle import Event
 from launcher.health.readiness import Readiness
 from launcher.model.graph import Graph
 from launcher.remote import session, ssh
@@ -152,9 +152,9 @@ class RemoteNode:
     def name(self) -> str:
         return self.spec.node_name
 
-    def rules(self) -> machine.Rules:
+    def rules(self) -> lifecycle.Rules:
         n = self.node
-        return machine.Rules(required=n.required, respawn=n.respawn, respawn_delay=n.respawn_delay,
+        return lifecycle.Rules(required=n.required, respawn=n.respawn, respawn_delay=n.respawn_delay,
                              policy=self.spec.policy, remote=True, owned=self.owned, machine=self.child.machine.name)
 
     def sent(self) -> Node:
@@ -257,12 +257,12 @@ class RemoteParent:
             for rn in child.nodes:
                 fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
             for rn in child.nodes:
-                self._tell(rn, Event(machine.START))
+                self._tell(rn, Event(lifecycle.START))
         self.attached.set()
 
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
-    def _tell(self, rn: RemoteNode, event: Event) -> list[machine.Action]:
+    def _tell(self, rn: RemoteNode, event: Event) -> list[lifecycle.Action]:
         actions = self.fleet.apply(rn.name, event)
         carry_out(self, rn, actions)
         return actions
@@ -300,7 +300,7 @@ class RemoteParent:
     def _due(self, rn: RemoteNode) -> None:
         rn.timer = None
         if not self.stopping:
-            self._tell(rn, Event(machine.DUE))
+            self._tell(rn, Event(lifecycle.DUE))
 
     # (health/readiness calls these, as it calls the supervisor's for local nodes)
     @staticmethod
@@ -311,14 +311,14 @@ class RemoteParent:
 
     def release(self, rn: RemoteNode) -> None:
         if not self.stopping:
-            self._tell(rn, Event(machine.READY))
+            self._tell(rn, Event(lifecycle.READY))
 
     def give_up_waiting(self, rn: RemoteNode, why: str) -> None:
-        self._tell(rn, Event(machine.NOT_READY, reason=why))
+        self._tell(rn, Event(lifecycle.NOT_READY, reason=why))
 
     def _queued(self, child: RemoteChild) -> list[RemoteNode]:
         """The nodes to hand to the child at the next opportunity: the machine's record says which."""
-        return [rn for rn in child.nodes if self._state(rn) in (machine.PENDING, machine.LOST)]
+        return [rn for rn in child.nodes if self._state(rn) in (lifecycle.PENDING, lifecycle.LOST)]
 
     def _wanted(self, child: RemoteChild) -> None:
         """A node is queued for the machine: now if its child takes nodes, else with the next session."""
@@ -436,7 +436,7 @@ class RemoteParent:
             if not batch:
                 return
             for rn in batch:
-                self._tell(rn, Event(machine.LAUNCH_SENT))
+                self._tell(rn, Event(lifecycle.LAUNCH_SENT))
             xml = remote_launch_xml(rn.sent() for rn in batch)
             try:
                 code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
@@ -453,7 +453,7 @@ class RemoteParent:
                                     % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
                 child.session = session.ending(child.session)
                 for rn in batch:
-                    self._tell(rn, Event(machine.LAUNCH_REFUSED, reason="its machine's child refused it: %s" % msg))
+                    self._tell(rn, Event(lifecycle.LAUNCH_REFUSED, reason="its machine's child refused it: %s" % msg))
                 if child.ssh is not None and child.ssh.returncode is None:
                     child.ssh.terminate()
                 return
@@ -462,14 +462,14 @@ class RemoteParent:
             for name in succeeded:
                 rn = child.node_for_process(name)
                 if rn is not None:
-                    self._tell(rn, Event(machine.LAUNCHED, process=name))
+                    self._tell(rn, Event(lifecycle.LAUNCHED, process=name))
             for name in failed:
                 rn = child.node_for_process(name) or next((r for r in batch if "%s/%s" % (r.node.package, r.node.type)
                                                            == name), None)
                 console.printerrlog("remote[%s]: node [%s] could not be started on [%s]"
                                     % (child.name, rn.name if rn else name, child.machine.name))
                 if rn is not None:
-                    self._tell(rn, Event(machine.SPAWN_FAILED))
+                    self._tell(rn, Event(lifecycle.SPAWN_FAILED))
 
     async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
         """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
@@ -508,19 +508,19 @@ class RemoteParent:
         console.printerrlog("%sremote[%s]: failed to launch on machine [%s]:\n\n%s\n"
                             % (where + ": " if where else "", child.name, child.machine.name, reason))
         for rn in child.nodes:
-            self._tell(rn, Event(machine.MACHINE_FAILED, reason="machine [%s] failed" % child.machine.name))
+            self._tell(rn, Event(lifecycle.MACHINE_FAILED, reason="machine [%s] failed" % child.machine.name))
 
     def _nodes_lost(self, child: RemoteChild) -> bool:
         """The session ended: the nodes it ran, or was being handed, are lost with it (and queued for the
         next one). Were any?"""
         lost = False
         for rn in child.nodes:
-            self._tell(rn, Event(machine.LINK_LOST, reason="machine [%s] dropped" % child.machine.name))
-            lost = lost or self._state(rn) == machine.LOST
+            self._tell(rn, Event(lifecycle.LINK_LOST, reason="machine [%s] dropped" % child.machine.name))
+            lost = lost or self._state(rn) == lifecycle.LOST
         return lost
 
     # states in which a node has a process on its child (or is being given one)
-    _ON_CHILD = frozenset((machine.LAUNCHING, machine.RUNNING, machine.STOPPING))
+    _ON_CHILD = frozenset((lifecycle.LAUNCHING, lifecycle.RUNNING, lifecycle.STOPPING))
 
     def _check_child_ending(self, child: RemoteChild) -> None:
         """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
@@ -529,7 +529,7 @@ class RemoteParent:
         the next `launch`, which then waits for the next session.)"""
         def on_child(rn: RemoteNode) -> bool:
             state_ = self._state(rn)
-            return state_ in self._ON_CHILD or (state_ == machine.RESPAWNING and not rn.owned)
+            return state_ in self._ON_CHILD or (state_ == lifecycle.RESPAWNING and not rn.owned)
         if child.session.launched and not any(on_child(rn) for rn in child.nodes):
             child.session = session.ending(child.session)
 
@@ -541,7 +541,7 @@ class RemoteParent:
             if rn is None:
                 continue
             code, sig = session.died(exit_code)
-            self._tell(rn, Event(machine.EXITED_, exit_code=code, exit_signal=sig, process=process_name))
+            self._tell(rn, Event(lifecycle.PROCESS_EXITED, exit_code=code, exit_signal=sig, process=process_name))
             self._check_child_ending(child)
             return
 
@@ -570,10 +570,10 @@ class RemoteParent:
             return ""
         child, machine_ = rn.child, rn.child.machine
         # handed to the child by a `launch` call still under way: its process name comes with the answer
-        while self._state(rn) == machine.LAUNCHING and child.launching is not None and not child.launching.done():
+        while self._state(rn) == lifecycle.LAUNCHING and child.launching is not None and not child.launching.done():
             await asyncio.wait([child.launching])
-        event = Event(machine.RELOAD_STOP, reason=reload) if reload else Event(machine.STOP)
-        if machine.BEGIN_STOP not in {a.kind for a in self._tell(rn, event)}:
+        event = Event(lifecycle.RELOAD_STOP, reason=reload) if reload else Event(lifecycle.STOP)
+        if lifecycle.BEGIN_STOP not in {a.kind for a in self._tell(rn, event)}:
             return ""  # stopped before its next start; or stopped, being stopped, or down for good
         process = self.fleet.records[rn.name].process
         exit_code = None
@@ -588,13 +588,13 @@ class RemoteParent:
                            "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
         except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
             refusal = str(e) or type(e).__name__
-        if self._state(rn) != machine.STOPPING:
+        if self._state(rn) != lifecycle.STOPPING:
             return ""  # gone meanwhile (its machine dropped): it stays stopped all the same
         if refusal:
-            self._tell(rn, Event(machine.STOP_REFUSED, reason="stop refused: " + refusal))
+            self._tell(rn, Event(lifecycle.STOP_REFUSED, reason="stop refused: " + refusal))
             return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine_.name, machine_.address, refusal)
         code, sig = session.died(exit_code)
-        self._tell(rn, Event(machine.DOWN, exit_code=code, exit_signal=sig))
+        self._tell(rn, Event(lifecycle.DOWN, exit_code=code, exit_signal=sig))
         return ""
 
     def start_node(self, name: str) -> str:
@@ -607,7 +607,7 @@ class RemoteParent:
         if child.task is None or child.task.done():
             return "cannot start [%s]: machine [%s] (%s) could not be reached at launch" % (rn.name, machine_.name,
                                                                                         machine_.address)
-        self._tell(rn, Event(machine.OPERATOR_START))  # (it runs, or starts as soon as its machine answers)
+        self._tell(rn, Event(lifecycle.OPERATOR_START))  # (it runs, or starts as soon as its machine answers)
         return ""
 
     async def restart_node(self, name: str) -> str:
@@ -654,17 +654,17 @@ class RemoteParent:
                                           list(stop.items()) + [(n, why) for n, (_node, why) in renew.items()]))
         for name in stop:
             rn = self._node(name)
-            if rn is not None and self.fleet.records[name].state not in machine.ALIVE:
+            if rn is not None and self.fleet.records[name].state not in lifecycle.ALIVE:
                 rn.child.nodes.remove(rn)
                 self.fleet.remove(name)
         for name, (node, why) in renew.items():
             rn = self._node(name)
-            if rn is None or self.fleet.records[name].state in machine.ALIVE:
+            if rn is None or self.fleet.records[name].state in lifecycle.ALIVE:
                 continue
             rn.node, rn.owned = node, node.policy is not None
             rn.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
-            self._tell(rn, Event(machine.RENEW, rules=rn.rules(), reason="reload: " + why))
-            self._tell(rn, Event(machine.START))
+            self._tell(rn, Event(lifecycle.RENEW, rules=rn.rules(), reason="reload: " + why))
+            self._tell(rn, Event(lifecycle.START))
         for node in start:
             child = self._child_for(node, machines)
             if child is None:  # a machine none of the launch's nodes used so far: its child starts
@@ -675,13 +675,13 @@ class RemoteParent:
             rn = RemoteNode(node, child)
             child.nodes.append(rn)
             self.fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
-            self._tell(rn, Event(machine.START))
+            self._tell(rn, Event(lifecycle.START))
         for name, (node, why) in rules.items():
             rn = self._node(name)
             if rn is not None:
                 rn.node = node
                 rn.spec = rn.spec._replace(policy=node.policy or _DEFAULT_POLICY)
-                self._tell(rn, Event(machine.RULES, rules=rn.rules(), reason="reload: " + why))
+                self._tell(rn, Event(lifecycle.RULES, rules=rn.rules(), reason="reload: " + why))
         return [r for r in refusals if r]
 
     # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
@@ -722,7 +722,7 @@ class RemoteParent:
             child = self.children.get(client)
             rn = child.node_for_process(started[0]) if started and child else None
             if rn is not None and self.fleet is not None:
-                self._tell(rn, Event(machine.SPAWNED, pid=started[1], process=started[0]))
+                self._tell(rn, Event(lifecycle.SPAWNED, pid=started[1], process=started[0]))
         else:
             console.printlog(text)
         return [1, "", 1]
@@ -759,7 +759,7 @@ class RemoteParent:
         if self.fleet is not None:
             for child in self.children.values():
                 for rn in child.nodes:
-                    self._tell(rn, Event(machine.SHUTDOWN))  # (a start to come is called off)
+                    self._tell(rn, Event(lifecycle.SHUTDOWN))  # (a start to come is called off)
         if self.readiness is not None:
             self.readiness.close()
         live = [c for c in self.children.values() if c.ssh is not None]
@@ -782,8 +782,8 @@ class RemoteParent:
         if self.fleet is not None:  # what ran there is stopped with its child's shutdown, or its session's end
             for child in self.children.values():
                 for rn in child.nodes:
-                    if self._state(rn) == machine.STOPPING:
-                        self._tell(rn, Event(machine.DOWN))
+                    if self._state(rn) == lifecycle.STOPPING:
+                        self._tell(rn, Event(lifecycle.DOWN))
         for child in self.children.values():
             if child.task is not None:
                 child.task.cancel()

@@ -43,7 +43,7 @@ from launcher.plan.machines import remote_machines
 from launcher.plan.order import bind_nodelets, check_cycles, check_output_waits
 from launcher.plan.specs import node_specs
 from launcher.output import console
-from launcher.fleet import machine as node_machine
+from launcher.fleet import lifecycle
 from launcher.output.logdir import DEFAULT_THRESHOLD, parse_size
 from launcher.process.spawn import ProcessSpec
 from launcher.fleet.state import Change
@@ -423,7 +423,7 @@ class Run:
     def _process_ended(self, change: Change) -> None:
         """A fleet listener: a node's process ended (here, or on another machine as its child told), and what
         it registered on our master goes (master.process_ended checks that no new run took its name)."""
-        if change.event.kind in (node_machine.EXITED_, node_machine.DOWN) and change.old.pid:
+        if change.event.kind in (lifecycle.PROCESS_EXITED, lifecycle.DOWN) and change.old.pid:
             self.master.master.process_ended(change.new.name, change.old.pid)
 
     async def wait_for_the_end(self) -> None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import asyncio
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST
 from launcher.model.graph import NODE, SERVICE, TOPIC
 from launcher.net.xmlrpc import call
@@ -46,7 +46,7 @@ WATCH_TIMEOUT_S = 3.0  # an answer slower than this counts as none
 # it is not restarted with the master.
 UNSEEN_ASKS = 5
 
-_UP = (machine.RUNNING, machine.STALLED)  # a run that may have registered, and can be restarted
+_UP = (lifecycle.RUNNING, lifecycle.STALLED)  # a run that may have registered, and can be restarted
 
 # the verdicts of MasterState.seen
 SAME = ""  # nothing new

@@ -35,7 +35,7 @@ import threading
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from launcher import __version__
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST, STATES
 from launcher.master.callstats import BUCKETS, MethodStats
 from launcher.model.errors import LaunchError
@@ -45,7 +45,7 @@ if TYPE_CHECKING:  # (annotations only)
     from launcher.services.service import MasterLink, RunNodes
 
 SNAPSHOT_WAIT_S = 2.0  # a scrape waits this long for the loop's snapshot, then serves the last one
-RUNNING_PHASES = frozenset((machine.RUNNING, machine.HUNG, machine.STALLED, machine.STOPPING))  # a process runs
+RUNNING_PHASES = frozenset((lifecycle.RUNNING, lifecycle.HUNG, lifecycle.STALLED, lifecycle.STOPPING))  # a process runs
 NODE_LABELS = ["node", "host"]
 
 
@@ -78,7 +78,7 @@ _get = operator.attrgetter
 
 
 def node_columns(records: tuple, statuses: tuple) -> dict[str, tuple]:
-    """The nodes' records (fleet.machine.Record) and statuses (fleet.state.NodeStatus) as a scrape's columns: the
+    """The nodes' records (fleet.lifecycle.Record) and statuses (fleet.state.NodeStatus) as a scrape's columns: the
     values `launcher status` shows (registered: the record's, told by health/registration; last_exit_code: kept
     while the node runs again)."""
     cpu = tuple(map(_get("cpu_seconds"), statuses))

@@ -26,7 +26,7 @@ import socket
 import time
 from typing import TYPE_CHECKING, Any, Callable, Iterable
 
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.model.runopts import RunOptions
 
 if TYPE_CHECKING:  # (annotations only)
@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # (annotations only)
 # TimeoutStartSec, which the unit sets longer, would otherwise kill a robot with one node that is slow)
 READY_TIMEOUT_S = RunOptions().ready_timeout
 # on the way up: a node in one of these is not started yet
-NOT_STARTED = frozenset((machine.NEW, machine.WAITING, machine.HELD)) | machine.ON_THE_WAY
+NOT_STARTED = frozenset((lifecycle.NEW, lifecycle.DELAYED, lifecycle.HELD)) | lifecycle.ON_THE_WAY
 
 
 def message(**fields: Any) -> bytes:
@@ -63,19 +63,19 @@ def watchdog_period(environ: dict[str, str], pid: int) -> float | None:
     return int(usec) / 2e6
 
 
-def fleet_status(records: Iterable[machine.Record]) -> str:
+def fleet_status(records: Iterable[lifecycle.Record]) -> str:
     """The STATUS= line: "12/12 nodes running, 1 respawning" (the other states counted when there are any)."""
     counts: dict[str, int] = {}
     total = 0
     for r in records:
         total += 1
-        public = machine.PUBLIC[r.state]
+        public = lifecycle.PUBLIC[r.state]
         counts[public] = counts.get(public, 0) + 1
     text = "%d/%d nodes running" % (counts.pop("running", 0), total)
     return ", ".join([text] + ["%d %s" % (n, state) for state, n in sorted(counts.items())])
 
 
-def not_ready(records: Iterable[machine.Record]) -> list[str]:
+def not_ready(records: Iterable[lifecycle.Record]) -> list[str]:
     """The nodes that keep the launch from being ready: not started yet, or running but not registered with
     the master (unless `registers="false"` says it never will). A node that ended (or was kept stopped) is
     no longer awaited: it is named in STATUS= instead."""
@@ -83,7 +83,7 @@ def not_ready(records: Iterable[machine.Record]) -> list[str]:
     for r in records:
         if r.state in NOT_STARTED and not r.operator_stopped:
             waiting.append(r.name)
-        elif r.state == machine.RUNNING and not r.registered and r.rules.policy.registers:
+        elif r.state == lifecycle.RUNNING and not r.registered and r.rules.policy.registers:
             waiting.append(r.name)
     return waiting
 

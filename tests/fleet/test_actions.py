@@ -9,9 +9,9 @@ import inspect
 
 import pytest
 
-from launcher.fleet import machine as m
+from launcher.fleet import lifecycle as m
 from launcher.fleet import actions as runner
-from launcher.fleet.machine import Action
+from launcher.fleet.lifecycle import Action
 
 
 class Recorder:

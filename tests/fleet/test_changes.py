@@ -6,9 +6,9 @@ import gc
 import json
 import tracemalloc
 
-from launcher.fleet import machine as m
+from launcher.fleet import lifecycle as m
 from launcher.fleet import state
-from launcher.fleet.machine import Event, Rules
+from launcher.fleet.lifecycle import Event, Rules
 
 NODES = ["/robot/node_%02d" % i for i in range(30)]
 
@@ -40,7 +40,8 @@ def crash_loop(fleet: state.Fleet, clock: Clock, changes: int, step: float) -> N
     while True:
         for name in NODES:
             pid += 1
-            for event in (Event(m.EXITED_, exit_signal=9, detail="process has died [pid %d, exit code -9]" % pid),
+            died = "process has died [pid %d, exit code -9]" % pid
+            for event in (Event(m.PROCESS_EXITED, exit_signal=9, detail=died),
                           Event(m.DUE), Event(m.SPAWNED, pid=pid),
                           Event(m.REGISTERED, uri="http://127.0.0.1:%d/" % (30000 + pid % 30000))):
                 fleet.apply(name, event)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from launcher.fleet import launchphase as lp
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.fleet.launchphase import Action, Event, Launch
 
 EVENTS = [lp.ALL_STARTED, lp.NODE_ENDED_IT, lp.ALL_DEAD, lp.STOP_SIGNAL, lp.STOP, lp.ALL_STOPPED]
@@ -142,14 +142,14 @@ class _R:
 
 def test_all_dead_is_roslaunchs_all_processes_on_machine_have_died():
     def dead(states, unstarted=0):
-        return lp.all_dead([_R(s) for s in states], machine.ALIVE, machine.ENDED, unstarted)
-    assert dead([machine.EXITED, machine.FATAL])
-    assert dead([machine.EXITED, machine.STOPPED])
-    assert not dead([machine.EXITED, machine.RESPAWNING])  # (it runs again)
-    assert not dead([machine.EXITED, machine.NEW])
-    assert not dead([machine.STOPPED])  # (an operator stopped them: none died)
+        return lp.all_dead([_R(s) for s in states], lifecycle.ALIVE, lifecycle.ENDED, unstarted)
+    assert dead([lifecycle.EXITED, lifecycle.FATAL])
+    assert dead([lifecycle.EXITED, lifecycle.STOPPED])
+    assert not dead([lifecycle.EXITED, lifecycle.RESPAWNING])  # (it runs again)
+    assert not dead([lifecycle.EXITED, lifecycle.NEW])
+    assert not dead([lifecycle.STOPPED])  # (an operator stopped them: none died)
     assert not dead([])
     assert dead([], unstarted=1)  # (the only node's command could not be made)
-    assert dead([machine.STOPPED], unstarted=1)
-    assert not dead([machine.RUNNING], unstarted=1)
+    assert dead([lifecycle.STOPPED], unstarted=1)
+    assert not dead([lifecycle.RUNNING], unstarted=1)
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import gc
 import tracemalloc
 
-from launcher.fleet import machine as m
-from launcher.fleet.machine import Event
+from launcher.fleet import lifecycle as m
+from launcher.fleet.lifecycle import Event
 from launcher.fleet.samples import Samples
 from launcher.fleet.state import HISTORY, Fleet
 

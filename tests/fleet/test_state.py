@@ -13,7 +13,7 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
     """The launch's phase is the fleet's: a node that ended by itself ends a launch on a master found running once
     every node has been started (roslaunch's words, `done`), a required node's end sets the exit status, and a
     runner's bug is said, not raised."""
-    from launcher.fleet import launchphase as lp, machine as m
+    from launcher.fleet import launchphase as lp, lifecycle as m
     from launcher.fleet.state import Fleet
     said, warned = [], []
     fleet = Fleet(clock=lambda: 0.0, say=said.append, warn=warned.append, exit_when_all_dead=True)
@@ -21,11 +21,11 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
         fleet.add(name)
         fleet.apply(name, m.Event(m.START))
         fleet.apply(name, m.Event(m.SPAWNED, pid=1))
-    fleet.apply("/a", m.Event(m.EXITED_, exit_code=0))
+    fleet.apply("/a", m.Event(m.PROCESS_EXITED, exit_code=0))
     assert fleet.launch.state == lp.STARTING and not said
     fleet.registrations_complete()
     assert fleet.launch.state == lp.RUNNING and not fleet.done.is_set()  # (/b runs)
-    fleet.apply("/b", m.Event(m.EXITED_, exit_code=0))
+    fleet.apply("/b", m.Event(m.PROCESS_EXITED, exit_code=0))
     assert said == [lp.ALL_DEAD_TEXT] and fleet.done.is_set() and fleet.exit_status == 0
     assert not fleet.starts_allowed and not fleet.stopping
     assert [a.kind for a in fleet.launch_step(lp.STOP)] == [lp.STOP_ALL] and fleet.stopping
@@ -39,7 +39,7 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
     fleet.apply("/vital", m.Event(m.START))
     fleet.apply("/vital", m.Event(m.SPAWNED, pid=1))
     fleet.registrations_complete()
-    fleet.apply("/vital", m.Event(m.EXITED_, exit_signal=9))
+    fleet.apply("/vital", m.Event(m.PROCESS_EXITED, exit_signal=9))
     assert fleet.done.is_set() and fleet.exit_status == 137 and fleet.launch.state == lp.ENDING
     fleet.not_started(required=True)  # (a later failure does not change the status)
     assert fleet.exit_status == 137

@@ -7,8 +7,8 @@ from __future__ import annotations
 import asyncio
 import os
 
-from launcher.fleet import machine as m
-from launcher.fleet.machine import Event, Rules
+from launcher.fleet import lifecycle as m
+from launcher.fleet.lifecycle import Event, Rules
 from launcher.fleet.state import Fleet
 from launcher.health.registration import Registrations
 from launcher.model.config import NodePolicy
@@ -61,7 +61,7 @@ def test_a_registration_is_a_nodes_by_its_name_or_by_its_process():
             nodes.clear()
             assert not fleet.records["/wrapper"].registered and not fleet.records["/talker"].registered
             # a registration no node of the launch waits for is nobody's (and nobody's process is asked)
-            fleet.apply("/wrapper", Event(m.EXITED_, exit_code=0))
+            fleet.apply("/wrapper", Event(m.PROCESS_EXITED, exit_code=0))
             stranger = await node("/stranger", master.uri)
             nodes.append(stranger)
             await asyncio.sleep(0.3)

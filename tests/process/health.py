@@ -11,7 +11,7 @@ from launcher.model.config import NodePolicy
 from launcher.services.masterlink import start_master
 from launcher.output import console
 from launcher.process.spawn import ProcessSpec
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.fleet.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor
 from launcher.health.registration import Registrations
@@ -56,7 +56,7 @@ class Events:
         fleet.listeners.append(self._changed)
 
     def _changed(self, change: Change) -> None:
-        if change.event.kind in (machine.REGISTERED, machine.UNREGISTERED):
+        if change.event.kind in (lifecycle.REGISTERED, lifecycle.UNREGISTERED):
             self.registrations.append((time.monotonic(), change.new.name, change.new.uri))
         elif visible(change):
             s = change.status

@@ -9,7 +9,7 @@ import os
 import signal
 import sys
 
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 from launcher.model.config import NodePolicy
 from launcher.process.command import NodeCommand
 from launcher.process.supervisor import ProcessSpec, Supervisor
@@ -43,17 +43,17 @@ def test_a_bound_node_starts_again_once_after_its_respawned_partner(tmp_path):
         assert (records["/loader"].spawn_count, records["/manager"].spawn_count) == (2, 2)
         # an operator's stop of the manager stops the loader first; its start brings both back
         await sup.stop_node("/manager")
-        assert (records["/loader"].state, records["/manager"].state) == (machine.DETACHED, machine.STOPPED)
+        assert (records["/loader"].state, records["/manager"].state) == (lifecycle.DETACHED, lifecycle.STOPPED)
         assert not loader.alive
         sup.start_node("/manager")
         await until_async(lambda: loader.alive, 10, what="the loader back with its manager")
         # the manager cannot come back: FATAL, and the loader stays stopped
         (tmp_path / "broken").touch()
         os.kill(manager.pid, signal.SIGKILL)
-        await until_async(lambda: records["/manager"].state == machine.FATAL, 20, what="the manager FATAL")
-        await until_async(lambda: records["/loader"].state == machine.DETACHED, 10, what="the loader stopped")
+        await until_async(lambda: records["/manager"].state == lifecycle.FATAL, 20, what="the manager FATAL")
+        await until_async(lambda: records["/loader"].state == lifecycle.DETACHED, 10, what="the loader stopped")
         assert not loader.alive and records["/loader"].spawn_count >= 3
         await sup.shutdown()
         return records
     records = asyncio.run(asyncio.wait_for(main(), 60))
-    assert records["/loader"].state == machine.STOPPED
+    assert records["/loader"].state == lifecycle.STOPPED

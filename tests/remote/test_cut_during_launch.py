@@ -19,7 +19,7 @@ import textwrap
 from helpers import until_async
 from launcher.model.config import Machine, Node
 from launcher.model.graph import Graph
-from launcher.fleet import machine as m
+from launcher.fleet import lifecycle as m
 from launcher.fleet.state import Fleet
 from launcher.remote import parent as remote_parent
 

@@ -4,8 +4,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from launcher.services import diagnostics
 from launcher.model.config import NodePolicy
-from launcher.fleet import machine as m
-from launcher.fleet.machine import Event, Rules
+from launcher.fleet import lifecycle as m
+from launcher.fleet.lifecycle import Event, Rules
 from launcher.fleet.state import Fleet
 
 
@@ -16,9 +16,10 @@ def test_each_node_is_one_status_named_after_it():
     fleet.add("/broken", rules=Rules(respawn=True, policy=NodePolicy(respawn_max_retries=0)))
     fleet.add("/crashed")
     fleet.add("/done")
-    for name, pid, end in (("/ok", 42, None), ("/again", 43, Event(m.EXITED_, exit_signal=9)),
-                           ("/broken", 44, Event(m.EXITED_, exit_code=3)), ("/crashed", 45, Event(m.EXITED_, exit_code=1)),
-                           ("/done", 46, Event(m.EXITED_, exit_code=0))):
+    for name, pid, end in (("/ok", 42, None), ("/again", 43, Event(m.PROCESS_EXITED, exit_signal=9)),
+                           ("/broken", 44, Event(m.PROCESS_EXITED, exit_code=3)),
+                           ("/crashed", 45, Event(m.PROCESS_EXITED, exit_code=1)),
+                           ("/done", 46, Event(m.PROCESS_EXITED, exit_code=0))):
         assert fleet.apply(name, Event(m.START)) == [m.Action(m.SPAWN)]
         fleet.apply(name, Event(m.SPAWNED, pid=pid))
         if end is not None:

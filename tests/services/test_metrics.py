@@ -10,8 +10,8 @@ import urllib.request
 
 from prometheus_client.parser import text_string_to_metric_families
 
-from launcher.fleet import machine
-from launcher.fleet.machine import Record
+from launcher.fleet import lifecycle
+from launcher.fleet.lifecycle import Record
 from launcher.fleet.state import NodeStatus, STATES
 from launcher.master.callstats import BUCKETS, OTHER, CallStats
 from launcher.services import metrics
@@ -50,9 +50,9 @@ def _status(record: Record, state: str, cpu_seconds: float = 0.0, rss: int | Non
 
 
 def test_node_columns_are_what_launcher_status_shows():
-    r = Record("/a", "a-1", "localhost", machine.Rules(), state=machine.RUNNING, restarts=4, registered=True)
-    b = Record("/b", "b-1", "localhost", machine.Rules(), state=machine.STOPPING)
-    c = Record("/c", "c-1", "arm.local", machine.Rules(), state=machine.RESPAWNING, exit_code=3)
+    r = Record("/a", "a-1", "localhost", lifecycle.Rules(), state=lifecycle.RUNNING, restarts=4, registered=True)
+    b = Record("/b", "b-1", "localhost", lifecycle.Rules(), state=lifecycle.STOPPING)
+    c = Record("/c", "c-1", "arm.local", lifecycle.Rules(), state=lifecycle.RESPAWNING, exit_code=3)
     statuses = (_status(r, "running", 1.5), _status(b, "running", 2.0, 1000), _status(c, "respawning"))
     statuses[0].last_exit_code = 3  # (kept while it runs again)
     statuses[2].last_exit_code = 3

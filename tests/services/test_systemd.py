@@ -8,12 +8,12 @@ import socket
 from helpers import until_async
 from launcher.model.config import NodePolicy
 from launcher.services import systemd
-from launcher.fleet import machine
+from launcher.fleet import lifecycle
 
 
-def rec(name: str, state: str, started: float | None = None, min_uptime: float = 1.0, **kw) -> machine.Record:
-    rules = machine.Rules(policy=NodePolicy(respawn_min_uptime=min_uptime))
-    return machine.Record(name, name.strip("/"), "localhost", rules, state=state, started=started, **kw)
+def rec(name: str, state: str, started: float | None = None, min_uptime: float = 1.0, **kw) -> lifecycle.Record:
+    rules = lifecycle.Rules(policy=NodePolicy(respawn_min_uptime=min_uptime))
+    return lifecycle.Record(name, name.strip("/"), "localhost", rules, state=state, started=started, **kw)
 
 
 def test_message_is_key_value_lines():
@@ -35,23 +35,23 @@ def test_watchdog_period_is_half_of_watchdog_usec_for_this_pid_only():
 
 
 def test_status_counts_the_public_states():
-    records = [rec("/a", machine.RUNNING), rec("/b", machine.STOPPING), rec("/c", machine.RESPAWNING),
-               rec("/d", machine.FATAL), rec("/e", machine.STARTING)]
+    records = [rec("/a", lifecycle.RUNNING), rec("/b", lifecycle.STOPPING), rec("/c", lifecycle.RESPAWNING),
+               rec("/d", lifecycle.FATAL), rec("/e", lifecycle.STARTING)]
     assert systemd.fleet_status(records) == "2/5 nodes running, 1 fatal, 1 respawning, 1 waiting"
     assert systemd.fleet_status([]) == "0/0 nodes running"
 
 
 def test_not_ready_until_started_and_registered_unless_it_never_registers():
-    helper = machine.Rules(policy=NodePolicy(registers=False))
-    records = [rec("/starting", machine.STARTING), rec("/held", machine.HELD),
-               rec("/young", machine.RUNNING, started=99.5),
-               rec("/registered", machine.RUNNING, started=10.0, registered=True, uri="http://h:1/"),
-               rec("/old", machine.RUNNING, started=1.0), rec("/dead", machine.FATAL),
-               rec("/kept", machine.NEW, operator_stopped=True), rec("/respawning", machine.RESPAWNING),
-               machine.Record("/helper", "helper", "localhost", helper, state=machine.RUNNING, started=99.9)]
+    helper = lifecycle.Rules(policy=NodePolicy(registers=False))
+    records = [rec("/starting", lifecycle.STARTING), rec("/held", lifecycle.HELD),
+               rec("/young", lifecycle.RUNNING, started=99.5),
+               rec("/registered", lifecycle.RUNNING, started=10.0, registered=True, uri="http://h:1/"),
+               rec("/old", lifecycle.RUNNING, started=1.0), rec("/dead", lifecycle.FATAL),
+               rec("/kept", lifecycle.NEW, operator_stopped=True), rec("/respawning", lifecycle.RESPAWNING),
+               lifecycle.Record("/helper", "helper", "localhost", helper, state=lifecycle.RUNNING, started=99.9)]
     # (a node up for a long time but not registered is awaited all the same: only its registration says up)
     assert systemd.not_ready(records) == ["/starting", "/held", "/young", "/old"]
-    assert systemd.not_ready([rec("/a", machine.RUNNING, registered=True), records[-1]]) == []
+    assert systemd.not_ready([rec("/a", lifecycle.RUNNING, registered=True), records[-1]]) == []
 
 
 def test_a_full_socket_keeps_the_messages_in_order_until_it_takes_them(tmp_path):

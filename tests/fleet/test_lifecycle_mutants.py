@@ -1,7 +1,7 @@
 """The tables' tests check what each transition does, not only where it goes: every `Action(...)` of the node's
-table (`launcher/fleet/machine.py`) and of the launch's (`launcher/fleet/launchphase.py`) made a no-op in turn (the
+table (`launcher/fleet/lifecycle.py`) and of the launch's (`launcher/fleet/launchphase.py`) made a no-op in turn (the
 call replaced by `Action(NOTE)`, a note with no words) is caught by that table's own unit tests
-(tests/fleet/test_machine.py, tests/fleet/test_launchphase.py). 0 survivors."""
+(tests/fleet/test_lifecycle.py, tests/fleet/test_launchphase.py). 0 survivors."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 from helpers import ROOT
 
 # each table (a module of launcher.fleet), with its own unit tests, and how many Action(...) sites it has at least
-TABLES = {"machine": ("test_machine.py", 20), "launchphase": ("test_launchphase.py", 5)}
+TABLES = {"lifecycle": ("test_lifecycle.py", 20), "launchphase": ("test_launchphase.py", 5)}
 
 # Runs a table's tests with launcher.fleet.<argv[3]> made from the source in argv[1] (installed before anything
 # imports it: launcher.fleet.state, which the tests use too, takes the same module).

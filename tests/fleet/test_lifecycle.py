@@ -7,15 +7,15 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from launcher.model.config import NodePolicy
-from launcher.fleet import machine as m
-from launcher.fleet.machine import Action, Event, Record, Rules
+from launcher.fleet import lifecycle as m
+from launcher.fleet.lifecycle import Action, Event, Record, Rules
 
 # Columns: the events, in this order.
-EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG,
+EVENTS = [m.START, m.KEEP_STOPPED, m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.PROCESS_EXITED, m.HANG,
           m.STALL, m.UNSTALL, m.RESTART, m.LIMIT, m.STOP, m.SHUTDOWN, m.DOWN, m.STOP_REFUSED, m.OPERATOR_START, m.LAUNCH_SENT,
           m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED, m.BOUND_ENDED, m.BOUND_STARTED,
           m.RELOAD_STOP, m.RENEW, m.RULES, m.REGISTERED, m.UNREGISTERED]
-SHORT = {"new": m.NEW, "wai": m.WAITING, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
+SHORT = {"new": m.NEW, "del": m.DELAYED, "hel": m.HELD, "sta": m.STARTING, "pen": m.PENDING, "lau": m.LAUNCHING,
          "run": m.RUNNING, "hun": m.HUNG, "stl": m.STALLED, "sto": m.STOPPING, "res": m.RESPAWNING, "los": m.LOST, "exi": m.EXITED,
          "fat": m.FATAL, "stp": m.STOPPED, "det": m.DETACHED}
 # Every cell: the state after the event, and (in the matrix of actions below it) what the runner is told to do.
@@ -29,7 +29,7 @@ ACTION_CODES = {"S": m.SPAWN, "L": m.LAUNCH, "T": m.SCHEDULE, "C": m.CANCEL, "H"
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 MATRIX = """
 new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new   -     -
-wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai   -     -
+del      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     del   -     -
 hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel   -     -
 sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
 pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
@@ -48,7 +48,7 @@ det      !     !     -     !     !     !     !     -     -     -     -     -    
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 ACTIONS = """
 new      S     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     .     .     C     .     .     .     .
-wai      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     .     .     C     !     .     .     .
+del      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     .     .     C     !     .     .     .
 hel      !     !     !     S     .     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     C     C     .     C     !     .     .     .
 sta      !     !     !     !     !     .     T     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
 pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
@@ -69,7 +69,7 @@ det      !     !     .     !     !     !     !     .     .     .     .     .    
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 REMOTE_MATRIX = """
 new      pen   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   -     -     stp   new   new   -     -
-wai      !     !     pen   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   -     -     stp   !     wai   -     -
+del      !     !     pen   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   -     -     stp   !     del   -     -
 hel      !     !     !     pen   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     pen   !     !     !     -     exi   det   -     stp   !     hel   -     -
 sta      !     !     !     !     !     run   res   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
 pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
@@ -88,7 +88,7 @@ det      !     !     -     !     !     !     !     -     -     -     -     -    
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 REMOTE_ACTIONS = """
 new      L     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     .     .     C     .     .     .     .
-wai      !     !     L     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     .     .     C     !     .     .     .
+del      !     !     L     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     .     .     C     !     .     .     .
 hel      !     !     !     L     .     !     !     !     !     !     .     !     .     C     C     !     !     CL    !     !     !     .     C     C     .     C     !     .     .     .
 sta      !     !     !     !     !     .     .     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
 pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     C     !     !     C     !     .     .     .
@@ -109,7 +109,7 @@ det      !     !     .     !     !     !     !     .     .     .     .     .    
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 REQUIRED_MATRIX = """
 new      sta   stp   !     !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   new   new   -     -
-wai      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     wai   -     -
+del      !     !     sta   !     !     !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   -     -     stp   !     del   -     -
 hel      !     !     !     sta   exi   !     !     !     !     !     -     !     -     stp   stp   !     !     sta   !     !     !     -     exi   det   -     stp   !     hel   -     -
 sta      !     !     !     !     !     run   exi   !     !     !     -     -     -     !     !     !     !     -     !     !     !     !     !     -     -     !     !     sta   -     -
 pen      !     !     !     !     !     !     -     -     !     !     -     !     -     stp   stp   !     !     -     lau   -     -     -     exi   !     !     stp   !     pen   -     -
@@ -128,7 +128,7 @@ det      !     !     -     !     !     !     !     -     -     -     -     -    
 #        START KEEP  DUE   READY NRDY  SPAWN SFAIL EXIT  HANG  STALL UNSTL RSTRT LIMIT STOP  SHUTD DOWN  SREF  OSTRT LSENT LCHD  LREF  LLOST MFAIL BEND  BSTRT RSTOP RENEW RULES REG   UNREG
 REQUIRED_ACTIONS = """
 new      S     .     !     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    .     .     C     .     .     .     .
-wai      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    .     .     C     !     .     .     .
+del      !     !     S     !     !     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    .     .     C     !     .     .     .
 hel      !     !     !     S     E     !     !     !     !     !     .     !     .     C     C     !     !     CS    !     !     !     .     CE    C     .     C     !     .     .     .
 sta      !     !     !     !     !     .     E     !     !     !     .     .     .     !     !     !     !     .     !     !     !     !     !     .     .     !     !     .     .     .
 pen      !     !     !     !     !     !     .     .     !     !     .     !     .     C     C     !     !     .     .     .     .     .     CE    !     !     C     !     .     .     .
@@ -151,7 +151,7 @@ TABLES = {"local": (RULES, MATRIX, ACTIONS),
 
 
 def record_in(state: str, rules: Rules = RULES) -> Record:
-    started = state not in (m.NEW, m.WAITING, m.HELD, m.STARTING, m.PENDING, m.LAUNCHING)
+    started = state not in (m.NEW, m.DELAYED, m.HELD, m.STARTING, m.PENDING, m.LAUNCHING)
     return Record("/n", "n-1", "localhost", rules, state=state, pid=1 if state in (m.RUNNING, m.HUNG, m.STALLED, m.STOPPING)
                   else None, spawn_count=1 if started else 0, started=0.0 if started else None)
 
@@ -214,7 +214,7 @@ def test_every_state_and_event(table, rules, state, kind, expected, codes):
 def test_a_first_start_waits_for_spawn_delay_then_for_its_conditions():
     rules = Rules(policy=NodePolicy(spawn_delay=2.0, wait_for=(("topic", "/scan"),)))
     r, actions = m.step(record_in(m.NEW, rules), Event(m.START), 5.0)
-    assert (r.state, r.next_start, actions) == (m.WAITING, 7.0, [Action(m.SCHEDULE, 2.0)])
+    assert (r.state, r.next_start, actions) == (m.DELAYED, 7.0, [Action(m.SCHEDULE, 2.0)])
     r, actions = m.step(r, Event(m.DUE), 7.0)
     assert (r.state, actions, r.reason) == (m.HELD, [Action(m.HOLD)], "waiting for topic:/scan")
     r, actions = m.step(r, Event(m.READY), 8.0)
@@ -223,7 +223,7 @@ def test_a_first_start_waits_for_spawn_delay_then_for_its_conditions():
 
 def test_an_operator_stop_during_a_respawn_delay_keeps_it_stopped():
     r = record_in(m.RUNNING)
-    r, actions = m.step(r, Event(m.EXITED_, exit_code=3), 10.0)
+    r, actions = m.step(r, Event(m.PROCESS_EXITED, exit_code=3), 10.0)
     assert r.state == m.RESPAWNING and Action(m.SCHEDULE, m.restart.MIN_RESPAWN_INTERVAL_S) not in actions
     assert actions[-1].kind == m.SCHEDULE
     r, actions = m.step(r, Event(m.STOP), 10.01)
@@ -238,7 +238,7 @@ def test_a_bound_node_is_stopped_with_its_partner_and_started_once_after_it():
     r = record_in(m.RUNNING, rules)
     r, actions = m.step(r, Event(m.BOUND_ENDED, reason="its manager ended"), 10.0)
     assert (r.state, r.rebind, actions) == (m.STOPPING, True, [Action(m.BEGIN_STOP)])
-    r, _ = m.step(r, Event(m.EXITED_, exit_code=0), 10.1)
+    r, _ = m.step(r, Event(m.PROCESS_EXITED, exit_code=0), 10.1)
     r, actions = m.step(r, Event(m.DOWN), 10.2)
     assert (r.state, r.rebind, actions, m.PUBLIC[r.state]) == (m.DETACHED, False, [], "stopped")
     assert m.step(r, Event(m.BOUND_ENDED), 10.3) == (r, [])  # (down again before it came back: one start)
@@ -286,24 +286,24 @@ def test_a_link_cut_during_a_launch_call_queues_the_node_once():
 
 def test_a_required_node_that_exits_ends_the_launch_with_its_status():
     rules = Rules(required=True)
-    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.EXITED_, exit_signal=9), 1.0)
+    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.PROCESS_EXITED, exit_signal=9), 1.0)
     assert r.state == m.EXITED and actions == [Action(m.END_LAUNCH, status=128 + 9)]
     r, actions = m.step(record_in(m.STARTING, rules), Event(m.SPAWN_FAILED), 1.0)
     assert actions == [Action(m.END_LAUNCH, status=1)]
     remote = Rules(required=True, remote=True, owned=False)
-    assert m.step(record_in(m.RUNNING, remote), Event(m.EXITED_, exit_code=0), 1.0)[1] == [Action(m.END_LAUNCH)]
+    assert m.step(record_in(m.RUNNING, remote), Event(m.PROCESS_EXITED, exit_code=0), 1.0)[1] == [Action(m.END_LAUNCH)]
 
 
 def test_fatal_after_too_many_failed_starts_and_an_operator_start_clears_the_count():
     rules = Rules(respawn=True, policy=NodePolicy(respawn_max_retries=1, on_fatal="shutdown"))
     r = record_in(m.RUNNING, rules)._replace(started=0.0)
-    r, actions = m.step(r, Event(m.EXITED_, exit_code=1), 0.1)  # a failed start (under respawn_min_uptime)
+    r, actions = m.step(r, Event(m.PROCESS_EXITED, exit_code=1), 0.1)  # a failed start (under respawn_min_uptime)
     assert (r.state, r.failures) == (m.RESPAWNING, 1)
     # what the restart policy decided, in words for the console
     assert actions[0].kind == m.NOTE and "(1 failed start in a row)" in actions[0].text
     r, _ = m.step(r, Event(m.DUE), 0.5)
     r, _ = m.step(r, Event(m.SPAWNED, pid=2), 0.5)
-    r, actions = m.step(r, Event(m.EXITED_, exit_code=1), 0.6)
+    r, actions = m.step(r, Event(m.PROCESS_EXITED, exit_code=1), 0.6)
     assert r.state == m.FATAL and r.failures == 2
     assert actions == [Action(m.NOTE, text="FATAL: failed 2 starts in a row (respawn_max_retries=1), not restarted"),
                        Action(m.END_LAUNCH, status=1)]
@@ -313,7 +313,7 @@ def test_fatal_after_too_many_failed_starts_and_an_operator_start_clears_the_cou
 
 def test_a_remote_node_its_child_respawns_is_not_the_parents_to_restart():
     rules = Rules(respawn=True, remote=True, owned=False)
-    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.EXITED_, exit_code=1), 1.0)
+    r, actions = m.step(record_in(m.RUNNING, rules), Event(m.PROCESS_EXITED, exit_code=1), 1.0)
     assert (r.state, actions) == (m.RESPAWNING, [])  # no timer: the child starts it again
     assert m.step(r, Event(m.LINK_LOST), 1.1)[0].state == m.LOST  # (as a running one: it was on the child)
     r, actions = m.step(r, Event(m.SPAWNED, pid=9, process="n-3"), 1.2)
@@ -350,7 +350,7 @@ def test_hang_and_limit_restart_kill_the_run_and_what_follows():
     assert (r.state, actions) == (m.HUNG, [Action(m.KILL)])
     r, actions = m.step(record_in(m.RUNNING, Rules()), Event(m.RESTART, reason="over memory_limit"), 1.0)
     assert actions == [Action(m.KILL)] and m.step(r, Event(m.RESTART), 1.0) == (r, [])
-    r, actions = m.step(r, Event(m.EXITED_, exit_signal=9), 1.1)
+    r, actions = m.step(r, Event(m.PROCESS_EXITED, exit_signal=9), 1.1)
     assert (r.state, actions) == (m.RESPAWNING, [Action(m.SCHEDULE, 0.0)])  # (not respawn="true": still again)
 
 
@@ -361,7 +361,7 @@ RULE_SETS = [Rules(), Rules(respawn=True), Rules(required=True),
              Rules(respawn=True, remote=True, owned=False, machine="m1"),
              Rules(respawn=True, remote=True, owned=True, machine="m1",
                    policy=NodePolicy(respawn_max_retries=1, wait_for=(("node", "/a"),)))]
-BY_ITSELF = [m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.EXITED_, m.HANG, m.RESTART, m.LIMIT,
+BY_ITSELF = [m.DUE, m.READY, m.NOT_READY, m.SPAWNED, m.SPAWN_FAILED, m.PROCESS_EXITED, m.HANG, m.RESTART, m.LIMIT,
              m.DOWN, m.STOP_REFUSED, m.LAUNCH_SENT, m.LAUNCHED, m.LAUNCH_REFUSED, m.LINK_LOST, m.MACHINE_FAILED,
              m.SHUTDOWN]
 STARTS = (m.SPAWN, m.LAUNCH)
@@ -474,7 +474,7 @@ def test_a_registration_is_the_current_runs_and_goes_with_it():
     gone, _ = m.step(r, Event(m.UNREGISTERED, uri="http://h:1/"), 10.3)
     assert (gone.registered, gone.uri) == (False, "")
     # a run that ends is registered no more; its next run is not until it registers in turn
-    ended, _ = m.step(r, Event(m.EXITED_, exit_code=1), 11.0)
+    ended, _ = m.step(r, Event(m.PROCESS_EXITED, exit_code=1), 11.0)
     assert (ended.state, ended.registered, ended.uri) == (m.RESPAWNING, False, "")
     assert m.step(ended, Event(m.REGISTERED, uri="http://h:1/"), 11.1) == (ended, [])  # a late word: ignored
     again, _ = m.step(r._replace(state=m.RUNNING), Event(m.SPAWNED, pid=7), 12.0)
@@ -505,7 +505,7 @@ def test_the_last_exit_is_kept_while_the_node_runs_again():
     fleet.apply("/crasher", Event(m.START))
     fleet.apply("/crasher", Event(m.SPAWNED, pid=5))
     before = time.time()
-    fleet.apply("/crasher", Event(m.EXITED_, exit_code=3))
+    fleet.apply("/crasher", Event(m.PROCESS_EXITED, exit_code=3))
     ended_at = node.last_exit_at
     assert before <= ended_at <= time.time() and (node.exit_code, node.last_exit_code) == (3, 3)
     clock[0] = 11.0
@@ -515,7 +515,7 @@ def test_the_last_exit_is_kept_while_the_node_runs_again():
     assert (d["state"], d["exit_code"], d["last_exit_code"], d["last_exit_signal"], d["last_exit_at"]) == (
         "running", None, 3, None, ended_at)
     fleet.apply("/crasher", Event(m.STOP))
-    fleet.apply("/crasher", Event(m.EXITED_, exit_signal=2))  # (its end while being stopped)
+    fleet.apply("/crasher", Event(m.PROCESS_EXITED, exit_signal=2))  # (its end while being stopped)
     fleet.apply("/crasher", Event(m.DOWN))
     d = node.as_dict()
     assert (d["state"], d["exit_signal"], d["last_exit_code"], d["last_exit_signal"]) == ("stopped", 2, None, 2)

@@ -16,7 +16,7 @@ Internal states, and the state the outside (README, events file, status,
 `api.Launch`) sees:
 
     new         made, not started yet                           waiting
-    waiting     spawn_delay runs                                 waiting
+    delayed     spawn_delay runs                                 waiting
     held        wait_for conditions awaited (health/readiness)   waiting
     starting    a spawn is under way (this machine)              waiting
     pending     queued for its machine's child (remote)          waiting
@@ -41,18 +41,18 @@ from typing import NamedTuple
 from launcher.model.config import NodePolicy
 from launcher.fleet import restart
 
-NEW, WAITING, HELD, STARTING = "new", "waiting", "held", "starting"
+NEW, DELAYED, HELD, STARTING = "new", "delayed", "held", "starting"
 PENDING, LAUNCHING, LOST = "pending", "launching", "lost"
 RUNNING, HUNG, STOPPING, STALLED = "running", "hung", "stopping", "stalled"
 RESPAWNING, EXITED, FATAL, STOPPED = "respawning", "exited", "fatal", "stopped"
 DETACHED = "detached"
-STATES = (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, LOST,
+STATES = (NEW, DELAYED, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, LOST,
           EXITED, FATAL, STOPPED, DETACHED)
-PUBLIC = {NEW: "waiting", WAITING: "waiting", HELD: "waiting", STARTING: "waiting", PENDING: "waiting",
+PUBLIC = {NEW: "waiting", DELAYED: "waiting", HELD: "waiting", STARTING: "waiting", PENDING: "waiting",
           LAUNCHING: "waiting", RUNNING: "running", HUNG: "hung", STALLED: "stalled", STOPPING: "running", RESPAWNING: "respawning",
           LOST: "exited", EXITED: "exited", FATAL: "fatal", STOPPED: "stopped", DETACHED: "stopped"}
 # a node in one of these may still run (or run again without an operator): the launch is not "all dead"
-ALIVE = frozenset((NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
+ALIVE = frozenset((NEW, DELAYED, HELD, STARTING, PENDING, LAUNCHING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
                    LOST))
 # on the way to running: what comes next (running, or why not) is what a reader outside is told
 ON_THE_WAY = frozenset((STARTING, PENDING, LAUNCHING))
@@ -67,7 +67,7 @@ READY = "ready"  # its wait_for conditions are met
 NOT_READY = "not ready"  # its wait_timeout passed first (reason: what was missing)
 SPAWNED = "spawned"  # its process runs (pid); for a remote node, the child said so
 SPAWN_FAILED = "spawn failed"  # its process could not be started
-EXITED_ = "process exited"  # its process ended (exit_code or exit_signal)
+PROCESS_EXITED = "process exited"  # its process ended (exit_code or exit_signal)
 HANG = "hang"  # no answer to getPid for hang_timeout (reason)
 STALL = "stall"  # a watched topic of its own went silent or too slow (reason)
 UNSTALL = "unstall"  # it publishes as it should again (on_stall="warn": the process ran on)
@@ -98,9 +98,8 @@ RULES = "rules"
 # from it here (readiness, hang and stall probes, systemd's READY=1 listen to the fleet's changes)
 REGISTERED = "registered"
 UNREGISTERED = "unregistered"
-EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, EXITED_, HANG, STALL, UNSTALL, RESTART,
-          LIMIT, STOP,
-          SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
+EVENTS = (START, KEEP_STOPPED, DUE, READY, NOT_READY, SPAWNED, SPAWN_FAILED, PROCESS_EXITED, HANG, STALL, UNSTALL,
+          RESTART, LIMIT, STOP, SHUTDOWN, DOWN, STOP_REFUSED, OPERATOR_START, LAUNCH_SENT, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
           MACHINE_FAILED, BOUND_ENDED, BOUND_STARTED, RELOAD_STOP, RENEW, RULES, REGISTERED, UNREGISTERED)
 
 # ---- actions: what the runner carries out
@@ -116,7 +115,7 @@ NOTE = "note"  # nothing to do: words for the console about what the restart pol
 
 
 class Rules(NamedTuple):
-    """What the machine reads of a node: fixed for its life in the launch."""
+    """What the lifecycle table reads of a node: fixed for its life in the launch."""
 
     required: bool = False
     respawn: bool = False
@@ -224,7 +223,7 @@ def _ready_or_hold(r: Record) -> tuple[Record, list[Action]]:
 def _start(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     delay = r.rules.policy.spawn_delay if r.rules.owned else 0.0
     if delay > 0:
-        return r._replace(state=WAITING, next_start=now + delay, reason="spawn_delay %g s" % delay), \
+        return r._replace(state=DELAYED, next_start=now + delay, reason="spawn_delay %g s" % delay), \
             [Action(SCHEDULE, delay)]
     return _ready_or_hold(r)
 
@@ -366,7 +365,7 @@ def _stop_before_start(r: Record, e: Event, now: float) -> tuple[Record, list[Ac
         why, operator = "stopped by operator", True
     elif e.kind == RELOAD_STOP:
         why, operator = e.reason, r.operator_stopped
-    elif r.state in (HELD, NEW, WAITING) and r.spawn_count == 0:
+    elif r.state in (HELD, NEW, DELAYED) and r.spawn_count == 0:
         why, operator = "stopped while waiting to start", r.operator_stopped
     else:
         why, operator = "stopped before its next start", r.operator_stopped
@@ -433,7 +432,7 @@ def _new_rules(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
 
 def _link_lost(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     """Its machine's session ended while it ran, or was being handed over: it is launched again when
-    the machine answers (a required one ends the launch)."""
+    the table answers (a required one ends the launch)."""
     lost = r._replace(state=LOST, reason=e.reason, over_limit=(), registered=False, uri="")
     return lost, [Action(END_LAUNCH, status=1)] if r.rules.required else []
 
@@ -470,7 +469,7 @@ def describe(conditions) -> str:
 
 # ---- the table -------------------------------------------------------------------------------------------
 
-_WAITING_TO_START = (NEW, WAITING, HELD, RESPAWNING, PENDING, LOST, DETACHED)
+_WAITING_TO_START = (NEW, DELAYED, HELD, RESPAWNING, PENDING, LOST, DETACHED)
 _DOWN_FOR_GOOD = (EXITED, FATAL, STOPPED)
 # a process of the node may be registered (a remote one may register before its child says it runs)
 _MAY_BE_REGISTERED = (LAUNCHING, RUNNING, HUNG, STALLED, STOPPING)
@@ -478,7 +477,7 @@ _MAY_BE_REGISTERED = (LAUNCHING, RUNNING, HUNG, STALLED, STOPPING)
 TABLE = {
     (NEW, START): _start,
     (NEW, KEEP_STOPPED): _keep_stopped,
-    (WAITING, DUE): _spawn_delay_over,
+    (DELAYED, DUE): _spawn_delay_over,
     (HELD, READY): _ready,
     (HELD, NOT_READY): _not_ready,
     (RESPAWNING, DUE): _respawn_due,
@@ -493,15 +492,15 @@ TABLE = {
     (RUNNING, LAUNCHED): _launched,
     (RUNNING, SPAWNED): _spawned,  # the pid after the `launch` answer, or a run its child respawned
     (RESPAWNING, SPAWNED): _spawned,  # (a remote node its child respawns)
-    (RUNNING, EXITED_): _exited,
-    (HUNG, EXITED_): _exited,
-    (LAUNCHING, EXITED_): _exited,  # (its child told of its death before it answered the call)
-    (STOPPING, EXITED_): _exit_while_stopping,
+    (RUNNING, PROCESS_EXITED): _exited,
+    (HUNG, PROCESS_EXITED): _exited,
+    (LAUNCHING, PROCESS_EXITED): _exited,  # (its child told of its death before it answered the call)
+    (STOPPING, PROCESS_EXITED): _exit_while_stopping,
     (RUNNING, HANG): _hang,
     (STALLED, HANG): _hang,  # (hung says more)
     (RUNNING, STALL): _stall,
     (STALLED, UNSTALL): _unstall,
-    (STALLED, EXITED_): _exited,
+    (STALLED, PROCESS_EXITED): _exited,
     (STALLED, STOP): _stop_run,
     (STALLED, SHUTDOWN): _stop_run,
     (RUNNING, RESTART): _restart,
@@ -520,7 +519,7 @@ TABLE = {
     **{(s, START): _start for s in _DOWN_FOR_GOOD},
     **{(s, STOP): _stop_before_start for s in _WAITING_TO_START},
     **{(s, SHUTDOWN): _stop_before_start for s in _WAITING_TO_START + (LAUNCHING,)},
-    **{(s, OPERATOR_START): _operator_start for s in (NEW, WAITING, HELD, RESPAWNING, DETACHED) + _DOWN_FOR_GOOD},
+    **{(s, OPERATOR_START): _operator_start for s in (NEW, DELAYED, HELD, RESPAWNING, DETACHED) + _DOWN_FOR_GOOD},
     **{(s, BOUND_ENDED): _bound_ended_running for s in (RUNNING, STALLED, HUNG)},
     **{(s, BOUND_ENDED): _bound_ended_down for s in (HELD, RESPAWNING, EXITED, FATAL)},
     (DETACHED, BOUND_STARTED): _bound_started,
@@ -528,7 +527,7 @@ TABLE = {
     **{(s, RELOAD_STOP): _stop_before_start for s in _WAITING_TO_START + (LAUNCHING,)},
     **{(s, RENEW): _renew for s in (NEW, DETACHED) + _DOWN_FOR_GOOD},  # (detached: held again for its partner)
     **{(s, RULES): _new_rules for s in STATES},
-    **{(s, MACHINE_FAILED): _machine_failed for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, RUNNING, LOST,
+    **{(s, MACHINE_FAILED): _machine_failed for s in (NEW, DELAYED, HELD, PENDING, LAUNCHING, RUNNING, LOST,
                                                       RESPAWNING)},
     **{(s, REGISTERED): _registered for s in _MAY_BE_REGISTERED},
     **{(s, UNREGISTERED): _unregistered for s in _MAY_BE_REGISTERED},
@@ -549,12 +548,12 @@ IGNORED = frozenset(
     + [(s, SHUTDOWN) for s in (STOPPING,) + _DOWN_FOR_GOOD]  # (an operator's stop in progress goes on)
     + [(s, RELOAD_STOP) for s in (STOPPING,) + _DOWN_FOR_GOOD]
     + [(s, OPERATOR_START) for s in (STARTING, RUNNING, HUNG, STALLED, STOPPING, PENDING, LAUNCHING, LOST)]
-    + [(s, EXITED_) for s in (STOPPED, EXITED, FATAL, LOST, PENDING)]  # a child's late report
+    + [(s, PROCESS_EXITED) for s in (STOPPED, EXITED, FATAL, LOST, PENDING)]  # a child's late report
     + [(s, SPAWNED) for s in (STOPPED, STOPPING, LOST)]  # a child's late "started with pid"
     + [(s, LAUNCHED) for s in (STOPPED, STOPPING, LOST, PENDING, EXITED, FATAL)]  # its call answered late
     + [(s, SPAWN_FAILED) for s in (STOPPED, LOST, PENDING)]
     + [(s, LAUNCH_REFUSED) for s in (LOST, PENDING, STOPPED, RUNNING, EXITED, FATAL, RESPAWNING)]
-    + [(s, LINK_LOST) for s in (NEW, WAITING, HELD, PENDING, LOST) + _DOWN_FOR_GOOD]
+    + [(s, LINK_LOST) for s in (NEW, DELAYED, HELD, PENDING, LOST) + _DOWN_FOR_GOOD]
     + [(s, MACHINE_FAILED) for s in (STOPPING,) + _DOWN_FOR_GOOD]
     + [(s, HANG) for s in (HUNG, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING)]  # a probe's late verdict
     + [(s, STALL) for s in (STALLED, HUNG, STOPPING, STOPPED, EXITED, FATAL, RESPAWNING)]  # a watch's late verdict
@@ -565,12 +564,12 @@ IGNORED = frozenset(
     + [(s, READY) for s in (STOPPED, EXITED, FATAL)]
     + [(s, NOT_READY) for s in (STOPPED, EXITED, FATAL)]
     # detached: down, as a stopped node, until its partner starts
-    + [(DETACHED, k) for k in (DUE, EXITED_, HANG, STALL, RESTART, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
+    + [(DETACHED, k) for k in (DUE, PROCESS_EXITED, HANG, STALL, RESTART, LAUNCHED, LAUNCH_REFUSED, LINK_LOST,
                                MACHINE_FAILED)]
     # not started yet (its hold waits for the partner), being stopped, stopped, or waiting for it already
-    + [(s, BOUND_ENDED) for s in (NEW, WAITING, STARTING, STOPPING, STOPPED, DETACHED)]
+    + [(s, BOUND_ENDED) for s in (NEW, DELAYED, STARTING, STOPPING, STOPPED, DETACHED)]
     # a partner's start concerns only a detached node
-    + [(s, BOUND_STARTED) for s in (NEW, WAITING, HELD, STARTING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
+    + [(s, BOUND_STARTED) for s in (NEW, DELAYED, HELD, STARTING, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING,
                                      EXITED, FATAL, STOPPED)]
     # a run that ended (its registration, late, or left on a master found running), or none under way
     + [(s, k) for s in STATES if s not in _MAY_BE_REGISTERED for k in (REGISTERED, UNREGISTERED)]
@@ -578,7 +577,7 @@ IGNORED = frozenset(
 assert not IGNORED & TABLE.keys()
 
 # Pairs no runner sends: each is a runner's bug, raised as InvalidTransition (the fleet says "internal error" and
-# leaves the node as it was). With TABLE and IGNORED they are every pair, each in one (tests/fleet/test_machine.py).
+# leaves the node as it was). With TABLE and IGNORED they are every pair, each in one (tests/fleet/test_lifecycle.py).
 _LOCAL_ONLY = (STARTING, HUNG, STALLED)  # (states of a node of this machine: the health watchers are local)
 REFUSED = frozenset(
     # the launch starts a node once (again only after its end: a remote child's parent gives it anew)
@@ -590,15 +589,15 @@ REFUSED = frozenset(
     # only a held node is in the readiness hold (one let go of late: ignored)
     + [(s, k) for k in (READY, NOT_READY) for s in STATES if s not in (HELD,) + _DOWN_FOR_GOOD]
     # a run is told after a spawn or a `launch` call (or its child's respawn), not before
-    + [(s, SPAWNED) for s in (NEW, WAITING, HELD, PENDING, HUNG, STALLED, EXITED, FATAL, DETACHED)]
+    + [(s, SPAWNED) for s in (NEW, DELAYED, HELD, PENDING, HUNG, STALLED, EXITED, FATAL, DETACHED)]
     # only a spawn or a `launch` call fails to start
-    + [(s, SPAWN_FAILED) for s in (NEW, WAITING, HELD, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, EXITED, FATAL,
+    + [(s, SPAWN_FAILED) for s in (NEW, DELAYED, HELD, RUNNING, HUNG, STALLED, STOPPING, RESPAWNING, EXITED, FATAL,
                                    DETACHED)]
     # no process of it runs (a spawn's exit comes after its start; a run's end is told once)
-    + [(s, EXITED_) for s in (NEW, WAITING, HELD, STARTING, RESPAWNING)]
+    + [(s, PROCESS_EXITED) for s in (NEW, DELAYED, HELD, STARTING, RESPAWNING)]
     # the probes and the limit watch look at a running process only
-    + [(s, k) for k in (HANG, STALL) for s in (NEW, WAITING, HELD, STARTING, PENDING, LAUNCHING, LOST)]
-    + [(s, RESTART) for s in (NEW, WAITING, HELD, PENDING, LAUNCHING, LOST)]
+    + [(s, k) for k in (HANG, STALL) for s in (NEW, DELAYED, HELD, STARTING, PENDING, LAUNCHING, LOST)]
+    + [(s, RESTART) for s in (NEW, DELAYED, HELD, PENDING, LAUNCHING, LOST)]
     # a spawn is done within one call of the runner: no stop comes between
     + [(STARTING, k) for k in (STOP, SHUTDOWN, RELOAD_STOP)]
     # only a stop under way ends, or is refused
@@ -606,7 +605,7 @@ REFUSED = frozenset(
     # only a node queued for its machine is sent
     + [(s, LAUNCH_SENT) for s in STATES if s not in (PENDING, LOST)]
     # only a node in a `launch` call is answered (a late answer: ignored)
-    + [(s, k) for k in (LAUNCHED, LAUNCH_REFUSED) for s in (NEW, WAITING, HELD, STARTING, HUNG, STALLED)]
+    + [(s, k) for k in (LAUNCHED, LAUNCH_REFUSED) for s in (NEW, DELAYED, HELD, STARTING, HUNG, STALLED)]
     + [(s, LAUNCHED) for s in (RESPAWNING,)] + [(s, LAUNCH_REFUSED) for s in (STOPPING,)]
     # a node of this machine has no machine's session to lose
     + [(s, k) for k in (LINK_LOST, MACHINE_FAILED) for s in _LOCAL_ONLY]
