@@ -17,15 +17,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def idle_launch(root: str, package: str, n: int) -> str:
-    """A package `package` under `root` with an idle node (`exec sleep`: one process per node) and a launch file of
-    `n` of them; the launch file's path."""
+def make_package(root: str, package: str) -> str:
+    """An empty package `package` under `root` (its package.xml alone); its folder."""
     pkg = os.path.join(root, package)
     os.makedirs(pkg)
     with open(os.path.join(pkg, "package.xml"), "w") as f:
         f.write('<?xml version="1.0"?><package format="2"><name>%s</name><version>0.0.1</version>'
                 '<description>b</description><maintainer email="b@example.com">b</maintainer>'
                 '<license>BSD</license></package>\n' % package)
+    return pkg
+
+
+def idle_launch(root: str, package: str, n: int) -> str:
+    """A package `package` under `root` with an idle node (`exec sleep`: one process per node) and a launch file of
+    `n` of them; the launch file's path."""
+    pkg = make_package(root, package)
     idle = os.path.join(pkg, "idle")
     with open(idle, "w") as f:
         f.write("#!/bin/sh\nexec sleep 100000\n")

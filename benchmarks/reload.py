@@ -33,7 +33,7 @@ import tempfile
 import time
 import xmlrpc.client
 
-from common import free_port  # (this folder is on the path of a script run from it)
+from common import free_port, make_package  # (this folder is on the path of a script run from it)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED_BENCH = os.path.normpath(os.path.join(REPO, "..", "shared", "bench"))
@@ -120,12 +120,7 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=5)
     a = ap.parse_args()
     tmp = tempfile.mkdtemp(prefix="bench-reload-")
-    pkg = os.path.join(tmp, "pkgs", "bench_reload")
-    os.makedirs(pkg)
-    with open(os.path.join(pkg, "package.xml"), "w") as f:
-        f.write('<?xml version="1.0"?><package format="2"><name>bench_reload</name><version>0.0.1</version>'
-                '<description>b</description><maintainer email="b@example.com">b</maintainer>'
-                '<license>BSD</license></package>\n')
+    pkg = make_package(os.path.join(tmp, "pkgs"), "bench_reload")
     tiny_node(os.path.join(pkg, "tiny_node"))
     launch = os.path.join(tmp, "bench.launch")
     with open(launch, "w") as f:

@@ -31,7 +31,7 @@ import tempfile
 import threading
 import time
 
-from common import free_port  # (this folder is on the path of a script run from it)
+from common import free_port, make_package  # (this folder is on the path of a script run from it)
 import reload  # (the same roscpp node as its benchmark's)
 
 FLAT_BYTES = 2 * 1000 * 1000  # the bound: within 2 MB of the second minute
@@ -120,12 +120,7 @@ def main() -> int:
     cmd = shlex.split(a.cmd)
     tool = cmd[:-1] + ["launcher.cli.tool"] if cmd[-1] == "launcher" else [sys.executable, "-m", "launcher.cli.tool"]
     tmp = tempfile.mkdtemp(prefix="bench-soak-")
-    pkg = os.path.join(tmp, "pkgs", "bench_soak")
-    os.makedirs(pkg)
-    with open(os.path.join(pkg, "package.xml"), "w") as f:
-        f.write('<?xml version="1.0"?><package format="2"><name>bench_soak</name><version>0.0.1</version>'
-                '<description>b</description><maintainer email="b@example.com">b</maintainer>'
-                '<license>BSD</license></package>\n')
+    pkg = make_package(os.path.join(tmp, "pkgs"), "bench_soak")
     if os.environ.get("LAUNCHER_BENCH"):  # (bench.py's path, as benchmarks/supervise.py takes it: a worktree's)
         reload.SHARED_BENCH = os.path.dirname(os.path.abspath(os.environ["LAUNCHER_BENCH"]))
     reload.tiny_node(os.path.join(pkg, "tiny_node"))

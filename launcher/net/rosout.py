@@ -107,6 +107,15 @@ _U32 = struct.Struct("<I")
 _HEAD = struct.Struct("<III")  # header.seq, stamp.secs, stamp.nsecs
 
 
+def _sized(view: memoryview, at: int, what: str) -> tuple[bytes, int]:
+    """The length-prefixed bytes at `at` (a string of the message), and where the next field begins."""
+    n, = _U32.unpack_from(view, at)
+    at += 4
+    if at + n > len(view):
+        raise ValueError("%s runs past the message's end" % what)
+    return bytes(view[at:at + n]), at + n
+
+
 def decode_log(payload: bytes) -> LogMessage:
     """A serialized rosgraph_msgs/Log, decoded; ValueError if it is not one.
 
@@ -124,24 +133,16 @@ def decode_log(payload: bytes) -> LogMessage:
                 strings.append(view[at])
                 at += 1
                 continue
-            n, = _U32.unpack_from(view, at)
-            at += 4
-            if at + n > len(view):
-                raise ValueError("a string runs past the message's end")
-            strings.append(bytes(view[at:at + n]))
-            at += n
+            text, at = _sized(view, at, "a string")
+            strings.append(text)
         line, count = struct.unpack_from("<II", view, at)
         at += 8
         if count > len(view) - at:
             raise ValueError("more topics than bytes")
         topics = []
         for _ in range(count):
-            n, = _U32.unpack_from(view, at)
-            at += 4
-            if at + n > len(view):
-                raise ValueError("a topic runs past the message's end")
-            topics.append(bytes(view[at:at + n]))
-            at += n
+            topic, at = _sized(view, at, "a topic")
+            topics.append(topic)
     except (struct.error, IndexError) as exc:
         raise ValueError("truncated rosgraph_msgs/Log (%s)" % exc) from None
     frame_id, level, name, msg, file, function = strings
