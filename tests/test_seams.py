@@ -13,7 +13,7 @@ import pytest
 
 from launcher.fleet import runner
 from launcher.health.readiness import Readiness
-from launcher.process.spawn import ProcessSpec
+from launcher.plan.specs import ProcessSpec
 from launcher.process.supervisor import NodeProcess, Supervisor
 from launcher.remote.parent import RemoteNode, RemoteParent
 from launcher.rostest.runner import RostestMaster

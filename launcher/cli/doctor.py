@@ -27,7 +27,7 @@ from typing import Any, Mapping
 import psutil
 
 from launcher.workspace import nodepython
-from launcher.process.command import master_uri
+from launcher.plan.command import master_uri
 from launcher.model.errors import LaunchError
 from launcher.net.xmlrpc import call_blocking
 from launcher.workspace.packages import ExecutableNotFound, PackageIndex, ros_paths

@@ -84,7 +84,7 @@ def _main(opts: Any) -> int:
                               % (name, ", ".join(files), "\n".join(" * %s" % n for n in names),
                                  "\n" + hint if hint else ""))
         # (only --args needs the command line's module; the other options do not pay for its import)
-        from launcher.process.command import master_uri, node_command
+        from launcher.plan.command import master_uri, node_command
         cmd = node_command(node, master_uri=master_uri(argv, environ), environ=environ, packages=packages)
         out.write(cmd.format_args() + "\n")
         return 0

@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # (annotations only: importing this module loads nothing of o
 
 
 class NodeSpec(Protocol):
-    """What a watcher reads of a node's spec (`process.spawn.ProcessSpec`)."""
+    """What a watcher reads of a node's spec (`plan.specs.ProcessSpec`)."""
 
     name: str  # roslaunch's process name, e.g. robot/driver-2
     node_name: str  # the ROS node name, e.g. /robot/driver

@@ -1,7 +1,7 @@
 """The difference of two plans of one launch (a reload): the parameters to set and delete, the nodes to start, stop and restart, each with why, and the nodes whose supervision settings alone changed.
 
 A pure function of the two loaded `LaunchConfig`s and of what each node's
-command (`process.command.node_command`: argv, environment, working directory)
+command (`plan.command.node_command`: argv, environment, working directory)
 is made of beyond the node's own fields: its executable, which the caller looks
 up with the same package index for both plans, so that only what the files say
 (or a package that now has another executable) makes a difference. `launcher reload --dry-run` prints it and

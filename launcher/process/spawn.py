@@ -1,9 +1,5 @@
-"""Starting one node's process: what to run (`ProcessSpec`) and `spawn`, with roslaunch's failure messages.
-
-A `ProcessSpec` is a node's `NodeCommand` (the very object `launch --args`
-prints, so what it prints is what runs) plus how the process is supervised:
-its roslaunch process name, where its output goes, respawn and required.
-"""
+"""Starting one node's process (`start_process`, from the plan's `ProcessSpec`), with roslaunch's failure
+messages."""
 
 from __future__ import annotations
 
@@ -12,51 +8,10 @@ import os
 import signal
 import subprocess
 
-from launcher.process.command import NodeCommand
-from launcher.model.config import NodePolicy
+from launcher.plan.specs import ProcessSpec
 from launcher.output import console
 from launcher.process.coredumps import raise_core_limit, restore_core_limit
 from launcher.output.screen import Channels
-
-
-DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
-
-
-class ProcessSpec:
-    """One node to supervise: its command (`launcher.process.command.node_command`) and how it is run."""
-
-    # (a plain class rather than a dataclass: `dataclasses` costs ~4 ms of import on the way to the
-    # first spawn)
-    __slots__ = ("name", "command", "output", "stdout_path", "log_dir", "respawn", "respawn_delay", "required",
-                 "node_name", "policy")
-
-    def __init__(self, name: str, command: NodeCommand, stdout_path: str | None = None,
-                 log_dir: str | None = None, respawn: bool = False, respawn_delay: float = 0.0,
-                 required: bool = False, node_name: str | None = None, policy: NodePolicy | None = None,
-                 output: str | None = None):
-        self.name = name  # roslaunch's process name, e.g. "robot/driver-2"
-        self.node_name = node_name or "/" + name  # the ROS node name, e.g. "/robot/driver": how status names it
-        self.policy = policy if policy is not None else DEFAULT_POLICY  # restart policy, readiness, limits
-        self.command = command
-        # output="log": the node writes its stdout to `stdout_path` itself; output="screen": to the terminal,
-        # through the launcher, which keeps a copy in `stdout_path` (output/screen.py)
-        self.output = output or ("log" if stdout_path else "screen")
-        self.stdout_path = stdout_path  # None: no file (a screen node then inherits the terminal unless relayed)
-        self.log_dir = log_dir  # for the "log file:" hint after a death
-        self.respawn = respawn
-        self.respawn_delay = respawn_delay
-        self.required = required
-
-    def __repr__(self) -> str:
-        return "ProcessSpec(%s)" % ", ".join("%s=%r" % (k, getattr(self, k)) for k in self.__slots__)
-
-    @property
-    def argv(self) -> list[str]:
-        return self.command.argv
-
-    @property
-    def log_name(self) -> str:
-        return self.name.replace("/", "-")
 
 
 class SpawnError(Exception):

@@ -45,7 +45,8 @@ from launcher.output import console, narrate, screen
 from launcher.fleet import launchphase, lifecycle, restart, state
 from launcher.fleet.actions import carry_out
 from launcher.fleet.lifecycle import Event
-from launcher.process.spawn import ProcessSpec, restore_default_signals_for_children, start_process
+from launcher.plan.specs import ProcessSpec
+from launcher.process.spawn import restore_default_signals_for_children, start_process
 from launcher.process.watchdog import group_members
 
 DEFAULT_SIGINT_TIMEOUT = 15.0

@@ -286,7 +286,8 @@ class Child:
         master_uri = self.environ.get("ROS_MASTER_URI", "http://localhost:11311/")
         # (the parent sends a child only its own machine's nodes, without `machine`: every one runs here)
         specs, failed = node_specs(config, master_uri, self.environ, packages, lambda node: False,
-                                   opts=self.opts, run_dir=self.log.run_dir, first_number=self._number)
+                                   opts=self.opts, run_dir=self.log.run_dir, first_number=self._number,
+                                   log=console.printlog, log_error=console.printerrlog)
         self._number += len(specs) + len(failed)
         succeeded = []
         for spec in specs:

@@ -34,14 +34,15 @@ from typing import Any
 from launcher.compat import pidfd_open
 from launcher.services import masterlink
 from launcher.model.runopts import RunOptions
-from launcher.process.command import node_command
+from launcher.plan.command import node_command
 from launcher.model.config import Node
 from launcher.model.errors import LaunchError
 from launcher.services.masterlink import MasterSession, RemoteParams
 from launcher.model.names import ns_join
 from launcher.workspace.packages import PackageIndex, package_of
 from launcher.output import console
-from launcher.process.spawn import ProcessSpec, start_process
+from launcher.plan.specs import ProcessSpec
+from launcher.process.spawn import start_process
 from launcher.process.watchdog import Watchdog
 from launcher.rostest.results import (TestOutcome, judge, results_dir, safe_test_name, summary, write_junit,
                                       write_test_file_failure)

@@ -29,7 +29,7 @@ from launcher.compat import to_thread
 from launcher.model.errors import LaunchError
 from launcher.output import console
 from launcher.plan.diff import Difference, difference, lines
-from launcher.process.command import node_command
+from launcher.plan.command import node_command
 
 
 class Reloader:

@@ -26,7 +26,7 @@ from typing import Any, Awaitable, Callable
 
 from launcher import compat
 from launcher.services import masterlink
-from launcher.process.command import master_uri
+from launcher.plan.command import master_uri
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
 from launcher.master.server import advertised_host
@@ -45,7 +45,7 @@ from launcher.plan.specs import node_specs
 from launcher.output import console
 from launcher.fleet import lifecycle
 from launcher.output.logdir import DEFAULT_THRESHOLD, parse_size
-from launcher.process.spawn import ProcessSpec
+from launcher.plan.specs import ProcessSpec
 from launcher.fleet.state import Change
 from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.watchdog import Watchdog
@@ -189,7 +189,8 @@ class Plan:
     def specs(self, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
         """What runs for each local node (plan.specs.node_specs)."""
         return node_specs(self.config, self.master_uri, self.environ, self.packages, self.remote,
-                          opts=opts, run_dir=run_dir, first_number=first_number)
+                          opts=opts, run_dir=run_dir, first_number=first_number,
+                          log=console.printlog, log_error=console.printerrlog)
 
     def check_nodes(self, opts: RunOptions) -> None:
         self.config = bind_nodelets(self.config, self.remote)  # (a loader bound to its manager may close a cycle)

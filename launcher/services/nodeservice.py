@@ -25,7 +25,7 @@ from launcher.health.readiness import Readiness
 from launcher.health.registration import Registrations
 from launcher.model.graph import Graph
 from launcher.health.resources import DEFAULT_PERIOD_S, ResourceMonitor
-from launcher.process.spawn import ProcessSpec
+from launcher.plan.specs import ProcessSpec
 from launcher.fleet import launchphase
 from launcher.fleet.state import EVENTS_FILE, Fleet
 from launcher.process.supervisor import Supervisor
@@ -268,7 +268,7 @@ class NodeService:
         specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, plan.environ, plan.packages,
                                    plan.remote, opts=self.opts, run_dir=self.log.run_dir,
                                    first_number=self.first_number + self.processes,
-                                   process_names=kept)
+                                   process_names=kept, log=console.printlog, log_error=console.printerrlog)
         self.processes += len([s for s in specs if s.node_name in start]) + len(failed)
         self._packages.update(packages_of(plan.config, specs))
         for spec in specs:  # (in the launch's order)

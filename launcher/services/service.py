@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # (annotations only: importing this module loads nothing of o
     from launcher.health.stall import StallWatch
     from launcher.master.server import Master
     from launcher.model.graph import Graph
-    from launcher.process.spawn import ProcessSpec
+    from launcher.plan.specs import ProcessSpec
     from launcher.remote.parent import RemoteParent
 
 

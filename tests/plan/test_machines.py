@@ -53,7 +53,11 @@ def test_remote_machines_are_those_of_nodes_on_other_hosts():
 def test_node_specs_need_no_plan_only_what_the_plan_worked_out(tmp_path):
     config = _config(2)
     env = {"ROS_PACKAGE_PATH": str(tmp_path), "ROS_HOME": str(tmp_path)}
+    said: list[str] = []
     specs, failed = node_specs(config, "http://localhost:11311/", env, PackageIndex(env), remote_test(frozenset({"robot2"})),
-                               opts=RunOptions(screen=True), run_dir=str(tmp_path), first_number=1)
+                               opts=RunOptions(screen=True), run_dir=str(tmp_path), first_number=1,
+                               log=said.append, log_error=said.append)
     # (an empty workspace: each local node is reported as one that cannot be prepared, numbered all the same)
     assert specs == [] and failed == [("here-2", False), ("base-3", False)]
+    # ... and said so through the run's console, given to it (the plan writes nothing itself)
+    assert len(said) == 2 and all(s.startswith("ERROR: cannot launch node of type") for s in said), said

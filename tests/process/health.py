@@ -6,11 +6,11 @@ import os
 import sys
 import time
 
-from launcher.process.command import NodeCommand
+from launcher.plan.command import NodeCommand
 from launcher.model.config import NodePolicy
 from launcher.services.masterlink import start_master
 from launcher.output import console
-from launcher.process.spawn import ProcessSpec
+from launcher.plan.specs import ProcessSpec
 from launcher.fleet import lifecycle
 from launcher.fleet.state import Change, Fleet, visible
 from launcher.process.supervisor import Supervisor

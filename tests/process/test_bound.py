@@ -11,7 +11,7 @@ import sys
 
 from launcher.fleet import lifecycle
 from launcher.model.config import NodePolicy
-from launcher.process.command import NodeCommand
+from launcher.plan.command import NodeCommand
 from launcher.process.supervisor import ProcessSpec, Supervisor
 
 from helpers import pid_alive, until_async

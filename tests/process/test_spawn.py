@@ -6,8 +6,9 @@ import os
 
 import pytest
 
-from launcher.process.command import NodeCommand
-from launcher.process.spawn import ProcessSpec, SpawnError, spawn
+from launcher.plan.command import NodeCommand
+from launcher.plan.specs import ProcessSpec
+from launcher.process.spawn import SpawnError, spawn
 
 
 def test_missing_working_directory_is_created(tmp_path):

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from launcher.process.command import NodeCommand
+from launcher.plan.command import NodeCommand
 from launcher.process.supervisor import MIN_RESPAWN_INTERVAL_S, ProcessSpec, Supervisor
 
 from helpers import pid_alive, until_async

@@ -21,7 +21,7 @@ from helpers import descendants, pid_alive, until
 LAUNCHER = textwrap.dedent(r"""
     import asyncio, os, sys
     from launcher.process.watchdog import Watchdog
-    from launcher.process.command import NodeCommand
+    from launcher.plan.command import NodeCommand
     from launcher.process.supervisor import ProcessSpec, Supervisor
     wd = Watchdog.start()
     tmp = sys.argv[1]

@@ -139,7 +139,7 @@ def _event(name: str) -> None:
 
 
 def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
-    from launcher.process.command import node_command
+    from launcher.plan.command import node_command
     from launcher.params.rosyaml import dump_yaml
     from launcher.xml import load
 
@@ -220,7 +220,7 @@ def test_fuzz_harness_sees_errors(sandbox):
     good = root / "good.launch"
     good.write_text("<launch><node pkg='compat_nodes' type='talker' name='t'/></launch>")
     config = load([str(good)], [], environ=env, packages=packages, core=False)
-    from launcher.process.command import node_command
+    from launcher.plan.command import node_command
     cmd = node_command(config.nodes[0], master_uri="http://127.0.0.1:11311/", environ=env, packages=packages)
     assert cmd.argv[0].endswith("compat_nodes/scripts/talker")
 

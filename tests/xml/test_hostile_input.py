@@ -131,7 +131,7 @@ _INCLUDED = re.compile(r"\n  included from (.+):(\d+)$")
 def load_and_compute(path, env, packages):
     """Load `path` as `launch --dump-params` and `--args` would, then compute what they print. Returns
     the LaunchError (checked: it names the file and a line) or None; anything else escapes."""
-    from launcher.process.command import node_command
+    from launcher.plan.command import node_command
     from launcher.params.dump import dump_yaml
     from launcher.xml import load
 

@@ -1,7 +1,7 @@
 """`--args`: the node command line and environment changes, against roslaunch's own node_args.
 
 Each case loads a small launch file and computes every node's command with
-`launcher.process.command.node_command`; roslaunch's answer comes from its setup_env +
+`launcher.plan.command.node_command`; roslaunch's answer comes from its setup_env +
 create_local_process_args (what `roslaunch --args NODE` prints), run in-process by
 Debian's python. The tables below are the expected `--args` lines (with @PKG@/@WS@ for the
 temporary package and workspace), checked against both.
@@ -120,7 +120,7 @@ def _expected(line: str | None, pkg: str, ws: str) -> str | None:
 
 
 def _ours(launch_file: str, case: Cmd, env: dict[str, str]) -> dict[str, str | None]:
-    from launcher.process.command import node_command
+    from launcher.plan.command import node_command
     from launcher.workspace.packages import PackageIndex
     from launcher.xml import load
 

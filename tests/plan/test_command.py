@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from launcher.process.command import node_command
+from launcher.plan.command import node_command
 from launcher.model.config import Node
 from launcher.model.errors import LaunchError
 from launcher.workspace.packages import PackageIndex, PackageNotFound
@@ -108,7 +108,8 @@ def test_what_runs_is_the_command_args_prints(pkgs, tmp_path):
     index, env, exe = pkgs
     node = Node("tpkg", "talker", "t", namespace="/ns/", args="-x 'a b'", remap_args=(("in", "out"),))
     (spec,), failed = node_specs(LaunchConfig(nodes=(node,)), "http://localhost:11311/", env, index,
-                                 lambda n: False, opts=RunOptions(), run_dir=str(tmp_path / "log"), first_number=1)
+                                 lambda n: False, opts=RunOptions(), run_dir=str(tmp_path / "log"), first_number=1,
+                                 log=print, log_error=print)
     printed = cmd(node, pkgs).format_args()
     assert not failed and spec.name == "ns/t-2"
     assert spec.command.format_args() == printed + " __log:=%s" % (tmp_path / "log" / "ns-t-2.log")
