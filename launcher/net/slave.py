@@ -55,6 +55,9 @@ class Subscription:
         self.connecting: dict[str, asyncio.Task] = {}
         self.retries: dict[str, PublisherRetry] = {}       # every publisher listed, by URI
         self.timers: dict[str, asyncio.TimerHandle] = {}   # the next attempt of those waiting for one
+        # the header fields its publishers send alike, by md5sum, kept once: a hundred /rosout links keep one
+        # rosgraph_msgs/Log definition (1.5 kB with roscpp's comments), not a hundred
+        self.alike: dict[str, dict[str, str]] = {}
         self.closed = False
 
     def update(self, publisher_uris: list[str], *, additive: bool = False) -> None:
@@ -129,6 +132,19 @@ class Subscription:
             link.close()  # (if it ended meanwhile, _link_closed has seen to it)
             return
         self.links[uri] = link
+        self._share_alike(link.header)
+
+    def _share_alike(self, header: dict[str, str] | None) -> None:
+        """The fields of a publisher's header that another publisher of its md5sum sent alike: the first's."""
+        if header is None:
+            return
+        alike = self.alike.setdefault(header.get("md5sum", ""), {})
+        for key in ("type", "md5sum", "message_definition"):
+            value = header.get(key)
+            if value is not None:
+                first = alike.setdefault(key, value)
+                if first == value:
+                    header[key] = first
 
     def _link_closed(self, link: PublisherLink) -> None:
         uri = link.publisher_uri

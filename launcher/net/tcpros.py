@@ -162,22 +162,56 @@ FIRST_BODY = 1 << 20
 TRUST_FACTOR = 16
 
 
+class ScratchPool:
+    """Scratch buffers of one size, lent for a read and given back once it is over: a buffer is in use only
+    while a read fills it and its frames are cut from it, and the reads of one thread come one at a time
+    (asyncio's get_buffer, recv_into, buffer_updated), so a few buffers serve any number of connections: a
+    hundred nodes' /rosout links at rest hold none (a 64 KiB buffer each held 6.4 MB). One taken while all are
+    out is made; one given back beyond `kept` is let go."""
+
+    __slots__ = ("size", "kept", "_free")
+
+    def __init__(self, size: int, kept: int = 2):
+        self.size = size
+        self.kept = kept
+        self._free: list[bytearray] = []
+
+    def take(self) -> bytearray:
+        try:
+            return self._free.pop()  # (a pop, not a test then a pop: another thread's loop may share the pool)
+        except IndexError:
+            return bytearray(self.size)
+
+    def give(self, buf: bytearray) -> None:
+        if len(self._free) < self.kept:
+            self._free.append(buf)
+
+    @property
+    def free(self) -> int:
+        """Buffers waiting to be lent."""
+        return len(self._free)
+
+
 class FrameReader:
     """Frames read in place, for asyncio's BufferedProtocol: the socket is read into `get_buffer()`, then
     `received(n)` says how much came. A frame larger than the scratch buffer is read straight into a
     bytearray of its own (grown as its bytes come: see TRUST_FACTOR), which is handed on as the frame (the
     kernel's copy: megabyte messages are not copied again); smaller frames are cut from the scratch buffer as
-    bytes."""
+    bytes. The scratch buffer is the pool's (ScratchPool, by default the one all readers share), borrowed
+    by get_buffer() and given back by received() as soon as it holds nothing of a frame: a reader between
+    two frames holds no buffer; one in the middle of a small frame keeps its scratch buffer until the frame
+    is whole."""
 
-    __slots__ = ("limit", "failure", "_scratch", "_view", "_fill", "_body", "_size", "_got")
+    __slots__ = ("limit", "failure", "pool", "_scratch", "_view", "_fill", "_body", "_size", "_got")
 
     SCRATCH = 64 * 1024
 
-    def __init__(self, limit: int = MAX_FRAME_SIZE):
+    def __init__(self, limit: int = MAX_FRAME_SIZE, pool: ScratchPool | None = None):
         self.limit = limit
         self.failure: TcprosError | None = None
-        self._scratch = bytearray(self.SCRATCH)
-        self._view = memoryview(self._scratch)
+        self.pool = SCRATCH_POOL if pool is None else pool
+        self._scratch: bytearray | None = None  # the borrowed scratch buffer (None: none borrowed)
+        self._view: memoryview | None = None
         self._fill = 0                          # bytes in the scratch buffer
         self._body: bytearray | None = None     # a large frame being read: its buffer so far, its size,
         self._size = 0                          # and how much of it came
@@ -191,7 +225,11 @@ class FrameReader:
                 grown[:self._got] = body
                 self._body = body = grown
             return memoryview(body)[self._got:]
-        return self._view[self._fill:]
+        view = self._view
+        if view is None:
+            self._scratch = self.pool.take()
+            self._view = view = memoryview(self._scratch)
+        return view[self._fill:]
 
     def received(self, n: int) -> list[bytes | bytearray]:
         """The frames completed by `n` more bytes, oldest first; raises TcprosError on an absurd length (or, if
@@ -206,7 +244,8 @@ class FrameReader:
             return [body]
         self._fill += n
         frames: list[bytes | bytearray] = []
-        buf, pos, fill = self._scratch, 0, self._fill
+        buf, view, pos, fill = self._scratch, self._view, 0, self._fill
+        assert buf is not None and view is not None, "received() without get_buffer()"
         while fill - pos >= 4:
             (size,) = _LEN.unpack_from(buf, pos)
             if size > self.limit:
@@ -215,14 +254,14 @@ class FrameReader:
                     raise self.failure
                 return frames  # (those before it are whole and theirs: handed on, then `failure`)
             if fill - pos - 4 >= size:
-                frames.append(bytes(self._view[pos + 4:pos + 4 + size]))
+                frames.append(bytes(view[pos + 4:pos + 4 + size]))
                 pos += 4 + size
             elif size > self.SCRATCH - 4:
                 # too big for the scratch buffer: the rest of it is read into a buffer of its own
                 self._got = fill - pos - 4
                 self._size = size
                 self._body = bytearray(min(size, max(FIRST_BODY, self._got)))
-                self._body[:self._got] = self._view[pos + 4:fill]
+                self._body[:self._got] = view[pos + 4:fill]
                 pos = fill
                 break
             else:
@@ -231,7 +270,15 @@ class FrameReader:
             rest = fill - pos
             buf[:rest] = buf[pos:fill]  # (the start of a frame still coming: at most a scratch buffer)
             self._fill = rest
+        if not self._fill:
+            self._give_back()
         return frames
+
+    def _give_back(self) -> None:
+        """The scratch buffer holds nothing of a frame: back to the pool."""
+        buf, self._scratch, self._view = self._scratch, None, None
+        if buf is not None:
+            self.pool.give(buf)
 
     @property
     def pending(self) -> int:
@@ -248,7 +295,7 @@ class FrameReader:
         if self._body is not None:
             return "%d of its %d bytes" % (self._got, self._size)
         if self._fill >= 4:
-            (size,) = _LEN.unpack_from(self._scratch, 0)
+            (size,) = _LEN.unpack_from(self._scratch, 0)  # type: ignore[arg-type]  # (held while _fill)
             return "%d of its %d bytes" % (self._fill - 4, size)
         if self._fill:
             return "%d of the 4 bytes of its length" % self._fill
@@ -260,9 +307,14 @@ class FrameReader:
             rest = _LEN.pack(self._size) + bytes(self._body[:self._got])
             self._body, self._got = None, 0
         else:
-            rest = bytes(self._view[:self._fill])
+            rest = bytes(self._view[:self._fill]) if self._view is not None else b""
         self._fill = 0
+        self._give_back()
         return rest
+
+
+# The scratch buffers every FrameReader borrows unless it is given a pool of its own.
+SCRATCH_POOL = ScratchPool(FrameReader.SCRATCH)
 
 
 def encode_service_response(ok: bool, payload: bytes) -> bytes:

@@ -10,17 +10,21 @@ from collections.abc import Callable
 
 from launcher.net import linkstate
 from launcher.net.linkstate import BROKEN, CLOSED, ENDED, FAILED, HEADER, PublisherLinkState
-from launcher.net.tcpros import ANY_MD5, FrameCounter, TcprosError, TopicType
+from launcher.net.tcpros import ANY_MD5, FrameCounter, ScratchPool, TcprosError, TopicType
 
 # A watcher's socket wakes the loop only once this many bytes wait (SO_RCVLOWAT): a busy topic is read in
 # gulps, a quiet one when its watch drains it (`CountingLink.drain`, at each verdict).
 WATCH_LOWAT = 64 << 10
 WATCH_CHUNK = 256 << 10
+# The buffer a drain reads into, borrowed for the drain: a counter keeps none of the bytes, so the watches of
+# a launch share one (a buffer each held 256 KiB a watch).
+WATCH_BUFFERS = ScratchPool(WATCH_CHUNK, kept=1)
 
 
 class CountingLink:
     """A subscriber's connection that only counts the publisher's messages (`on_messages(n)`), reading
-    into one buffer of its own: no bytes kept, no object per message, few wake-ups (see WATCH_LOWAT).
+    into a buffer borrowed for each drain (WATCH_BUFFERS): no bytes kept, no object per message, few wake-ups
+    (see WATCH_LOWAT).
     Once it is closed, `ending` and `why` say how (as PublisherLinkState's)."""
 
     def __init__(self, sock: socket.socket, counter: FrameCounter, on_messages: Callable[[int], None],
@@ -34,8 +38,6 @@ class CountingLink:
         self.closed = False
         self.ending: str | None = None
         self.why = ""
-        self._buf = bytearray(WATCH_CHUNK)
-        self._view = memoryview(self._buf)
         self.loop.add_reader(sock.fileno(), self.drain)
 
     def drain(self) -> None:
@@ -44,21 +46,25 @@ class CountingLink:
         if self.closed:
             return
         done = 0
+        buf = WATCH_BUFFERS.take()
+        view = memoryview(buf)
         try:
             while True:
-                got = self.sock.recv_into(self._buf)
+                got = self.sock.recv_into(buf)
                 if not got:  # the publisher closed it
                     cut = self.counter.partial()
                     self._close(BROKEN if cut else ENDED, "closed the connection in the middle of a frame (%s)" % cut
                                 if cut else "closed the connection")
                     break
-                done += self.counter.feed(self._view[:got])
+                done += self.counter.feed(view[:got])
                 if got < WATCH_CHUNK:
                     break
         except (BlockingIOError, InterruptedError):
             pass
         except (OSError, TcprosError) as exc:
             self._close(BROKEN, str(exc))
+        finally:
+            WATCH_BUFFERS.give(buf)
         if done:
             self.on_messages(done)
 

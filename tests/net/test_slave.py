@@ -136,6 +136,35 @@ def test_unreachable_publisher_does_not_block_the_others():
     asyncio.run(main())
 
 
+def test_the_header_fields_publishers_send_alike_are_kept_once():
+    """A hundred nodes publishing /rosout send one definition (roscpp's, with its comments): the subscription
+    keeps it once for all of their links; a publisher that sent another text keeps its own."""
+    async def main():
+        commented = "string data  # roscpp keeps the comments\n"
+        pubs, nodes = [], []
+        for i, definition in enumerate([commented, commented, commented, "string data # another text\n"]):
+            node = await _node("/talker%d" % i)
+            pub = Publication("/chat", TopicType(CHAT.name, CHAT.md5sum, definition), node.name)
+            node.publications["/chat"] = pub
+            pubs.append(pub)
+            nodes.append(node)
+        sub_node = await _node("/listener")
+        sub = Subscription(sub_node, "/chat", CHAT, lambda data, link: None)
+        sub_node.subscriptions["/chat"] = sub
+        sub.update([node.uri for node in nodes])
+        await until_async(lambda: len(sub.links) == len(nodes), 5)
+        headers = [sub.links[node.uri].header for node in nodes]
+        assert [h["message_definition"] for h in headers] == [commented] * 3 + ["string data # another text\n"]
+        assert headers[0]["message_definition"] is headers[1]["message_definition"] is headers[2]["message_definition"]
+        assert headers[3]["message_definition"] is not headers[0]["message_definition"]
+        assert all(h["md5sum"] is headers[0]["md5sum"] and h["type"] is headers[0]["type"] for h in headers)
+        assert [h["callerid"] for h in headers] == [node.name for node in nodes]
+        await _close(sub_node)
+        for node in nodes:
+            await _close(node)
+    asyncio.run(main())
+
+
 def test_param_update_and_shutdown():
     async def main():
         node = await _node("/a")

@@ -4,7 +4,9 @@ subscriber's publisher_link, topic_watch, publication, service, tcpros_server)."
 from __future__ import annotations
 
 import asyncio
+import gc
 import struct
+import tracemalloc
 
 import psutil
 import pytest
@@ -13,11 +15,12 @@ from hypothesis import strategies as st
 
 from launcher.net import tcpros
 from launcher.net import publication
+from launcher.net import topic_watch
 from launcher.net.publication import Publication
 from launcher.net.publisher_link import PublisherLink, connect_publisher
 from launcher.net.service import ServiceServer
-from launcher.net.tcpros import (FrameCounter, FrameDecoder, FrameReader, TcprosError, TopicType, decode_header,
-                                 encode_frame, encode_header)
+from launcher.net.tcpros import (FrameCounter, FrameDecoder, FrameReader, ScratchPool, TcprosError, TopicType,
+                                 decode_header, encode_frame, encode_header)
 from launcher.net.tcpros_server import InboundConnection, TcprosServer
 from launcher.net.topic_watch import WATCH_LOWAT, watch_publisher
 from launcher.net.transport import transport_info
@@ -181,6 +184,53 @@ def test_what_a_close_would_cut_is_said_by_the_reader_and_the_counter():
         assert reader.partial() == counter.partial() == words, cut
 
 
+SIZES = [0, 1, 3, 100, 1000, FrameReader.SCRATCH - 4, FrameReader.SCRATCH - 3, 100_000]
+
+
+@given(st.lists(st.lists(st.sampled_from(SIZES), max_size=4), min_size=2, max_size=3),
+       st.lists(st.sampled_from([1, 2, 5, 100, 5000, 65_000]), max_size=6), st.lists(st.integers(0, 7), min_size=1,
+                                                                                     max_size=12))
+def test_readers_sharing_a_pool_read_their_own_frames_however_their_reads_interleave(streams, reads, orders):
+    """Readers lend and borrow scratch buffers from one pool: whatever order their reads come in (one at a time
+    as asyncio's, or several readers' buffers asked for before any is filled), each reads its own frames."""
+    pool = ScratchPool(FrameReader.SCRATCH, kept=1)
+    readers = [FrameReader(pool=pool) for _ in streams]
+    payloads = [[bytes([(7 * r + i) % 251]) * size for i, size in enumerate(sizes)] for r, sizes in enumerate(streams)]
+    wire = [b"".join(encode_frame(p) for p in ps) for ps in payloads]
+    sent, got, step = [0] * len(readers), [[] for _ in readers], 0
+    reads = reads + [70_000]  # (every few reads a large one: a frame of 64 kB in reads of a byte is slow to test)
+    while any(sent[r] < len(wire[r]) for r in range(len(readers))):
+        busy = [r for r in range(len(readers)) if sent[r] < len(wire[r])]
+        # some readers ask for a buffer (as many as `orders` says, from a place it says), then each is filled
+        order = orders[step % len(orders)]
+        asked = [busy[(order + k) % len(busy)] for k in range(1 + order % len(busy))]
+        bufs = [readers[r].get_buffer() for r in asked]
+        for r, buf in zip(asked, bufs):
+            n = min(len(buf), len(wire[r]) - sent[r], reads[step % len(reads)])
+            buf[:n] = wire[r][sent[r]:sent[r] + n]
+            sent[r] += n
+            got[r] += readers[r].received(n)
+            step += 1
+    assert [[bytes(g) for g in frames] for frames in got] == payloads
+    assert all(reader.pending == 0 for reader in readers)
+
+
+def test_a_reader_between_frames_holds_no_scratch_buffer():
+    """The scratch buffer goes back to the pool as soon as it holds nothing of a frame, and is kept while it
+    holds the start of one; a large frame is read into its own buffer, the scratch buffer given back."""
+    pool = ScratchPool(FrameReader.SCRATCH, kept=1)
+    idle, cut, large = FrameReader(pool=pool), FrameReader(pool=pool), FrameReader(pool=pool)
+    assert read_in_place(idle, encode_frame(b"a" * 100) * 3, []) == [b"a" * 100] * 3
+    assert pool.free == 1  # (lent, given back)
+    assert read_in_place(cut, encode_frame(b"b" * 100)[:50], []) == [] and pool.free == 0
+    assert read_in_place(idle, encode_frame(b"c"), []) == [b"c"] and pool.free == 1  # a new one, given back
+    assert read_in_place(large, encode_frame(b"d" * 100_000)[:70_000], []) == [] and pool.free == 1
+    assert large.held == 100_000
+    assert read_in_place(cut, encode_frame(b"b" * 100)[50:], []) == [b"b" * 100]
+    assert pool.free == 1  # (the pool keeps one: the second was let go)
+    assert cut.take_pending() == b"" and large.take_pending()[:4] == struct.pack("<I", 100_000)
+
+
 def test_transport_info_has_rosnode_info_shape():
     assert transport_info(None) == "TCPROS connection"
 
@@ -238,6 +288,47 @@ def test_a_watch_counts_a_busy_topic_as_it_comes_and_a_quiet_one_when_drained():
         assert sum(counts) == 8 and len(counts) < 3 + 5 * 8  # (not a wake-up per message or per 64 kB)
         await server.stop()
         await until_async(lambda: (link.drain(), link.closed)[1], 5)  # the publisher went
+    asyncio.run(main())
+
+
+def test_idle_links_and_watches_cost_little_memory_each():
+    """A subscriber's link or a watch at rest holds no read buffer: what it costs, both ends of it in this
+    process (the sockets, the protocols, the transports, both connection headers) is a few kB, not its
+    share of a 64 kB scratch buffer (a link) or of a 256 kB read buffer (a watch)."""
+    links, watches, bound = 40, 10, 24 << 10
+
+    async def main():
+        server, pub = await _server_with_publication()
+        received: list[bytes] = []
+        # one of each first: what the first costs once (the pools' buffers, the loop's lazily made parts)
+        await connect_publisher("127.0.0.1", server.port, _subscriber(received))
+        counts: list[int] = []
+        first = await watch_publisher("127.0.0.1", server.port, "/chat", "/watch", "http://pub:1/", counts.append)
+        pub.publish(b"m" * 300)
+        await until_async(lambda: len(received) == 1 and (first.drain(), counts)[1] == [1], 5)
+        gc.collect()
+        tracemalloc.start()
+        try:
+            before = tracemalloc.get_traced_memory()[0]
+            kept = [await connect_publisher("127.0.0.1", server.port, _subscriber(received)) for _ in range(links)]
+            await until_async(lambda: len(pub.links) == 1 + links + 1, 5)
+            pub.publish(b"m" * 300)  # (each reads a message: its scratch buffer lent and given back)
+            await until_async(lambda: len(received) == 2 + links, 5)
+            gc.collect()
+            per_link = (tracemalloc.get_traced_memory()[0] - before) / links
+            before = tracemalloc.get_traced_memory()[0]
+            kept += [await watch_publisher("127.0.0.1", server.port, "/chat", "/watch%d" % i, "http://pub:1/",
+                                           counts.append) for i in range(watches)]
+            await until_async(lambda: len(pub.links) == 1 + links + 1 + watches, 5)
+            pub.publish(b"m" * 300)
+            watching = [first] + kept[links:]  # (a message under the low-water mark waits for a drain)
+            await until_async(lambda: ([w.drain() for w in watching], sum(counts))[1] == 3 + watches, 5)
+            gc.collect()
+            per_watch = (tracemalloc.get_traced_memory()[0] - before) / watches
+        finally:
+            tracemalloc.stop()
+        assert per_link < bound and per_watch < bound, (per_link, per_watch)
+        await server.stop()
     asyncio.run(main())
 
 
