@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import collections.abc
 import json
 import time
 from typing import Callable, Iterable, NamedTuple
@@ -166,6 +167,27 @@ def visible(change: Change) -> bool:
             or old.registered != new.registered or old.uri != new.uri)
 
 
+class _LocalStates(collections.abc.Mapping):
+    """The state of each node of this machine, read from the records as asked (a node's step asks about a few)."""
+
+    __slots__ = ("records",)
+
+    def __init__(self, records: dict[str, Record]):
+        self.records = records
+
+    def __getitem__(self, name: str) -> str:
+        r = self.records[name]
+        if r.host != LOCAL_HOST:
+            raise KeyError(name)
+        return r.state
+
+    def __iter__(self):
+        return (n for n, r in self.records.items() if r.host == LOCAL_HOST)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
 class Fleet:
     """The records of all nodes of a run, their views, the change stream and the launch's outcome."""
 
@@ -287,8 +309,8 @@ class Fleet:
         """The nodes bound to `name` that its operator's stop stopped first are down (or that stop was called off)."""
         self.unbinding.discard(name)
 
-    def _local_states(self) -> dict[str, str]:
-        return {n: r.state for n, r in self.records.items() if r.host == LOCAL_HOST}
+    def _local_states(self) -> collections.abc.Mapping[str, str]:
+        return _LocalStates(self.records)
 
     @property
     def relations(self) -> Relations:

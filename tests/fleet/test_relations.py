@@ -134,6 +134,18 @@ def test_the_fleet_steps_the_nodes_bound_to_a_node_as_it_steps_it():
     fleet.step("/manager", m.Event(m.SPAWNED, pid=12), lambda name, actions: carried.append(name))
     assert carried[-1] == "/loader" and fleet.records["/loader"].state == m.HELD
 
+    # a node of this machine bound to another machine's (which its child runs, and this fleet's runner does not
+    # step): it is told nothing of that one, and comes down for good
+    fleet.add("/away", host="far.example", rules=m.Rules(remote=True))
+    fleet.add("/near", rules=m.Rules(policy=bound_to("/away")))
+    running(fleet, "/near", 13)
+    for kind in (m.START, m.LAUNCH_SENT, m.SPAWNED):
+        fleet.apply("/away", m.Event(kind, pid=20))
+    assert fleet.records["/away"].state == m.RUNNING and fleet.relations.partner["/near"] == "/away"
+    fleet.step("/near", m.Event(m.BOUND_ENDED, reason="by hand"), lambda name, actions: None)
+    fleet.step("/near", m.Event(m.DOWN), lambda name, actions: None)
+    assert fleet.records["/near"].state == m.DETACHED
+
 
 def test_the_fleets_relations_follow_its_nodes_and_their_rules():
     fleet = Fleet(clock=lambda: 0.0)
