@@ -222,6 +222,7 @@ PURE = [_ + module for module in (
     "fleet.actions",  # the node table's actions carried out
     "fleet.restart",  # the restart decision
     "fleet.lastexit",  # a node's last exit, kept by every reader of its changes
+    "fleet.relations",  # the bound-node relations and the stop order, and what a change makes follow
     "plan.diff",  # a reload's difference of two plans
     "remote.session",  # a machine's session with its child
     "master.outbox",  # which callback to a node goes when

@@ -398,7 +398,7 @@ def _operator_start(r: Record, e: Event, now: float) -> tuple[Record, list[Actio
 # ---- bound to another node (bind_to, a nodelet loader's manager) ----------------------------------------
 # A bound node is of no use without its partner (a nodelet's loader without its manager): it is stopped
 # while that one is down, and started again (once, whatever its own respawn says) after that one's next
-# start, its hold waiting for it to register. The runner tells it of its partner's ends and starts.
+# start, its hold waiting for it to register. The fleet tells it of its partner's ends and starts (fleet.relations).
 
 def _bound_ended_running(r: Record, e: Event, now: float) -> tuple[Record, list[Action]]:
     return r._replace(state=STOPPING, rebind=True, reason=e.reason), [Action(BEGIN_STOP)]

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import collections.abc
 import json
 import time
 from typing import Callable, Iterable, NamedTuple
@@ -44,6 +45,7 @@ from launcher import compat
 from launcher.fleet import launchphase, lifecycle
 from launcher.fleet.lastexit import run_ended
 from launcher.fleet.lifecycle import LOCAL_HOST, Event, Record, Rules
+from launcher.fleet.relations import Relations, follow_ups, joined, of as relations_of, stop_first
 from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
 
@@ -165,6 +167,27 @@ def visible(change: Change) -> bool:
             or old.registered != new.registered or old.uri != new.uri)
 
 
+class _LocalStates(collections.abc.Mapping):
+    """The state of each node of this machine, read from the records as asked (a node's step asks about a few)."""
+
+    __slots__ = ("records",)
+
+    def __init__(self, records: dict[str, Record]):
+        self.records = records
+
+    def __getitem__(self, name: str) -> str:
+        r = self.records[name]
+        if r.host != LOCAL_HOST:
+            raise KeyError(name)
+        return r.state
+
+    def __iter__(self):
+        return (n for n, r in self.records.items() if r.host == LOCAL_HOST)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
 class Fleet:
     """The records of all nodes of a run, their views, the change stream and the launch's outcome."""
 
@@ -186,6 +209,9 @@ class Fleet:
         self.launch = launchphase.Launch(exit_when_all_dead=exit_when_all_dead)
         self.done = compat.Event()
         self._unstarted = 0  # nodes that never got a record (their command could not be made)
+        self._relations: Relations | None = None  # (made again when the nodes or their rules change)
+        # nodes whose bound nodes an operator's stop stops ahead of them: those are not started again meanwhile
+        self.unbinding: set[str] = set()
         if events_path:
             try:
                 # line-buffered: a reader (`launcher events -f`) sees each event as it happens
@@ -201,6 +227,8 @@ class Fleet:
         if record is None:
             record = self.records[name] = Record(name, process or name, host, rules)
             self.nodes[name] = NodeStatus(name, record.process, host)
+            if host == LOCAL_HOST and self._relations is not None:
+                self._relations = joined(self._relations, name, rules.policy)
         return record
 
     def remove(self, name: str) -> None:
@@ -212,6 +240,7 @@ class Fleet:
         if record.state in lifecycle.ALIVE and record.state != lifecycle.NEW:
             raise ValueError("node [%s] is %s: it is stopped before it is removed" % (name, record.state))
         del self.records[name], self.nodes[name]
+        self._relations = None
 
     def apply(self, name: str, event: Event) -> list[lifecycle.Action]:
         """Step the node with `event`; tell every listener; return what the runner is to do."""
@@ -225,6 +254,8 @@ class Fleet:
         if new is old:
             return actions
         self.records[name] = new
+        if new.rules is not old.rules:
+            self._relations = None
         status = self._mirror(new, now)
         self.seq += 1
         when = time.time()
@@ -246,6 +277,48 @@ class Fleet:
         if new.state in lifecycle.ENDED and old.state not in lifecycle.ENDED:
             self._check_all_dead()
         return actions
+
+    def step(self, name: str, event: Event, carry: Callable[[str, list], None]) -> list[lifecycle.Action]:
+        """`apply`, `carry(name, actions)` (the runner carries them out), then the same for each event the relations
+        make follow the change (`relations.follow_ups`: the nodes bound to it told it went down or runs again), in
+        order, each with its own follow-ups. Returns the node's own actions."""
+        old = self.records[name].state
+        actions = self.apply(name, event)
+        new = self.records[name].state  # (before the actions are carried out: they tell their own events)
+        carry(name, actions)
+        related = self.relations
+        if old != new and (name in related.bound or name in related.partner):
+            states = self._local_states()
+            for other, follow in follow_ups(related, states, name, old, new, frozenset(self.unbinding), self.stopping):
+                if other in self.records:
+                    self.step(other, follow, carry)
+        return actions
+
+    def unbind(self, name: str, carry: Callable[[str, list], None]) -> list[str]:
+        """An operator's stop of `name`: the nodes bound to it that run are stopped first (`relations.stop_first`),
+        stepped here with `carry` as `step` does, and not started again until `bound_stopped`; their names (none:
+        `name` is stopped at once)."""
+        told = stop_first(self.relations, self._local_states(), name)
+        if told:
+            self.unbinding.add(name)
+            for other, event in told:
+                self.step(other, event, carry)
+        return [other for other, _ in told]
+
+    def bound_stopped(self, name: str) -> None:
+        """The nodes bound to `name` that its operator's stop stopped first are down (or that stop was called off)."""
+        self.unbinding.discard(name)
+
+    def _local_states(self) -> collections.abc.Mapping[str, str]:
+        return _LocalStates(self.records)
+
+    @property
+    def relations(self) -> Relations:
+        """The relations among this machine's nodes (bound, stopped before), from their rules."""
+        if self._relations is None:
+            self._relations = relations_of((r.name, r.rules.policy) for r in self.records.values()
+                                           if r.host == LOCAL_HOST)
+        return self._relations
 
     def registration(self, name: str, uri: str, present: bool) -> None:
         """The master's word about a node's current run (health/registration.py): registered at `uri`, or that

@@ -43,6 +43,7 @@ from typing import Callable
 from launcher.compat import pidfd_open
 from launcher.output import console, narrate, screen
 from launcher.fleet import launchphase, lifecycle, restart, state
+from launcher.fleet.relations import ready_to_stop
 from launcher.fleet.actions import carry_out
 from launcher.fleet.lifecycle import Event
 from launcher.plan.specs import ProcessSpec
@@ -61,13 +62,6 @@ KILL_WAIT_S = 2.0
 MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy paces crash loops)
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
-# A node in one of these runs for the nodes bound to it; in one of the others it is down for them (its bound
-# nodes stop and wait for its next start). How it is down, in the words told to them:
-_UP = frozenset((lifecycle.RUNNING, lifecycle.STALLED))
-_DOWN_FOR_BOUND = {lifecycle.RESPAWNING: "is respawning", lifecycle.HUNG: "is hung",
-                   lifecycle.STOPPING: "is being stopped", lifecycle.EXITED: "exited", lifecycle.FATAL: "is fatal", lifecycle.STOPPED: "is stopped",
-                   lifecycle.DETACHED: "is stopped"}
-
 
 class NodeProcess:
     """One node's process as the supervisor handles it: the OS side only (its state is the fleet's record).
@@ -205,8 +199,6 @@ class Supervisor:
         self.readiness = None  # health/readiness.Readiness: holds nodes that have wait_for conditions
         self.watchers: list = []  # objects with started(proc) and exiting(proc): hang detection, core dumps
         self._deferred: list[NodeProcess] = []  # at shutdown, nodes waiting for their dependents to be down
-        self._bound: dict[str, list[str]] = {}  # node name -> the nodes bound to it (bind_to, nodelet loaders)
-        self._stopping_after_bound: set[str] = set()  # nodes an operator stops, waiting for their bound nodes
 
     @property
     def done(self) -> asyncio.Event:
@@ -229,35 +221,20 @@ class Supervisor:
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
     def _tell(self, proc: NodeProcess, event: Event) -> list[lifecycle.Action]:
+        """Tell the fleet; carry out what it says, for this node and for the nodes its change concerns (bound to
+        it: the fleet's relations decide)."""
         if proc.leftover:
             return []  # (a late timer or watcher of a node a reload removed: no longer the fleet's)
-        old = self._state(proc)
-        actions = self.fleet.apply(proc.spec.node_name, event)
-        new = self._state(proc)  # (before the actions are carried out: they tell their own events)
-        carry_out(self, proc, actions)
-        if old != new and not self.shutting_down:  # (at shutdown, bound nodes are stopped first anyway)
-            self._tell_bound(proc, old, new)
-        return actions
+        return self.fleet.step(proc.spec.node_name, event, self._carry_out)
 
-    def _tell_bound(self, proc: NodeProcess, old: str, new: str) -> None:
-        """Tell the nodes bound to this one that it went down or runs again; a bound node that has just
-        come down while its partner already runs again is told so now (it was being stopped when it ran)."""
-        name = proc.spec.node_name
-        if new in _DOWN_FOR_BOUND:
-            why = "bound to [%s], which %s" % (name, _DOWN_FOR_BOUND[new])
-            for bound in self._bound_nodes(name):
-                self._tell(bound, Event(lifecycle.BOUND_ENDED, reason=why))
-        elif new == lifecycle.RUNNING and old not in _UP:
-            for bound in self._bound_nodes(name):
-                self._tell(bound, Event(lifecycle.BOUND_STARTED))
-        if new == lifecycle.DETACHED:
-            partner = self._by_name.get(proc.spec.policy.bind_to)
-            if partner is not None and not partner.leftover and self._state(partner) in _UP \
-                    and partner.spec.node_name not in self._stopping_after_bound:
-                self._tell(proc, Event(lifecycle.BOUND_STARTED))
+    def _carry_out(self, name: str, actions: list[lifecycle.Action]) -> None:
+        proc = self._by_name.get(name)
+        if proc is not None:
+            carry_out(self, proc, actions)
 
-    def _bound_nodes(self, name: str) -> list[NodeProcess]:
-        procs = (self._by_name.get(n) for n in self._bound.get(name, ()))
+    def _related(self, names) -> list[NodeProcess]:
+        """The processes of the named nodes (the fleet's relations name them)."""
+        procs = (self._by_name.get(n) for n in names)
         return [p for p in procs if p is not None and not p.leftover]
 
     def _state(self, proc: NodeProcess) -> str:
@@ -308,9 +285,6 @@ class Supervisor:
             earlier.leftover, earlier.status = True, None
         self.procs.append(proc)
         self._by_name[spec.node_name] = proc
-        partner = spec.policy.bind_to
-        if partner and spec.node_name not in self._bound.get(partner, ()):
-            self._bound.setdefault(partner, []).append(spec.node_name)
         return proc
 
     def start(self, spec: ProcessSpec) -> NodeProcess | None:
@@ -512,13 +486,15 @@ class Supervisor:
         own = not self.fleet.stopping
         if own:
             self.fleet.launch_step(launchphase.STOP)
-        dependents = self._dependents()
+        relations = self.fleet.relations  # (the order: a node after the nodes that wait for it)
         self._deferred = []
+        alive = {p.spec.node_name for p in self.procs if p.alive and not p.leftover}
+        ready = set(ready_to_stop(relations, (p.spec.node_name for p in self.procs if not p.leftover), alive))
         for p in reversed(self.procs):
-            if any(d.alive for d in dependents.get(p, ())):
-                self._deferred.append(p)
-            else:
+            if p.leftover or p.spec.node_name in ready:
                 self._shut(p)
+            else:
+                self._deferred.append(p)
         self._pace()
         while True:
             stopping = [p.stopped for p in self.procs if p.stopping]
@@ -526,7 +502,9 @@ class Supervisor:
                 break
             if stopping:
                 await asyncio.wait(stopping, return_when=asyncio.FIRST_COMPLETED)
-            ready = [p for p in self._deferred if not any(d.alive or d.stopping for d in dependents[p])]
+            busy = {p.spec.node_name for p in self.procs if (p.alive or p.stopping) and not p.leftover}
+            names = set(ready_to_stop(relations, (p.spec.node_name for p in self._deferred), busy))
+            ready = [p for p in self._deferred if p.spec.node_name in names]
             if not ready and not any(p.stopping for p in self.procs):
                 ready = list(self._deferred)  # (nothing left to wait for)
             for p in ready:
@@ -538,17 +516,6 @@ class Supervisor:
         if own:
             self.fleet.launch_step(launchphase.ALL_STOPPED)
         return self.shutdown_errors
-
-    def _dependents(self) -> dict[NodeProcess, list[NodeProcess]]:
-        """For each node, the nodes of this machine that waited for it (stopped before it)."""
-        by_name = {p.spec.node_name: p for p in self.procs if not p.leftover}
-        out: dict[NodeProcess, list[NodeProcess]] = {}
-        for p in by_name.values():
-            for kind, name in p.spec.policy.wait_for:
-                target = by_name.get(name) if kind == "node" else None
-                if target is not None and target is not p:
-                    out.setdefault(target, []).append(p)
-        return out
 
     def _shut(self, p: NodeProcess) -> None:
         if not p.leftover:
@@ -659,26 +626,22 @@ class Supervisor:
         several records of one node and stops the one its parent names)."""
         if proc.stopping:
             return proc.stopped  # already being stopped
-        bound = [b for b in self._bound_nodes(proc.spec.node_name) if self._state(b) in _UP or b.stopping]
-        if bound and self._state(proc) in _UP:
-            return asyncio.ensure_future(self._stop_bound_first(proc, bound))
+        bound = self.fleet.unbind(proc.spec.node_name, self._carry_out)  # (the nodes bound to it: stopped first)
+        if bound:
+            return asyncio.ensure_future(self._stop_bound_first(proc, self._related(bound)))
         self._tell(proc, Event(lifecycle.STOP))
         return proc.stopped if proc.stopping else None
 
     async def _stop_bound_first(self, proc: NodeProcess, bound: list[NodeProcess]) -> None:
-        """An operator's stop of a node others are bound to: they are stopped first (a nodelet's loader
-        unloads it from its manager), then it; they start again after its next start."""
-        name = proc.spec.node_name
-        why = "bound to [%s], which is being stopped" % name
-        self._stopping_after_bound.add(name)
+        """An operator's stop of a node others are bound to: they are being stopped first (the fleet's
+        `unbind`: a nodelet's loader unloads it from its manager), then it; they start again after its next
+        start."""
         try:
-            for b in bound:
-                self._tell(b, Event(lifecycle.BOUND_ENDED, reason=why))
             stopping = [b.stopped for b in bound if b.stopping]
             if stopping:
                 await asyncio.wait(stopping)
         finally:
-            self._stopping_after_bound.discard(name)
+            self.fleet.bound_stopped(proc.spec.node_name)
         if not proc.stopping:
             self._tell(proc, Event(lifecycle.STOP))
         if proc.stopping:
