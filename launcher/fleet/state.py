@@ -85,7 +85,7 @@ class NodeStatus:
         self.process = process or name  # roslaunch's process name, e.g. robot/driver-2
         self.host = host
         self.state = WAITING
-        self.phase = lifecycle.NEW  # the state machine's own state (machine.STATES)
+        self.phase = lifecycle.NEW  # the state machine's own state (lifecycle.STATES)
         self.pid: int | None = None
         self.started_at: float | None = None  # the current (or last) run's start
         self.restarts = 0  # starts after the first
