@@ -209,6 +209,28 @@ def write_launch(tmp: str, body: str, name: str = "test.launch") -> str:
     return path
 
 
+def kill_leftovers(log_dir: str) -> list[int]:
+    """SIGKILL every process whose command line logs under `log_dir` (`__log:=...`): what a reference tool left
+    behind (Debian's roslaunch, stopped while its master starts, can leave its rosmaster and rosout running);
+    the pids."""
+    killed = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open("/proc/%s/cmdline" % entry, "rb") as f:
+                argv = f.read().decode(errors="replace").split("\0")
+        except OSError:
+            continue
+        if any(a.startswith("__log:=" + log_dir) for a in argv):
+            try:
+                os.kill(int(entry), signal.SIGKILL)
+                killed.append(int(entry))
+            except OSError:
+                pass
+    return killed
+
+
 def node_processes(log_dir: str) -> dict[str, list[int]]:
     """The live node processes of a launch, found in /proc by the `__log:=` in `log_dir` its command lines carry:
     node name (`__name:=`) -> pids (two: a node running twice)."""

@@ -17,8 +17,8 @@ import xmlrpc.client
 import pytest
 
 from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
-from running import (Launcher, RosMaster, compile_roscpp, get_param, make_package, master_proxy, master_up, ros_env,
-                     write_launch)
+from running import (Launcher, RosMaster, compile_roscpp, get_param, kill_leftovers, make_package, master_proxy,
+                     master_up, ros_env, write_launch)
 
 pytestmark = pytest.mark.integration
 
@@ -766,6 +766,7 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
         until(lambda: _registered_count(port) == 1, 60, 0.2, what="roslaunch registered")
     finally:
         _stop(proc)
+        kill_leftovers(str(tmp_path))  # (its master, when the SIGINT came while roslaunch was starting it)
     r = tool(env, "status")
     # one line on stdout says so (status 3: nothing of ours runs); stderr, in one line, why no launch was read
     # (its master gone, or still going with roslaunch's key on it)
