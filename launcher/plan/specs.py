@@ -68,7 +68,7 @@ def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], package
     if config.tests:
         # roslaunch skips <test> tags without a word; say so, they are the user's
         log("ignoring %d <test> node(s) (%s): run them with `launcher test` (or rostest)"
-                         % (len(config.tests), ", ".join(t.test_name or t.name for t in config.tests)))
+            % (len(config.tests), ", ".join(t.test_name or t.name for t in config.tests)))
     specs: list[ProcessSpec] = []
     failed: list[tuple[str, bool]] = []
     number = first_number
