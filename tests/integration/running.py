@@ -209,23 +209,28 @@ def write_launch(tmp: str, body: str, name: str = "test.launch") -> str:
     return path
 
 
-def kill_leftovers(log_dir: str) -> list[int]:
-    """SIGKILL every process whose command line logs under `log_dir` (`__log:=...`): what a reference tool left
-    behind (Debian's roslaunch, stopped while its master starts, can leave its rosmaster and rosout running);
-    the pids."""
-    killed = []
+def _command_lines():
+    """(pid, argv) of every process this user can read, from /proc."""
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
         try:
             with open("/proc/%s/cmdline" % entry, "rb") as f:
-                argv = f.read().decode(errors="replace").split("\0")
+                yield int(entry), f.read().decode(errors="replace").split("\0")
         except OSError:
             continue
+
+
+def kill_leftovers(log_dir: str) -> list[int]:
+    """SIGKILL every process whose command line logs under `log_dir` (`__log:=...`): what a reference tool left
+    behind (Debian's roslaunch, stopped while its master starts, can leave its rosmaster and rosout running);
+    the pids."""
+    killed = []
+    for pid, argv in _command_lines():
         if any(a.startswith("__log:=" + log_dir) for a in argv):
             try:
-                os.kill(int(entry), signal.SIGKILL)
-                killed.append(int(entry))
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
             except OSError:
                 pass
     return killed
@@ -235,15 +240,8 @@ def node_processes(log_dir: str) -> dict[str, list[int]]:
     """The live node processes of a launch, found in /proc by the `__log:=` in `log_dir` its command lines carry:
     node name (`__name:=`) -> pids (two: a node running twice)."""
     found: dict[str, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open("/proc/%s/cmdline" % entry, "rb") as f:
-                argv = f.read().decode(errors="replace").split("\0")
-        except OSError:
-            continue
+    for pid, argv in _command_lines():
         names = [a[len("__name:="):] for a in argv if a.startswith("__name:=")]
-        if names and any(a.startswith("__log:=" + log_dir) for a in argv) and pid_alive(int(entry)):
-            found.setdefault(names[0], []).append(int(entry))
+        if names and any(a.startswith("__log:=" + log_dir) for a in argv) and pid_alive(pid):
+            found.setdefault(names[0], []).append(pid)
     return found
