@@ -98,14 +98,20 @@ def test_status_watch_redraws_at_each_change_and_shows_the_last_run_at_the_end(l
             with open(os.path.join(os.path.realpath(tmp_path / "log" / "latest"), "launcher-events.jsonl")) as f:
                 events = [json.loads(line) for line in f.readlines()[start:]]
             return [e for e in events if e.get("node") == "/crasher" and e.get("state") == "respawning"]
-        until(lambda: len(deaths()) >= 3, 30, what="three deaths")
+
+        def first_shown(death: dict) -> float | None:
+            """When the reader got the first snapshot after `death` that shows it."""
+            return next((when for when, line in list(reader.lines) if when >= death["time"] and next(
+                n for n in json.loads(line)["nodes"] if n["name"] == "/crasher")["state"] == "respawning"), None)
+        # (the file can have a death before the reader has read its snapshot: each is waited for)
+        until(lambda: len(deaths()) >= 3 and all(first_shown(d) is not None for d in deaths()[:3]), 30,
+              what="three deaths, each in a snapshot")
         for death in deaths()[:3]:
-            shown = [when for when, line in reader.lines if when >= death["time"]
-                     and next(n for n in json.loads(line)["nodes"] if n["name"] == "/crasher")["state"] == "respawning"]
-            assert shown and shown[0] - death["time"] < 0.3, (death, shown[:1])
+            assert first_shown(death) - death["time"] < 0.3, (death, first_shown(death))
         lp.signal(signal.SIGINT)
         assert lp.wait(30) == 0
-        assert reader.proc.wait(30) == 3  # (the launch is gone: as `launcher status` says then)
+        # (the launch is gone: as `launcher status` says then)
+        assert reader.proc.wait(30) == 3, reader.proc.stderr.read()
         last = json.loads(reader.lines[-1][1])
         assert last["end_reason"] == "stopped by SIGINT" and last["ended_at"], last
         assert {n["name"]: n["state"] for n in last["nodes"]}["/sleeper"] == "stopped"

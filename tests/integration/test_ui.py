@@ -48,7 +48,9 @@ def tmux(tmp_path):
         if os.environ.get("REQUIRE_ROS"):
             pytest.fail("tmux is missing (.ci/run installs it)")
         pytest.skip("tmux is missing")
-    t = Tmux("launcher-ui-%d" % os.getpid())
+    # (a server of its own per test: `kill-server` returns before the last test's server has gone, and a
+    # session started on its socket meanwhile fails)
+    t = Tmux("launcher-ui-%d-%s" % (os.getpid(), os.path.basename(tmp_path)))
     yield t
     t.close()
 
@@ -62,8 +64,11 @@ class Tmux:
     def start(self, argv: list[str], env: dict[str, str], cols: int = 80, rows: int = 24) -> None:
         command = "env -i %s %s" % (" ".join(shlex.quote("%s=%s" % kv) for kv in env.items()),
                                     " ".join(shlex.quote(a) for a in argv))
-        subprocess.run(self.base + ["new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command, ";",
-                                    "set-option", "-t", "t", "remain-on-exit", "on"], check=True)
+        # (remain-on-exit set before the session starts: a command that ends at once still leaves its pane)
+        done = subprocess.run(self.base + ["start-server", ";", "set-option", "-g", "remain-on-exit", "on", ";",
+                                           "new-session", "-d", "-s", "t", "-x", str(cols), "-y", str(rows), command],
+                              capture_output=True, text=True)
+        assert done.returncode == 0, "tmux new-session: exit %d: %s" % (done.returncode, done.stderr)
 
     def screen(self, joined: bool = False, escapes: bool = False) -> str:
         """What the pane shows (`joined`: a line the terminal wrapped is one line; `escapes`: with colours)."""

@@ -90,6 +90,13 @@ def status(env: dict) -> dict:
     return json.loads(r.stdout) if r.returncode == 0 else {}
 
 
+def all_running(env: dict) -> dict | None:
+    """The status once the launch has its nodes and all of them run (a status read while it starts them can
+    have none yet), else None."""
+    s = status(env)
+    return s if s.get("nodes") and all(n["state"] == "running" for n in s["nodes"]) else None
+
+
 def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strangers(tmp_path, browser):
     make_package(str(tmp_path / "pkgs"), "web_tests", {"talker": Talker, "listener": Listener, "warner": Warner})
     env = ros_env(str(tmp_path), free_port(), str(tmp_path / "pkgs"))
@@ -102,8 +109,7 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
     try:
         lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
         names = ["/talker", "/listener"]
-        info = until(lambda: (lambda s: s if s and all(n["state"] == "running" for n in s["nodes"]) else None)(
-            status(env)), 60, 0.2, what="nodes running")
+        info = until(lambda: all_running(env), 60, 0.2, what="nodes running")
         # its stderr is a file, not a terminal: the plain address and where the token file is, never the token
         assert "#token" not in lp.stderr and "the file %s" % info["token_file"] in lp.stderr
         pids = {n["name"]: n["pid"] for n in info["nodes"]}
@@ -231,8 +237,7 @@ def test_the_address_printed_on_a_terminal_gives_a_page_whose_stop_button_needs_
     try:
         printed = until(lambda: re.search(r"the live view of \S+ at (http://127\.0\.0\.1:%d/#token=(\w+))" % port,
                                           term.text), 60, 0.1, what="the page's address on the terminal")
-        info = until(lambda: (lambda s: s if s and all(n["state"] == "running" for n in s["nodes"]) else None)(
-            status(env)), 60, 0.2, what="nodes running")
+        info = until(lambda: all_running(env), 60, 0.2, what="nodes running")
         with open(info["token_file"]) as f:
             assert printed.group(2) == f.read().strip()
         browser.get(printed.group(1))
@@ -272,8 +277,7 @@ def test_the_reload_button_applies_the_changed_files(tmp_path, browser):
     lp = Launcher(["--web", str(port), path], env, str(tmp_path))
     try:
         lp.wait_output("the live view of .* at http://127.0.0.1:%d/" % port, 60, stream="stderr")
-        info = until(lambda: (lambda s: s if s and all(n["state"] == "running" for n in s["nodes"]) else None)(
-            status(env)), 60, 0.2, what="talker running")
+        info = until(lambda: all_running(env), 60, 0.2, what="talker running")
         talker = info["nodes"][0]["pid"]
         with open(path) as f:
             text = f.read()
@@ -532,8 +536,7 @@ def run_under_load(tmp_path) -> None:
                   env, str(tmp_path))
     web = good = None
     try:
-        info = until(lambda: (lambda s: s if s and all(n["state"] == "running" for n in s["nodes"]) else None)(
-            status(env)), 60, 0.2, what="nodes running")
+        info = until(lambda: all_running(env), 60, 0.2, what="nodes running")
         with open(info["token_file"]) as f:
             token = f.read().strip()
         port = free_port()
