@@ -165,6 +165,12 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
         server = self.server
+        if server.stopped:
+            # accepted as the server stopped (its transport made after): closed unanswered, as those before it
+            # were, rather than served a call that the loop's end would cancel
+            self.closing = True
+            transport.close()
+            return
         if len(server._connections) >= server.max_connections and not server._evict():
             self.closing = True  # refused: every connection is busy with a reply
             transport.close()
@@ -429,6 +435,7 @@ class XmlRpcServer:
         self._fresh: dict[_Connection, None] = {}
         self._accept_failures: set[int | None] = set()  # the errnos already warned about
         self._loop: asyncio.AbstractEventLoop = None  # type: ignore[assignment]
+        self.stopped = False
 
     def _protocol(self) -> asyncio.Protocol:
         return _Connection(self)
@@ -509,7 +516,8 @@ class XmlRpcServer:
             self._loop.add_reader(listener.fileno(), self._accept, listener)
 
     async def stop(self) -> None:
-        """Stop listening and close every connection."""
+        """Stop listening and close every connection (and any accepted but not yet made one, as it is made)."""
+        self.stopped = True
         for listener in self._listeners:
             self._loop.remove_reader(listener.fileno())
             listener.close()

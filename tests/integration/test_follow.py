@@ -69,7 +69,7 @@ def test_events_follow_prints_each_event_as_it_happens_then_the_files_end(launch
         until(lambda: sum('"respawning"' in line for _, line in reader.lines) >= 3, 30, what="three deaths")
         lp.signal(signal.SIGINT)
         assert lp.wait(30) == 0
-        assert reader.proc.wait(30) == 0  # (it ends by itself with the launch)
+        assert reader.proc.wait(30) == 0, reader.proc.stderr.read()  # (it ends by itself with the launch)
         printed = [json.loads(line) for _, line in reader.lines]
         run_dir = os.path.realpath(tmp_path / "log" / "latest")
         with open(os.path.join(run_dir, "launcher-events.jsonl")) as f:

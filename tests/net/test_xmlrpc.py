@@ -745,3 +745,39 @@ def test_deadline_policy_on_a_fake_clock():
     assert d.verdict(3750.0, 3750.0, busy=False, buffered=False) == "close"
     # our reply pending: the deadline moves with the clock
     assert d.next(now=500.0, busy=True, partial_since=100.0, body_pending=True, last_activity=0.0) == 530.0
+
+
+def test_a_connection_accepted_as_the_server_stops_is_closed_unanswered():
+    """A client that connected just before the server stopped (accepted, its transport not made yet: a follower's
+    next long poll, sent the moment the last answer came) is closed without an answer. Served, its call would be
+    cancelled with the loop's end and answered "call cancelled", a fault a client cannot tell from a failing
+    method (it made `launcher events -f` end with a traceback as its launch ended)."""
+    async def scenario():
+        s = S.XmlRpcServer(_dispatch, "127.0.0.1", 0)
+        await s.start()
+        client = socket.create_connection(("127.0.0.1", s.port), timeout=5)
+        try:
+            client.sendall(b"POST / HTTP/1.1\r\nContent-Length: %d\r\n\r\n" % len(LATER) + LATER)
+            listener = s._listeners[0]
+            until(lambda: _pending(listener), 5, 0.01, what="the connection in the listen queue")
+            s._accept(listener)  # (accepted: its transport is a task that has not run yet)
+            await s.stop()
+            await asyncio.sleep(0.2)  # (that task runs now, with the server stopped)
+            loop = asyncio.get_running_loop()
+            try:
+                reply = await loop.run_in_executor(None, client.recv, 65536)
+            except ConnectionResetError:
+                reply = b""  # (closed with its request unread: the kernel resets the connection)
+            assert reply == b"", reply
+        finally:
+            client.close()
+    asyncio.run(scenario())
+
+
+LATER = C.dumps_request("later", (0.05, "x"))
+
+
+def _pending(listener: socket.socket) -> bool:
+    """A connection waits in `listener`'s queue (the kernel says it is readable)."""
+    import select
+    return bool(select.select([listener], [], [], 0)[0])
