@@ -208,7 +208,7 @@ class Plan:
             if machines:
                 # (the remote machinery is imported only by a launch with other machines' nodes)
                 from launcher.remote import ssh
-                from launcher.remote.parent import check_addresses, policy_warnings
+                from launcher.plan.remote import check_addresses, policy_warnings
                 for machine in sorted(machines, key=lambda m: m.name):
                     ssh.check_machine(machine)
                 check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
@@ -220,8 +220,8 @@ class Plan:
     def remote_nodes(self) -> dict[str, list[Any]]:
         """The nodes to launch on other machines, by machine name."""
         if not self.remote_machines:
-            return {}  # (no node can be remote: remote.parent is not imported)
-        from launcher.remote.parent import machine_nodes
+            return {}  # (no node can be remote)
+        from launcher.plan.remote import machine_nodes
         return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
