@@ -68,8 +68,6 @@ from launcher.plan.remote import same_host
 from launcher.remote import session, ssh
 from launcher.remote.launch_xml import remote_launch_xml
 
-# rosgraph_msgs/Log levels (the `level` of `log`)
-LOG_ERROR = 8
 # How long `launch(XML)` may take on the child (it starts every node before answering).
 LAUNCH_CALL_TIMEOUT_S = 120.0
 # At shutdown: the child's `shutdown()` stops its nodes (SIGINT, SIGTERM escalation) before it answers.
@@ -267,7 +265,7 @@ class RemoteParent:
 
     def _queued(self, child: RemoteChild) -> list[RemoteNode]:
         """The nodes to hand to the child at the next opportunity: the machine's record says which."""
-        return [rn for rn in child.nodes if self._state(rn) in (lifecycle.PENDING, lifecycle.LOST)]
+        return [rn for rn in child.nodes if self._state(rn) in session.QUEUED]
 
     def _wanted(self, child: RemoteChild) -> None:
         """A node is queued for the machine: now if its child takes nodes, else with the next session."""
@@ -468,18 +466,9 @@ class RemoteParent:
             lost = lost or self._state(rn) == lifecycle.LOST
         return lost
 
-    # states in which a node has a process on its child (or is being given one)
-    _ON_CHILD = frozenset((lifecycle.LAUNCHING, lifecycle.RUNNING, lifecycle.STOPPING))
-
     def _check_child_ending(self, child: RemoteChild) -> None:
-        """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
-        a new session rather than racing the child's exit with a `launch` call. (Not after starts
-        that failed: Debian's child ends only when a node died; ours, which also ends then, refuses
-        the next `launch`, which then waits for the next session.)"""
-        def on_child(rn: RemoteNode) -> bool:
-            state_ = self._state(rn)
-            return state_ in self._ON_CHILD or (state_ == lifecycle.RESPAWNING and not rn.owned)
-        if child.session.launched and not any(on_child(rn) for rn in child.nodes):
+        """A child whose last node died exits (remote.session.child_ends): nothing more is sent to it."""
+        if session.child_ends(child.session, ((self._state(rn), rn.owned) for rn in child.nodes)):
             child.session = session.ending(child.session)
 
     def _process_died(self, process_name: str, exit_code: Any) -> None:
@@ -531,10 +520,7 @@ class RemoteParent:
                                               timeout=self.sigint_timeout + self.sigterm_timeout + 5)
             refusal = "" if code == 1 else msg
         except Fault as e:
-            refusal = e.faultString
-            if "not supported" in e.faultString:
-                refusal = ("its roslaunch child cannot stop one process (only a child that is this launcher, "
-                           "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
+            refusal = session.stop_refusal(e.faultString)
         except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
             refusal = str(e) or type(e).__name__
         if self._state(rn) != lifecycle.STOPPING:
@@ -663,11 +649,11 @@ class RemoteParent:
 
     def log(self, client: str, level: int, message: str) -> list:
         text = "[%s]: %s" % (client, message)
-        if isinstance(level, int) and level >= LOG_ERROR:
+        kind, started = session.log_kind(level, message)
+        if kind == session.ERROR:
             console.printerrlog(text)
-        elif "started with pid" in message:
+        elif kind == session.STARTED:
             console.printlog_bold(text)
-            started = session.started_line(message)
             child = self.children.get(client)
             rn = child.node_for_process(started[0]) if started and child else None
             if rn is not None and self.fleet is not None:
