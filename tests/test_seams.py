@@ -15,7 +15,7 @@ from launcher.fleet import runner
 from launcher.health.readiness import Readiness
 from launcher.plan.specs import ProcessSpec
 from launcher.process.supervisor import NodeProcess, Supervisor
-from launcher.remote import link
+from launcher.remote import handler, link
 from launcher.remote.link import RemoteNode
 from launcher.remote.parent import RemoteParent
 from launcher.rostest.runner import RostestMaster
@@ -92,6 +92,7 @@ SEAMS = [
     (runner.RunningNode, NodeProcess),
     (runner.HeldNode, RemoteNode),
     (link.Parent, RemoteParent),
+    (handler.Parent, RemoteParent),
     (runner.NodeSpec, ProcessSpec),
     (service.MasterLink, MasterSession),
     (service.MasterLink, RostestMaster),

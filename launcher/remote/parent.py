@@ -1,18 +1,13 @@
-"""The parent side of roslaunch's remote protocol: one child per machine over ssh, and the parent's XML-RPC API.
+"""The parent side of roslaunch's remote protocol: the other machines' runner, `RemoteParent`.
 
-For each machine that has nodes, the parent runs (over `launcher.remote.ssh`)
-`env ROS_MASTER_URI=... ENV_LOADER roslaunch -c NAME -u PARENT_URI --run_id ID`.
-The child (Debian's roslaunch, or our `launch -c`) starts an XML-RPC server and
-calls the parent's `register(NAME, CHILD_URI)`; the parent then calls the
-child's `launch(XML)` with that machine's nodes (parameters are the parent's
-business: it has set them on the master already). While it runs, the child
-reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`.
-At the end the parent calls `shutdown()`, then closes the ssh session (whose
-pty hangup stops a child that did not answer).
-PARENT_URI is the launch's own roslaunch server (`launcher.services.server`,
-which hands these calls here), as roslaunch has one: a Debian child registers
-PARENT_URI on the master as the launch's, and a second server would be listed
-as a second launch.
+One child per machine that has nodes, kept over ssh while the launch runs
+(`remote.link`: its session, its `launch` calls, its retries); the calls the
+children make to the parent (`register`, `log`, `process_died`: `remote.handler`)
+go to the launch's own roslaunch server (`launcher.services.server`, which hands
+them here), as roslaunch has one: a Debian child registers PARENT_URI on the
+master as the launch's, and a second server would be listed as a second launch.
+At the end the parent calls each child's `shutdown()`, then closes its session
+(whose pty hangup stops a child that did not answer).
 
 Restarts: a node without supervision extensions is respawned by the child
 itself, as roslaunch does. A node with a `NodePolicy` is the parent's: the
@@ -24,25 +19,23 @@ take more than one, and number the new process anew: talker-3). spawn_delay
 and wait_for (master-side conditions) hold the node's first `launch` call. A
 child whose last node ended exits (roslaunch's children do), so a node started
 again then gets a new session. What a child cannot be told (limits, core dumps,
-hang probes, per-node stop timeouts, log rotation) is warned about at load.
+hang probes, per-node stop timeouts, log rotation) is warned about at load
+(`plan.remote`).
 
 What happens to each node is decided by its state machine
 (`launcher.fleet.lifecycle`, kept by the fleet), as for a local node, with the
 remote states: pending (queued for its machine's child), launching (in a
 `launch` call), lost (its machine dropped). The nodes queued for a machine are
 those in pending or lost, so a node cannot be queued twice. The parent tells
-the fleet what its children report and carries out the actions.
+the fleet what its children report (`tell`) and carries out the actions
+(`fleet.actions.ActionRunner`).
 
 Operators (`launcher start|stop|restart`, launcher.services.server) steer a
 remote node through `stop_node`/`start_node`: a stop is kept by the state
 machine (no restart on its death or its machine's return) and done by the
 child (`stop_process`, an extension of our child: roslaunch's child has none,
 and the stop is refused); a start is a `launch` call holding it, as a restart
-under a NodePolicy.
-
-A machine whose session ends while the launch runs (the link was cut, the host
-rebooted) is tried again with a growing delay; when it answers, its nodes are
-launched again (roslaunch gives up on it: PR #1345 was never merged).
+under a NodePolicy. A reload (run/reload.py) goes through the same calls.
 """
 
 from __future__ import annotations
@@ -55,7 +48,6 @@ from launcher import compat
 from launcher.model.config import Machine, Node
 from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.fleet import processes
 from launcher.output import console
 from launcher.fleet import launchphase, lifecycle, state
 from launcher.fleet.actions import carry_out
@@ -63,7 +55,7 @@ from launcher.fleet.lifecycle import Event
 from launcher.health.readiness import Readiness
 from launcher.model.graph import Graph
 from launcher.plan.remote import same_host
-from launcher.remote import session
+from launcher.remote import handler, session
 from launcher.remote.link import DEFAULT_POLICY, RemoteChild, RemoteNode
 
 
@@ -92,7 +84,8 @@ class RemoteParent:
             machine = machines[mname]
             child = RemoteChild("%s-%d" % (machine.address, counter), machine, nodes, self)
             self.children[child.name] = child
-        self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
+        self.handler = handler.ParentHandler(self)
+        self.server: XmlRpcServer | None = XmlRpcServer(self.handler.call, "0.0.0.0", 0)
         self.uri = ""
         self._shut = False  # shutdown() began (before attach() too: a stop signal during the start-up)
         self.readiness: Readiness | None = None  # holds the first start of nodes with wait_for (set by attach)
@@ -322,76 +315,13 @@ class RemoteParent:
                 self.tell(rn, Event(lifecycle.RULES, rules=rn.rules(), reason="reload: " + why))
         return [r for r in refusals if r]
 
-    # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
+    # ---- the parent's XML-RPC API (remote.handler) --------------------------------------------------
 
-    PARENT_CALLS = ("register", "list_children", "process_died", "log")  # what only the children call
+    PARENT_CALLS = handler.PARENT_CALLS  # what only the children call
 
     def parent_call(self, method: str, params: list) -> Any:
-        return self._dispatch(method, params)
-
-    def _dispatch(self, method: str, params: list) -> Any:
-        fn = self._API.get(method)
-        if fn is None:
-            raise Fault(-1, "method [%s] is not supported" % method)
-        return fn(self, *params)
-
-    def register(self, client: str, uri: str) -> list:
-        child = self.children.get(client)
-        if child is None:
-            return [-1, "unknown child [%s]" % client, 0]
-        child.uri = uri
-        child.registered.set()
-        return [1, "registered", 1]
-
-    def list_children(self) -> list:
-        return [1, "roslaunch children", [c.uri for c in self.children.values() if c.uri is not None]]
-
-    def process_died(self, process_name: str, exit_code: Any) -> list:
-        if self.fleet is not None:
-            for child in self.children.values():
-                rn = child.node_for_process(process_name)
-                if rn is not None:
-                    code, sig = session.died(exit_code)
-                    self.tell(rn, Event(lifecycle.PROCESS_EXITED, exit_code=code, exit_signal=sig,
-                                        process=process_name))
-                    child.process_died()
-                    break
-        return [1, "", 0]
-
-    def log(self, client: str, level: int, message: str) -> list:
-        text = "[%s]: %s" % (client, message)
-        kind, started = session.log_kind(level, message)
-        if kind == session.ERROR:
-            console.printerrlog(text)
-        elif kind == session.STARTED:
-            console.printlog_bold(text)
-            child = self.children.get(client)
-            rn = child.node_for_process(started[0]) if started and child else None
-            if rn is not None and self.fleet is not None:
-                self.tell(rn, Event(lifecycle.SPAWNED, pid=started[1], process=started[0]))
-        else:
-            console.printlog(text)
-        return [1, "", 1]
-
-    def _local(self) -> list[state.NodeStatus]:
-        return [s for s in self.fleet or () if s.host == state.LOCAL_HOST]
-
-    def list_processes(self) -> list:
-        return processes.list_processes(self._local())
-
-    def process_info(self, process_name: str) -> list:
-        return processes.process_info(self._local(), process_name)
-
-    def get_pid(self) -> list:
-        pid = os.getpid()
-        return [1, str(pid), pid]
-
-    def get_node_names(self) -> list:
-        return processes.node_names(self._local())
-
-    _API = {"register": register, "list_children": list_children, "process_died": process_died, "log": log,
-            "list_processes": list_processes, "process_info": process_info, "get_pid": get_pid,
-            "get_node_names": get_node_names}
+        """A child's call that the launch's own server hands here (PARENT_CALLS)."""
+        return self.handler.call(method, params)
 
     # ---- stopping -----------------------------------------------------------------------------------
 
