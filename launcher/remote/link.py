@@ -30,7 +30,7 @@ from launcher import compat
 from launcher.fleet import lifecycle
 from launcher.fleet.lifecycle import Event
 from launcher.model.config import Machine, Node, NodePolicy
-from launcher.net.xmlrpc import call
+from launcher.net.xmlrpc import Fault, call
 from launcher.output import console
 from launcher.remote import session, ssh
 from launcher.remote.launch_xml import remote_launch_xml
@@ -296,6 +296,19 @@ class RemoteChild:
                                     % (self.name, rn.name if rn else name, self.machine.name))
                 if rn is not None:
                     tell(rn, Event(lifecycle.SPAWN_FAILED))
+
+    async def stop_process(self, process: str) -> tuple[str, Any]:
+        """Ask the child to stop one of its processes (`stop_process`, our child's extension; roslaunch's child
+        has none): (why it did not, '' when it did; the exit code it reports)."""
+        parent = self.parent
+        try:
+            code, msg, exit_code = await call(self.uri or "", "stop_process", process,
+                                              timeout=parent.sigint_timeout + parent.sigterm_timeout + 5)
+            return ("" if code == 1 else msg), exit_code
+        except Fault as e:
+            return session.stop_refusal(e.faultString), None
+        except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
+            return str(e) or type(e).__name__, None
 
     # ---- its end ------------------------------------------------------------------------------------
 

@@ -46,7 +46,6 @@ from typing import Any, Mapping
 
 from launcher import compat
 from launcher.model.config import Machine, Node
-from launcher.net.xmlrpc import Fault, call
 from launcher.net.xmlrpc_server import XmlRpcServer
 from launcher.output import console
 from launcher.fleet import launchphase, lifecycle, state
@@ -210,16 +209,7 @@ class RemoteParent:
         event = Event(lifecycle.RELOAD_STOP, reason=reload) if reload else Event(lifecycle.STOP)
         if lifecycle.BEGIN_STOP not in {a.kind for a in self.tell(rn, event)}:
             return ""  # stopped before its next start; or stopped, being stopped, or down for good
-        process = self.fleet.records[rn.name].process
-        exit_code = None
-        try:
-            code, msg, exit_code = await call(child.uri or "", "stop_process", process,
-                                              timeout=self.sigint_timeout + self.sigterm_timeout + 5)
-            refusal = "" if code == 1 else msg
-        except Fault as e:
-            refusal = session.stop_refusal(e.faultString)
-        except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
-            refusal = str(e) or type(e).__name__
+        refusal, exit_code = await child.stop_process(self.fleet.records[rn.name].process)
         if self.node_state(rn) != lifecycle.STOPPING:
             return ""  # gone meanwhile (its machine dropped): it stays stopped all the same
         if refusal:
@@ -341,7 +331,6 @@ class RemoteParent:
         live = [c for c in self.children.values() if c.ssh is not None]
         for child in live:
             console.printlog("[%s] killing on exit" % child.name)
-
         await asyncio.gather(*(c.shut_down() for c in live))
         if self.fleet is not None:  # what ran there is stopped with its child's shutdown, or its session's end
             for child in self.children.values():
