@@ -8,6 +8,7 @@ from launcher.fleet import lifecycle as m
 from launcher.fleet.state import Fleet
 from launcher.model.config import Machine, Node
 from launcher.net.xmlrpc import Fault
+from launcher.remote import session as s
 from launcher.remote.handler import ParentHandler
 from launcher.remote.link import RemoteChild
 
@@ -18,12 +19,13 @@ class Parent:
     def __init__(self, fleet):
         self.fleet = fleet
         self.told = []
+        self.state = m.RUNNING  # every node's (the child lives on: a node of it runs)
         machine = Machine("m1", "far", env_loader="env")
         self.children = {"far-0": RemoteChild("far-0", machine, [Node("p", "t", "talker", namespace="/ns/"),
                                                                 Node("p", "t", "listener")], self)}
 
     def node_state(self, rn):
-        return m.RUNNING  # (the child lives on: a node of it runs)
+        return self.state
 
     def tell(self, rn, event):
         self.told.append((rn.name, event.kind, event.pid, event.exit_code, event.exit_signal, event.process))
@@ -67,3 +69,15 @@ def test_before_the_fleet_exists_nothing_is_told():
     assert api.call("list_processes", []) == api.call("list_processes", [])  # (answers with no fleet)
     pid = api.call("get_pid", [])
     assert pid[0] == 1 and pid[2] > 0
+
+
+def test_a_child_whose_last_node_died_takes_no_more_launch_calls():
+    parent = Parent(Fleet())
+    api = ParentHandler(parent)
+    child = parent.children["far-0"]
+    child.session = s.launched(s.accepting(s.started(s.Session())))
+    api.call("process_died", ["listener-1", 0])  # (the talker runs on)
+    assert child.accepting
+    parent.state = m.EXITED
+    api.call("process_died", ["ns/talker-1", 0])
+    assert child.session.phase == s.ENDING and not child.accepting
