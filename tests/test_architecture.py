@@ -224,6 +224,8 @@ PURE = [_ + module for module in (
     "fleet.lastexit",  # a node's last exit, kept by every reader of its changes
     "fleet.relations",  # the bound-node relations and the stop order, and what a change makes follow
     "plan.diff",  # a reload's difference of two plans
+    "plan.remote",  # the nodes of other machines, binned, and the load's checks of them
+    "plan.plan",  # what a run runs: the loaded launch, its master URI, its other machines
     "remote.session",  # a machine's session with its child
     "master.outbox",  # which callback to a node goes when
     "net.http",  # HTTP/1.1 framing

@@ -15,7 +15,9 @@ from launcher.fleet import runner
 from launcher.health.readiness import Readiness
 from launcher.plan.specs import ProcessSpec
 from launcher.process.supervisor import NodeProcess, Supervisor
-from launcher.remote.parent import RemoteNode, RemoteParent
+from launcher.remote import handler, link
+from launcher.remote.link import RemoteNode
+from launcher.remote.parent import RemoteParent
 from launcher.rostest.runner import RostestMaster
 from launcher.services import server, service
 from launcher.services.masterlink import LocalParams, MasterSession, RemoteParams
@@ -89,6 +91,8 @@ SEAMS = [
     (runner.ReadinessRunner, RemoteParent),
     (runner.RunningNode, NodeProcess),
     (runner.HeldNode, RemoteNode),
+    (link.Parent, RemoteParent),
+    (handler.Parent, RemoteParent),
     (runner.NodeSpec, ProcessSpec),
     (service.MasterLink, MasterSession),
     (service.MasterLink, RostestMaster),

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import re
 
+# roslaunch's log-check threshold: the log directory's size it warns about ("1GB" in its words)
+LOG_CHECK_THRESHOLD = 1 << 30
 # What a size looks like, for error messages.
 SIZE_EXPECTED = "a size such as 500MB, 1.5GiB, 200k or a number of bytes"
 

@@ -11,10 +11,10 @@ from typing import Awaitable, Callable, Mapping
 from launcher.model.errors import LaunchError
 from launcher.output import console
 from launcher.workspace.roshome import log_root
-from launcher.model.units import format_size, parse_size  # noqa: F401 (parse_size: run/runtime.py imports it from here)
+from launcher.model.units import LOG_CHECK_THRESHOLD, format_size
 
 # roslaunch's threshold: 2**30 bytes, which its messages call "1GB" (`1GiB` in our units).
-DEFAULT_THRESHOLD = 1 << 30
+DEFAULT_THRESHOLD = LOG_CHECK_THRESHOLD  # (roslaunch's, model.units: what a plan holds unless told)
 # Warn when the disk holding the logs has less than this free (or less than 5 %).
 LOW_DISK_BYTES = 1073741824
 LOW_DISK_FRACTION = 0.05

@@ -1,18 +1,13 @@
-"""The parent side of roslaunch's remote protocol: one child per machine over ssh, and the parent's XML-RPC API.
+"""The parent side of roslaunch's remote protocol: the other machines' runner, `RemoteParent`.
 
-For each machine that has nodes, the parent runs (over `launcher.remote.ssh`)
-`env ROS_MASTER_URI=... ENV_LOADER roslaunch -c NAME -u PARENT_URI --run_id ID`.
-The child (Debian's roslaunch, or our `launch -c`) starts an XML-RPC server and
-calls the parent's `register(NAME, CHILD_URI)`; the parent then calls the
-child's `launch(XML)` with that machine's nodes (parameters are the parent's
-business: it has set them on the master already). While it runs, the child
-reports with `log(NAME, LEVEL, TEXT)` and `process_died(PROCESS, EXIT_CODE)`.
-At the end the parent calls `shutdown()`, then closes the ssh session (whose
-pty hangup stops a child that did not answer).
-PARENT_URI is the launch's own roslaunch server (`launcher.services.server`,
-which hands these calls here), as roslaunch has one: a Debian child registers
-PARENT_URI on the master as the launch's, and a second server would be listed
-as a second launch.
+One child per machine that has nodes, kept over ssh while the launch runs
+(`remote.link`: its session, its `launch` calls, its retries); the calls the
+children make to the parent (`register`, `log`, `process_died`: `remote.handler`)
+go to the launch's own roslaunch server (`launcher.services.server`, which hands
+them here), as roslaunch has one: a Debian child registers PARENT_URI on the
+master as the launch's, and a second server would be listed as a second launch.
+At the end the parent calls each child's `shutdown()`, then closes its session
+(whose pty hangup stops a child that did not answer).
 
 Restarts: a node without supervision extensions is respawned by the child
 itself, as roslaunch does. A node with a `NodePolicy` is the parent's: the
@@ -24,176 +19,43 @@ take more than one, and number the new process anew: talker-3). spawn_delay
 and wait_for (master-side conditions) hold the node's first `launch` call. A
 child whose last node ended exits (roslaunch's children do), so a node started
 again then gets a new session. What a child cannot be told (limits, core dumps,
-hang probes, per-node stop timeouts, log rotation) is warned about at load.
+hang probes, per-node stop timeouts, log rotation) is warned about at load
+(`plan.remote`).
 
 What happens to each node is decided by its state machine
 (`launcher.fleet.lifecycle`, kept by the fleet), as for a local node, with the
 remote states: pending (queued for its machine's child), launching (in a
 `launch` call), lost (its machine dropped). The nodes queued for a machine are
 those in pending or lost, so a node cannot be queued twice. The parent tells
-the fleet what its children report and carries out the actions.
+the fleet what its children report (`tell`) and carries out the actions
+(`fleet.actions.ActionRunner`).
 
 Operators (`launcher start|stop|restart`, launcher.services.server) steer a
 remote node through `stop_node`/`start_node`: a stop is kept by the state
 machine (no restart on its death or its machine's return) and done by the
 child (`stop_process`, an extension of our child: roslaunch's child has none,
 and the stop is refused); a start is a `launch` call holding it, as a restart
-under a NodePolicy.
-
-A machine whose session ends while the launch runs (the link was cut, the host
-rebooted) is tried again with a growing delay; when it answers, its nodes are
-launched again (roslaunch gives up on it: PR #1345 was never merged).
+under a NodePolicy. A reload (run/reload.py) goes through the same calls.
 """
 
 from __future__ import annotations
 
 import asyncio
-import collections
 import os
-import signal
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Mapping
 
 from launcher import compat
-from launcher.model.config import Machine, Node, NodePolicy
-from launcher.model.errors import LaunchError
-from launcher.net.xmlrpc import Fault, call
+from launcher.model.config import Machine, Node
 from launcher.net.xmlrpc_server import XmlRpcServer
-from launcher.fleet import processes
 from launcher.output import console
 from launcher.fleet import launchphase, lifecycle, state
 from launcher.fleet.actions import carry_out
 from launcher.fleet.lifecycle import Event
 from launcher.health.readiness import Readiness
 from launcher.model.graph import Graph
-from launcher.remote import session, ssh
-from launcher.remote.launch_xml import remote_launch_xml
-
-# rosgraph_msgs/Log levels (the `level` of `log`)
-LOG_ERROR = 8
-# How long `launch(XML)` may take on the child (it starts every node before answering).
-LAUNCH_CALL_TIMEOUT_S = 120.0
-# At shutdown: the child's `shutdown()` stops its nodes (SIGINT, SIGTERM escalation) before it answers.
-SSH_EXIT_GRACE_S = 2.0
-OUTPUT_LINES_KEPT = 40
-# The NodePolicy fields a roslaunch child cannot be told (its launch XML is roslaunch's), with what they need.
-NOT_ON_OTHER_MACHINES = (("memory_limit", "resource limits"), ("cpu_limit", "resource limits"),
-                         ("on_limit", "resource limits"), ("enable_coredumps", "core dumps"),
-                         ("hang_timeout", "hang detection"), ("sigint_timeout", "per-node stop timeouts"),
-                         ("sigterm_timeout", "per-node stop timeouts"), ("log_max_size", "output log rotation"),
-                         ("log_backups", "output log rotation"))
-_DEFAULT_POLICY = NodePolicy()
-
-
-def machine_nodes(nodes: list[Node], machines: Mapping[str, Machine],
-                  is_remote: Callable[[Node], bool]) -> dict[str, list[Node]]:
-    """The remote nodes binned by machine name, in launch order."""
-    binned: dict[str, list[Node]] = {}
-    for node in nodes:
-        if is_remote(node):
-            binned.setdefault(machines[node.machine_name].name, []).append(node)
-    return binned
-
-
-def check_addresses(master_uri: str, advertised_host: str, machines: list[Machine]) -> None:
-    """A remote host must reach the master and the parent: loopback addresses are an error (file:line)."""
-    import urllib.parse
-    host = urllib.parse.urlsplit(master_uri).hostname or ""
-    for what, name, var in (("ROS_MASTER_URI", host, "ROS_MASTER_URI"),
-                            ("this machine's ROS address", advertised_host, "ROS_IP or ROS_HOSTNAME")):
-        if name in ("localhost", "::1", "ip6-localhost") or name.startswith("127."):
-            m = machines[0]
-            raise LaunchError("%s [%s] is a loopback address, which machine [%s] at [%s] cannot reach: set %s to "
-                              "an address of this computer that the other machines can reach"
-                              % (what, master_uri if var == "ROS_MASTER_URI" else name, m.name, m.address, var),
-                              m.filename or None, m.line or None)
-
-
-def policy_warnings(node: Node, machine: Machine) -> list[str]:
-    """Warnings (file:line) for the node's supervision extensions that cannot work on another machine."""
-    policy = node.policy
-    if policy is None:
-        return []
-    unsupported: dict[str, list[str]] = {}
-    for field, what in NOT_ON_OTHER_MACHINES:
-        if getattr(policy, field) != getattr(_DEFAULT_POLICY, field):
-            unsupported.setdefault(what, []).append(field)
-    where = "%s:%d: " % (node.filename, node.line) if node.filename and node.line else ""
-    return ["%snode [%s] runs on machine [%s] (%s): %s cannot be applied there (its roslaunch child runs it) "
-            "and %s ignored" % (where, node.full_name, machine.name, machine.address, what + " (" + ", ".join(fields)
-                                + ")", "is" if len(fields) == 1 else "are")
-            for what, fields in unsupported.items()]
-
-
-def _same_host(a: Machine, b: Machine) -> bool:
-    """The same machine to reach, wherever it is declared and by whichever name."""
-    return (a.address, a.user, a.ssh_port, a.env_loader) == (b.address, b.user, b.ssh_port, b.env_loader)
-
-
-class RemoteSpec(NamedTuple):
-    """What `health.readiness` reads of a held node (as of a NodeProcess's spec)."""
-
-    name: str
-    node_name: str
-    policy: NodePolicy
-
-
-class RemoteNode:
-    """One node of a machine, as the parent hands it over (its state is the fleet's record)."""
-
-    def __init__(self, node: Node, child: RemoteChild):
-        self.node = node
-        self.child = child
-        # the parent applies its restart policy; the child runs it with respawn="false"
-        self.owned = node.policy is not None
-        self.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
-        self.timer: asyncio.TimerHandle | None = None  # a DUE to come: spawn_delay or a respawn's delay
-
-    @property
-    def name(self) -> str:
-        return self.spec.node_name
-
-    def rules(self) -> lifecycle.Rules:
-        n = self.node
-        return lifecycle.Rules(required=n.required, respawn=n.respawn, respawn_delay=n.respawn_delay,
-                             policy=self.spec.policy, remote=True, owned=self.owned, machine=self.child.machine.name)
-
-    def sent(self) -> Node:
-        """The node as the child gets it."""
-        return self.node._replace(respawn=False, respawn_delay=0.0) if self.owned else self.node
-
-
-class RemoteChild:
-    """One machine's child roslaunch: its ssh session, its registration, its nodes."""
-
-    def __init__(self, name: str, machine: Machine, nodes: list[Node]):
-        self.name = name  # roslaunch's child name: "ADDRESS-COUNTER"
-        self.machine = machine
-        self.nodes = [RemoteNode(n, self) for n in nodes]
-        self.uri: str | None = None
-        self.registered: asyncio.Event = compat.Event()
-        self.ssh: asyncio.subprocess.Process | None = None
-        self.output: collections.deque[str] = collections.deque(maxlen=OUTPUT_LINES_KEPT)
-        self.wanted = compat.Event()  # a node is queued (pending or lost): a session is needed
-        self.session = session.Session()  # this machine's session with its child (remote.session)
-        self.launching: asyncio.Task | None = None
-        self.task: asyncio.Task | None = None
-
-    @property
-    def accepting(self) -> bool:
-        """This session's child takes `launch` calls."""
-        return self.session.phase == session.ACCEPTING
-
-    def where(self) -> str:
-        m = self.machine
-        return "%s:%d" % (m.filename, m.line) if m.filename and m.line else m.filename or ""
-
-    def node_for_process(self, process_name: str) -> RemoteNode | None:
-        """The node a child's process name (`ns/name-N`) stands for."""
-        base = session.node_of_process(process_name)
-        for rn in self.nodes:
-            if rn.spec.name == base:
-                return rn
-        return None
+from launcher.plan.remote import same_host
+from launcher.remote import handler, session
+from launcher.remote.link import DEFAULT_POLICY, RemoteChild, RemoteNode
 
 
 class RemoteParent:
@@ -219,9 +81,10 @@ class RemoteParent:
         self.children: dict[str, RemoteChild] = {}
         for counter, (mname, nodes) in enumerate(by_machine.items()):
             machine = machines[mname]
-            child = RemoteChild("%s-%d" % (machine.address, counter), machine, nodes)
+            child = RemoteChild("%s-%d" % (machine.address, counter), machine, nodes, self)
             self.children[child.name] = child
-        self.server: XmlRpcServer | None = XmlRpcServer(self._dispatch, "0.0.0.0", 0)
+        self.handler = handler.ParentHandler(self)
+        self.server: XmlRpcServer | None = XmlRpcServer(self.handler.call, "0.0.0.0", 0)
         self.uri = ""
         self._shut = False  # shutdown() began (before attach() too: a stop signal during the start-up)
         self.readiness: Readiness | None = None  # holds the first start of nodes with wait_for (set by attach)
@@ -246,7 +109,7 @@ class RemoteParent:
             self.uri = "http://%s:%d/" % (self.host, self.server.port)
             console.printlog_bold("started roslaunch server %s" % self.uri)
         for child in self.children.values():
-            child.task = asyncio.ensure_future(self._keep(child))
+            child.start()
 
     def attach(self, fleet: state.Fleet, graph: Graph) -> None:
         """The parameters are set: the nodes' records go to `fleet` (which keeps the launch's outcome too),
@@ -257,12 +120,12 @@ class RemoteParent:
             for rn in child.nodes:
                 fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
             for rn in child.nodes:
-                self._tell(rn, Event(lifecycle.START))
+                self.tell(rn, Event(lifecycle.START))
         self.attached.set()
 
     # ---- telling the fleet, and doing what it says ----------------------------------------------------
 
-    def _tell(self, rn: RemoteNode, event: Event) -> list[lifecycle.Action]:
+    def tell(self, rn: RemoteNode, event: Event) -> list[lifecycle.Action]:
         actions = self.fleet.apply(rn.name, event)
         carry_out(self, rn, actions)
         return actions
@@ -270,7 +133,7 @@ class RemoteParent:
     # ---- the node table's actions (fleet.actions.ActionRunner) ------------------------------------------
 
     def launch(self, rn: RemoteNode) -> None:
-        self._wanted(rn.child)
+        rn.child.want()
 
     def schedule(self, rn: RemoteNode, delay: float) -> None:
         rn.timer = asyncio.get_running_loop().call_later(delay, self._due, rn)
@@ -294,13 +157,13 @@ class RemoteParent:
     def kill(self, rn: RemoteNode) -> None:
         """(KILL follows a hang, stall or limit verdict: the health watchers watch this machine's nodes.)"""
 
-    def _state(self, rn: RemoteNode) -> str:
+    def node_state(self, rn: RemoteNode) -> str:
         return self.fleet.records[rn.name].state
 
     def _due(self, rn: RemoteNode) -> None:
         rn.timer = None
         if not self.stopping:
-            self._tell(rn, Event(lifecycle.DUE))
+            self.tell(rn, Event(lifecycle.DUE))
 
     # (health/readiness calls these, as it calls the supervisor's for local nodes)
     @staticmethod
@@ -311,239 +174,10 @@ class RemoteParent:
 
     def release(self, rn: RemoteNode) -> None:
         if not self.stopping:
-            self._tell(rn, Event(lifecycle.READY))
+            self.tell(rn, Event(lifecycle.READY))
 
     def give_up_waiting(self, rn: RemoteNode, why: str) -> None:
-        self._tell(rn, Event(lifecycle.NOT_READY, reason=why))
-
-    def _queued(self, child: RemoteChild) -> list[RemoteNode]:
-        """The nodes to hand to the child at the next opportunity: the machine's record says which."""
-        return [rn for rn in child.nodes if self._state(rn) in (lifecycle.PENDING, lifecycle.LOST)]
-
-    def _wanted(self, child: RemoteChild) -> None:
-        """A node is queued for the machine: now if its child takes nodes, else with the next session."""
-        child.wanted.set()
-        if child.accepting and (child.launching is None or child.launching.done()):
-            child.launching = asyncio.ensure_future(self._launch_pending(child))
-
-    async def _keep(self, child: RemoteChild) -> None:
-        """Run the child while the launch runs: again after a drop (with a growing delay), and again
-        when a node is to start after the child ended with its last node (remote.session decides)."""
-        while not self.stopping:
-            registered, lost = await self._session(child)
-            if self.stopping:
-                return
-            child.session, after = session.after_session(child.session, registered=registered, lost=lost,
-                                                         queued=bool(self._queued(child)))
-            if after.what == session.GIVE_UP:
-                await self.attached.wait()
-                self._machine_failed(child)
-                return
-            if after.what == session.RETRY:
-                if after.dropped:
-                    console.printerrlog("remote[%s]: machine [%s] dropped; trying again in %.0f s"
-                                        % (child.name, child.machine.name, after.delay))
-                await asyncio.sleep(after.delay)
-                continue
-            # the child ended with its last node (as roslaunch's children do): a new session when a
-            # node is to start there again (a respawn the parent owns), else never
-            child.wanted.clear()
-            await child.wanted.wait()
-
-    async def _session(self, child: RemoteChild) -> tuple[bool, bool]:
-        """One ssh session: start it, wait for `register`, hand over the nodes, run until it ends.
-
-        (did the child register, were nodes lost with it)."""
-        m = child.machine
-        child.uri = None
-        child.session = session.started(child.session)
-        child.registered.clear()
-        child.output.clear()
-        command = ssh.remote_command(m, self.program, child.name, self.uri, self.run_id, self.master_uri,
-                                     self.sigint_timeout, self.sigterm_timeout)
-        argv = ssh.ssh_argv(m, command, self.environ)
-        console.printlog("remote[%s] starting roslaunch" % child.name)
-        console.printlog("remote[%s]: creating ssh connection to %s:%s%s"
-                         % (child.name, m.address, m.ssh_port, ", user[%s]" % m.user if m.user else ""))
-        try:
-            # its own session: a Ctrl-C on the terminal reaches the launcher only, which shuts the child down
-            proc = await asyncio.create_subprocess_exec(*argv, stdin=asyncio.subprocess.PIPE,
-                                                        stdout=asyncio.subprocess.PIPE,
-                                                        stderr=asyncio.subprocess.STDOUT, start_new_session=True)
-        except OSError as e:
-            child.output.append("cannot run %s: %s" % (argv[0], e.strerror))
-            return False, False
-        child.ssh = proc
-        if self.watchdog is not None:
-            self.watchdog.watch(proc.pid)  # a killed launcher takes ssh down, and the pty hangup the child
-        reader = asyncio.ensure_future(self._read_output(child, proc))
-        heartbeat = asyncio.ensure_future(self._heartbeat(proc))
-        try:
-            registered = asyncio.ensure_future(child.registered.wait())
-            await asyncio.wait((registered, reader), timeout=m.timeout, return_when=asyncio.FIRST_COMPLETED)
-            registered.cancel()
-            if not child.registered.is_set():
-                if not reader.done():
-                    child.output.append("the remote roslaunch did not register within %s s (<machine timeout=...>)"
-                                        % m.timeout)
-                return False, False
-            await self.attached.wait()
-            console.printlog("remote[%s]: ssh connection created" % child.name)
-            child.session = session.accepting(child.session)
-            if self._queued(child):
-                child.launching = asyncio.ensure_future(self._launch_pending(child))
-            await reader  # the session runs until ssh ends
-        finally:
-            child.session = session.ending(child.session)
-            if child.launching is not None:
-                # (the nodes of a call under way are lost with the session, below: the record says
-                # so, and they are queued once, whatever the cancelled call does next)
-                child.launching.cancel()
-                child.launching = None
-            await self._end_ssh(child)
-            if self.watchdog is not None:
-                self.watchdog.forget(proc.pid)
-            reader.cancel()
-            heartbeat.cancel()
-            child.ssh = None
-        return True, (not self.stopping and self._nodes_lost(child))
-
-    async def _read_output(self, child: RemoteChild, proc: asyncio.subprocess.Process) -> None:
-        assert proc.stdout is not None
-        while True:
-            line = await proc.stdout.readline()
-            if not line:
-                break
-            text = line.decode("utf-8", "replace").rstrip("\r\n")
-            if text:
-                child.output.append(text)
-        await proc.wait()
-
-    async def _heartbeat(self, proc: asyncio.subprocess.Process) -> None:
-        """A newline every HEARTBEAT_S through the session: the remote watch loop stops the child without it."""
-        assert proc.stdin is not None
-        try:
-            while proc.returncode is None:
-                proc.stdin.write(b"\n")  # (1 byte a second: a stalled ssh never fills the pipe)
-                await asyncio.sleep(ssh.HEARTBEAT_S)
-        except (OSError, RuntimeError):
-            pass  # ssh is gone
-
-    async def _launch_pending(self, child: RemoteChild) -> None:
-        """Hand the queued nodes to this session's child, one `launch` call at a time."""
-        while child.accepting:
-            batch = self._queued(child)
-            if not batch:
-                return
-            for rn in batch:
-                self._tell(rn, Event(lifecycle.LAUNCH_SENT))
-            xml = remote_launch_xml(rn.sent() for rn in batch)
-            try:
-                code, msg, val = await call(child.uri or "", "launch", xml, timeout=LAUNCH_CALL_TIMEOUT_S)
-            except asyncio.CancelledError:
-                raise  # the session ended during the call: its end has said the nodes are lost
-            except Exception as e:  # noqa: BLE001 - any failure of the call: the nodes most likely did not start
-                code, msg, val = 0, str(e) or type(e).__name__, None
-            if code != 1:
-                # a child that refuses a launch (it is ending, or broken) gets no more: the nodes wait for
-                # the next session, and this one is ended so that there is a next one (a child whose starts
-                # all failed would otherwise live on with nothing, and the nodes wait for ever)
-                console.printerrlog("error launching on [%s, uri %s]: %s" % (child.name, child.uri, msg))
-                console.printerrlog("Launch of the following nodes most likely failed: %s"
-                                    % ", ".join("%s/%s" % (rn.node.package, rn.node.type) for rn in batch))
-                child.session = session.ending(child.session)
-                for rn in batch:
-                    self._tell(rn, Event(lifecycle.LAUNCH_REFUSED, reason="its machine's child refused it: %s" % msg))
-                if child.ssh is not None and child.ssh.returncode is None:
-                    child.ssh.terminate()
-                return
-            child.session = session.launched(child.session)
-            succeeded, failed = val
-            for name in succeeded:
-                rn = child.node_for_process(name)
-                if rn is not None:
-                    self._tell(rn, Event(lifecycle.LAUNCHED, process=name))
-            for name in failed:
-                rn = child.node_for_process(name) or next((r for r in batch if "%s/%s" % (r.node.package, r.node.type)
-                                                           == name), None)
-                console.printerrlog("remote[%s]: node [%s] could not be started on [%s]"
-                                    % (child.name, rn.name if rn else name, child.machine.name))
-                if rn is not None:
-                    self._tell(rn, Event(lifecycle.SPAWN_FAILED))
-
-    async def _end_ssh(self, child: RemoteChild, orderly: bool = False) -> None:
-        """Close the session: SIGTERM to ssh closes the connection, whose pty hangup stops the child.
-
-        `orderly`: the child was shut down and ends by itself; the session is let end with it
-        (ssh.ORDERLY_END), which is sooner than a hangup's stop of the remote side."""
-        proc = child.ssh
-        if proc is None or proc.returncode is not None:
-            return
-        if orderly and proc.stdin is not None:
-            try:
-                proc.stdin.write(ssh.ORDERLY_END)
-                await asyncio.wait_for(proc.wait(), SSH_EXIT_GRACE_S)
-                return
-            except (OSError, RuntimeError, asyncio.TimeoutError):
-                pass  # then as any other end
-        for sig, wait in ((signal.SIGTERM, SSH_EXIT_GRACE_S), (signal.SIGKILL, None)):
-            try:
-                os.killpg(proc.pid, sig)
-            except OSError:
-                pass
-            try:
-                await asyncio.wait_for(proc.wait(), wait)
-                return
-            except asyncio.TimeoutError:
-                continue
-
-    # ---- what happens to nodes ----------------------------------------------------------------------
-
-    def _machine_failed(self, child: RemoteChild) -> None:
-        """The child never ran: say why (machine, file:line), and what it means for its nodes."""
-        proc = child.ssh
-        status = proc.returncode if proc is not None else None
-        reason = ssh.explain_failure(child.machine, "\n".join(child.output), status, self.program)
-        where = child.where()
-        console.printerrlog("%sremote[%s]: failed to launch on machine [%s]:\n\n%s\n"
-                            % (where + ": " if where else "", child.name, child.machine.name, reason))
-        for rn in child.nodes:
-            self._tell(rn, Event(lifecycle.MACHINE_FAILED, reason="machine [%s] failed" % child.machine.name))
-
-    def _nodes_lost(self, child: RemoteChild) -> bool:
-        """The session ended: the nodes it ran, or was being handed, are lost with it (and queued for the
-        next one). Were any?"""
-        lost = False
-        for rn in child.nodes:
-            self._tell(rn, Event(lifecycle.LINK_LOST, reason="machine [%s] dropped" % child.machine.name))
-            lost = lost or self._state(rn) == lifecycle.LOST
-        return lost
-
-    # states in which a node has a process on its child (or is being given one)
-    _ON_CHILD = frozenset((lifecycle.LAUNCHING, lifecycle.RUNNING, lifecycle.STOPPING))
-
-    def _check_child_ending(self, child: RemoteChild) -> None:
-        """A child whose last node died exits (roslaunch's and ours): what is to start next waits for
-        a new session rather than racing the child's exit with a `launch` call. (Not after starts
-        that failed: Debian's child ends only when a node died; ours, which also ends then, refuses
-        the next `launch`, which then waits for the next session.)"""
-        def on_child(rn: RemoteNode) -> bool:
-            state_ = self._state(rn)
-            return state_ in self._ON_CHILD or (state_ == lifecycle.RESPAWNING and not rn.owned)
-        if child.session.launched and not any(on_child(rn) for rn in child.nodes):
-            child.session = session.ending(child.session)
-
-    def _process_died(self, process_name: str, exit_code: Any) -> None:
-        if self.fleet is None:
-            return
-        for child in self.children.values():
-            rn = child.node_for_process(process_name)
-            if rn is None:
-                continue
-            code, sig = session.died(exit_code)
-            self._tell(rn, Event(lifecycle.PROCESS_EXITED, exit_code=code, exit_signal=sig, process=process_name))
-            self._check_child_ending(child)
-            return
+        self.tell(rn, Event(lifecycle.NOT_READY, reason=why))
 
     # ---- operator control: `launcher start|stop|restart` of a node on another machine -----------------
 
@@ -570,31 +204,19 @@ class RemoteParent:
             return ""
         child, machine_ = rn.child, rn.child.machine
         # handed to the child by a `launch` call still under way: its process name comes with the answer
-        while self._state(rn) == lifecycle.LAUNCHING and child.launching is not None and not child.launching.done():
+        while self.node_state(rn) == lifecycle.LAUNCHING and child.launching is not None and not child.launching.done():
             await asyncio.wait([child.launching])
         event = Event(lifecycle.RELOAD_STOP, reason=reload) if reload else Event(lifecycle.STOP)
-        if lifecycle.BEGIN_STOP not in {a.kind for a in self._tell(rn, event)}:
+        if lifecycle.BEGIN_STOP not in {a.kind for a in self.tell(rn, event)}:
             return ""  # stopped before its next start; or stopped, being stopped, or down for good
-        process = self.fleet.records[rn.name].process
-        exit_code = None
-        try:
-            code, msg, exit_code = await call(child.uri or "", "stop_process", process,
-                                              timeout=self.sigint_timeout + self.sigterm_timeout + 5)
-            refusal = "" if code == 1 else msg
-        except Fault as e:
-            refusal = e.faultString
-            if "not supported" in e.faultString:
-                refusal = ("its roslaunch child cannot stop one process (only a child that is this launcher, "
-                           "`launch`, can: LAUNCHER_REMOTE_PROGRAM=launch); the node runs on")
-        except Exception as e:  # noqa: BLE001 - unreachable, timed out: the node was not stopped
-            refusal = str(e) or type(e).__name__
-        if self._state(rn) != lifecycle.STOPPING:
+        refusal, exit_code = await child.stop_process(self.fleet.records[rn.name].process)
+        if self.node_state(rn) != lifecycle.STOPPING:
             return ""  # gone meanwhile (its machine dropped): it stays stopped all the same
         if refusal:
-            self._tell(rn, Event(lifecycle.STOP_REFUSED, reason="stop refused: " + refusal))
+            self.tell(rn, Event(lifecycle.STOP_REFUSED, reason="stop refused: " + refusal))
             return "cannot stop [%s] on machine [%s] (%s): %s" % (rn.name, machine_.name, machine_.address, refusal)
         code, sig = session.died(exit_code)
-        self._tell(rn, Event(lifecycle.DOWN, exit_code=code, exit_signal=sig))
+        self.tell(rn, Event(lifecycle.DOWN, exit_code=code, exit_signal=sig))
         return ""
 
     def start_node(self, name: str) -> str:
@@ -607,7 +229,7 @@ class RemoteParent:
         if child.task is None or child.task.done():
             return "cannot start [%s]: machine [%s] (%s) could not be reached at launch" % (rn.name, machine_.name,
                                                                                         machine_.address)
-        self._tell(rn, Event(lifecycle.OPERATOR_START))  # (it runs, or starts as soon as its machine answers)
+        self.tell(rn, Event(lifecycle.OPERATOR_START))  # (it runs, or starts as soon as its machine answers)
         return ""
 
     async def restart_node(self, name: str) -> str:
@@ -624,7 +246,7 @@ class RemoteParent:
         """The child of the node's machine, if this launch has one for that machine as it is now."""
         wanted = machines.get(node.machine_name or "")
         for child in self.children.values():
-            if wanted is not None and _same_host(child.machine, wanted):
+            if wanted is not None and same_host(child.machine, wanted):
                 return child
         return None
 
@@ -661,91 +283,35 @@ class RemoteParent:
             rn = self._node(name)
             if rn is None or self.fleet.records[name].state in lifecycle.ALIVE:
                 continue
-            rn.node, rn.owned = node, node.policy is not None
-            rn.spec = RemoteSpec(node.full_name.lstrip("/"), node.full_name, node.policy or _DEFAULT_POLICY)
-            self._tell(rn, Event(lifecycle.RENEW, rules=rn.rules(), reason="reload: " + why))
-            self._tell(rn, Event(lifecycle.START))
+            rn.renew(node)
+            self.tell(rn, Event(lifecycle.RENEW, rules=rn.rules(), reason="reload: " + why))
+            self.tell(rn, Event(lifecycle.START))
         for node in start:
             child = self._child_for(node, machines)
             if child is None:  # a machine none of the launch's nodes used so far: its child starts
                 machine_ = machines[node.machine_name or ""]
-                child = RemoteChild("%s-%d" % (machine_.address, len(self.children)), machine_, [])
+                child = RemoteChild("%s-%d" % (machine_.address, len(self.children)), machine_, [], self)
                 self.children[child.name] = child
-                child.task = asyncio.ensure_future(self._keep(child))
+                child.start()
             rn = RemoteNode(node, child)
             child.nodes.append(rn)
             self.fleet.add(rn.name, process=rn.spec.name, host=child.machine.address, rules=rn.rules())
-            self._tell(rn, Event(lifecycle.START))
+            self.tell(rn, Event(lifecycle.START))
         for name, (node, why) in rules.items():
             rn = self._node(name)
             if rn is not None:
                 rn.node = node
-                rn.spec = rn.spec._replace(policy=node.policy or _DEFAULT_POLICY)
-                self._tell(rn, Event(lifecycle.RULES, rules=rn.rules(), reason="reload: " + why))
+                rn.spec = rn.spec._replace(policy=node.policy or DEFAULT_POLICY)
+                self.tell(rn, Event(lifecycle.RULES, rules=rn.rules(), reason="reload: " + why))
         return [r for r in refusals if r]
 
-    # ---- the parent's XML-RPC API (roslaunch.server.ROSLaunchParentHandler) -------------------------
+    # ---- the parent's XML-RPC API (remote.handler) --------------------------------------------------
 
-    PARENT_CALLS = ("register", "list_children", "process_died", "log")  # what only the children call
+    PARENT_CALLS = handler.PARENT_CALLS  # what only the children call
 
     def parent_call(self, method: str, params: list) -> Any:
-        return self._dispatch(method, params)
-
-    def _dispatch(self, method: str, params: list) -> Any:
-        fn = self._API.get(method)
-        if fn is None:
-            raise Fault(-1, "method [%s] is not supported" % method)
-        return fn(self, *params)
-
-    def register(self, client: str, uri: str) -> list:
-        child = self.children.get(client)
-        if child is None:
-            return [-1, "unknown child [%s]" % client, 0]
-        child.uri = uri
-        child.registered.set()
-        return [1, "registered", 1]
-
-    def list_children(self) -> list:
-        return [1, "roslaunch children", [c.uri for c in self.children.values() if c.uri is not None]]
-
-    def process_died(self, process_name: str, exit_code: Any) -> list:
-        self._process_died(process_name, exit_code)
-        return [1, "", 0]
-
-    def log(self, client: str, level: int, message: str) -> list:
-        text = "[%s]: %s" % (client, message)
-        if isinstance(level, int) and level >= LOG_ERROR:
-            console.printerrlog(text)
-        elif "started with pid" in message:
-            console.printlog_bold(text)
-            started = session.started_line(message)
-            child = self.children.get(client)
-            rn = child.node_for_process(started[0]) if started and child else None
-            if rn is not None and self.fleet is not None:
-                self._tell(rn, Event(lifecycle.SPAWNED, pid=started[1], process=started[0]))
-        else:
-            console.printlog(text)
-        return [1, "", 1]
-
-    def _local(self) -> list[state.NodeStatus]:
-        return [s for s in self.fleet or () if s.host == state.LOCAL_HOST]
-
-    def list_processes(self) -> list:
-        return processes.list_processes(self._local())
-
-    def process_info(self, process_name: str) -> list:
-        return processes.process_info(self._local(), process_name)
-
-    def get_pid(self) -> list:
-        pid = os.getpid()
-        return [1, str(pid), pid]
-
-    def get_node_names(self) -> list:
-        return processes.node_names(self._local())
-
-    _API = {"register": register, "list_children": list_children, "process_died": process_died, "log": log,
-            "list_processes": list_processes, "process_info": process_info, "get_pid": get_pid,
-            "get_node_names": get_node_names}
+        """A child's call that the launch's own server hands here (PARENT_CALLS)."""
+        return self.handler.call(method, params)
 
     # ---- stopping -----------------------------------------------------------------------------------
 
@@ -759,31 +325,18 @@ class RemoteParent:
         if self.fleet is not None:
             for child in self.children.values():
                 for rn in child.nodes:
-                    self._tell(rn, Event(lifecycle.SHUTDOWN))  # (a start to come is called off)
+                    self.tell(rn, Event(lifecycle.SHUTDOWN))  # (a start to come is called off)
         if self.readiness is not None:
             self.readiness.close()
         live = [c for c in self.children.values() if c.ssh is not None]
         for child in live:
             console.printlog("[%s] killing on exit" % child.name)
-
-        async def stop(child: RemoteChild) -> None:
-            orderly = False
-            if child.uri is not None:
-                try:
-                    code, _msg, _val = await call(child.uri, "shutdown",
-                                                  timeout=self.sigint_timeout + self.sigterm_timeout + 5)
-                    orderly = code == 1
-                except Exception:  # noqa: BLE001 - the hangup below stops it anyway
-                    console.printerrlog("remote[%s]: unable to contact [%s] to shutdown remote processes!"
-                                        % (child.name, child.machine.address))
-            await self._end_ssh(child, orderly)
-
-        await asyncio.gather(*(stop(c) for c in live))
+        await asyncio.gather(*(c.shut_down() for c in live))
         if self.fleet is not None:  # what ran there is stopped with its child's shutdown, or its session's end
             for child in self.children.values():
                 for rn in child.nodes:
-                    if self._state(rn) == lifecycle.STOPPING:
-                        self._tell(rn, Event(lifecycle.DOWN))
+                    if self.node_state(rn) == lifecycle.STOPPING:
+                        self.tell(rn, Event(lifecycle.DOWN))
         for child in self.children.values():
             if child.task is not None:
                 child.task.cancel()

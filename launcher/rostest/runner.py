@@ -46,7 +46,9 @@ from launcher.process.spawn import start_process
 from launcher.process.watchdog import Watchdog
 from launcher.rostest.results import (TestOutcome, judge, results_dir, safe_test_name, summary, write_junit,
                                       write_test_file_failure)
-from launcher.run.runtime import Plan, Run, Stopped
+from launcher.plan.plan import Plan
+from launcher.run.load import load_plan, plan_for
+from launcher.run.runtime import Run, Stopped
 from launcher.xml import resolve_launch_arguments
 
 DEFAULT_TIME_LIMIT = 60.0  # rostest's default time-limit
@@ -301,7 +303,7 @@ class TestFile:
 
     def run(self) -> int:
         try:
-            plan = Plan.load(self.launch_opts)
+            plan = load_plan(self.launch_opts)
         except LaunchError as e:
             raise self._test_file_failure("rostest file [%s] does not load: %s" % (self.test_file, e), e) from None
         config = plan.config
@@ -362,7 +364,7 @@ class TestFile:
                 os.remove(private)
             printlog("Running test [%s]" % test.test_name)
             started = time.monotonic()
-            run = TestAttempt(self.launch_opts, Plan(fixture, plan.master_uri, plan.environ, packages=self.packages),
+            run = TestAttempt(self.launch_opts, plan_for(fixture, plan.master_uri, plan.environ, packages=self.packages),
                               watchdog, test, private, reuse_master=self.opts.reuse_master, clear=self.opts.clear,
                               text=self.opts.text, processes_before=self.processes)
             asyncio.run(run.main())

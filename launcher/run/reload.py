@@ -30,6 +30,7 @@ from launcher.model.errors import LaunchError
 from launcher.output import console
 from launcher.plan.diff import Difference, difference, lines
 from launcher.plan.command import node_command
+from launcher.run.load import plan_again
 
 
 class Reloader:
@@ -84,7 +85,7 @@ class Reloader:
         """(In a worker thread.) The new plan and its difference to the old one; LaunchError for bad input,
         a node whose executable cannot be found, or whose command line cannot be made, included (a launch
         would start without it; a reload that would lose a node for a typo does not happen)."""
-        new = old.again(self.run.opts, given, warn)
+        new = plan_again(old, self.run.opts, given, warn)
         packages = new.packages
         remote = frozenset(n.full_name for n in old.config.nodes if old.remote(n)) | frozenset(
             n.full_name for n in new.config.nodes if new.remote(n))

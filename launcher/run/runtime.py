@@ -4,9 +4,8 @@ There is one path. `launch --core` is a run of an empty launch whose master
 must be ours (roscore's words and output); `launch file.launch` uses a
 master that already answers at the master URI, else starts ours. Here:
 
-- `Plan`: the loaded launch and its checks (no socket, no process), with
-  what `launcher.plan` works out from it (which machines are other hosts,
-  each node's process spec);
+- the plan (`plan.plan.Plan`, made by `run.load`): the loaded launch and its
+  checks (no socket, no process), which machines are other hosts;
 - `StopSignals`: SIGINT/SIGTERM/SIGHUP for the whole run, installed on the
   loop before anything starts;
 - `Run`: the ordered list of the run's services (`masterlink.MasterSession`,
@@ -16,7 +15,6 @@ master that already answers at the master URI, else starts ours. Here:
 from __future__ import annotations
 
 import asyncio
-import functools
 import gc
 import os
 import signal
@@ -26,10 +24,7 @@ from typing import Any, Awaitable, Callable
 
 from launcher import compat
 from launcher.services import masterlink
-from launcher.plan.command import master_uri
-from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
-from launcher.master.server import advertised_host
 from launcher.services.masterlink import MasterSession
 from launcher.services.masterwatch import MasterWatch
 from launcher.services.metrics import Exporter, MetricsServer
@@ -38,21 +33,16 @@ from launcher.services.nodeservice import NodeService
 from launcher.services import systemd
 from launcher.services.service import Service
 from launcher.run.reload import Reloader
-from launcher.workspace.packages import PackageIndex
-from launcher.plan.machines import remote_machines
-from launcher.plan.order import bind_nodelets, check_cycles, check_output_waits
-from launcher.plan.specs import node_specs
+from launcher.plan.plan import Plan
+from launcher.run.load import core_plan, load_plan
 from launcher.output import console
 from launcher.fleet import lifecycle
-from launcher.output.logdir import DEFAULT_THRESHOLD, parse_size
-from launcher.plan.specs import ProcessSpec
 from launcher.fleet.state import Change
 from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.watchdog import Watchdog
 from launcher.output.runlog import RunLog, summary
 from launcher.model.runopts import RunOptions
 from launcher.services.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
-from launcher.xml import AnonNames, load, resolve_launch_arguments
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -81,7 +71,7 @@ def run(opts: RunOptions, *, exit_process: bool = False) -> int:
             except OSError as e:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
         raise_open_file_limit()  # every client of the master and the rosout node is a file
-        plan = Plan.core(opts) if core else Plan.load(opts)
+        plan = core_plan(opts) if core else load_plan(opts)
         status = asyncio.run(Run(opts, plan, watchdog).main())
     finally:
         if watchdog is not None:
@@ -100,129 +90,6 @@ def run(opts: RunOptions, *, exit_process: bool = False) -> int:
                 pass
         os._exit(status)
     return status
-
-
-class Plan:
-    """What a run runs: the loaded launch, its master URI, the checks that need no master."""
-
-    def __init__(self, config: Any, master_uri: str, environ: dict[str, str], *, core: bool = False,
-                 packages: Any = None, log_threshold: int = DEFAULT_THRESHOLD, core_port: int = 0):
-        self.config = config
-        self.master_uri = master_uri
-        self.environ = environ
-        self.core = core
-        self.packages = packages
-        self.log_threshold = log_threshold
-        self.log_max_size = 0  # node output logs are rotated past this size (0: never)
-        self.core_port = core_port
-        # what a reload reads again (run/reload.py): the files, the args, the run's $(anon) names
-        self.files: list[str] = []
-        self.argv: list[str] = []
-        self.anon_names = AnonNames()
-
-    @classmethod
-    def core(cls, opts: RunOptions) -> Plan:
-        """roscore: an empty launch, our master on -p or ROS_MASTER_URI's port."""
-        environ = dict(os.environ)
-        port = masterlink.master_port(opts.port, environ)
-        uri_port = masterlink.master_port(None, environ)
-        if environ.get("ROS_MASTER_URI") and uri_port != port:
-            print("WARNING: ROS_MASTER_URI port [%d] does not match this roscore [%d]" % (uri_port, port),
-                  file=sys.stderr)
-        return cls(LaunchConfig(), "", environ, core=True, core_port=port)
-
-    @classmethod
-    def load(cls, opts: RunOptions) -> Plan:
-        """Read the launch files; LaunchError (file and line) for bad input."""
-        environ = dict(os.environ)
-        warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
-        packages = PackageIndex(environ, warn=warn)
-        files, argv = resolve_launch_arguments(list(opts.positional), packages)
-        if not files:
-            raise LaunchError("you must specify at least one input file")
-        anon_names = AnonNames()
-        config = load(files, argv, environ=environ, packages=packages, warn=warn, anon_names=anon_names)
-        uri = master_uri(argv, environ)
-        if opts.port:
-            if not 0 < opts.port < 65536:
-                raise LaunchError("invalid port assignment: %s" % opts.port)
-            uri = "http://%s:%d/" % (advertised_host(environ), opts.port)
-        threshold = DEFAULT_THRESHOLD
-        if opts.log_check_threshold:
-            try:
-                threshold = parse_size(opts.log_check_threshold)
-            except ValueError as e:
-                raise LaunchError("--log-check-threshold: %s" % e) from None
-        plan = cls(config, uri, environ, packages=packages, log_threshold=threshold)
-        plan.files, plan.argv, plan.anon_names = files, list(argv), anon_names
-        try:
-            plan.log_max_size = parse_size(opts.log_max_size or "0")
-        except ValueError as e:
-            raise LaunchError("--log-max-size: %s" % e) from None
-        plan.check_nodes(opts)
-        return plan
-
-    def again(self, opts: RunOptions, given: list[str], warn: Callable[[str], None]) -> Plan:
-        """The same launch read again (a reload): its files, its args with `given` ones replacing theirs, its
-        environment, its master URI, its `$(anon)` names; a fresh package index (packages built since count).
-        LaunchError for bad input, as at the start. Runs off the loop (it reads files)."""
-        names = {a.split(":=", 1)[0] for a in given}
-        argv = [a for a in self.argv if a.split(":=", 1)[0] not in names] + list(given)
-        packages = PackageIndex(self.environ, warn=warn)
-        config = load(self.files, argv, environ=self.environ, packages=packages, warn=warn,
-                      anon_names=self.anon_names)
-        plan = Plan(config, self.master_uri, self.environ, packages=packages, log_threshold=self.log_threshold)
-        plan.files, plan.argv, plan.anon_names = self.files, argv, self.anon_names
-        plan.log_max_size = self.log_max_size
-        plan.check_nodes(opts)
-        return plan
-
-    @functools.cached_property
-    def remote_machines(self) -> frozenset[str]:
-        """The machines of the launch's nodes that are other hosts, looked up once (plan.machines)."""
-        return remote_machines(self.config, self.environ)
-
-    def remote(self, node: Any) -> bool:
-        """Is the node assigned to another machine?"""
-        return bool(node.machine_name) and node.machine_name in self.remote_machines
-
-    def specs(self, opts: RunOptions, run_dir: str, first_number: int) -> tuple[list[ProcessSpec], list[tuple[str, bool]]]:
-        """What runs for each local node (plan.specs.node_specs)."""
-        return node_specs(self.config, self.master_uri, self.environ, self.packages, self.remote,
-                          opts=opts, run_dir=run_dir, first_number=first_number,
-                          log=console.printlog, log_error=console.printerrlog)
-
-    def check_nodes(self, opts: RunOptions) -> None:
-        self.config = bind_nodelets(self.config, self.remote)  # (a loader bound to its manager may close a cycle)
-        check_cycles(self.config.nodes)
-        check_output_waits(self.config.nodes, self.remote)
-        for node in self.config.nodes:
-            if opts.required and node.respawn:
-                raise LaunchError("respawn and required cannot both be set to true (node [%s], --required)"
-                                  % node.full_name, node.filename or None, node.line or None)
-            if node.respawn and node.required:
-                raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
-                                  node.filename or None, node.line or None)
-        if not opts.local:
-            machines = {self.config.machines[n.machine_name] for n in self.config.nodes if self.remote(n)}
-            if machines:
-                # (the remote machinery is imported only by a launch with other machines' nodes)
-                from launcher.remote import ssh
-                from launcher.remote.parent import check_addresses, policy_warnings
-                for machine in sorted(machines, key=lambda m: m.name):
-                    ssh.check_machine(machine)
-                check_addresses(self.master_uri, advertised_host(self.environ), sorted(machines, key=lambda m: m.name))
-                for node in self.config.nodes:
-                    if self.remote(node):
-                        for warning in policy_warnings(node, self.config.machines[node.machine_name]):
-                            console.printerrlog("WARNING: %s" % warning)
-
-    def remote_nodes(self) -> dict[str, list[Any]]:
-        """The nodes to launch on other machines, by machine name."""
-        if not self.remote_machines:
-            return {}  # (no node can be remote: remote.parent is not imported)
-        from launcher.remote.parent import machine_nodes
-        return machine_nodes(list(self.config.nodes), self.config.machines, self.remote)
 
 
 class StopSignals:

@@ -97,7 +97,10 @@ class NodeService:
         """
         self.signals.check()
         self.first_number = first_number
-        specs, failed = self.plan.specs(self.opts, self.log.run_dir, first_number)
+        plan = self.plan
+        specs, failed = node_specs(plan.config, plan.master_uri, plan.environ, plan.packages, plan.remote,
+                                   opts=self.opts, run_dir=self.log.run_dir, first_number=first_number,
+                                   log=console.printlog, log_error=console.printerrlog)
         self.processes = len(specs) + len(failed)
         self._note_launch(specs)
         self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,

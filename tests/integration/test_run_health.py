@@ -10,7 +10,8 @@ from launcher.model.config import LaunchConfig, Node, NodePolicy
 from launcher.workspace.packages import PackageIndex
 from launcher.fleet.state import EVENTS_FILE
 from launcher.model.runopts import RunOptions
-from launcher.run.runtime import Plan, Run
+from launcher.plan.plan import Plan
+from launcher.run.runtime import Run
 
 from helpers import free_port
 from tests.integration.running import make_package

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from launcher.cli import launch as cli
 from launcher.output import logdir
 from launcher.model.runopts import RunOptions
-from launcher.run.runtime import Plan
+from launcher.run.load import load_plan
 from launcher.model.units import format_size, parse_size
 
 
@@ -54,7 +54,7 @@ def _plan(tmp_path, argv, node_attrs=""):
     launch = tmp_path / "a.launch"
     launch.write_text('<launch><node name="n" pkg="p" type="t" %s/></launch>' % node_attrs)
     opts = cli.build_parser().parse_args(argv + [str(launch)])
-    return Plan.load(RunOptions.from_args(opts))
+    return load_plan(RunOptions.from_args(opts))
 
 
 def test_log_max_size_option_and_attribute_mean_the_same_bytes(tmp_path, monkeypatch):

@@ -9,7 +9,7 @@ from launcher.workspace.packages import PackageIndex
 from launcher.plan.machines import remote_machines, remote_test
 from launcher.plan.specs import node_specs
 from launcher.model.runopts import RunOptions
-from launcher.run.runtime import Plan
+from launcher.run.load import plan_for
 
 FAR = "192.0.2.10"  # TEST-NET-1: never an address of this machine
 
@@ -31,7 +31,7 @@ def test_a_machine_address_is_looked_up_once_however_many_nodes_and_questions(mo
         return real(host, *args, **kwargs)
 
     monkeypatch.setattr(socket, "getaddrinfo", counting)
-    plan = Plan(_config(50), "http://localhost:11311/", {})
+    plan = plan_for(_config(50), "http://localhost:11311/", {})
     for _ in range(3):  # the checks, the summary, node_specs and the remote parent each ask
         assert [plan.remote(n) for n in plan.config.nodes] == [True] * 50 + [False, False]
     assert asked == [FAR]  # (the old Plan.remote: 150 lookups; a machine no node uses: none)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from launcher.fleet import lifecycle as m
 from launcher.remote import session as s
 
 
@@ -44,3 +45,27 @@ def test_the_protocols_words():
     assert s.started_line("process[talker-3]: started with pid") is None
     assert s.node_of_process("robot/talker-12") == "robot/talker" and s.node_of_process("x") == "x"
     assert s.died(-9) == (None, 9) and s.died(3) == (3, None) and s.died("?") == (None, None)
+
+
+def test_a_child_ends_when_its_last_node_is_gone_after_a_start_that_succeeded():
+    launched = s.launched(s.accepting(s.started(s.Session())))
+    gone = [(m.EXITED, True), (m.STOPPED, False), (m.FATAL, True), (m.RESPAWNING, True), (m.PENDING, False)]
+    assert s.child_ends(launched, gone)
+    for state in (m.LAUNCHING, m.RUNNING, m.STOPPING):  # a process on the child, or one being given to it
+        for owned in (True, False):
+            assert not s.child_ends(launched, gone + [(state, owned)]), (state, owned)
+    # a node the child respawns itself is its own while it respawns; one the parent restarts is not
+    assert not s.child_ends(launched, gone + [(m.RESPAWNING, False)])
+    # after starts that all failed the child lives on (Debian's ends only when a node died)
+    assert not s.child_ends(s.accepting(s.started(s.Session())), gone)
+    assert s.QUEUED == {m.PENDING, m.LOST}
+
+
+def test_a_childs_log_calls_and_refusals_in_words():
+    assert s.log_kind(8, "process[talker-1]: started with pid [7]") == (s.ERROR, None)
+    assert s.log_kind(16, "x") == (s.ERROR, None)
+    assert s.log_kind(2, "process[ns/talker-1]: started with pid [7]") == (s.STARTED, ("ns/talker-1", 7))
+    assert s.log_kind(2, "started with pid, garbled") == (s.STARTED, None)
+    assert s.log_kind("8", "hello") == (s.INFO, None) and s.log_kind(4, "hello") == (s.INFO, None)
+    assert s.stop_refusal("method [stop_process] is not supported") == s.NO_STOP_PROCESS
+    assert s.stop_refusal("no process [x]") == "no process [x]"

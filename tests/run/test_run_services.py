@@ -8,7 +8,8 @@ from launcher.model.config import LaunchConfig
 from launcher.net.xmlrpc import call
 from launcher.services.server import LaunchServer
 from launcher.model.runopts import RunOptions
-from launcher.run.runtime import Plan, Run
+from launcher.plan.plan import Plan
+from launcher.run.runtime import Run
 from launcher.services.servers import RunView
 
 from helpers import free_port
