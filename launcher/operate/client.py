@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping, NamedTuple
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.model.suggest import did_you_mean
 from launcher.operate.errors import (EXIT_FAILED, EXIT_NO_LAUNCH, EXIT_OK, EXIT_REFUSED, EXIT_USAGE,  # noqa: F401
-                                     NotOurs, ToolError)
+                                     NoAnswer, NotOurs, ToolError, slow)
 
 DEFAULT_MASTER_URI = "http://localhost:11311/"
 PROBE_TIMEOUT_S = 2.0
@@ -201,8 +201,10 @@ def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
                             % (uri, method), EXIT_NO_LAUNCH) from None
         raise
     except (OSError, XmlRpcError) as e:
-        raise ToolError("the launch at %s does not answer: %s" % (uri, getattr(e, "strerror", None) or e),
-                        EXIT_NO_LAUNCH) from None
+        why = "the launch at %s does not answer: %s" % (uri, getattr(e, "strerror", None) or e)
+        if slow(e):
+            raise NoAnswer(why) from None
+        raise ToolError(why, EXIT_NO_LAUNCH) from None
 
 
 def status_text(uri: str) -> str:
@@ -220,13 +222,14 @@ def status(uri: str) -> dict[str, Any]:
 
 # A long poll of the change stream waits this long on the launch's side (the server's cap is longer).
 CHANGES_WAIT_S = 1.0
+ANSWER_MARGIN_S = 10.0  # a long poll's answer is awaited this long past its wait, before the call counts as slow
 LAST_SEQ = (1 << 31) - 1  # (since the last change: the answer is the stream's number now, and no change)
 
 
 def changes(uri: str, since: int, wait: float = CHANGES_WAIT_S) -> dict[str, Any]:
     """The launch's changes after `since` (launcher_changes: a long poll of up to `wait` s): {"seq", "complete",
     "changes"}. ToolError (EXIT_NO_LAUNCH) once the launch is gone."""
-    code, msg, text = call(uri, "launcher_changes", since, wait, timeout=wait + 10)
+    code, msg, text = call(uri, "launcher_changes", since, wait, timeout=wait + ANSWER_MARGIN_S)
     if code != 1:
         raise ToolError("changes: %s" % msg)
     return json.loads(text)
@@ -235,10 +238,14 @@ def changes(uri: str, since: int, wait: float = CHANGES_WAIT_S) -> dict[str, Any
 def follow_changes(uri: str, since: int, on_answer: Callable[[dict[str, Any]], None],
                    wait: float = CHANGES_WAIT_S) -> int:
     """Hand each answer of the change stream after `since` to `on_answer` (one at least every `wait` s, changes
-    or none) while the launch runs; the last sequence number handed over, once it is gone."""
+    or none) while the launch runs; the last sequence number handed over, once it is gone. A launch slow to
+    answer (NoAnswer: busy, or out of reach a while) is asked again: a follower ends with its launch, not with
+    the launch's busiest moment."""
     while True:
         try:
             answer = changes(uri, since, wait)
+        except NoAnswer:
+            continue
         except ToolError as e:
             if e.status != EXIT_NO_LAUNCH:
                 raise

@@ -19,3 +19,20 @@ class NotOurs(ToolError):
 
     def __init__(self, message: str):
         super().__init__(message, EXIT_NO_LAUNCH)
+
+
+class NoAnswer(ToolError):
+    """The launch did not answer in time: it may be busy (a loaded robot computer) or its machine out of reach for a
+    while, not gone. A command that asks once ends with it (as with a launch that is gone); one that follows the
+    launch (`events -f`, `status --watch`, the views) asks again."""
+
+    def __init__(self, message: str):
+        super().__init__(message, EXIT_NO_LAUNCH)
+
+
+def slow(e: BaseException) -> bool:
+    """Whether a failed call timed out (the launch is slow to answer) rather than found no launch (refused: nothing
+    listens at its address; cut: its server closed as it ended)."""
+    import asyncio
+    import socket
+    return isinstance(e, (socket.timeout, TimeoutError, asyncio.TimeoutError, NoAnswer))

@@ -30,6 +30,7 @@ from typing import Any, Callable
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
 from launcher.operate import client
+from launcher.operate.errors import slow
 from launcher.model import token as run_token
 from launcher.operate.view import HELP, HISTORY, NODE_OUTPUT, Line, ViewState, cut_left
 from launcher.workspace.roshome import log_root
@@ -98,12 +99,12 @@ class Feed:
             try:
                 body()
             except (OSError, XmlRpcError, Fault, ValueError) as e:
-                if not self.gone:
-                    self.gone = "the launch at %s does not answer: %s" % (self.uri, getattr(e, "strerror", None) or e)
-
-                    def say(why: str = self.gone) -> None:
-                        self.state.message = why
-                    self.post(say)
+                why = "the launch at %s does not answer: %s" % (self.uri, getattr(e, "strerror", None) or e)
+                if slow(e):  # (busy, or out of reach a while: said, and asked again; not the launch's end)
+                    self.post(lambda: setattr(self.state, "message", why))
+                elif not self.gone:
+                    self.gone = why
+                    self.post(lambda: setattr(self.state, "message", why))
                 self.ended.wait(1.0)
 
     def _changes(self) -> None:

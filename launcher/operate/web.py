@@ -42,6 +42,7 @@ from launcher.net.http import Request
 from launcher.net.open_files import raise_open_file_limit
 from launcher.net.xmlrpc import Fault, XmlRpcError, call
 from launcher.operate import client
+from launcher.operate.errors import slow
 from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
 from launcher.operate.ui import POLL_WAIT_S, RECENT_OUTPUT_BYTES
 from launcher.operate.view import ViewState
@@ -61,6 +62,7 @@ CONTROL_CALLS = 8  # start/stop/restart/reload calls at once (a stop may wait fo
 # with every response: the page runs only its own files, no other site may frame it, nothing is cached
 HEADERS = (b"Cache-Control: no-store\r\nContent-Security-Policy: default-src 'self'; frame-ancestors 'none'\r\n"
            b"X-Content-Type-Options: nosniff\r\n")
+RETRY_S = 1.0  # a read that failed is made again after this long
 ERRORS = (OSError, XmlRpcError, Fault, ValueError, TypeError, KeyError, asyncio.TimeoutError)
 
 
@@ -122,13 +124,14 @@ class Hub:
             try:
                 await body()
                 failures = 0
-            except ERRORS:
-                failures += 1
+            except ERRORS as e:
+                # (a call that timed out: the launch is busy, or out of reach a while; asked again, never the end)
+                failures += 0 if slow(e) else 1
                 if failures >= 3:  # (the launch has ended: so does its page server)
                     self.broadcast({"type": "gone"})
                     self.gone.set()
                     return
-                await asyncio.sleep(1.0)
+                await asyncio.sleep(RETRY_S)
 
     def broadcast(self, event: dict) -> None:
         self.send(event_bytes(event))
