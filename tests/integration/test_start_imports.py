@@ -29,6 +29,8 @@ NOT_NEEDED = (
     "launcher.operate", "launcher.bag", "launcher.rostest", "launcher.cli.introspect", "launcher.cli.check",
     "launcher.xml.sandbox",  # no $(eval)
     "http.server", "xmlrpc.server", "lxml", "prompt_toolkit", "argparse", "email",
+    "_ssl", "_hashlib", "hmac",  # libcrypto: asyncio imported without ssl (its attempt is listed), token by hand
+    "datetime", "dataclasses",
 )
 IMPORTED = re.compile(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", re.M)
 
