@@ -215,6 +215,13 @@ async def start_master(port: int, environ: Mapping[str, str], allow: Any = None)
     return master
 
 
+def new_run_id() -> str:
+    """A new run id: a UUID, as roslaunch's are, of version 4 (random) where roslaunch's `uuid.uuid1()` is
+    time-based: the uuid module imports platform & co., ~0.2 MB a launch would keep for one call."""
+    h = os.urandom(16).hex()
+    return "%s-%s-4%s-%x%s-%s" % (h[:8], h[8:12], h[13:16], 8 | int(h[16], 16) & 3, h[17:20], h[20:])
+
+
 class MasterSession:
     """A run's master as one service: found (or, for a core, started) first, then ours started when none
     answers, the run id, the parameters; stopped last.
@@ -301,8 +308,7 @@ class MasterSession:
             return str(value)
         if self.opts.run_id:
             return self.opts.run_id
-        import uuid  # imports platform & co.: only when a run id must be made up
-        return str(uuid.uuid1())
+        return new_run_id()
 
     # ---- start -----------------------------------------------------------------------------------------
 
