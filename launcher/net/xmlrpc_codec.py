@@ -9,7 +9,7 @@ clients that send these bytes are `launcher.net.xmlrpc`; the server,
 
 from __future__ import annotations
 
-import base64
+import binascii  # (base64's b64encode/b64decode are these; that module is ~50 kB more of a launch's memory)
 import re
 import sys
 from typing import Any, Callable, Iterable
@@ -94,7 +94,7 @@ def _enc_float(v: float, out: list[str]) -> None:
 
 
 def _enc_bytes(v: bytes | bytearray, out: list[str]) -> None:
-    out.append("<value><base64>%s</base64></value>" % base64.b64encode(v).decode("ascii"))
+    out.append("<value><base64>%s</base64></value>" % binascii.b2a_base64(v, newline=False).decode("ascii"))
 
 
 def _enc_binary(v: Any, out: list[str]) -> None:  # an xmlrpc.client.Binary
@@ -320,7 +320,7 @@ class _Unmarshaller:
             self.stack.append(d)
         elif tag == "base64":
             try:
-                self.stack.append(base64.b64decode(data.encode("ascii")))
+                self.stack.append(binascii.a2b_base64(data.encode("ascii")))
             except (ValueError, UnicodeEncodeError):
                 raise XmlRpcError("bad base64 value") from None
         elif tag == "dateTime.iso8601":
