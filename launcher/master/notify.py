@@ -16,12 +16,12 @@ import os
 import socket
 import time
 from typing import Any, Callable
-from urllib.parse import urlsplit
 
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.outbox import Callback, Outbox, Unreachable
 from launcher.net import xmlrpc
 from launcher.net.allow import own_addresses
+from launcher.net.http import split_uri
 from launcher.net.open_files import callback_cap
 
 log = logging.getLogger("launcher.master")
@@ -75,7 +75,7 @@ _own_addresses: list = []  # this machine's interface addresses, read at the fir
 def is_this_host(api: str) -> bool:
     """Whether `api`'s host is this machine (loopback, this host's name or one of its addresses): only
     then does /proc say what a pid there is. No lookup by name: this runs on the master's loop."""
-    host = urlsplit(api).hostname or ""
+    host = split_uri(api).hostname or ""
     if host in ("localhost", socket.gethostname()):
         return True
     try:

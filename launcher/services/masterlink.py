@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import os
-import urllib.parse
 from typing import TYPE_CHECKING, Any, Mapping
 
 from launcher.model.errors import LaunchError
 from launcher.master.server import Master, advertised_host
 from launcher.model.graph import Graph
 from launcher.net.allow import AllowList
+from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
 from launcher.output import console
@@ -46,7 +46,7 @@ def master_port(port: int | None, environ: Mapping[str, str]) -> int:
     uri = environ.get("ROS_MASTER_URI")
     if uri:
         try:
-            port = urllib.parse.urlsplit(uri).port
+            port = split_uri(uri).port
         except ValueError:
             raise LaunchError("invalid ROS_MASTER_URI [%s]" % uri) from None
         if port:
@@ -283,7 +283,7 @@ class MasterSession:
                     and await started_by_roscore(self.uri)):
                 reply = await self._wait_for_roscore_run_id(reply)
             return True, reply
-        host = urllib.parse.urlsplit(self.uri).hostname or ""
+        host = split_uri(self.uri).hostname or ""
         if not is_local_host(host, self.plan.environ):
             raise LaunchError("unable to contact ROS master at [%s]; it is not on this machine, so it cannot be "
                               "started here" % self.uri)
@@ -350,7 +350,7 @@ class MasterSession:
             if self.is_a_process:
                 console.printlog("auto-starting new master")
             if self.master is None:
-                await self._start_master(urllib.parse.urlsplit(self.uri).port or DEFAULT_MASTER_PORT)
+                await self._start_master(split_uri(self.uri).port or DEFAULT_MASTER_PORT)
         if not self.core:
             self.open_log(run_dir)
         self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.uri)

@@ -31,7 +31,7 @@ NOT_NEEDED = (
     "launcher.xml.sandbox",  # no $(eval)
     "http.server", "xmlrpc.server", "lxml", "prompt_toolkit", "argparse", "email",
     "_ssl", "_hashlib", "hmac",  # libcrypto: asyncio imported without ssl (its attempt is listed), token by hand
-    "datetime", "dataclasses", "uuid", "platform",
+    "datetime", "dataclasses", "uuid", "platform", "urllib", "ipaddress", "base64",
 )
 IMPORTED = re.compile(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", re.M)
 

@@ -205,3 +205,40 @@ def test_module_imports_no_asyncio():
     code = "import sys, launcher.net.http; print('asyncio' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+# ---------------------------------------------------------------------------
+# URIs: split_uri reads them as urllib.parse.urlsplit does
+# ---------------------------------------------------------------------------
+
+from hypothesis import assume, given, settings, strategies as st  # noqa: E402
+import urllib.parse  # noqa: E402
+
+_URI_PART = st.text(alphabet="hHtTpP:/[]@?#%.-_+0123456789aAzZ: \t\n\x00", max_size=30)
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.one_of(_URI_PART, st.builds("{}://{}{}{}".format, st.sampled_from(["http", "HTTP", "h+1", "1h", ""]),
+                                      st.sampled_from(["", "user@", "a:b@"]), _URI_PART, _URI_PART)))
+def test_a_uri_is_split_as_urllib_splits_it(uri):
+    try:
+        u = urllib.parse.urlsplit(uri)
+        want = (u.scheme, u.netloc, u.hostname, u.port, u.path)
+    except ValueError:
+        want = None
+    try:
+        got = tuple(H.split_uri(uri))
+    except ValueError:
+        got = None
+    if want is None and got is not None:
+        assume("[" not in uri)  # (since 3.11.4 urllib checks a bracketed host is an IPv6 address: not done here)
+    assert got == want
+
+
+def test_the_uris_of_ros():
+    assert H.split_uri("http://LocalHost:11311/") == ("http", "LocalHost:11311", "localhost", 11311, "/")
+    assert H.split_uri("http://[::1]:8080") == ("http", "[::1]:8080", "::1", 8080, "")
+    assert H.split_uri("http://h/RPC2?x#y") == ("http", "h", "h", None, "/RPC2")
+    for bad in ("http://h:notaport/", "http://h:70000/", "http://[::1/"):
+        with pytest.raises(ValueError):
+            H.split_uri(bad)
