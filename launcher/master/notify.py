@@ -10,7 +10,6 @@ paced, so that a thousand at once never stall the master's own replies.
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
 import os
 import socket
@@ -20,7 +19,6 @@ from typing import Any, Callable
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.outbox import Callback, Outbox, Unreachable
 from launcher.net import xmlrpc
-from launcher.net.allow import own_addresses
 from launcher.net.http import split_uri
 from launcher.net.open_files import callback_cap
 
@@ -78,6 +76,9 @@ def is_this_host(api: str) -> bool:
     host = split_uri(api).hostname or ""
     if host in ("localhost", socket.gethostname()):
         return True
+    # (here: ipaddress is ~0.25 MB of a launch's memory, and this runs only when a node's name is taken over)
+    import ipaddress
+    from launcher.net.allow import own_addresses
     try:
         ip = ipaddress.ip_address(host.split("%", 1)[0])
     except ValueError:

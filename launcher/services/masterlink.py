@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any, Mapping
 from launcher.model.errors import LaunchError
 from launcher.master.server import Master, advertised_host
 from launcher.model.graph import Graph
-from launcher.net.allow import AllowList
 from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
@@ -317,6 +316,7 @@ class MasterSession:
         cidrs = [c for arg in self.opts.master_allow for c in arg.split(",") if c.strip()]
         if not cidrs:
             return None
+        from launcher.net.allow import AllowList  # (with ipaddress, ~0.25 MB: only for an allow-list)
         try:
             return AllowList(cidrs)
         except ValueError as e:
