@@ -168,6 +168,21 @@ def _start_web(address: str, port: int | None) -> None:
                       "--master-uri", master_uri], stdin=subprocess.DEVNULL, start_new_session=True)
 
 
+def _import_asyncio_without_tls() -> None:
+    """Import asyncio without the ssl module it imports when it can.
+
+    ssl loads libssl and libcrypto: ~4 MB of a launch's memory for as long as it runs (a third of its own), for
+    TLS that nothing of a run uses. asyncio takes a missing ssl as "no TLS here"; ssl stays importable after.
+    """
+    if "asyncio" in sys.modules or "ssl" in sys.modules:
+        return
+    sys.modules["ssl"] = None  # type: ignore[assignment]  # (None there: `import ssl` raises ImportError)
+    try:
+        import asyncio  # noqa: F401
+    finally:
+        del sys.modules["ssl"]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     opts = parse_simple_args(args)
@@ -182,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         if not opts.ready_timeout > 0:
             raise LaunchError("--ready-timeout must be greater than zero")
         if opts.child_name or opts.server_uri:
+            _import_asyncio_without_tls()
             from launcher.remote.child import run_child  # a roslaunch child on another machine
             status = run_child(opts)
             if argv is None:
@@ -208,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
             console.printerrlog("launch --ui: no terminal (or TERM=dumb): the launch runs with plain lines")
         if opts.web:
             _start_web(opts.web, opts.port)
+        _import_asyncio_without_tls()
         from launcher.run import runtime
         # a real command line (argv from sys.argv) may end the process as soon as all is stopped
         return runtime.run(RunOptions.from_args(opts), exit_process=argv is None)

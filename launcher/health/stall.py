@@ -31,11 +31,11 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import urllib.parse
 from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import linkstate, tcpros, topic_watch, xmlrpc
+from launcher.net.http import split_uri
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
@@ -231,7 +231,7 @@ class PublisherWatch:
                 return
             if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
                 return  # (not published yet: asked again at the next verdict)
-            host = proto[1] or urllib.parse.urlsplit(self.uri).hostname
+            host = proto[1] or split_uri(self.uri).hostname
             link = await topic_watch.watch_publisher(host, int(proto[2]), self.topic, CALLER_ID, self.uri,
                                                      self._messages, timeout=self.timeout, on_close=self._closed)
             if self.closed:

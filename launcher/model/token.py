@@ -8,9 +8,7 @@ token is compared in constant time.
 
 from __future__ import annotations
 
-import hmac
 import os
-import secrets
 
 TOKEN_FILE = "launcher-token"
 REFUSED = 2  # the faultCode of a start/stop/restart call without the token
@@ -21,7 +19,7 @@ def create(run_dir: str) -> tuple[str, str]:
 
     OSError when it cannot be written: the caller says so and control stays closed.
     """
-    token = secrets.token_hex(16)
+    token = os.urandom(16).hex()  # (secrets.token_hex(16); secrets imports hmac: below)
     path = os.path.join(run_dir, TOKEN_FILE)
     tmp = "%s.%d" % (path, os.getpid())
     # created 0600 from the start (no window where another user could read it), then renamed over
@@ -41,4 +39,5 @@ def read(path: str) -> str:
 
 
 def matches(expected: str, given: object) -> bool:
+    import hmac  # here, when a call asks: hmac loads libcrypto, ~4 MB a launch would keep for this
     return bool(expected) and isinstance(given, str) and hmac.compare_digest(expected.encode(), given.encode())

@@ -4,7 +4,6 @@ a message framed once and written to every subscriber, latching, roscpp's publis
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 from launcher.net.tcpros import TopicType, encode_frame
@@ -17,20 +16,24 @@ if TYPE_CHECKING:
 MAX_WRITE_BACKLOG = 16 << 20
 
 
-@dataclass
 class Publication:
     """A topic we publish, and the subscribers connected to it."""
 
-    topic: str
-    mtype: TopicType
-    callerid: str
-    latch: bool = False
-    # roscpp's publisher queue: messages per subscriber waiting for its socket, the oldest dropped past it
-    # (0: unbounded); None: no queue of ours, a subscriber MAX_WRITE_BACKLOG bytes behind loses new messages
-    queue_size: int | None = None
-    links: list[SubscriberLink] = field(default_factory=list)
-    messages_published: int = 0
-    last: bytes | None = None
+    # (a plain class: `dataclasses` would be imported at every launch's start for it, ~0.15 MB kept)
+    __slots__ = ("topic", "mtype", "callerid", "latch", "queue_size", "links", "messages_published", "last")
+
+    def __init__(self, topic: str, mtype: TopicType, callerid: str, latch: bool = False,
+                 queue_size: int | None = None):
+        self.topic = topic
+        self.mtype = mtype
+        self.callerid = callerid
+        self.latch = latch
+        # roscpp's publisher queue: messages per subscriber waiting for its socket, the oldest dropped past it
+        # (0: unbounded); None: no queue of ours, a subscriber MAX_WRITE_BACKLOG bytes behind loses new messages
+        self.queue_size = queue_size
+        self.links: list[SubscriberLink] = []
+        self.messages_published = 0
+        self.last: bytes | None = None
 
     def publish(self, payload: bytes | memoryview) -> None:
         """Send one serialized message to every connected subscriber."""

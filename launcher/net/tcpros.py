@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Mapping
-from dataclasses import dataclass
+from typing import NamedTuple
 
 _LEN = struct.Struct("<I")
 
@@ -322,8 +322,7 @@ def encode_service_response(ok: bool, payload: bytes) -> bytes:
     return (b"\x01" if ok else b"\x00") + encode_frame(payload)
 
 
-@dataclass
-class TopicType:
+class TopicType(NamedTuple):
     """What both ends of a topic connection must agree on."""
 
     name: str        # e.g. rosgraph_msgs/Log

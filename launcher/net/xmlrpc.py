@@ -11,7 +11,6 @@ before it starts an event loop.
 from __future__ import annotations
 
 import socket
-import urllib.parse
 from typing import Any, Iterable
 
 from launcher.net import http
@@ -29,7 +28,7 @@ MAX_RESPONSE_SIZE = 64 * 1024 * 1024  # what `call` accepts from a server
 
 def _http_request(uri: str, method: str, params: Iterable[Any]) -> tuple[str, int, bytes]:
     """(host, port, the whole HTTP request) for one call."""
-    u = urllib.parse.urlsplit(uri)
+    u = http.split_uri(uri)
     if u.scheme != "http" or not u.hostname:
         raise XmlRpcError("not an http:// XML-RPC URI: %r" % uri)
     host_header = u.netloc.rsplit("@", 1)[-1]

@@ -9,8 +9,7 @@ clients that send these bytes are `launcher.net.xmlrpc`; the server,
 
 from __future__ import annotations
 
-import base64
-import datetime
+import binascii  # (base64's b64encode/b64decode are these; that module is ~50 kB more of a launch's memory)
 import re
 import sys
 from typing import Any, Callable, Iterable
@@ -95,7 +94,7 @@ def _enc_float(v: float, out: list[str]) -> None:
 
 
 def _enc_bytes(v: bytes | bytearray, out: list[str]) -> None:
-    out.append("<value><base64>%s</base64></value>" % base64.b64encode(v).decode("ascii"))
+    out.append("<value><base64>%s</base64></value>" % binascii.b2a_base64(v, newline=False).decode("ascii"))
 
 
 def _enc_binary(v: Any, out: list[str]) -> None:  # an xmlrpc.client.Binary
@@ -106,7 +105,7 @@ def _enc_datetime(v: Any, out: list[str]) -> None:  # an xmlrpc.client.DateTime
     out.append("<value><dateTime.iso8601>%s</dateTime.iso8601></value>" % v.value)
 
 
-def _enc_pydatetime(v: datetime.datetime, out: list[str]) -> None:
+def _enc_pydatetime(v: Any, out: list[str]) -> None:
     out.append("<value><dateTime.iso8601>%s</dateTime.iso8601></value>" % v.strftime("%Y%m%dT%H:%M:%S"))
 
 
@@ -154,7 +153,7 @@ def _enc_none(v: None, out: list[str]) -> None:
 
 _ENCODERS: dict[type, Callable[[Any, list[str]], None]] = {
     str: _enc_str, int: _enc_int, bool: _enc_bool, float: _enc_float,
-    bytes: _enc_bytes, bytearray: _enc_bytes, datetime.datetime: _enc_pydatetime,
+    bytes: _enc_bytes, bytearray: _enc_bytes,
     list: _enc_list, tuple: _enc_list, dict: _enc_dict, type(None): _enc_none,
     Encoded: _enc_encoded,
 }
@@ -166,8 +165,12 @@ def _encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
         enc = _ENCODERS.get(base)
         if enc is not None:
             return enc
-    # xmlrpc.client's Binary and DateTime: that module (http.client, email, ...) is not imported
-    # at every launch's start for them; a value of its types means the caller has loaded it.
+    # datetime, and xmlrpc.client's Binary and DateTime: those modules (~0.2 MB; http.client, email, ...)
+    # are not imported at every launch's start for them; a value of their types means the caller loaded them.
+    datetime = sys.modules.get("datetime")
+    if datetime is not None and datetime.datetime not in _ENCODERS:
+        _ENCODERS[datetime.datetime] = _enc_pydatetime
+        return _encoder_for(value)
     client = sys.modules.get("xmlrpc.client")
     if client is not None and client.Binary not in _ENCODERS:
         _ENCODERS[client.Binary] = _enc_binary
@@ -317,7 +320,7 @@ class _Unmarshaller:
             self.stack.append(d)
         elif tag == "base64":
             try:
-                self.stack.append(base64.b64decode(data.encode("ascii")))
+                self.stack.append(binascii.a2b_base64(data.encode("ascii")))
             except (ValueError, UnicodeEncodeError):
                 raise XmlRpcError("bad base64 value") from None
         elif tag == "dateTime.iso8601":

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import shutil
 import subprocess
 from typing import Awaitable, Callable, Mapping
 
@@ -49,6 +48,7 @@ def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
 
 
 def _du_argv(path: str) -> list[str] | None:
+    import shutil  # (with its compressors: when the check runs, seconds after the start, not at every start)
     du = shutil.which("du")
     if not du:
         return None

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import shutil
 from typing import Callable
 
 CHECK_PERIOD_S = 1.0
@@ -69,5 +68,6 @@ class LogRotator:
             older = "%s.%d" % (path, i)
             if os.path.exists(older):
                 os.replace(older, "%s.%d" % (path, i + 1))
+        import shutil  # here, at a rotation: it imports its compressors, ~0.3 MB a run without one would keep
         shutil.copyfile(path, path + ".1")  # (copy_file_range/sendfile in the kernel where it can)
         os.truncate(path, 0)

@@ -9,7 +9,6 @@ other hosts is `plan.machines`' (it asks the network); `remote/` runs the nodes.
 
 from __future__ import annotations
 
-import urllib.parse
 from typing import Callable, Iterable, Mapping
 
 from launcher.model.config import Machine, Node, NodePolicy
@@ -36,6 +35,7 @@ def machine_nodes(nodes: Iterable[Node], machines: Mapping[str, Machine],
 
 def check_addresses(master_uri: str, advertised_host: str, machines: list[Machine]) -> None:
     """A remote host must reach the master and the parent: loopback addresses are an error (file:line)."""
+    import urllib.parse  # (only a launch with other machines asks: urllib.parse and ipaddress cost ~0.4 MB)
     host = urllib.parse.urlsplit(master_uri).hostname or ""
     for what, name, var in (("ROS_MASTER_URI", host, "ROS_MASTER_URI"),
                             ("this machine's ROS address", advertised_host, "ROS_IP or ROS_HOSTNAME")):

@@ -13,7 +13,7 @@ from launcher.model.config import NodePolicy
 from launcher.model.errors import LaunchError
 from launcher.model.names import ns_join
 from launcher.model.runopts import RunOptions
-from launcher.plan.command import NodeCommand, node_command
+from launcher.plan.command import NodeCommand, SharedEnvs, node_command
 
 DEFAULT_POLICY = NodePolicy()  # a node with none of the extension attributes: roslaunch's behaviour
 
@@ -72,6 +72,7 @@ def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], package
     specs: list[ProcessSpec] = []
     failed: list[tuple[str, bool]] = []
     number = first_number
+    shared_envs: SharedEnvs = {}
     for node in config.nodes:
         if is_remote(node):
             continue  # its machine's child runs it (launcher.remote), or --local leaves it out
@@ -83,7 +84,7 @@ def node_specs(config: Any, master_uri: str, environ: Mapping[str, str], package
         required = node.required or opts.required
         try:
             command = node_command(node, master_uri=master_uri, environ=environ, packages=packages,
-                                   log_file=os.path.join(run_dir, log_name + ".log"))
+                                   log_file=os.path.join(run_dir, log_name + ".log"), shared_envs=shared_envs)
         except LaunchError as e:
             log_error("ERROR: cannot launch node of type [%s/%s]: %s" % (node.package, node.type, e))
             failed.append((name, required))

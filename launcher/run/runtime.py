@@ -20,19 +20,16 @@ import os
 import signal
 import sys
 import time
-from typing import Any, Awaitable, Callable
+from typing import TYPE_CHECKING, Any, Awaitable, Callable
 
 from launcher import compat
 from launcher.services import masterlink
 from launcher.model.errors import LaunchError
 from launcher.services.masterlink import MasterSession
 from launcher.services.masterwatch import MasterWatch
-from launcher.services.metrics import Exporter, MetricsServer
 from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
-from launcher.services import systemd
 from launcher.services.service import Service
-from launcher.run.reload import Reloader
 from launcher.plan.plan import Plan
 from launcher.run.load import core_plan, load_plan
 from launcher.output import console
@@ -43,6 +40,11 @@ from launcher.process.watchdog import Watchdog
 from launcher.output.runlog import RunLog, summary
 from launcher.model.runopts import RunOptions
 from launcher.services.servers import ApiServer, DiagnosticsService, LogDiskCheck, RosoutService, RunView
+
+if TYPE_CHECKING:  # (annotations only: each is imported where a reload or a scrape first needs it)
+    from launcher.run.reload import Reloader
+    from launcher.services.metrics import Exporter, MetricsServer
+    from launcher.services.systemd import Notifier
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -172,11 +174,15 @@ class Run:
         self.rosout = RosoutService(self.master, self.log, env) if rosout else None
         self.view = RunView(self.master, self.nodes, self.log, self.rosout, plan.config.files)
         self.api = ApiServer(self.view, self.master, env)
+        self._reloader: Reloader | None = None
         if not self.core and plan.files:
-            self.view.reload = Reloader(self).reload
+            self.view.reload = self._reload
         # the run's metrics: read by a scrape of `--metrics`, or through the API server (the web page's /metrics)
-        self.view.metrics = Exporter(self.master, self.nodes, lambda: self.master.run_id or "")
-        self.metrics = MetricsServer(self.view.metrics, opts.metrics) if opts.metrics else None
+        self.view.metrics_of = self._metrics_exporter
+        self.metrics: MetricsServer | None = None
+        if opts.metrics:
+            from launcher.services.metrics import MetricsServer
+            self.metrics = MetricsServer(self.view.metrics, opts.metrics)
         self.diagnostics = (DiagnosticsService(self.master, self.nodes, env)
                             if diagnostics and not self.core and not opts.no_diagnostics else None)
         self.log_disk = (LogDiskCheck(env, plan.log_threshold)
@@ -186,7 +192,10 @@ class Run:
         self._started = time.monotonic()  # (the launch log's timings count from here)
         self._up: list[Service] = []  # the services started (or starting)
         # READY=1, STATUS=, WATCHDOG=1, STOPPING=1 to systemd when run as a service ($NOTIFY_SOCKET)
-        self.notifier = systemd.Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
+        self.notifier: Notifier | None = None
+        if os.environ.get("NOTIFY_SOCKET"):  # (the notify protocol's module is imported only under systemd)
+            from launcher.services.systemd import Notifier
+            self.notifier = Notifier.from_environ(warn=console.printerrlog, ready_timeout=opts.ready_timeout)
         # orphans re-parented to the launch are reaped (process/reaper.py); a front-end that waits for a
         # child of its own (rostest's test node: its exit status is the test's result) says False
         self.reap_orphans = reap_orphans
@@ -307,6 +316,17 @@ class Run:
             w.cancel()
         if shutdown is not None and shutdown.is_set():
             console.printlog("shutdown request: %s" % self.master.master.shutdown_reason)
+
+    async def _reload(self, given: list[str], dry_run: bool) -> dict:
+        if self._reloader is None:
+            # here, at the first reload: it and plan/diff are ~80 kB of a launch's memory a run without one keeps
+            from launcher.run.reload import Reloader
+            self._reloader = Reloader(self)
+        return await self._reloader.reload(given, dry_run)
+
+    def _metrics_exporter(self) -> Exporter:
+        from launcher.services.metrics import Exporter  # (at the first scrape: a run nobody scrapes never imports it)
+        return Exporter(self.master, self.nodes, lambda: self.master.run_id or "")
 
     def _end_reason(self) -> str:
         """Why the run ends, in words (the events file's last line, which `launcher status` reads after it)."""

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import asyncio
 import os
-import urllib.parse
 from typing import TYPE_CHECKING, Any, Mapping
 
 from launcher.model.errors import LaunchError
 from launcher.master.server import Master, advertised_host
 from launcher.model.graph import Graph
-from launcher.net.allow import AllowList
+from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
 from launcher.output import console
@@ -46,7 +45,7 @@ def master_port(port: int | None, environ: Mapping[str, str]) -> int:
     uri = environ.get("ROS_MASTER_URI")
     if uri:
         try:
-            port = urllib.parse.urlsplit(uri).port
+            port = split_uri(uri).port
         except ValueError:
             raise LaunchError("invalid ROS_MASTER_URI [%s]" % uri) from None
         if port:
@@ -215,6 +214,13 @@ async def start_master(port: int, environ: Mapping[str, str], allow: Any = None)
     return master
 
 
+def new_run_id() -> str:
+    """A new run id: a UUID, as roslaunch's are, of version 4 (random) where roslaunch's `uuid.uuid1()` is
+    time-based: the uuid module imports platform & co., ~0.2 MB a launch would keep for one call."""
+    h = os.urandom(16).hex()
+    return "%s-%s-4%s-%x%s-%s" % (h[:8], h[8:12], h[13:16], 8 | int(h[16], 16) & 3, h[17:20], h[20:])
+
+
 class MasterSession:
     """A run's master as one service: found (or, for a core, started) first, then ours started when none
     answers, the run id, the parameters; stopped last.
@@ -276,7 +282,7 @@ class MasterSession:
                     and await started_by_roscore(self.uri)):
                 reply = await self._wait_for_roscore_run_id(reply)
             return True, reply
-        host = urllib.parse.urlsplit(self.uri).hostname or ""
+        host = split_uri(self.uri).hostname or ""
         if not is_local_host(host, self.plan.environ):
             raise LaunchError("unable to contact ROS master at [%s]; it is not on this machine, so it cannot be "
                               "started here" % self.uri)
@@ -301,8 +307,7 @@ class MasterSession:
             return str(value)
         if self.opts.run_id:
             return self.opts.run_id
-        import uuid  # imports platform & co.: only when a run id must be made up
-        return str(uuid.uuid1())
+        return new_run_id()
 
     # ---- start -----------------------------------------------------------------------------------------
 
@@ -311,6 +316,7 @@ class MasterSession:
         cidrs = [c for arg in self.opts.master_allow for c in arg.split(",") if c.strip()]
         if not cidrs:
             return None
+        from launcher.net.allow import AllowList  # (with ipaddress, ~0.25 MB: only for an allow-list)
         try:
             return AllowList(cidrs)
         except ValueError as e:
@@ -344,7 +350,7 @@ class MasterSession:
             if self.is_a_process:
                 console.printlog("auto-starting new master")
             if self.master is None:
-                await self._start_master(urllib.parse.urlsplit(self.uri).port or DEFAULT_MASTER_PORT)
+                await self._start_master(split_uri(self.uri).port or DEFAULT_MASTER_PORT)
         if not self.core:
             self.open_log(run_dir)
         self.params = LocalParams(self.master) if self.master is not None else RemoteParams(self.uri)

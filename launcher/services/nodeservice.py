@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from launcher.master.server import advertised_host
 from launcher.model.config import LaunchConfig
-from launcher.plan.diff import Difference
 from launcher.plan.specs import node_specs, packages_of
 from launcher.output import console, screen
 from launcher.process.coredumps import CoreDumpReporter
@@ -33,6 +32,7 @@ from launcher.services import runrecord
 from launcher.model.runopts import RunOptions
 
 if TYPE_CHECKING:  # (annotations only; the remote machinery is imported where a node runs on another machine)
+    from launcher.plan.diff import Difference  # (a reload's: run/reload.py imports it when one comes)
     from launcher.output.runlog import RunLog
     from launcher.remote.parent import RemoteParent
 

@@ -40,8 +40,16 @@ class RunView:
         self.launch_files = list(launch_files)
         # a reload of the run (run/reload.py: `async reload(args, dry_run) -> answer`), when it can have one
         self.reload: Callable[[list[str], bool], Awaitable[dict]] | None = None
-        # the run's metrics (services/metrics.Exporter: `async text()`), for `launcher_metrics`
-        self.metrics: Exporter | None = None
+        # what makes the run's metrics (services/metrics.Exporter: `async text()`) for `launcher_metrics`, once
+        self.metrics_of: Callable[[], Exporter] | None = None
+        self._metrics: Exporter | None = None
+
+    @property
+    def metrics(self) -> Exporter | None:
+        """The run's metrics, made at the first call that reads them: a run nobody scrapes never imports them."""
+        if self._metrics is None and self.metrics_of is not None:
+            self._metrics = self.metrics_of()
+        return self._metrics
 
     @property
     def fleet(self) -> Fleet | None:

@@ -205,3 +205,47 @@ def test_module_imports_no_asyncio():
     code = "import sys, launcher.net.http; print('asyncio' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+# ---------------------------------------------------------------------------
+# URIs: split_uri reads them as urllib.parse.urlsplit does
+# ---------------------------------------------------------------------------
+
+from hypothesis import assume, given, settings, strategies as st  # noqa: E402
+import sys  # noqa: E402
+import urllib.parse  # noqa: E402
+
+# (not the corners where urllib's rules changed since 3.8, where ours are 3.11's: a scheme that starts with a digit,
+# a port with a sign or a space, an IPv6 zone's case)
+_URI_PART = st.text(alphabet="hHtTpP:/[]@?#._0123456789aAzZ\t\n\x00", max_size=30)
+
+
+@pytest.mark.skipif(sys.version_info < (3, 11), reason="urllib's rules before 3.11 differ in corners (`a:1` is a "
+                    "path in 3.8); split_uri's are 3.11's, checked there")
+@settings(max_examples=1500, deadline=None)
+@given(st.one_of(_URI_PART, st.builds("{}://{}{}{}".format, st.sampled_from(["http", "HTTP", "h+1", ""]),
+                                      st.sampled_from(["", "user@", "a:b@"]), _URI_PART, _URI_PART)))
+def test_a_uri_is_split_as_urllib_splits_it(uri):
+    assume(not uri.lstrip("\x00")[:1].isdigit())
+    try:
+        u = urllib.parse.urlsplit(uri)
+        want = (u.scheme, u.netloc, u.hostname, u.port, u.path)
+    except ValueError:
+        want = None
+    try:
+        got = tuple(H.split_uri(uri))
+    except ValueError:
+        got = None
+    if want is None and got is not None:
+        assume("[" not in uri)  # (since 3.11.4 urllib checks a bracketed host is an IPv6 address: not done here)
+    assert got == want
+
+
+def test_the_uris_of_ros():
+    assert H.split_uri("http://LocalHost:11311/") == ("http", "LocalHost:11311", "localhost", 11311, "/")
+    assert H.split_uri("http://[::1]:8080") == ("http", "[::1]:8080", "::1", 8080, "")
+    assert H.split_uri("http://h/RPC2?x#y") == ("http", "h", "h", None, "/RPC2")
+    assert H.split_uri("http://[FE80::1%Eth0]:1/").hostname == "fe80::1%Eth0"  # (the zone keeps its case)
+    for bad in ("http://h:notaport/", "http://h:70000/", "http://[::1/", "http://h:+1/"):
+        with pytest.raises(ValueError):
+            H.split_uri(bad)

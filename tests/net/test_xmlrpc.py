@@ -73,6 +73,14 @@ def test_untyped_value_i8_nil_and_datetime():
     assert b"<dateTime.iso8601>20200102T03:04:05</dateTime.iso8601>" in X.dumps_response(params[5])
 
 
+def test_a_python_datetime_is_sent_as_the_stdlib_sends_it():
+    import datetime  # (the codec does not import it: a value of its type means the caller has)
+    when = datetime.datetime(2020, 1, 2, 3, 4, 5)
+    body = X.dumps_response([when])
+    assert b"<dateTime.iso8601>20200102T03:04:05</dateTime.iso8601>" in body
+    assert xmlrpc.client.loads(body, use_datetime=True)[0][0] == [when]
+
+
 def test_out_of_int32_values_and_none_cannot_be_sent():
     with pytest.raises(OverflowError):
         X.dumps_response([1, {"a": 2**31}])

@@ -65,6 +65,23 @@ def test_environment_and_changes_in_roslaunch_order(pkgs):
     assert c.env["ROS_NAMESPACE"] == "/explicit" and c.env["KEEP"] == "same" and c.env["HOME"] == env["HOME"]
 
 
+def test_nodes_with_the_same_environment_share_one(pkgs):
+    index, env, _ = pkgs
+    shared: dict = {}
+
+    def command(namespace="/", env_args=(), name="n"):
+        return node_command(Node("tpkg", "talker", name, namespace=namespace, env_args=env_args),
+                            master_uri="http://m:2/", environ=env, packages=index, shared_envs=shared)
+    a, b = command(name="a"), command(name="b")
+    assert a.env is b.env and a.env["ROS_MASTER_URI"] == "http://m:2/" and "ROS_NAMESPACE" not in a.env
+    ns, other = command("/ns/"), command(env_args=(("ZED", "z"),))
+    assert ns.env is not a.env and ns.env["ROS_NAMESPACE"] == "/ns" and ns.env_changes[-1] == ("ROS_NAMESPACE", "/ns")
+    assert other.env is not a.env and other.env["ZED"] == "z" and "ZED" not in a.env
+    assert command(env_args=(("ZED", "z"),)).env is other.env
+    assert node_command(Node("tpkg", "talker", "c"), master_uri="http://m:2/", environ=env,
+                        packages=index).env == a.env  # (what the nodes share is what each would have had)
+
+
 def test_root_namespace_sets_no_ros_namespace(pkgs):
     index, env, _ = pkgs
     c = node_command(Node("tpkg", "talker", "n"), master_uri="http://localhost:11311/",

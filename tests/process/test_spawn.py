@@ -32,3 +32,23 @@ def test_working_directory_that_cannot_be_made_is_a_spawn_error(tmp_path):
     blocker.write_text("")
     with pytest.raises(SpawnError):
         spawn(ProcessSpec("x-1", NodeCommand(["/bin/true"], dict(os.environ), cwd=str(blocker / "sub"))))
+
+
+def test_a_node_with_the_launchers_environment_inherits_it_and_another_gets_its_own(tmp_path):
+    from launcher.process import spawn as spawn_module
+    node_environ = spawn_module.node_environ
+    spawn_module._OWN_ENVIRON.clear()  # (pytest changes PYTEST_CURRENT_TEST between tests; a launch never changes it)
+    own = dict(os.environ)
+    assert node_environ(own, []) is None  # (nothing to encode at its start: exec passes ours on)
+    changed = dict(own, ROS_NAMESPACE="/ns")
+    assert node_environ(changed, [("ROS_NAMESPACE", "/ns")]) is changed
+    fewer = dict(own)
+    fewer.pop("HOME", None)
+    assert node_environ(fewer, []) is fewer  # (a variable of ours it must not have: not inherited)
+    out = tmp_path / "env.txt"
+    for env, changes in ((own, []), (changed, [("ROS_NAMESPACE", "/ns")])):
+        p = spawn(ProcessSpec("e-1", NodeCommand(["/bin/sh", "-c", "env > %s" % out], env, changes)))
+        assert p.wait(10) == 0
+        seen = dict(line.split("=", 1) for line in out.read_text().splitlines() if "=" in line)
+        assert all(seen.get(k) == v for k, v in env.items() if "\n" not in v)
+        assert ("ROS_NAMESPACE" in seen) == ("ROS_NAMESPACE" in env)

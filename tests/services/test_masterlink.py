@@ -45,3 +45,12 @@ def test_busy_port_exits_1_with_a_message(tmp_path):
                              text=True, timeout=60, env=dict(os.environ, ROS_HOME=str(tmp_path)))
     assert out.returncode == 1
     assert "already running" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_new_run_id_is_a_random_uuid():
+    import uuid
+    ids = {masterlink.new_run_id() for _ in range(200)}
+    assert len(ids) == 200
+    for run_id in ids:
+        u = uuid.UUID(run_id)
+        assert str(u) == run_id and u.version == 4 and u.variant == uuid.RFC_4122
