@@ -733,9 +733,10 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
         make = _SCOPE_FUNCTIONS.get(name)
         if make is not None:
             return make(scope)
-        value = scope.args[name]  # (KeyError: not an arg; the sandbox goes on to its builtins)
+        if name not in scope.args:
+            return sandbox.NOT_FOUND  # (not an arg: the sandbox goes on to its builtins)
         scope.used_args.add(name)
-        return auto_value(value)
+        return auto_value(scope.args[name])
 
     try:
         return str(sandbox.evaluate(expr, lookup))
