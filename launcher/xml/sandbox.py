@@ -654,9 +654,10 @@ def _compile_name(node: ast.Name) -> Code:
     name = node.id
 
     def load(ev: Evaluator) -> Any:
-        for scope in reversed(ev.local):
-            if name in scope:
-                return scope[name]
+        if ev.local:  # (inside a comprehension)
+            for scope in reversed(ev.local):
+                if name in scope:
+                    return scope[name]
         value = ev.lookup(name)
         if value is not NOT_FOUND:
             return value

@@ -717,13 +717,24 @@ _SCOPE_FUNCTIONS: dict[str, Callable[[SubstitutionScope], Any]] = {
     "find": lambda scope: scope.find_package}
 
 
+_sandbox: Any = None  # xml/sandbox.py, once the first $(eval) has imported it
+
+
+def _import_sandbox() -> Any:
+    # (imported by the first $(eval): the sandbox and `ast` cost ~2.5 ms to import, and most launches have
+    # none; then kept, for an import statement is ~1 us at each of a big launch's thousand $(eval)s)
+    global _sandbox
+    import launcher.xml.sandbox
+    _sandbox = launcher.xml.sandbox
+    return _sandbox
+
+
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
     """`$(eval expr)`: str() of the expression, evaluated by the sandbox over roslaunch's names."""
     # roslaunch's own refusal, kept for its message (the sandbox needs no such rule)
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
-    # (imported here: the sandbox and `ast` cost ~2.5 ms to import, and most launches have no $(eval))
-    import launcher.xml.sandbox as sandbox
+    sandbox = _sandbox if _sandbox is not None else _import_sandbox()
 
     def lookup(name: str) -> Any:  # roslaunch's _DictWrapper: its names, then the args auto-typed
         if name in _ROSLAUNCH_CONSTANTS:
