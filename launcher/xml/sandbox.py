@@ -35,7 +35,7 @@ import re
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
 if TYPE_CHECKING:
-    from typing import Any, Callable
+    from typing import Any, Callable, Iterator
 
     Lookup = Callable[[str], Any]
     """A name's value, in roslaunch's order (its functions and constants, then the file's args,
@@ -631,6 +631,41 @@ def compiled(expr: str) -> Code:
         if len(_COMPILED) < 4096:
             _COMPILED[expr] = code
     return code
+
+
+def names_read(expr: str, function: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """What an evaluation of `expr` can ask its Lookup for, from its text alone: (every name in it, the
+    literal text of each call of `function`, `arg('rate')`: 'rate'); None when `function` is used in any
+    other way (given no literal string, passed as a value, a comprehension's variable)."""
+    names: dict[str, None] = {}
+    literals: dict[str, None] = {}
+    called = set()  # the Name nodes that are `function(literal)`'s function
+    for node in _walk(parse(expr)):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == function:
+            arg = node.args[0] if len(node.args) == 1 and not node.keywords else None
+            if not (isinstance(arg, ast.Constant) and type(arg.value) is str):
+                return None
+            literals[arg.value] = None
+            called.add(id(node.func))
+        elif isinstance(node, ast.Name):
+            if node.id == function and id(node) not in called:
+                return None
+            names[node.id] = None
+    return tuple(names), tuple(literals)
+
+
+def _walk(tree: ast.AST) -> Iterator[ast.AST]:
+    """The tree's nodes, each before its children (ast.walk, without importing `ast`)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for field in node._fields:
+            value = getattr(node, field, None)
+            if isinstance(value, ast.AST):
+                stack.append(value)
+            elif isinstance(value, list):
+                stack.extend(v for v in reversed(value) if isinstance(v, ast.AST))
 
 
 def _walked(node: ast.AST) -> Code:

@@ -275,3 +275,38 @@ def test_the_common_node_kinds_are_compiled(monkeypatch):
     assert ev("max(*[1, a], 2, key=abs) + (1 if not a < 2 or a > 5 else len('a'.upper())) or (b, [a])") == "4"
     assert walked == []
     assert ev("[x for x in [a]]") == "[3]" and len(walked) > 0
+
+
+# An expression over args only is kept by the values of the args it can read (xml/substitution.py): the
+# same text over the same args gives the kept text, and marks the same args used.
+def _used_and_outcome(expr, **kw):
+    s = scope(**kw)
+    try:
+        out = ("ok", resolve("$(eval %s)" % expr, s))
+    except SubstitutionError as e:
+        out = ("error", str(e))
+    return out, set(s.used_args)
+
+
+@pytest.mark.parametrize("expr", [e for e, _ in EXPRESSIONS] + DIFFERENTIAL + MORE
+                         + ["true or arg('b')", "arg('a') if false else arg('b')", "arg('nope')", "[a for a in 'xy']",
+                            "arg('a') + arg('a')", "str + 'x'"])
+def test_a_kept_value_is_what_evaluating_gives(expr):
+    first = _used_and_outcome(expr)
+    assert _used_and_outcome(expr) == first  # (kept, if it can be)
+    from launcher.xml import substitution
+    substitution._EVAL_VALUES.clear()
+    assert _used_and_outcome(expr) == first  # (evaluated again)
+
+
+def test_a_kept_value_follows_the_args_and_what_is_not_an_arg_is_not_kept():
+    assert _used_and_outcome("str(arg('a')) + '/1'") == (("ok", "3/1"), {"a"})
+    assert _used_and_outcome("str(arg('a')) + '/1'", args=dict(ARGS, a="5")) == (("ok", "5/1"), {"a"})
+    assert _used_and_outcome("b * 2", args=dict(ARGS, b="x")) == (("ok", "xx"), {"b"})
+    assert _used_and_outcome("b * 2") == (("ok", "8"), {"b"})
+    assert _used_and_outcome("str * 2", args=dict(ARGS, str="s")) == (("ok", "ss"), {"str"})  # (an arg named str)
+    assert _used_and_outcome("str(1)")[0] == ("ok", "1")
+    # the environment, the disk and made names are read at every evaluation
+    assert ev("optenv('E') + str(a)", env={"E": "x"}) == "x3" and ev("optenv('E') + str(a)", env={"E": "y"}) == "y3"
+    assert ev("env('E')", env={"E": "1"}) == "1" and ev("env('E')", env={"E": "2"}) == "2"
+    assert ev("anon('n')") != ev("anon('n')")  # (a new scope each: a new anonymous name)
