@@ -101,7 +101,8 @@ for _part in MAY_IMPORT:
 # module -> the only modules of ours it may import: the bottom of the tree, which everything else stands on
 ONLY = {_ + module: {_ + d for d in deps.split()} for module, deps in {
     "model.names": "", "model.errors": "", "model.units": "", "model.suggest": "", "model.shellwords": "",
-    "model.runopts": "", "model.token": "", "model.patterns": "", "model.config": "model.names",
+    "model.record": "", "model.runopts": "model.record", "model.token": "", "model.patterns": "",
+    "model.config": "model.names model.record",
     "workspace.roshome": "", "workspace.nodepython": "", "workspace.crawlcache": "workspace.roshome",
     "master.callstats": "",
 }.items()}

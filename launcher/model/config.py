@@ -3,19 +3,24 @@
 The XML loader produces it; introspection (`--nodes`, `--args`, ...) and the
 runtime consume it. Nothing here knows about XML, sockets or processes.
 
-The records are `typing.NamedTuple`s: immutable, compared, hashed and printed by
-field, built in C from a tuple (a big launch makes thousands of them), and
-without the import cost of `dataclasses` (~5 ms: it pulls in `inspect`).
+The records are namedtuples (`model/record.py`): immutable, compared, hashed and
+printed by field, built in C from a tuple (a big launch makes thousands of them),
+and without the import cost of `dataclasses` (~5 ms: it pulls in `inspect`) or
+`typing` (~3 ms, and ~1.5 ms more to make these classes with `typing.NamedTuple`).
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
-
 from launcher.model.names import SEP
+from launcher.model.record import record
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any
 
 
-class Machine(NamedTuple):
+@record
+class Machine:
     """A `<machine>` tag."""
 
     name: str
@@ -34,7 +39,8 @@ class Machine(NamedTuple):
         return self.address in ("localhost", "127.0.0.1", "::1") or self.address.startswith("127.")
 
 
-class NodePolicy(NamedTuple):
+@record
+class NodePolicy:
     """How a node is supervised beyond roslaunch (the extension attributes of `<node>`, or the
     defaults a `<launch>`, `<group>` or `<include>` gives the nodes inside it; the nearest wins).
 
@@ -75,7 +81,8 @@ class NodePolicy(NamedTuple):
     log_backups: int | None = None  # rotated copies to keep (None: --log-backups)
 
 
-class Node(NamedTuple):
+@record
+class Node:
     """A `<node>` (or, with `test_name` set, a `<test>`), fully substituted.
 
     `namespace` is global with a trailing slash (`/`, `/robot/`), as in
@@ -114,7 +121,8 @@ class Node(NamedTuple):
         return self.namespace + self.name if self.namespace.endswith(SEP) else self.namespace + SEP + self.name
 
 
-class Param(NamedTuple):
+@record
+class Param:
     """One parameter the launch sets: a global key and its typed value."""
 
     key: str
@@ -131,7 +139,8 @@ def new_param(key: str, value: Any, filename: str, line: int) -> Param:
     return _tuple_new(Param, (key, value, filename, line))
 
 
-class _LaunchConfigFields(NamedTuple):
+@record
+class _LaunchConfigFields:
     nodes: tuple[Node, ...]
     tests: tuple[Node, ...]
     params: dict[str, Param]

@@ -8,10 +8,15 @@ the few it sets).
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from launcher.model.record import record
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any
 
 
-class RunOptions(NamedTuple):
+@record
+class RunOptions:
     positional: tuple[str, ...] = ()  # launch files (or a package and a file) and name:=value args
     core: bool = False  # `launch --core`: a master, parameter server and rosout only
     port: int | None = None  # the master's port (-p)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import re
 import sys
-from typing import Any, Callable, Iterable, Mapping
 
 from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
 from launcher.model.errors import SHOWN_CHARS, LaunchError, shorten
@@ -23,12 +22,17 @@ from launcher.params.yamlcache import YamlCache
 from launcher.workspace.roshome import ros_home
 from launcher.model.suggest import did_you_mean, near_file
 from launcher.xml.arguments import load_mappings, root_namespace
-from launcher.xml.commands import CommandError, CommandParam, run_all
 from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import (POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names,
                                  resolve_watch_topics)
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
 from launcher.xml.substitution import AnonNames, ArgNotSet, LoadBudget, SubstitutionError, resolve
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any, Callable, Iterable, Mapping
+
+    from launcher.xml.commands import CommandError, CommandParam
 
 # roslaunch's per-tag attribute lists, plus our supervision extensions (xml/policy.py) where they
 # apply; anything else is warned about
@@ -529,6 +533,9 @@ class XmlLoader:
 
     def _command_param(self, command: str, name: str, ptype: str, scope: Scope, el: Any) -> CommandParam:
         """A stand-in for the value, run with the others once the launch is read (xml/commands.py)."""
+        # (imported by the first <param command>: few launches have one)
+        from launcher.xml.commands import CommandError, CommandParam
+
         def finish(outcome: str | CommandError) -> Any:
             if isinstance(outcome, CommandError):
                 raise self._fail(scope, el, str(outcome))
@@ -539,6 +546,9 @@ class XmlLoader:
 
     def _run_commands(self) -> None:
         """Run the command parameters whose parameter is still set (in file order), and put their values in."""
+        if not self._commands:
+            return  # (the usual case: no <param command>, and its module not imported)
+        from launcher.xml.commands import CommandParam, run_all
         params = self.params
         live = {id(p.value) for p in params.values() if type(p.value) is CommandParam}
         pending = [c for c in self._commands if id(c) in live]

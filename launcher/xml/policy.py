@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Callable
 
 from launcher.model import units
 from launcher.model.names import is_legal_name
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any, Callable
 
 
 class PolicyError(ValueError):

@@ -11,6 +11,13 @@ file's args, a few pure builtins); the only attribute access is a call of a meth
 listed in `_METHODS`. Frames, classes and globals are out of reach by construction, not
 by a list of forbidden words.
 
+A launch tree evaluates the same texts again and again (an include's nodes, each with its
+own args), so each distinct text is parsed once and made once into nested closures
+(`compiled`), one per syntax node, that do what the walk's handler for that node does
+without looking the handler up at every node of every evaluation. The node kinds a real
+launch file uses are made so; any other node (comprehensions, subscripts, f-strings, ...)
+and any refusal are left to the walk, at evaluation, as before.
+
 The work is bounded too: every comprehension step counts against `MAX_STEPS` (without
 them, the work is bounded by the length of the text), and every value made is weighed (its length, the weights of what it holds,
 shared parts counted each time, as `str()` would print them) against `MAX_SIZE` before
@@ -25,7 +32,16 @@ from __future__ import annotations
 import _ast as ast
 import math
 import re
-from typing import Any, Callable
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any, Callable, Iterator
+
+    Lookup = Callable[[str], Any]
+    """A name's value, in roslaunch's order (its functions and constants, then the file's args,
+    auto-typed); NOT_FOUND when it has none. The builtins table is searched after it."""
+    Code = Callable[["Evaluator"], Any]
+    """A syntax node made a closure (`compiled`): its value in the evaluation it is given."""
 
 MAX_STEPS = 100_000  # comprehension iterations (a real launch file uses a few)
 MAX_SIZE = 1_000_000  # the weight of any one value: characters, items
@@ -37,14 +53,12 @@ class EvalError(Exception):
     """The expression is refused or failed; the message says why (the loader adds file and line)."""
 
 
-Lookup = Callable[[str], Any]
-"""A name's value, in roslaunch's order (its functions and constants, then the file's args,
-auto-typed); KeyError when it has none. The builtins table is searched after it."""
+NOT_FOUND = object()  # what a Lookup gives for a name it has no value of (an exception costs ~1 us a name)
 
 
 def evaluate(expr: str, lookup: Lookup) -> Any:
     """The value of `expr`; EvalError (with Python's words for the user's own mistakes) otherwise."""
-    return Evaluator(lookup).run(parse(expr))
+    return Evaluator(lookup).run(compiled(expr))
 
 
 _PARSED: dict[str, ast.expr] = {}
@@ -319,9 +333,10 @@ class Evaluator:
         self.weights: dict[int, int] = {}
         self.made: list[Any] = []
 
-    def run(self, tree: ast.expr) -> Any:
+    def run(self, code: Code) -> Any:
+        """The value of a compiled expression (`compiled`) in this evaluation."""
         try:
-            return self.eval(tree)
+            return code(self)
         except RecursionError:
             raise EvalError("expression nested too deeply") from None
         except MemoryError:
@@ -376,10 +391,9 @@ class Evaluator:
         for scope in reversed(self.local):
             if name in scope:
                 return scope[name]
-        try:
-            return self.lookup(name)
-        except KeyError:
-            pass
+        value = self.lookup(name)
+        if value is not NOT_FOUND:
+            return value
         if name in BUILTINS:
             return BUILTINS[name]
         raise EvalError("name '%s' is not defined" % name)
@@ -592,3 +606,220 @@ def _describe(node: ast.AST) -> str:
     what = {ast.Lambda: "lambda", ast.Attribute: "attribute access", ast.NamedExpr: "':='",
             ast.Starred: "'*' here", ast.Await: "await", ast.Yield: "yield", ast.YieldFrom: "yield"}
     return what.get(type(node), type(node).__name__)
+
+
+# -- compiled: each text's tree made once into closures -----------------------------------
+#
+# Each function below makes one kind of node into a closure of the evaluation that does what
+# the walk's handler does, in the same order, with the same checks and errors, calling its
+# children's closures instead of dispatching on their kinds. A node of another kind, or one
+# the walk refuses (an operator or a literal it does not allow), is left to the walk
+# (`Evaluator.eval`), whose refusal then comes when, and only if, that node is evaluated.
+
+_COMPILED: dict[str, Code] = {}
+
+
+def compiled(expr: str) -> Code:
+    """The closure that evaluates `expr` (made once per distinct text, as `parse` parses it)."""
+    code = _COMPILED.get(expr)
+    if code is None:
+        tree = parse(expr)
+        try:
+            code = _compile(tree)
+        except RecursionError:  # (deeper than Python's stack: the walk meets the same limit, with its error)
+            code = _walked(tree)
+        if len(_COMPILED) < 4096:
+            _COMPILED[expr] = code
+    return code
+
+
+def names_read(expr: str, function: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """What an evaluation of `expr` can ask its Lookup for, from its text alone: (every name in it, the
+    literal text of each call of `function`, `arg('rate')`: 'rate'); None when `function` is used in any
+    other way (given no literal string, passed as a value, a comprehension's variable)."""
+    names: dict[str, None] = {}
+    literals: dict[str, None] = {}
+    called = set()  # the Name nodes that are `function(literal)`'s function
+    for node in _walk(parse(expr)):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == function:
+            arg = node.args[0] if len(node.args) == 1 and not node.keywords else None
+            if not (isinstance(arg, ast.Constant) and type(arg.value) is str):
+                return None
+            literals[arg.value] = None
+            called.add(id(node.func))
+        elif isinstance(node, ast.Name):
+            if node.id == function and id(node) not in called:
+                return None
+            names[node.id] = None
+    return tuple(names), tuple(literals)
+
+
+def _walk(tree: ast.AST) -> Iterator[ast.AST]:
+    """The tree's nodes, each before its children (ast.walk, without importing `ast`)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for field in node._fields:
+            value = getattr(node, field, None)
+            if isinstance(value, ast.AST):
+                stack.append(value)
+            elif isinstance(value, list):
+                stack.extend(v for v in reversed(value) if isinstance(v, ast.AST))
+
+
+def _walked(node: ast.AST) -> Code:
+    return lambda ev: ev.eval(node)
+
+
+def _compile(node: ast.AST) -> Code:
+    make = _COMPILE.get(type(node))
+    code = make(node) if make is not None else None
+    return code if code is not None else _walked(node)
+
+
+def _compile_constant(node: ast.Constant) -> Code | None:
+    value = node.value
+    if type(value) not in (str, int, float, complex, bool, type(None)):
+        return None
+    return lambda ev: value
+
+
+def _compile_name(node: ast.Name) -> Code:
+    name = node.id
+
+    def load(ev: Evaluator) -> Any:
+        if ev.local:  # (inside a comprehension)
+            for scope in reversed(ev.local):
+                if name in scope:
+                    return scope[name]
+        value = ev.lookup(name)
+        if value is not NOT_FOUND:
+            return value
+        if name in BUILTINS:
+            return BUILTINS[name]
+        raise EvalError("name '%s' is not defined" % name)
+    return load
+
+
+def _compile_binop(node: ast.BinOp) -> Code | None:
+    op = _BINARY.get(type(node.op))
+    if op is None:
+        return None
+    left, right = _compile(node.left), _compile(node.right)
+    return lambda ev: ev.weigh(ev._apply(op, left(ev), right(ev)))
+
+
+def _compile_unaryop(node: ast.UnaryOp) -> Code:
+    op = _UNARY[type(node.op)]
+    operand = _compile(node.operand)
+    return lambda ev: ev._apply(op, operand(ev))
+
+
+def _compile_boolop(node: ast.BoolOp) -> Code:
+    is_and = isinstance(node.op, ast.And)
+    operands = [_compile(v) for v in node.values]
+
+    def boolop(ev: Evaluator) -> Any:
+        value = None
+        for operand in operands:
+            value = operand(ev)
+            if bool(value) != is_and:
+                return value
+        return value
+    return boolop
+
+
+def _compile_compare(node: ast.Compare) -> Code:
+    first = _compile(node.left)
+    steps = [(_COMPARE[type(op)], _compile(right)) for op, right in zip(node.ops, node.comparators)]
+
+    def compare(ev: Evaluator) -> Any:
+        left = first(ev)
+        for op, right_code in steps:
+            right = right_code(ev)
+            if not ev._apply(op, left, right):
+                return False
+            left = right
+        return True
+    return compare
+
+
+def _compile_ifexp(node: ast.IfExp) -> Code:
+    test, body, orelse = _compile(node.test), _compile(node.body), _compile(node.orelse)
+    return lambda ev: body(ev) if test(ev) else orelse(ev)
+
+
+def _compile_items(nodes: list[ast.expr]) -> Callable[[Evaluator], list]:
+    """The closure of `Evaluator._items`: the values of `nodes`, a starred one's items spread."""
+    if not any(isinstance(n, ast.Starred) for n in nodes):
+        codes = [_compile(n) for n in nodes]
+        return lambda ev: [code(ev) for code in codes]
+    parts = [(True, _compile(n.value)) if isinstance(n, ast.Starred) else (False, _compile(n)) for n in nodes]
+
+    def items(ev: Evaluator) -> list:
+        out: list[Any] = []
+        for starred, code in parts:
+            if starred:
+                out.extend(ev._apply(list, code(ev)))
+            else:
+                out.append(code(ev))
+        return out
+    return items
+
+
+def _compile_list(node: ast.List) -> Code:
+    items = _compile_items(node.elts)
+    return lambda ev: ev.weigh(items(ev))
+
+
+def _compile_tuple(node: ast.Tuple) -> Code:
+    items = _compile_items(node.elts)
+    return lambda ev: ev.weigh(tuple(items(ev)))
+
+
+def _compile_call(node: ast.Call) -> Code:
+    func = node.func
+    items = _compile_items(node.args)
+    keywords = [(kw.arg, _compile(kw.value)) for kw in node.keywords]
+
+    def kwargs_of(ev: Evaluator) -> dict[str, Any]:
+        kwargs: dict[str, Any] = {}
+        for name, code in keywords:
+            if name is None:
+                more = code(ev)
+                if not isinstance(more, dict):
+                    raise EvalError("argument after ** must be a dict")
+                kwargs.update(more)
+            else:
+                kwargs[name] = code(ev)
+        return kwargs
+
+    if isinstance(func, ast.Attribute):
+        target_code, attr = _compile(func.value), func.attr
+
+        def call_method(ev: Evaluator) -> Any:
+            target = target_code(ev)
+            method = _METHODS.get(type(target), {}).get(attr)
+            if method is None:
+                raise EvalError("'%s.%s' is not allowed in $(eval)" % (type(target).__name__, attr))
+            args = [target]
+            args += items(ev)
+            return ev.weigh(ev._apply(method, *args, **kwargs_of(ev)) if keywords else ev._apply(method, *args))
+        return call_method
+    func_code = _compile(func)
+
+    def call(ev: Evaluator) -> Any:
+        method = func_code(ev)
+        if not callable(method):
+            raise EvalError("'%s' object is not callable" % type(method).__name__)
+        args = items(ev)
+        return ev.weigh(ev._apply(method, *args, **kwargs_of(ev)) if keywords else ev._apply(method, *args))
+    return call
+
+
+_COMPILE: dict[type, Callable[[Any], Code | None]] = {
+    ast.Constant: _compile_constant, ast.Name: _compile_name, ast.BinOp: _compile_binop,
+    ast.UnaryOp: _compile_unaryop, ast.BoolOp: _compile_boolop, ast.Compare: _compile_compare,
+    ast.IfExp: _compile_ifexp, ast.List: _compile_list, ast.Tuple: _compile_tuple, ast.Call: _compile_call,
+}

@@ -30,11 +30,14 @@ from __future__ import annotations
 
 import os
 import re
-from typing import Any, Callable, Mapping
 
 from launcher.model.errors import shorten
 from launcher.model.names import anonymous_name
 from launcher.params.values import auto_value
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
+if TYPE_CHECKING:
+    from typing import Any, Callable, Mapping
 
 VALID_COMMANDS = ("find", "env", "optenv", "dirname", "anon", "arg")
 
@@ -714,14 +717,76 @@ _SCOPE_FUNCTIONS: dict[str, Callable[[SubstitutionScope], Any]] = {
     "find": lambda scope: scope.find_package}
 
 
+_sandbox: Any = None  # xml/sandbox.py, once the first $(eval) has imported it
+
+
+def _import_sandbox() -> Any:
+    # (imported by the first $(eval): the sandbox and `ast` cost ~2.5 ms to import, and most launches have
+    # none; then kept, for an import statement is ~1 us at each of a big launch's thousand $(eval)s)
+    global _sandbox
+    import launcher.xml.sandbox
+    _sandbox = launcher.xml.sandbox
+    return _sandbox
+
+
+# An expression that reads only args (by name or by `arg('literal')`), math, constants and builtins is a
+# function of those args' values: a launch tree evaluates the same few such texts over the same args again
+# and again (an included file's nodes, each include given the same args). Its text is kept by the values of
+# the args it can read, with the args an evaluation did read (marked used again at each reuse). Anything
+# that can read more (env, optenv, find, dirname, anon: the environment, the disk, names made) or that
+# failed is evaluated every time.
+_EVAL_VALUES: dict[tuple, tuple[str, tuple[str, ...]]] = {}
+_EVAL_READS: dict[str, tuple[str, ...] | None] = {}  # expr -> the arg names its value depends on (None: not kept)
+_EVAL_VALUES_MAX = 16384
+_NO_ARG = object()  # (an arg not set, in a key)
+
+
+def _arg_reads(expr: str, sandbox: Any) -> tuple[str, ...] | None:
+    reads = _EVAL_READS.get(expr, _NO_ARG)
+    if reads is _NO_ARG:
+        try:
+            found = sandbox.names_read(expr, "arg")
+        except sandbox.EvalError:
+            found = None  # (not an expression: evaluating it says why, every time)
+        if found is None or any(n in _SCOPE_FUNCTIONS and n != "arg" for n in found[0]):
+            reads = None
+        else:
+            reads = tuple(dict.fromkeys(found[0] + found[1]))  # (any name may be an arg: a value can shadow str)
+        if len(_EVAL_READS) < _EVAL_VALUES_MAX:
+            _EVAL_READS[expr] = reads
+    return reads  # type: ignore[return-value]
+
+
 def evaluate(expr: str, scope: SubstitutionScope) -> str:
     """`$(eval expr)`: str() of the expression, evaluated by the sandbox over roslaunch's names."""
     # roslaunch's own refusal, kept for its message (the sandbox needs no such rule)
     if "__" in expr:
         raise SubstitutionError("$(eval ...) may not contain double underscore expressions")
-    # (imported here: the sandbox and `ast` cost ~2.5 ms to import, and most launches have no $(eval))
-    import launcher.xml.sandbox as sandbox
+    sandbox = _sandbox if _sandbox is not None else _import_sandbox()
+    reads = _arg_reads(expr, sandbox)
+    if reads is None:
+        return _evaluate(expr, scope, sandbox)
+    args = scope.args
+    key = (expr,) + tuple([args.get(name, _NO_ARG) for name in reads])
+    kept = _EVAL_VALUES.get(key)
+    if kept is not None:
+        scope.used_args.update(kept[1])
+        return kept[0]
+    # (the args this evaluation reads, told apart from those the load had read before)
+    shared_used = scope.used_args
+    scope.used_args = used = set()
+    try:
+        text = _evaluate(expr, scope, sandbox)
+    finally:
+        scope.used_args = shared_used
+        shared_used |= used
+    if len(_EVAL_VALUES) < _EVAL_VALUES_MAX:
+        _EVAL_VALUES[key] = (text, tuple(used))
+    return text
 
+
+def _evaluate(expr: str, scope: SubstitutionScope, sandbox: Any) -> str:
+    """str() of the expression's value, evaluated by the sandbox."""
     def lookup(name: str) -> Any:  # roslaunch's _DictWrapper: its names, then the args auto-typed
         if name in _ROSLAUNCH_CONSTANTS:
             return _ROSLAUNCH_CONSTANTS[name]
@@ -730,9 +795,10 @@ def evaluate(expr: str, scope: SubstitutionScope) -> str:
         make = _SCOPE_FUNCTIONS.get(name)
         if make is not None:
             return make(scope)
-        value = scope.args[name]  # (KeyError: not an arg; the sandbox goes on to its builtins)
+        if name not in scope.args:
+            return sandbox.NOT_FOUND  # (not an arg: the sandbox goes on to its builtins)
         scope.used_args.add(name)
-        return auto_value(value)
+        return auto_value(scope.args[name])
 
     try:
         return str(sandbox.evaluate(expr, lookup))

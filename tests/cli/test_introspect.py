@@ -7,6 +7,8 @@ import textwrap
 import pytest
 import yaml
 
+from helpers import ROOT
+
 from launcher.cli.launch import main
 
 PACKAGE_XML = ('<?xml version="1.0"?><package format="2"><name>%s</name><version>0.0.1</version>'
@@ -167,3 +169,27 @@ def test_option_precedence_is_roslaunchs(tree, capsys):
     assert rc == 0 and yaml.safe_load(out)["/robot"] == "r"
     rc, out, _ = run(capsys, "--ros-args", "--files", tree["main"], "robot:=r")
     assert rc == 0 and sorted(out.split()) == sorted([tree["main"], tree["inc"]])
+
+
+# What a parse does not need, so that it does not pay for its import (issue 36: `--nodes` and
+# `--dump-params` of a large launch within a tenth of roslaunch's time): typing (~3 ms, and its
+# NamedTuple's annotations compiled), the console and its writer thread's threading (a run's),
+# <param command>'s module and the $(eval) sandbox when the launch has neither.
+PARSE_NEEDS_NONE_OF = ("typing", "threading", "argparse", "yaml", "launcher.output.console",
+                       "launcher.xml.commands", "launcher.xml.sandbox", "launcher.run", "launcher.plan")
+
+
+@pytest.mark.parametrize("option", ["--nodes", "--dump-params"])
+def test_a_parse_imports_only_what_it_uses(tree, option):
+    import json
+    import os
+    import subprocess
+    import sys
+    code = ("import sys, json\nfrom launcher.cli.launch import main\nstatus = main(sys.argv[1:])\n"
+            "sys.stderr.write(json.dumps([status, sorted(sys.modules)]))")
+    r = subprocess.run([sys.executable, "-c", code, option, tree["main"], "robot:=r2"],
+                       capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=ROOT), timeout=60)
+    status, modules = json.loads(r.stderr.splitlines()[-1])
+    assert status == 0 and ("/g/sub" in r.stdout if option == "--nodes" else "/robot: r2" in r.stdout), r
+    assert "launcher.xml.loader" in modules  # (what a parse does import)
+    assert [m for m in modules if any(m == n or m.startswith(n + ".") for n in PARSE_NEEDS_NONE_OF)] == []

@@ -140,7 +140,7 @@ def test_size_error_names_the_file_and_line(tmp_path):
     assert "big.launch:3" in r.stderr and "too large" in r.stderr and "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize("expr,expected", [
+EXPRESSIONS = [
     ("a + b", "7"),
     ("arg('a') * 2", "6"),
     ("ratio * 4", "2.0"),
@@ -180,12 +180,15 @@ def test_size_error_names_the_file_and_line(tmp_path):
     ("anon('x') == anon('x')", "True"),
     ("2**10", "1024"),
     ("10**4000 > 0", "True"),
-])
+]
+
+
+@pytest.mark.parametrize("expr,expected", EXPRESSIONS)
 def test_expressions_evaluate(expr, expected):
     assert ev(expr) == expected
 
 
-@pytest.mark.parametrize("expr,words", [
+MISTAKES = [
     ("1/0", "ZeroDivisionError"),
     ("undefined_name + 1", "name 'undefined_name' is not defined"),
     ("1 +", "invalid"),
@@ -193,7 +196,10 @@ def test_expressions_evaluate(expr, expected):
     ("[1][5]", "IndexError"),
     ("name.nosuch()", "'str.nosuch' is not allowed"),
     ("a()", "not callable"),
-])
+]
+
+
+@pytest.mark.parametrize("expr,words", MISTAKES)
 def test_user_mistakes_are_substitution_errors(expr, words):
     with pytest.raises(SubstitutionError, match=words):
         ev(expr)
@@ -237,3 +243,70 @@ def test_parse_is_cached_and_values_are_not():
     assert ev("a + 1", args={"a": "1"}) == "2"
     assert ev("a + 1", args={"a": "5"}) == "6"
     assert sandbox.parse("a + 1") is sandbox.parse("a + 1")
+
+
+# What the compiled closures may not change: each expression above, and a few the compiled node kinds
+# meet in other ways (a refusal in a branch not taken, starred and keyword arguments, chained compares).
+MORE = ["true or (lambda: 1)", "false and ().__class__", "(lambda: 1) if false else 2", "max(*[1, 5], 3)",
+        "dict(**{'a': 1}, b=2)", "dict(**[1])", "'-'.join([*'ab', 'c'])", "[*a]", "(1, *[2, 3])",
+        "1 < a < 2", "not a is None", "-(-a)", "~a", "a @ b", "b'x' if false else 1", "b'x'", "f(1)"]
+
+
+def _outcome(expr):
+    try:
+        return "ok", ev(expr)
+    except SubstitutionError as e:
+        return "error", str(e)
+
+
+@pytest.mark.parametrize("expr", [e for e, _ in EXPRESSIONS] + [e for e, _ in MISTAKES] + ESCAPES + BOMBS
+                         + DIFFERENTIAL + MORE)
+def test_the_compiled_expression_does_what_the_walk_does(expr, monkeypatch):
+    compiled = _outcome(expr)
+    monkeypatch.setattr(sandbox, "compiled", lambda text: sandbox._walked(sandbox.parse(text)))
+    assert _outcome(expr) == compiled
+
+
+def test_the_common_node_kinds_are_compiled(monkeypatch):
+    """(else the test above compares the walk with itself)"""
+    walked = []
+    walk = sandbox.Evaluator.eval
+    monkeypatch.setattr(sandbox.Evaluator, "eval", lambda self, node: walked.append(node) or walk(self, node))
+    assert ev("max(*[1, a], 2, key=abs) + (1 if not a < 2 or a > 5 else len('a'.upper())) or (b, [a])") == "4"
+    assert walked == []
+    assert ev("[x for x in [a]]") == "[3]" and len(walked) > 0
+
+
+# An expression over args only is kept by the values of the args it can read (xml/substitution.py): the
+# same text over the same args gives the kept text, and marks the same args used.
+def _used_and_outcome(expr, **kw):
+    s = scope(**kw)
+    try:
+        out = ("ok", resolve("$(eval %s)" % expr, s))
+    except SubstitutionError as e:
+        out = ("error", str(e))
+    return out, set(s.used_args)
+
+
+@pytest.mark.parametrize("expr", [e for e, _ in EXPRESSIONS] + DIFFERENTIAL + MORE
+                         + ["true or arg('b')", "arg('a') if false else arg('b')", "arg('nope')", "[a for a in 'xy']",
+                            "arg('a') + arg('a')", "str + 'x'"])
+def test_a_kept_value_is_what_evaluating_gives(expr):
+    first = _used_and_outcome(expr)
+    assert _used_and_outcome(expr) == first  # (kept, if it can be)
+    from launcher.xml import substitution
+    substitution._EVAL_VALUES.clear()
+    assert _used_and_outcome(expr) == first  # (evaluated again)
+
+
+def test_a_kept_value_follows_the_args_and_what_is_not_an_arg_is_not_kept():
+    assert _used_and_outcome("str(arg('a')) + '/1'") == (("ok", "3/1"), {"a"})
+    assert _used_and_outcome("str(arg('a')) + '/1'", args=dict(ARGS, a="5")) == (("ok", "5/1"), {"a"})
+    assert _used_and_outcome("b * 2", args=dict(ARGS, b="x")) == (("ok", "xx"), {"b"})
+    assert _used_and_outcome("b * 2") == (("ok", "8"), {"b"})
+    assert _used_and_outcome("str * 2", args=dict(ARGS, str="s")) == (("ok", "ss"), {"str"})  # (an arg named str)
+    assert _used_and_outcome("str(1)")[0] == ("ok", "1")
+    # the environment, the disk and made names are read at every evaluation
+    assert ev("optenv('E') + str(a)", env={"E": "x"}) == "x3" and ev("optenv('E') + str(a)", env={"E": "y"}) == "y3"
+    assert ev("env('E')", env={"E": "1"}) == "1" and ev("env('E')", env={"E": "2"}) == "2"
+    assert ev("anon('n')") != ev("anon('n')")  # (a new scope each: a new anonymous name)
