@@ -387,7 +387,11 @@ class Evaluator:
         return node.value
 
     def _name(self, node: ast.Name) -> Any:
-        name = node.id
+        return self.resolve(node.id)
+
+    def resolve(self, name: str) -> Any:
+        """A name's value: a comprehension's variable, else an arg or substitution, else a builtin (the walk and
+        the compiled closures both ask here)."""
         for scope in reversed(self.local):
             if name in scope:
                 return scope[name]
@@ -689,16 +693,7 @@ def _compile_name(node: ast.Name) -> Code:
     name = node.id
 
     def load(ev: Evaluator) -> Any:
-        if ev.local:  # (inside a comprehension)
-            for scope in reversed(ev.local):
-                if name in scope:
-                    return scope[name]
-        value = ev.lookup(name)
-        if value is not NOT_FOUND:
-            return value
-        if name in BUILTINS:
-            return BUILTINS[name]
-        raise EvalError("name '%s' is not defined" % name)
+        return ev.resolve(name)
     return load
 
 
