@@ -238,7 +238,9 @@ def test_a_publisher_faster_than_the_disk_loses_its_oldest_messages_and_stays_co
                          out), out
         assert "dropping the connection" not in out, out
         # one connection, which the recorder never closed while it ran (the liar notes the close at its end)
-        assert [what for what, _ in events(tmp, "fast")] == ["register", "accept", "eof"]
+        # (its "register" is noted once the master's answer is back: the watch's connection may come first)
+        assert sorted(what for what, _ in events(tmp, "fast")) == ["accept", "eof", "register"]
+        assert [what for what, _ in events(tmp, "fast") if what != "register"] == ["accept", "eof"]
         assert rss.peak < RSS_BOUND, rss.peak
         read = debian_read(bag, env)
         assert read["topics"]["/evil_fast"][1] >= 3, read["topics"]
@@ -310,8 +312,9 @@ def watched_whole(w: dict) -> None:
         if line.startswith("publisher "):
             assert re.match(r"publisher %s( \(/liar_\w+\))? on /evil_\w+: " % URI, line), line
     assert w["rss"].peak < RSS_BOUND, w["rss"].peak
-    # the fast liar: one connection, kept
-    assert [what for what, _ in events(w["tmp"], "fast")] == ["register", "accept"]
+    # the fast liar: one connection, kept (its "register" is noted once the master's answer is back: the watch's
+    # connection may come before it)
+    assert sorted(what for what, _ in events(w["tmp"], "fast")) == ["accept", "register"]
 
 
 @pytest.mark.parametrize("mode, words", [

