@@ -5,7 +5,7 @@ machines (`remote`, `remote_nodes`: the machine names that are other hosts are
 given to it), and the checks of the nodes that need nothing but the launch
 (`check_nodes`: the bound nodelet loaders, the waits' cycles, the output
 waits, respawn with required). Making one reads the machine, and is
-`run.runtime`'s: the launch files read, the addresses looked up
+`run.load`'s: the launch files read, the addresses looked up
 (`plan.machines`), the settings the other machines need checked against this
 machine's address. What a run works out from a plan is `plan/`'s too: each
 local node's process spec (`specs.node_specs`), a reload's difference of two
