@@ -110,7 +110,9 @@ class Feed:
     def _changes(self) -> None:
         def body() -> None:
             answer = json.loads(self._call("launcher_changes", self.state.seq, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
-            if not answer["complete"]:  # (changes were dropped: the whole status again)
+            # (changes were dropped, or a node came that the status read at the start did not have yet: the launch
+            # was still making its nodes): the whole status again
+            if not answer["complete"] or self.state.unknown(answer["changes"]):
                 info = json.loads(self._call("launcher_status"))
                 self.post(lambda: self.state.load(info))
             self.post(lambda: self.state.changes(answer["changes"]))

@@ -71,6 +71,11 @@ class ViewState:
             shown = self.visible()
             self.selected = shown[0] if shown else ""
 
+    def unknown(self, lines: Iterable[dict[str, Any]]) -> bool:
+        """Whether a change names a node this state does not have (the status was read before the launch had made
+        its nodes): its reader reads the status again, which has it."""
+        return any(isinstance(c.get("node"), str) and c["node"] not in self.nodes for c in lines)
+
     def changes(self, lines: Iterable[dict[str, Any]]) -> None:
         """Changes of the stream (as the events file writes them): each node's row, and a line in the pane."""
         for c in lines:

@@ -151,7 +151,7 @@ class Hub:
     async def _changes(self) -> None:
         answer = json.loads(await read(self.uri, "launcher_changes", self.state.seq, POLL_WAIT_S,
                                        timeout=POLL_WAIT_S + 10))
-        if not answer["complete"]:
+        if not answer["complete"] or self.state.unknown(answer["changes"]):  # (as the terminal view: ui.Feed)
             self.state.load(json.loads(await read(self.uri, "launcher_status")))
         self.state.changes(answer["changes"])
         self.state.seq = max(self.state.seq, answer["seq"])

@@ -213,3 +213,15 @@ def test_the_last_exit_stays_while_the_node_runs_again():
     v.changes([{"seq": 9, "time": T0 + 9, "node": "/crasher", "state": "respawning", "pid": None, "exit_code": None,
                 "exit_signal": 11}])
     assert columns.last_exit(v.nodes["/crasher"]) == "SIGSEGV" and v.nodes["/crasher"]["last_exit_at"] == T0 + 9
+
+
+def test_a_change_of_a_node_the_status_lacked_asks_for_the_status_again():
+    """A view that read the status while the launch was still making its nodes (none yet) is told, by the first
+    change of one, to read the status again (its readers do: ui.Feed, web.Hub); the launch's own lines are no
+    node's."""
+    v = ViewState()
+    v.load({"nodes": []})
+    assert v.unknown([{"seq": 1, "node": "/s", "state": "running"}])
+    assert not v.unknown([{"seq": 2, "event": "reload", "reason": "x"}])
+    v.load({"nodes": [{"name": "/s", "state": "running"}]})
+    assert not v.unknown([{"seq": 3, "node": "/s", "state": "stopped"}])
