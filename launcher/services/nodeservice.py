@@ -12,6 +12,7 @@ import os
 import sys
 from typing import TYPE_CHECKING, Any, Callable
 
+from launcher import compat
 from launcher.master.server import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.specs import node_specs, packages_of
@@ -58,6 +59,7 @@ class NodeService:
         self.remote: RemoteParent | None = None  # when nodes run on other machines
         self.supervisor: Supervisor | None = None
         self.fleet: Fleet | None = None  # every node's state (fleet/state.py)
+        self.made = compat.Event()  # set once `start` has made the fleet and its nodes (what a view waits for)
         self.rotator: LogRotator | None = None  # node output logs under --log-max-size
         self.registrations: Registrations | None = None  # the master's registrations told as the nodes'
         self.processes = 0  # the local nodes numbered by `start` (roslaunch numbers each process)
@@ -126,6 +128,7 @@ class NodeService:
         for name, required in failed:
             self.supervisor.not_started(name, required)
         self.supervisor.registrations_complete()
+        self.made.set()
         self.rotator = LogRotator(self.plan.log_max_size, self.opts.log_backups, self.log.note)
         for spec in specs:
             if spec.stdout_path:

@@ -89,7 +89,7 @@ class LaunchServer:
         self._server: Any = None
         self._status: Any = None  # the last launcher_status text, XML-encoded
         self._status_at = 0.0
-        self._listening = False
+        self._status_fleet: Fleet | None = None  # the fleet the cached status was read from (None: before it)
 
     async def start(self) -> None:
         from launcher.net.xmlrpc_server import XmlRpcServer
@@ -190,9 +190,10 @@ class LaunchServer:
         # polling a 500-node launch every second would otherwise cost it several % of a core.
         now = time.monotonic()
         fleet = self.run.fleet
-        if fleet is not None and not self._listening:
-            fleet.listeners.append(self._state_changed)
-            self._listening = True
+        if fleet is not self._status_fleet:  # (the nodes were made since: a status read before has none of them)
+            if fleet is not None:
+                fleet.listeners.append(self._state_changed)
+            self._status_fleet, self._status = fleet, None
         if self._status is None or now - self._status_at > STATUS_MAX_AGE_S:
             self._status = encode_value(self._build_status())
             self._status_at = now
@@ -234,12 +235,19 @@ class LaunchServer:
         "changes": [as in the events file; the steps it leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
-        fleet = self.run.fleet
 
         async def changes() -> list:
-            if fleet is None:
-                return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
-            await fleet.wait_change(since, min(float(timeout), CHANGES_WAIT_MAX_S))
+            wait = min(float(timeout), CHANGES_WAIT_MAX_S)
+            fleet = self.run.fleet
+            if fleet is None:  # (asked while the launch sets up: its nodes' first changes are the answer)
+                start = time.monotonic()
+                try:
+                    await asyncio.wait_for(self.run.nodes.made.wait(), wait)
+                except asyncio.TimeoutError:
+                    return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
+                fleet = self.run.fleet
+                wait = max(0.0, wait - (time.monotonic() - start))
+            await fleet.wait_change(since, wait)
             lines, complete = fleet.changes_json(since)  # (the lines as the fleet keeps them: JSON already)
             return [1, "changes", '{"seq":%d,"complete":%s,"changes":%s}'
                     % (fleet.seq, "true" if complete else "false", lines)]

@@ -13,6 +13,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Optional, Protocol
 
 if TYPE_CHECKING:  # (annotations only: importing this module loads nothing of ours)
+    import asyncio
+
     from launcher.fleet.runner import Runner
     from launcher.fleet.state import Fleet
     from launcher.health.stall import StallWatch
@@ -75,6 +77,7 @@ class RunNodes(Service, Protocol):
     (`nodeservice.NodeService`). The fleet and the runners are None until the nodes are started."""
 
     fleet: Optional[Fleet]
+    made: asyncio.Event  # set once the fleet and its nodes are made (`start`)
     supervisor: Optional[Runner]  # this machine's runner
     remote: Optional[RemoteParent]  # the other machines' runner, when nodes run there
     stall: Optional[StallWatch]  # the watched topics

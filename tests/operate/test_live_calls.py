@@ -160,3 +160,54 @@ def test_samples_with_history_are_what_the_fleet_kept(tmp_path):
     assert code == 1 and list(kept) == ["/a"] and [s[1:] for s in kept["/a"]] == [[0.0, 1000], [0.1, 1001],
                                                                                   [0.2, 1002]]
     assert json.loads(server.launcher_samples()[2]) == {"/a": [0.2, 1002]}  # (without: the last sample only)
+
+
+def a_launch_still_setting_up(tmp_path):
+    """A server whose run has no fleet yet (its master and rosout are being started), and what then makes the
+    fleet and starts its node as `NodeService.start` does: in one step of the loop, then `made`."""
+    from launcher import compat
+    from launcher.fleet import lifecycle as m
+    nodes = SimpleNamespace(spec=lambda n: None, remote_names=lambda: [], made=compat.Event())
+    run = SimpleNamespace(fleet=None, nodes=nodes, warnings=None, log_dir="", run_id="r", master_uri="",
+                          launch_files=[], unresponsive=lambda: [])
+
+    def make_nodes() -> Fleet:
+        fleet = run.fleet = Fleet()
+        fleet.add("/a")
+        fleet.apply("/a", m.Event(m.START))
+        nodes.made.set()
+        return fleet
+    return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), make_nodes
+
+
+def test_a_status_read_before_the_nodes_were_made_is_not_kept_for_after(tmp_path):
+    # (the cached status may be half a second old, but not older than the fleet: a view attached during the
+    # start read "no nodes" again when it asked at the first change, and kept that for good)
+    from launcher.net.xmlrpc_codec import dumps_response, loads_response
+
+    def status_nodes():  # (as a caller gets it: the server keeps the status XML-encoded)
+        return [n["name"] for n in json.loads(loads_response(dumps_response(server.launcher_status()))[2])["nodes"]]
+    server, make_nodes = a_launch_still_setting_up(tmp_path)
+    assert status_nodes() == []
+    make_nodes()
+    assert status_nodes() == ["/a"]
+
+
+def test_changes_asked_before_the_nodes_were_made_are_answered_when_they_are(tmp_path):
+    server, make_nodes = a_launch_still_setting_up(tmp_path)
+
+    async def go():
+        asked = asyncio.ensure_future(server.launcher_changes(0, 30.0))
+        await asyncio.sleep(0.05)
+        assert not asked.done()  # (a long poll, not an empty answer at once that its reader asks again and again)
+        make_nodes()
+        return await asyncio.wait_for(asked, 5.0)
+    code, _msg, text = asyncio.run(go())
+    answer = json.loads(text)
+    assert code == 1 and answer["seq"] >= 1 and [c["node"] for c in answer["changes"]] == ["/a"]
+
+
+def test_changes_asked_of_a_launch_without_nodes_end_at_their_timeout(tmp_path):
+    server, _ = a_launch_still_setting_up(tmp_path)  # (launch --core: no node is ever made)
+    code, _msg, text = asyncio.run(server.launcher_changes(0, 0.05))
+    assert code == 1 and json.loads(text) == {"seq": 0, "complete": True, "changes": []}
