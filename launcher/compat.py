@@ -126,3 +126,31 @@ else:
                 asyncio.Queue.__init__(self, maxsize)
             self._finished = Event()  # (what join() waits on: made with the placeholder above)
             self._finished.set()
+
+
+if sys.version_info >= (3, 12):
+    wait_for = asyncio.wait_for
+else:
+    async def wait_for(aw: Any, timeout: float | None) -> Any:
+        """asyncio.wait_for, without its flaw before 3.12: a cancel that came as `aw` completed was lost (its
+        caller got the result and ran on). A service's task cancelled at the launch's end so ran on for good,
+        and the launch with it (`launcher test --reuse-master` under load: its master watch's call). Here the
+        caller awaits `aw` itself, so a cancel is raised in it as in any await, and a timer cancels `aw` at the
+        deadline: asyncio.TimeoutError, unless `aw` had its result by then."""
+        fut = asyncio.ensure_future(aw)
+        if timeout is None:
+            return await fut
+        expired = []
+
+        def expire() -> None:
+            expired.append(True)
+            fut.cancel()
+        timer = asyncio.get_running_loop().call_later(max(0.0, timeout), expire)
+        try:
+            return await fut
+        except asyncio.CancelledError:
+            if expired and fut.cancelled():
+                raise asyncio.TimeoutError() from None
+            raise
+        finally:
+            timer.cancel()

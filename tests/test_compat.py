@@ -90,3 +90,52 @@ def test_orig_argv_is_the_whole_command_line():
     r = subprocess.run([sys.executable, "-c", code, "a b", "-p"], capture_output=True, text=True, timeout=60,
                        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     assert json.loads(r.stdout) == [sys.executable, "-c", code, "a b", "-p"], r.stderr
+
+
+def test_wait_for_raises_a_cancel_that_comes_as_its_awaitable_completes():
+    """asyncio.wait_for before 3.12 returned the result instead (its caller ran on, cancelled for nothing): a
+    service's looping task so outlived its stop, and the launch never ended."""
+    async def go() -> str:
+        inner = asyncio.get_running_loop().create_future()
+        outer = asyncio.ensure_future(compat.wait_for(inner, 10.0))
+        await asyncio.sleep(0)  # (outer now waits)
+        inner.set_result("done")
+        outer.cancel()  # (in the same step: its wake-up for the result is already queued)
+        try:
+            await outer
+        except asyncio.CancelledError:
+            return "cancelled"
+        return "ran on"
+    assert asyncio.run(go()) == "cancelled"
+
+
+def test_wait_for_times_out_returns_and_passes_on_as_asyncio_does():
+    async def slow() -> str:
+        await asyncio.sleep(10)
+        return "late"
+
+    async def failing() -> None:
+        raise ValueError("inner")
+
+    async def go() -> list:
+        got = []
+        started = time.monotonic()
+        try:
+            await compat.wait_for(slow(), 0.05)
+        except asyncio.TimeoutError:
+            got.append(("timeout", time.monotonic() - started < 5))
+        got.append(await compat.wait_for(asyncio.sleep(0, "now"), 5.0))
+        got.append(await compat.wait_for(asyncio.sleep(0, "no limit"), None))
+        try:
+            await compat.wait_for(failing(), 5.0)
+        except ValueError as e:
+            got.append(str(e))
+        task = asyncio.ensure_future(compat.wait_for(slow(), 5.0))
+        await asyncio.sleep(0.01)
+        task.cancel()  # (cancelled from outside: a cancel, not a timeout)
+        try:
+            await task
+        except asyncio.CancelledError:
+            got.append("cancelled")
+        return got
+    assert asyncio.run(go()) == [("timeout", True), "now", "no limit", "inner", "cancelled"]

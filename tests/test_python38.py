@@ -29,6 +29,7 @@ NEWER_CALLS = {
     ("itertools", "pairwise"): "3.10", ("itertools", "batched"): "3.12", ("random", "randbytes"): "3.9",
     ("contextlib", "aclosing"): "3.10", ("contextlib", "chdir"): "3.11", ("zoneinfo", None): "3.9",
     ("tomllib", None): "3.11", ("graphlib", None): "3.9",
+    ("asyncio", "wait_for"): "3.12",  # (there before, but it lost a cancel that came as its awaitable completed)
 }
 # methods of built-in types that 3.8 lacks: whatever the object, the name alone is suspect
 NEWER_METHODS = {"removeprefix": "3.9", "removesuffix": "3.9", "bit_count": "3.10", "is_relative_to": "3.9",
@@ -137,6 +138,7 @@ def test_annotations_are_not_evaluated(rel, path):
     ("name = path.removeprefix('TEST-')\n", ".removeprefix()"),
     ("import asyncio\nasync def f():\n    await asyncio.to_thread(print)\n", "asyncio.to_thread"),
     ("import os\nfd = os.pidfd_open(1)\n", "os.pidfd_open"),
+    ("import asyncio\nasync def f(w):\n    await asyncio.wait_for(w, 1)\n", "asyncio.wait_for"),
     ("from functools import cache\n", "import cache"),
     ("Rows = list[tuple[int, str]]\n", "list[...]"),
     ("for a, b in zip(x, y, strict=True):\n    pass\n", "zip(strict=)"),

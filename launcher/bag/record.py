@@ -434,7 +434,7 @@ class Recorder:
             except (OSError, asyncio.TimeoutError, ValueError) as exc:
                 log.debug("asking the master for topics: %s", exc)
             try:
-                await asyncio.wait_for(self.done.wait(), MASTER_POLL_S)
+                await compat.wait_for(self.done.wait(), MASTER_POLL_S)
             except asyncio.TimeoutError:
                 pass
 

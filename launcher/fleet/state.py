@@ -399,7 +399,7 @@ class Fleet:
             self._changed = compat.Event()
         self._changed.clear()
         try:
-            await asyncio.wait_for(self._changed.wait(), timeout)
+            await compat.wait_for(self._changed.wait(), timeout)
         except asyncio.TimeoutError:
             pass
 

@@ -125,7 +125,7 @@ class Readiness:
                 if any(kind in _POLLED for kind, _ in wanted):
                     timeout = min(timeout, self.period)
                 try:
-                    await asyncio.wait_for(self._wake.wait(), max(0.0, timeout))
+                    await compat.wait_for(self._wake.wait(), max(0.0, timeout))
                 except asyncio.TimeoutError:
                     pass
         self.outputs.clear()  # (a later wait reads the files from their start again)

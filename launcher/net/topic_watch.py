@@ -8,6 +8,7 @@ import asyncio
 import socket
 from collections.abc import Callable
 
+from launcher import compat
 from launcher.net import linkstate
 from launcher.net.linkstate import BROKEN, CLOSED, ENDED, FAILED, HEADER, PublisherLinkState
 from launcher.net.tcpros import ANY_MD5, FrameCounter, ScratchPool, TcprosError, TopicType
@@ -96,13 +97,13 @@ async def watch_publisher(host: str, port: int, topic: str, callerid: str, publi
     sock = socket.socket(family, kind, proto)
     try:
         sock.setblocking(False)
-        await asyncio.wait_for(loop.sock_connect(sock, addr), timeout)
+        await compat.wait_for(loop.sock_connect(sock, addr), timeout)
         state.deadline = loop.time() + linkstate.HANDSHAKE_TIMEOUT_S
-        await asyncio.wait_for(loop.sock_sendall(sock, state.request()), linkstate.HANDSHAKE_TIMEOUT_S)
+        await compat.wait_for(loop.sock_sendall(sock, state.request()), linkstate.HANDSHAKE_TIMEOUT_S)
         early = 0  # messages that came with the header
         while state.phase == HEADER:
             try:
-                data = await asyncio.wait_for(loop.sock_recv(sock, 65536), max(0.0, state.deadline - loop.time()))
+                data = await compat.wait_for(loop.sock_recv(sock, 65536), max(0.0, state.deadline - loop.time()))
             except asyncio.TimeoutError:
                 data, events = None, state.expire(max(loop.time(), state.deadline))
             except OSError:

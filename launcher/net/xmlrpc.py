@@ -57,29 +57,35 @@ async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0
     (TimeoutError when there is no connection in time) or asyncio.TimeoutError.
     """
     import asyncio
+
+    from launcher import compat
     loop = asyncio.get_running_loop()
     host, port, request = _http_request(uri, method, params)
     reply = loop.create_future()
     deadline = None if timeout is None else loop.time() + timeout
-    connecting = loop.create_connection(lambda: _Exchange(uri, request, reply), host, port)
+    exchange = _Exchange(uri, request, reply)
+    connecting = loop.create_connection(lambda: exchange, host, port)
     limit = timeout if connect_timeout is None else connect_timeout if timeout is None else min(timeout,
                                                                                                  connect_timeout)
-    if limit is None:
-        transport, _ = await connecting
-    else:
-        try:
-            transport, _ = await asyncio.wait_for(connecting, limit)
-        except asyncio.TimeoutError:
-            if limit == timeout:
-                raise
-            raise TimeoutError("no connection to %s within %g s" % (uri, limit)) from None
     timer = None
-    if deadline is not None:
-        timer = loop.call_at(deadline, _expire, reply)
     try:
+        if limit is None:
+            await connecting
+        else:
+            try:
+                await compat.wait_for(connecting, limit)
+            except asyncio.TimeoutError:
+                if limit == timeout:
+                    raise
+                raise TimeoutError("no connection to %s within %g s" % (uri, limit)) from None
+        if deadline is not None:
+            timer = loop.call_at(deadline, _expire, reply)
         return await reply
     finally:
-        transport.close()
+        # (also when the call was cancelled as its connection was made: that connection is closed, and its
+        # reply, which nobody reads now, gets no error to be reported as never retrieved)
+        reply.cancel()
+        exchange.close()
         if timer is not None:
             timer.cancel()
 
@@ -107,6 +113,10 @@ class _Exchange:
     def connection_made(self, transport: Any) -> None:
         self.transport = transport
         transport.write(self.request)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
 
     def data_received(self, data: bytes) -> None:
         self._feed(data)

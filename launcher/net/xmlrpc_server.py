@@ -22,6 +22,7 @@ import socket
 import time
 from typing import Any, Awaitable, Callable, NamedTuple
 
+from launcher import compat
 from launcher.net.http import CONTINUE, NEED_DATA, HttpError, RequestLimits, RequestReader, format_response
 from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc_codec import (Fault, XmlRpcError, dumps_fault, dumps_response, loads_request)
@@ -530,7 +531,7 @@ class XmlRpcServer:
                 conn.transport.close()
         if self._server is not None:
             try:
-                await asyncio.wait_for(self._server.wait_closed(), 2.0)
+                await compat.wait_for(self._server.wait_closed(), 2.0)
             except asyncio.TimeoutError:
                 pass
             self._server = None

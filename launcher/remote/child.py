@@ -151,7 +151,7 @@ class Child:
             if left <= 0:
                 break
             try:
-                await asyncio.wait_for(asked(), left)
+                await compat.wait_for(asked(), left)
                 last_answer = loop.time()
             except Exception:  # noqa: BLE001 - unreachable, refused, timed out: all mean not answering
                 pass
@@ -254,7 +254,7 @@ class Child:
 
     async def _flush_to_parent(self, sender: asyncio.Future) -> None:
         try:
-            await asyncio.wait_for(self._to_parent.join(), 3.0)
+            await compat.wait_for(self._to_parent.join(), 3.0)
         except asyncio.TimeoutError:
             pass
         sender.cancel()

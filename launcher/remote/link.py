@@ -336,7 +336,7 @@ class RemoteChild:
         if orderly and proc.stdin is not None:
             try:
                 proc.stdin.write(ssh.ORDERLY_END)
-                await asyncio.wait_for(proc.wait(), SSH_EXIT_GRACE_S)
+                await compat.wait_for(proc.wait(), SSH_EXIT_GRACE_S)
                 return
             except (OSError, RuntimeError, asyncio.TimeoutError):
                 pass  # then as any other end
@@ -346,7 +346,7 @@ class RemoteChild:
             except OSError:
                 pass
             try:
-                await asyncio.wait_for(proc.wait(), wait)
+                await compat.wait_for(proc.wait(), wait)
                 return
             except asyncio.TimeoutError:
                 continue

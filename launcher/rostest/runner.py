@@ -31,6 +31,7 @@ import tempfile
 import time
 from typing import Any
 
+from launcher import compat
 from launcher.compat import pidfd_open
 from launcher.services import masterlink
 from launcher.model.runopts import RunOptions
@@ -175,7 +176,7 @@ class TestAttempt:
         try:
             limit = test.time_limit if test.time_limit is not None else DEFAULT_TIME_LIMIT
             try:
-                await asyncio.wait_for(asyncio.shield(exited), limit)
+                await compat.wait_for(asyncio.shield(exited), limit)
             except asyncio.TimeoutError:
                 self.timed_out = True
                 console.printerrlog("[ROSTEST]test [%s] timed out" % test.test_name)
@@ -198,7 +199,7 @@ class TestAttempt:
         for sig, grace in zip((signal.SIGINT, signal.SIGTERM), STOP_GRACE_S):
             _signal_group(popen.pid, sig)
             try:
-                await asyncio.wait_for(asyncio.shield(exited), grace)
+                await compat.wait_for(asyncio.shield(exited), grace)
                 return
             except asyncio.TimeoutError:
                 pass

@@ -18,6 +18,7 @@ import struct
 import time
 from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
+from launcher import compat
 from launcher.fleet import state
 
 if TYPE_CHECKING:  # (annotations only)
@@ -180,7 +181,7 @@ class Diagnostics:
             self._task = None
         if self.node is not None:
             try:
-                await asyncio.wait_for(self.node.stop(), 5.0)
+                await compat.wait_for(self.node.stop(), 5.0)
             except (Exception, asyncio.TimeoutError):  # noqa: BLE001 - shutting down: the master may be gone
                 pass
             self.node = None

@@ -35,6 +35,7 @@ import os
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
+from launcher import compat
 from launcher.compat import orig_argv
 from launcher.master.server import advertised_host
 from launcher.net.slave import bind_address
@@ -242,7 +243,7 @@ class LaunchServer:
             if fleet is None:  # (asked while the launch sets up: its nodes' first changes are the answer)
                 start = time.monotonic()
                 try:
-                    await asyncio.wait_for(self.run.nodes.made.wait(), wait)
+                    await compat.wait_for(self.run.nodes.made.wait(), wait)
                 except asyncio.TimeoutError:
                     return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
                 fleet = self.run.fleet

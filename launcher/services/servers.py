@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 from typing import TYPE_CHECKING, Awaitable, Callable
 
+from launcher import compat
 from launcher.model.errors import LaunchError
 from launcher.net.rosout import Rosout
 from launcher.services.diagnostics import Diagnostics
@@ -128,7 +129,7 @@ class ApiServer:
         if self.master.external and self.master.params is not None:
             # a master that outlives us must not list a launch that is gone
             try:
-                await asyncio.wait_for(self.master.params.delete(self.server.param_key), SERVER_UNREGISTER_S)
+                await compat.wait_for(self.master.params.delete(self.server.param_key), SERVER_UNREGISTER_S)
             except (Exception, asyncio.TimeoutError):  # noqa: BLE001 - the master may be gone already
                 pass
         await self.server.stop()

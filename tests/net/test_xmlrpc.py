@@ -368,6 +368,45 @@ def test_async_client_connect_deadline_is_its_own():
     asyncio.run(scenario())
 
 
+def test_a_call_cancelled_as_its_connection_is_made_ends_and_closes_it(monkeypatch):
+    """The cancel comes in the very step the connection is made (a service stopped as its watcher called the
+    master): the call raises it (it ran on before, and the launch's stop waited on it for good), and the
+    connection is closed at once, with no error left behind on its reply."""
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        errors = []
+        loop.set_exception_handler(lambda _loop, context: errors.append(context.get("message")))
+        with socket.socket() as listener:
+            listener.bind(("127.0.0.1", 0))
+            listener.listen(1)
+            port = listener.getsockname()[1]
+            task = None
+            made = X._Exchange.connection_made
+
+            def cancelled_there(self, transport):
+                made(self, transport)
+                task.cancel()
+            monkeypatch.setattr(X._Exchange, "connection_made", cancelled_there)
+            task = asyncio.ensure_future(X.call("http://127.0.0.1:%d/" % port, "getPid", "/x", timeout=10))
+            with pytest.raises(asyncio.CancelledError):
+                await task
+            listener.setblocking(False)
+            peer, _ = await loop.sock_accept(listener)
+            with peer:
+                request = b""
+                while True:  # (the request, then the end: the client closed its side)
+                    data = await asyncio.wait_for(loop.sock_recv(peer, 65536), 5.0)
+                    if not data:
+                        break
+                    request += data
+                assert request.startswith(b"POST ")
+            import gc
+            gc.collect()  # (a future whose error nobody read says so when collected)
+            await asyncio.sleep(0)
+        assert errors == []
+    asyncio.run(scenario())
+
+
 def test_port_taken_raises_oserror():
     async def scenario():
         a = S.XmlRpcServer(_dispatch, "127.0.0.1", 0)
