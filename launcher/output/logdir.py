@@ -48,14 +48,23 @@ def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
 
 
 def _du_argv(path: str) -> list[str] | None:
-    import shutil  # (with its compressors: when the check runs, seconds after the start, not at every start)
-    du = shutil.which("du")
+    du = _on_path("du")
     if not du:
         return None
     argv = [du, "-sb", path]
-    nice = shutil.which("nice")
+    nice = _on_path("nice")
     # low priority: the check must never compete with the nodes
     return [nice, "-n", "19"] + argv if nice else argv
+
+
+def _on_path(name: str) -> str | None:
+    """The program `name` on PATH, as shutil.which finds it: shutil imports its compressors, about 0.3 MB that
+    a launch would keep for weeks for this one look-up."""
+    for folder in os.get_exec_path():
+        path = os.path.join(folder, name)
+        if os.access(path, os.X_OK) and not os.path.isdir(path):
+            return path
+    return None
 
 
 def _walk_size(path: str) -> int:
@@ -96,15 +105,16 @@ async def disk_usage_bytes(path: str) -> int:
 
 
 def disk_space_warning(root: str) -> str | None:
-    """A warning if the disk holding `root` is nearly full (psutil; statvfs, cheap)."""
+    """A warning if the disk holding `root` is nearly full: statvfs, the space a user (not root) may still use,
+    as `df` shows it (psutil.disk_usage is this call, and importing psutil costs the launch 2.5 MB)."""
     try:
-        import psutil
-        du = psutil.disk_usage(root if os.path.exists(root) else os.path.dirname(root) or "/")
-    except (ImportError, OSError):
+        fs = os.statvfs(root if os.path.exists(root) else os.path.dirname(root) or "/")
+    except OSError:
         return None
-    if du.free < LOW_DISK_BYTES or du.free < du.total * LOW_DISK_FRACTION:
+    free, total = fs.f_bavail * fs.f_frsize, fs.f_blocks * fs.f_frsize
+    if free < LOW_DISK_BYTES or free < total * LOW_DISK_FRACTION:
         return ("WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
-                % (root, format_size(du.free, measured=True), format_size(du.total, measured=True)))
+                % (root, format_size(free, measured=True), format_size(total, measured=True)))
     return None
 
 

@@ -4,7 +4,7 @@ Each module a run imports costs memory for as long as the launch runs (a robot's
 the nodes); what a run does not use is imported where it is used (the views, bag, remote machinery, the
 metrics server, rostest, rosbags for rosout). The test runs a real launch under `python -X importtime`,
 which names every module as it is imported, lazy ones included, and reads what was imported by the time
-its roscpp node is registered and its log line is in rosout.log.
+its roscpp node is registered, its log line is in rosout.log and the log-disk check has run.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ NOT_NEEDED = (
     "rosbags", "numpy",  # rosout decodes rosgraph_msgs/Log itself (net/rosout.decode_log)
     "yaml",  # no <rosparam>, no parameter PyYAML must write
     "prometheus_client", "launcher.services.metrics_server",
-    "psutil",  # /proc is read directly (health/resources)
+    "psutil",  # /proc is read directly (health/resources), the free disk space with statvfs (output/logdir)
+    "shutil", "bz2", "lzma",  # (shutil imports its compressors: the log check finds `du` itself)
     "launcher.remote",  # no node on another machine
     "launcher.operate", "launcher.bag", "launcher.rostest", "launcher.cli.introspect", "launcher.cli.check",
     "launcher.xml.sandbox",  # no $(eval)
@@ -66,6 +67,11 @@ def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
         def logged() -> bool:  # (rosout has decoded one of the node's Log messages)
             return os.path.exists(rosout_log) and "tick" in open(rosout_log, errors="replace").read()
         until(logged, 30, 0.05, what="the node's line in rosout.log")
+
+        def disk_checked() -> bool:  # (the log-disk check, which runs seconds after the start, has run too)
+            return any("Done checking log file disk usage" in open(os.path.join(log_dir, name), errors="replace").read()
+                       for name in os.listdir(log_dir) if name.startswith("roslaunch-"))
+        until(disk_checked, 30, 0.1, what="the log-disk check in the launch log")
         with open(err_path, errors="replace") as f:
             modules = set(IMPORTED.findall(f.read()))
         assert "launcher.run.runtime" in modules and "launcher.net.rosout" in modules  # (what a run does import)

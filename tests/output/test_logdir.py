@@ -69,3 +69,37 @@ def test_disk_usage_is_apparent_size(tmp_path):
     with open(sparse, "wb") as f:
         f.truncate(10 << 20)  # 10 MB apparent, nothing on disk: du -sb counts it, as roslaunch's check
     assert asyncio.run(logdir.disk_usage_bytes(str(tmp_path))) >= 5000 + (10 << 20)
+
+
+def test_disk_space_is_what_statvfs_and_df_say(tmp_path, monkeypatch):
+    """Free is what a user may still write (f_bavail), total the whole filesystem: a disk with less than 1 GiB
+    or 5 % free is named nearly full, in the units the README gives."""
+    fs = os.statvfs(str(tmp_path))
+    free, total = fs.f_bavail * fs.f_frsize, fs.f_blocks * fs.f_frsize
+    full = free < logdir.LOW_DISK_BYTES or free < total * logdir.LOW_DISK_FRACTION
+    assert (logdir.disk_space_warning(str(tmp_path)) is not None) == full
+
+    class NearlyFull:
+        f_frsize, f_blocks, f_bavail = 4096, 25 * 2 ** 20, 2 ** 17  # 100 GiB, 512 MiB of it free
+
+    monkeypatch.setattr(logdir.os, "statvfs", lambda path: NearlyFull)
+    assert logdir.disk_space_warning(str(tmp_path / "not-yet")) == (
+        "WARNING: the disk holding the log directory [%s] is nearly full: %s free of %s."
+        % (tmp_path / "not-yet", logdir.format_size(2 ** 29, measured=True),
+           logdir.format_size(100 * 2 ** 30, measured=True)))
+    NearlyFull.f_bavail = 10 * 2 ** 20  # 40 GiB free: not full
+    assert logdir.disk_space_warning(str(tmp_path)) is None
+
+
+def test_du_is_found_on_path_as_which_finds_it(tmp_path, monkeypatch):
+    import shutil
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "du").write_text("#!/bin/sh\n")
+    (bin_dir / "du").chmod(0o755)
+    (bin_dir / "nice").mkdir()  # (a folder of that name is not a program)
+    (bin_dir / "plain").write_text("not executable")
+    monkeypatch.setenv("PATH", str(bin_dir))
+    assert logdir._du_argv("/x") == [str(bin_dir / "du"), "-sb", "/x"]
+    for name in ("du", "nice", "plain", "absent"):
+        assert logdir._on_path(name) == shutil.which(name), name
