@@ -20,7 +20,7 @@ import os
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING, Any, Awaitable, Callable
+from typing import TYPE_CHECKING, Any, Awaitable, Callable, Coroutine
 
 from launcher import compat
 from launcher.services import masterlink
@@ -122,9 +122,11 @@ class StopSignals:
         if self.event.is_set():
             raise Stopped()
 
-    async def guard(self, step: Awaitable[Any]) -> Any:
+    async def guard(self, step: Coroutine[Any, Any, Any]) -> Any:
         """Await a start-up step, or raise Stopped as soon as a stop signal arrives (the step is cancelled)."""
-        self.check()
+        if self.event.is_set():
+            step.close()  # (never begun: closed, or Python would warn at exit that it was never awaited)
+            raise Stopped()
         task = asyncio.ensure_future(step)
         stop = asyncio.ensure_future(self.event.wait())
         await asyncio.wait((task, stop), return_when=asyncio.FIRST_COMPLETED)

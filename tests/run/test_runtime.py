@@ -1,4 +1,5 @@
-"""runtime: roslaunch's summary block and value shortening, and where a launch's master can be started."""
+"""runtime: roslaunch's summary block and value shortening, where a launch's master can be started, and its stop
+signal's guard of the start-up steps."""
 
 from __future__ import annotations
 
@@ -67,3 +68,33 @@ def test_malformed_master_host_is_not_local_and_not_a_crash(tmp_path):
                          timeout=60)
     assert out.returncode == 1
     assert "unable to contact ROS master at [http://a..b:11311/]" in out.stderr and "internal error" not in out.stderr
+
+
+def test_a_step_guarded_after_the_stop_signal_is_closed_not_left_unawaited():
+    """A SIGINT during the start: the steps after it are never begun, and Python must not warn at exit that a
+    coroutine was never awaited (a launch printed `coroutine 'LogDiskCheck.start' was never awaited`)."""
+    import asyncio
+    import gc
+    import warnings
+
+    from launcher.run.runtime import Stopped, StopSignals
+    began = []
+
+    async def step() -> None:
+        began.append(True)
+
+    async def go() -> str:
+        signals = StopSignals()
+        assert await signals.guard(step()) is None and began == [True]  # (not stopped: it runs)
+        signals.event.set()
+        try:
+            await signals.guard(step())
+        except Stopped:
+            return "stopped"
+        return "ran"
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert asyncio.run(go()) == "stopped"
+        gc.collect()
+    assert began == [True]
+    assert [str(w.message) for w in seen if "never awaited" in str(w.message)] == []
