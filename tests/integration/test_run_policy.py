@@ -206,7 +206,9 @@ def test_spawn_delay_holds_the_start(tmp_path, pkgs):
     try:
         lp.wait_output(r"process\[later-3\]: started with pid", timeout=30)
         assert "[later-3] waiting 1 s before starting (spawn_delay)" in lp.stdout
-        later = node_events(tmp_path, "/later")
+        # (the events file's line and the screen's come from two threads: the screen's may be first)
+        later = until(lambda: [e for e in node_events(tmp_path, "/later") if e["state"] != "waiting"] and
+                      node_events(tmp_path, "/later"), 10, what="/later's start in the events file")
         assert [e["state"] for e in later] == ["waiting", "running"]
         assert 0.98 <= later[1]["time"] - later[0]["time"] <= 1.0 + SLACK
         assert [e["state"] for e in node_events(tmp_path, "/now")] == ["running"]

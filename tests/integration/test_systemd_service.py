@@ -10,6 +10,7 @@ from __future__ import annotations
 import glob
 import json
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -23,19 +24,33 @@ from running import SlowSpinner, make_package, master_proxy, write_launch
 
 SYSTEMD = "/lib/systemd/systemd"
 # The namespace's systemd must not touch the machine it shares: a /run, /tmp and /var/tmp of its own (the test's
-# directory bound back in), and every unit a boot target wants is masked (systemd-tmpfiles would empty the shared
-# /tmp, systemd-sysctl set the kernel's knobs, systemd-sysusers edit /etc/passwd ...).
+# directory bound back in, and the checkout and its venv when they are there too), and every unit a boot target
+# wants is masked (systemd-tmpfiles would empty the shared /tmp, systemd-sysctl set the kernel's knobs,
+# systemd-sysusers edit /etc/passwd ...).
 BOOT = """#!/bin/bash
 set -e
 mount -t tmpfs tmpfs /run
-mkdir -p /run/systemd /run/keep
-mount --bind %(tmp)s /run/keep
+mkdir -p /run/systemd
+%(keep)s
 mount -t tmpfs tmpfs /tmp
 mount -t tmpfs tmpfs /var/tmp
-mkdir -p %(tmp)s
-mount --bind /run/keep %(tmp)s
+%(restore)s
 SYSTEMD_UNIT_PATH=%(units)s: exec %(systemd)s --system --unit=launcher-test.target --log-target=null
 """
+
+
+def _kept(tmp: str) -> dict:
+    """The boot's lines that keep `tmp`, and the checkout and its venv if they are under /tmp or /var/tmp, through
+    the new /tmp and /var/tmp."""
+    dirs = [tmp]
+    for d in (ROOT, sys.prefix):
+        if d.startswith(("/tmp/", "/var/tmp/")) and not any(d == k or d.startswith(k + "/") for k in dirs):
+            dirs.append(d)
+    keep = "".join("mkdir -p /run/keep/%d\nmount --bind %s /run/keep/%d\n" % (i, shlex.quote(d), i)
+                   for i, d in enumerate(dirs))
+    restore = "".join("mkdir -p %s\nmount --bind /run/keep/%d %s\n" % (shlex.quote(d), i, shlex.quote(d))
+                      for i, d in enumerate(dirs))
+    return {"keep": keep, "restore": restore}
 TARGET = "[Unit]\nDescription=a boot that starts nothing but the test's units\nDefaultDependencies=no\n"
 # the boot's targets, made empty here (a unit's default dependencies still name them)
 EMPTY_TARGETS = ("sysinit.target", "basic.target", "local-fs.target", "local-fs-pre.target", "swap.target",
@@ -60,7 +75,7 @@ class Systemd:
                     os.symlink("/dev/null", mask)
         boot = os.path.join(tmp, "boot.sh")
         with open(boot, "w") as f:
-            f.write(BOOT % {"tmp": tmp, "units": self.units, "systemd": SYSTEMD})
+            f.write(BOOT % dict(_kept(tmp), units=self.units, systemd=SYSTEMD))
         os.chmod(boot, 0o755)
         self.proc = subprocess.Popen(["unshare", "--pid", "--fork", "--mount", "--mount-proc", "--kill-child", boot],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
