@@ -136,7 +136,8 @@ else:
         caller got the result and ran on). A service's task cancelled at the launch's end so ran on for good,
         and the launch with it (`launcher test --reuse-master` under load: its master watch's call). Here the
         caller awaits `aw` itself, so a cancel is raised in it as in any await, and a timer cancels `aw` at the
-        deadline: asyncio.TimeoutError, unless `aw` had its result by then."""
+        deadline: asyncio.TimeoutError, unless `aw` had its result by then. A timeout of 0 or less gives `aw` no
+        step at all, as asyncio's does (a coroutine times out even if it would not have waited)."""
         fut = asyncio.ensure_future(aw)
         if timeout is None:
             return await fut
@@ -145,7 +146,11 @@ else:
         def expire() -> None:
             expired.append(True)
             fut.cancel()
-        timer = asyncio.get_running_loop().call_later(max(0.0, timeout), expire)
+        timer = None
+        if timeout <= 0:
+            expire()
+        else:
+            timer = asyncio.get_running_loop().call_later(timeout, expire)
         try:
             return await fut
         except asyncio.CancelledError:
@@ -153,4 +158,5 @@ else:
                 raise asyncio.TimeoutError() from None
             raise
         finally:
-            timer.cancel()
+            if timer is not None:
+                timer.cancel()

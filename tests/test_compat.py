@@ -139,3 +139,22 @@ def test_wait_for_times_out_returns_and_passes_on_as_asyncio_does():
             got.append("cancelled")
         return got
     assert asyncio.run(go()) == [("timeout", True), "now", "no limit", "inner", "cancelled"]
+
+
+def test_wait_for_with_no_time_left_is_asyncios():
+    """A timeout of 0 or less: a coroutine gets no step (TimeoutError even if it would not have waited), a future
+    that has its result gives it, as asyncio.wait_for does on every Python."""
+    async def go(wait_for) -> list:
+        got = []
+        ready = asyncio.Event()
+        ready.set()
+        for timeout in (0, -1.0):
+            try:
+                got.append(await wait_for(ready.wait(), timeout))
+            except asyncio.TimeoutError:
+                got.append("timeout")
+        done = asyncio.get_running_loop().create_future()
+        done.set_result("had it")
+        got.append(await wait_for(done, 0))
+        return got
+    assert asyncio.run(go(compat.wait_for)) == asyncio.run(go(asyncio.wait_for)) == ["timeout", "timeout", "had it"]
