@@ -75,14 +75,14 @@ MAY_IMPORT = {_ + part: {_ + d for d in deps.split()} for part, deps in {
     "model": "",
     "net": "",
     "workspace": "model",
-    "fleet": "model",
+    "plan": "model workspace",
+    "fleet": "model plan",
     "params": "model workspace",
     "output": "model workspace fleet",
     "health": "model net fleet",
     "xml": "model workspace params",
     "master": "model net params",
     "bag": "model net",
-    "plan": "model workspace",
     "process": "model workspace fleet output plan",
     "remote": "model net workspace fleet output health xml process plan",
     "services": "model net workspace params fleet output health xml master process plan remote",
@@ -223,10 +223,11 @@ PURE = [_ + module for module in (
     "fleet.actions",  # the node table's actions carried out
     "fleet.restart",  # the restart decision
     "fleet.lastexit",  # a node's last exit, kept by every reader of its changes
-    "fleet.relations",  # the bound-node relations and the stop order, and what a change makes follow
+    "fleet.relations",  # what the bound-node relations make follow a change, and the stop order
     "plan.diff",  # a reload's difference of two plans
     "plan.remote",  # the nodes of other machines, binned, and the load's checks of them
     "plan.plan",  # what a run runs: the loaded launch, its master URI, its other machines
+    "plan.relations",  # who is bound to whom and who waits for whom, from the nodes' policies
     "remote.session",  # a machine's session with its child
     "master.outbox",  # which callback to a node goes when
     "net.http",  # HTTP/1.1 framing

@@ -1,28 +1,25 @@
-"""The relations among a machine's nodes, as data, and what they make follow a node's change: pure.
+"""What the relations among a machine's nodes make follow a node's change: pure.
 
-Two relations come from the launch file (the nodes' policies, as the plan made them):
-a node bound to another (`bind_to`, or a nodelet loader to its manager:
-`plan.order.bind_nodelets`) is stopped while that one is down and started again
-after its next start; a node that waits for another (`wait_for="node:..."`, which a
-`bind_to` adds) is stopped before it at the launch's end. `of` makes both once from
-the nodes' names and policies; the fleet keeps them (made again only when its nodes
-or their rules change) and steps the nodes the first relation names (`follow_ups`)
-as it steps a node, so a runner carries out their actions as any other; an
-operator's stop of a node stops the nodes bound to it first (`stop_first`), and the
-launch's stop follows the second (`ready_to_stop`). Both ends of a relation are nodes
-of one machine: its supervisor runs them both. (Made in the fleet, from the policies
-the plan gave each node, rather than in `plan/`: the fleet is below the plan, and a
-machine's nodes come one `launch` call at a time to a remote child, or change in a
-reload.)
+The relations themselves are the plan's (`plan.relations`: who is bound to
+whom, who waits for whom), made once from the nodes' policies and given to the
+fleet (`Fleet.relate`). Here is what they decide as the nodes change: the
+events the nodes bound to a node are told when it goes down or runs again
+(`follow_ups`; the fleet steps them as it steps the node, so a runner carries
+out their actions as any other); an operator's stop of a node stops the nodes
+bound to it first (`stop_first`); the launch's stop follows the waits
+(`ready_to_stop`). Both ends of a relation are nodes of one machine: its
+supervisor runs them both.
 """
 
 from __future__ import annotations
 
-from typing import Container, Iterable, Mapping, NamedTuple
+from typing import TYPE_CHECKING, Container, Iterable, Mapping
 
 from launcher.fleet import lifecycle
 from launcher.fleet.lifecycle import Event
-from launcher.model.config import NodePolicy
+
+if TYPE_CHECKING:
+    from launcher.plan.relations import Relations
 
 # A node in one of these runs for the nodes bound to it; in one of DOWN it is down for them (they stop and wait
 # for its next start), in the words told to them.
@@ -30,41 +27,6 @@ UP = frozenset((lifecycle.RUNNING, lifecycle.STALLED))
 DOWN = {lifecycle.RESPAWNING: "is respawning", lifecycle.HUNG: "is hung", lifecycle.STOPPING: "is being stopped",
         lifecycle.EXITED: "exited", lifecycle.FATAL: "is fatal", lifecycle.STOPPED: "is stopped",
         lifecycle.DETACHED: "is stopped"}
-
-
-class Relations(NamedTuple):
-    """Each node's relations to the other nodes of its machine, by node name, in the order the nodes were given."""
-
-    bound: Mapping[str, tuple[str, ...]] = {}  # a node -> the nodes bound to it (bind_to)
-    partner: Mapping[str, str] = {}  # a bound node -> the node it is bound to
-    stop_before: Mapping[str, tuple[str, ...]] = {}  # a node -> the nodes that wait for it: stopped before it
-
-
-def of(nodes: Iterable[tuple[str, NodePolicy]]) -> Relations:
-    """The relations `nodes` (name, policy) ask for, in their order. A relation to a node not among a machine's
-    nodes (another machine's, or no node of the launch) names it all the same: it is none, as every reader
-    asks about the nodes it has."""
-    relations = Relations()
-    for name, policy in nodes:
-        relations = joined(relations, name, policy)
-    return relations
-
-
-def joined(relations: Relations, name: str, policy: NodePolicy) -> Relations:
-    """`relations` with those of one more node (as the fleet is given its nodes: one at a time); the same object
-    when it asks for none (most nodes: nothing is copied)."""
-    waits = [t for kind, t in policy.wait_for if kind == "node" and t != name]
-    binds = policy.bind_to and policy.bind_to != name
-    if not waits and not binds:
-        return relations
-    bound, partner, before = dict(relations.bound), dict(relations.partner), dict(relations.stop_before)
-    if binds:
-        partner[name] = policy.bind_to
-        bound[policy.bind_to] = bound.get(policy.bind_to, ()) + (name,)
-    for target in waits:
-        if name not in before.get(target, ()):
-            before[target] = before.get(target, ()) + (name,)
-    return Relations(bound, partner, before)
 
 
 def why_ended(name: str, state: str) -> str:

@@ -45,9 +45,10 @@ from launcher import compat
 from launcher.fleet import launchphase, lifecycle
 from launcher.fleet.lastexit import run_ended
 from launcher.fleet.lifecycle import LOCAL_HOST, Event, Record, Rules
-from launcher.fleet.relations import Relations, follow_ups, joined, of as relations_of, stop_first
+from launcher.fleet.relations import follow_ups, stop_first
 from launcher.fleet.samples import Samples
 from launcher.model.units import format_size
+from launcher.plan.relations import Relations
 
 WAITING = "waiting"
 RUNNING = "running"
@@ -209,7 +210,8 @@ class Fleet:
         self.launch = launchphase.Launch(exit_when_all_dead=exit_when_all_dead)
         self.done = compat.Event()
         self._unstarted = 0  # nodes that never got a record (their command could not be made)
-        self._relations: Relations | None = None  # (made again when the nodes or their rules change)
+        # the relations among this machine's nodes (bound, stopped before): the plan's, given (`relate`)
+        self.relations = Relations()
         # nodes whose bound nodes an operator's stop stops ahead of them: those are not started again meanwhile
         self.unbinding: set[str] = set()
         if events_path:
@@ -227,8 +229,6 @@ class Fleet:
         if record is None:
             record = self.records[name] = Record(name, process or name, host, rules)
             self.nodes[name] = NodeStatus(name, record.process, host)
-            if host == LOCAL_HOST and self._relations is not None:
-                self._relations = joined(self._relations, name, rules.policy)
         return record
 
     def remove(self, name: str) -> None:
@@ -240,7 +240,6 @@ class Fleet:
         if record.state in lifecycle.ALIVE and record.state != lifecycle.NEW:
             raise ValueError("node [%s] is %s: it is stopped before it is removed" % (name, record.state))
         del self.records[name], self.nodes[name]
-        self._relations = None
 
     def apply(self, name: str, event: Event) -> list[lifecycle.Action]:
         """Step the node with `event`; tell every listener; return what the runner is to do."""
@@ -254,8 +253,6 @@ class Fleet:
         if new is old:
             return actions
         self.records[name] = new
-        if new.rules is not old.rules:
-            self._relations = None
         status = self._mirror(new, now)
         self.seq += 1
         when = time.time()
@@ -312,13 +309,10 @@ class Fleet:
     def _local_states(self) -> collections.abc.Mapping[str, str]:
         return _LocalStates(self.records)
 
-    @property
-    def relations(self) -> Relations:
-        """The relations among this machine's nodes (bound, stopped before), from their rules."""
-        if self._relations is None:
-            self._relations = relations_of((r.name, r.rules.policy) for r in self.records.values()
-                                           if r.host == LOCAL_HOST)
-        return self._relations
+    def relate(self, relations: Relations) -> None:
+        """The relations among this machine's nodes, as the plan made them (`Plan.relations`), for the nodes it is
+        given and those a reload or a remote child's next `launch` call gives it."""
+        self.relations = relations
 
     def registration(self, name: str, uri: str, present: bool) -> None:
         """The master's word about a node's current run (health/registration.py): registered at `uri`, or that

@@ -4,7 +4,8 @@ A `Plan` is data and what follows from data alone: which nodes run on other
 machines (`remote`, `remote_nodes`: the machine names that are other hosts are
 given to it), and the checks of the nodes that need nothing but the launch
 (`check_nodes`: the bound nodelet loaders, the waits' cycles, the output
-waits, respawn with required). Making one reads the machine, and is
+waits, respawn with required), and the relations among this machine's nodes
+(`relations`). Making one reads the machine, and is
 `run.load`'s: the launch files read, the addresses looked up
 (`plan.machines`), the settings the other machines need checked against this
 machine's address. What a run works out from a plan is `plan/`'s too: each
@@ -20,6 +21,7 @@ from launcher.model.config import LaunchConfig, Node
 from launcher.model.errors import LaunchError
 from launcher.model.units import LOG_CHECK_THRESHOLD
 from launcher.plan.order import bind_nodelets, check_cycles, check_output_waits
+from launcher.plan.relations import Relations, of as relations_of
 from launcher.plan.remote import machine_nodes
 
 
@@ -54,6 +56,13 @@ class Plan:
         if not self.remote_machines:
             return {}
         return machine_nodes(self.config.nodes, self.config.machines, self.remote)
+
+    @property
+    def relations(self) -> Relations:
+        """The relations among this machine's nodes (`plan.relations`: bound, stopped before), from their
+        policies as `check_nodes` made them (a nodelet loader bound to its manager): the fleet is given them
+        at the start and at each reload."""
+        return relations_of((n.full_name, n.policy) for n in self.config.nodes if not self.remote(n))
 
     def check_nodes(self, required: bool) -> None:
         """The launch's nodes checked (a LaunchError naming the file and line), each nodelet loader bound to its

@@ -108,6 +108,7 @@ class NodeService:
         self.fleet = Fleet(os.path.join(self.log.run_dir, EVENTS_FILE) if self.log.run_dir else None,
                            warn=console.printerrlog)
         self.fleet.listeners.append(self.log.state_change)
+        self.fleet.relate(plan.relations)
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=exit_when_all_dead, watchdog=self.watchdog, fleet=self.fleet)
@@ -267,6 +268,7 @@ class NodeService:
         await asyncio.gather(*(s for s in stopping if s is not None))
         for c in diff.stop:
             supervisor.remove(c.name)
+        supervisor.fleet.relate(plan.relations)  # (the new plan's, before its nodes start or change rules)
         kept = {name: proc.spec.name for name in list(restart) + list(supervise)
                 if (proc := supervisor.node(name)) is not None}
         nodes = tuple(n for n in plan.config.nodes if n.full_name in restart or n.full_name in start

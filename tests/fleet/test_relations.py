@@ -1,41 +1,20 @@
-"""The relations among a machine's nodes (`fleet.relations`): made once from the nodes' policies, and the events
-a node's change makes follow for the nodes bound to it, every (old state, new state) cell written out; and the
-fleet stepping those events itself (`Fleet.step`)."""
+"""What the relations among a machine's nodes (`plan.relations`) make follow a node's change (`fleet.relations`):
+the events told to the nodes bound to it, every (old state, new state) cell written out; the fleet stepping those
+events itself (`Fleet.step`); an operator's stop and the launch's stop order."""
 
 from __future__ import annotations
 
 import pytest
 
 from launcher.fleet import lifecycle as m
-from launcher.fleet.relations import Relations, follow_ups, joined, of, ready_to_stop, stop_first
+from launcher.fleet.relations import follow_ups, ready_to_stop, stop_first
 from launcher.fleet.state import Fleet
 from launcher.model.config import NodePolicy
+from launcher.plan.relations import Relations, of
 
 
 def bound_to(partner: str) -> NodePolicy:
     return NodePolicy(bind_to=partner, wait_for=(("node", partner),))
-
-
-def test_the_relations_are_made_from_the_nodes_policies():
-    rel = of([("/manager", NodePolicy()),
-              ("/loader1", bound_to("/manager")),
-              ("/loader2", bound_to("/manager")),
-              ("/spawner", NodePolicy(wait_for=(("node", "/controllers"), ("node", "/controllers"),
-                                               ("topic", "/manager"), ("output", "/manager:ready")))),
-              ("/controllers", NodePolicy()),
-              ("/self", NodePolicy(bind_to="/self", wait_for=(("node", "/self"),))),
-              ("/lonely", bound_to("/elsewhere"))])  # (another machine's node, or none: its readers ask about theirs)
-    assert rel.bound == {"/manager": ("/loader1", "/loader2"), "/elsewhere": ("/lonely",)}
-    assert rel.partner == {"/loader1": "/manager", "/loader2": "/manager", "/lonely": "/elsewhere"}
-    # stopped before: who waits for a node (by its name: a topic or an output condition is no order at a stop)
-    assert rel.stop_before == {"/manager": ("/loader1", "/loader2"), "/controllers": ("/spawner",),
-                               "/elsewhere": ("/lonely",)}
-    assert of([]) == Relations() == Relations({}, {}, {})
-    # one node at a time (as a fleet is given them): a node that asks for none changes nothing, copies nothing
-    assert joined(rel, "/plain", NodePolicy(wait_for=(("topic", "/scan"),))) is rel
-    more = joined(rel, "/loader3", bound_to("/manager"))
-    assert more.bound["/manager"] == ("/loader1", "/loader2", "/loader3") and more.partner["/loader3"] == "/manager"
-    assert rel.bound["/manager"] == ("/loader1", "/loader2")  # (the relations given are left as they were)
 
 
 # What the nodes bound to /manager are told when /manager goes into each state (old != new). Written out, not
@@ -113,6 +92,7 @@ def test_the_fleet_steps_the_nodes_bound_to_a_node_as_it_steps_it():
     """`Fleet.step` carries out the node's actions, then steps the nodes bound to it and carries out theirs, in
     order; a node of another machine is in no relation (its runner is its machine's child)."""
     fleet = Fleet(clock=lambda: 0.0)
+    fleet.relate(of([("/manager", NodePolicy()), ("/loader", bound_to("/manager"))]))  # (this machine's: the plan's)
     fleet.add("/manager", rules=m.Rules(respawn=True))
     fleet.add("/loader", rules=m.Rules(policy=bound_to("/manager")))
     fleet.add("/far", host="far.example", rules=m.Rules(policy=bound_to("/manager"), remote=True))
@@ -138,6 +118,7 @@ def test_the_fleet_steps_the_nodes_bound_to_a_node_as_it_steps_it():
     # step): it is told nothing of that one, and comes down for good
     fleet.add("/away", host="far.example", rules=m.Rules(remote=True))
     fleet.add("/near", rules=m.Rules(policy=bound_to("/away")))
+    fleet.relate(of([("/near", bound_to("/away"))], fleet.relations))  # (as a remote child's next launch call)
     running(fleet, "/near", 13)
     for kind in (m.START, m.LAUNCH_SENT, m.SPAWNED):
         fleet.apply("/away", m.Event(kind, pid=20))
@@ -147,22 +128,23 @@ def test_the_fleet_steps_the_nodes_bound_to_a_node_as_it_steps_it():
     assert fleet.records["/near"].state == m.DETACHED
 
 
-def test_the_fleets_relations_follow_its_nodes_and_their_rules():
+def test_the_fleet_keeps_the_relations_it_is_given():
+    """The fleet makes no relation of its own: a node's rules (a reload's) change none until the plan's are given
+    again (`Fleet.relate`: the reload gives the new plan's before its nodes change)."""
     fleet = Fleet(clock=lambda: 0.0)
+    assert fleet.relations == Relations()
     fleet.add("/manager")
-    assert fleet.relations == Relations()
     fleet.add("/loader", rules=m.Rules(policy=bound_to("/manager")))
-    fleet.add("/far", host="far.example", rules=m.Rules(policy=bound_to("/manager"), remote=True))
-    assert fleet.relations.bound == {"/manager": ("/loader",)}  # (another machine's node: its child's)
-    fleet.add("/late", rules=m.Rules(policy=bound_to("/manager")))  # (a remote child is given nodes later)
-    assert fleet.relations.bound == {"/manager": ("/loader", "/late")}
-    fleet.remove("/late")
-    assert fleet.relations.bound == {"/manager": ("/loader",)}
-    fleet.apply("/loader", m.Event(m.RULES, rules=m.Rules()))  # (a reload took its bind_to away)
     assert fleet.relations == Relations()
-    fleet.apply("/loader", m.Event(m.RULES, rules=m.Rules(policy=bound_to("/manager"))))
-    fleet.remove("/loader")
-    assert fleet.relations == Relations()
+    given = of([("/manager", NodePolicy()), ("/loader", bound_to("/manager"))])
+    fleet.relate(given)
+    assert fleet.relations is given
+    fleet.apply("/loader", m.Event(m.RULES, rules=m.Rules()))
+    assert fleet.relations is given
+    running(fleet, "/manager", 10)
+    carried = []
+    fleet.step("/manager", m.Event(m.PROCESS_EXITED, exit_code=1), lambda name, actions: carried.append(name))
+    assert carried == ["/manager", "/loader"]  # (told by the relation it was given)
 
 
 def test_the_stop_order_stops_a_node_once_no_node_that_waits_for_it_is_busy():
@@ -191,6 +173,7 @@ def test_an_operators_stop_of_a_node_stops_the_running_nodes_bound_to_it_first(m
 
 def test_the_fleet_stops_the_nodes_bound_to_a_node_first_and_starts_none_again_meanwhile():
     fleet = Fleet(clock=lambda: 0.0)
+    fleet.relate(of([("/manager", NodePolicy()), ("/loader", bound_to("/manager"))]))
     fleet.add("/manager")
     fleet.add("/loader", rules=m.Rules(policy=bound_to("/manager")))
     running(fleet, "/manager", 10)

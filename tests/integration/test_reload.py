@@ -320,3 +320,20 @@ def test_a_fatal_node_stays_fatal_unless_it_changed(run):
     until(lambda: states()["/crash"]["restarts"] > runs, 30, 0.2, what="/crash started anew")
     until(lambda: states()["/crash"]["state"] == "fatal", 30, 0.2, what="/crash FATAL again (it failed again)")
     assert run.pids() == run.before  # (the others kept their pids throughout)
+
+
+def test_a_bind_to_added_by_a_reload_binds_the_node_from_then_on(run):
+    """The relations are the plan's: a reload gives the fleet the new plan's, so a `bind_to` it adds holds at once
+    (an operator's stop of the partner stops the node bound to it first, and its start starts it again)."""
+    run.edit('name="b" args="--x 1"', 'name="b" args="--x 1" bind_to="a"')
+    answer = run.reload()
+    assert answer["ok"] and list(answer["difference"]["supervise"]) == ["/b"], answer
+    assert run.pids() == run.before
+    r = run.tool("stop", "/a")
+    assert r.returncode == 0, r.stderr
+    until(lambda: not {"a", "b"} & set(run.pids()), 30, what="a and the node bound to it stopped")
+    nodes = {n["name"]: n for n in json.loads(run.tool("status", "--json").stdout)["nodes"]}
+    assert nodes["/a"]["state"] == "stopped" and nodes["/b"]["phase"] == "detached", nodes["/b"]
+    assert run.tool("start", "/a").returncode == 0
+    after = run.ready(BASE_NAMES)
+    assert changed(run.before, after) == {"a", "b"}

@@ -45,6 +45,11 @@ def test_checked_nodes_bind_a_local_nodelet_loader_to_its_manager_and_refuse_wai
     plan.check_nodes(False)
     policies = {n.name: n.policy for n in plan.config.nodes}
     assert policies["cam"].bind_to == "/manager" and policies["far"] is None  # (a remote loader is not bound)
+    # the relations this machine's fleet is given: the loader bound to its manager; the other machine's none
+    assert plan.relations.bound == {"/manager": ("/cam",)} and plan.relations.stop_before == {"/manager": ("/cam",)}
+    far_bound = _plan(manager, Node("p", "t", "b", policy=NodePolicy(bind_to="/manager"), machine_name="robot2"),
+                      Node("p", "t", "c", policy=NodePolicy(wait_for=(("node", "/manager"),))))
+    assert far_bound.relations.partner == {} and far_bound.relations.stop_before == {"/manager": ("/c",)}
     cycle = _plan(Node("p", "t", "a", policy=NodePolicy(wait_for=(("node", "/b"),))),
                   Node("p", "t", "b", policy=NodePolicy(wait_for=(("node", "/a"),))))
     with pytest.raises(LaunchError):

@@ -12,6 +12,7 @@ import sys
 from launcher.fleet import lifecycle
 from launcher.model.config import NodePolicy
 from launcher.plan.command import NodeCommand
+from launcher.plan.relations import of
 from launcher.process.supervisor import ProcessSpec, Supervisor
 
 from helpers import pid_alive, until_async
@@ -30,6 +31,7 @@ def spec(tmp_path, name: str, code: str, *args: str, **kw) -> ProcessSpec:
 def test_a_bound_node_starts_again_once_after_its_respawned_partner(tmp_path):
     async def main():
         sup = Supervisor(exit_when_all_dead=False)
+        sup.fleet.relate(of([("/loader", BOUND)]))  # (the plan's: Plan.relations)
         manager = sup.start(spec(tmp_path, "manager-1", MANAGER, str(tmp_path / "broken"), respawn=True,
                                  policy=NodePolicy(respawn_max_retries=2)))
         loader = sup.start(spec(tmp_path, "loader-2", "import time\ntime.sleep(100)", policy=BOUND))

@@ -1,0 +1,40 @@
+"""plan.relations: who is bound to whom and who waits for whom among a machine's nodes, made once from their
+policies (each node in the order given; a remote child's next `launch` call adds its nodes)."""
+
+from __future__ import annotations
+
+from launcher.model.config import NodePolicy
+from launcher.plan.relations import Relations, joined, of
+
+
+def bound_to(partner: str) -> NodePolicy:
+    return NodePolicy(bind_to=partner, wait_for=(("node", partner),))
+
+
+def test_the_relations_are_made_from_the_nodes_policies():
+    rel = of([("/manager", NodePolicy()),
+              ("/loader1", bound_to("/manager")),
+              ("/loader2", bound_to("/manager")),
+              ("/spawner", NodePolicy(wait_for=(("node", "/controllers"), ("node", "/controllers"),
+                                               ("topic", "/manager"), ("output", "/manager:ready")))),
+              ("/controllers", NodePolicy()),
+              ("/self", NodePolicy(bind_to="/self", wait_for=(("node", "/self"),))),
+              ("/lonely", bound_to("/elsewhere"))])  # (another machine's node, or none: its readers ask about theirs)
+    assert rel.bound == {"/manager": ("/loader1", "/loader2"), "/elsewhere": ("/lonely",)}
+    assert rel.partner == {"/loader1": "/manager", "/loader2": "/manager", "/lonely": "/elsewhere"}
+    # stopped before: who waits for a node (by its name: a topic or an output condition is no order at a stop)
+    assert rel.stop_before == {"/manager": ("/loader1", "/loader2"), "/controllers": ("/spawner",),
+                               "/elsewhere": ("/lonely",)}
+    assert of([]) == Relations() == Relations({}, {}, {})
+    # one node at a time (as a fleet is given them): a node that asks for none changes nothing, copies nothing
+    assert joined(rel, "/plain", NodePolicy(wait_for=(("topic", "/scan"),))) is rel
+    more = joined(rel, "/loader3", bound_to("/manager"))
+    assert more.bound["/manager"] == ("/loader1", "/loader2", "/loader3") and more.partner["/loader3"] == "/manager"
+    assert rel.bound["/manager"] == ("/loader1", "/loader2")  # (the relations given are left as they were)
+
+
+def test_the_relations_of_more_nodes_are_added_to_those_given():
+    first = of([("/manager", NodePolicy()), ("/loader1", bound_to("/manager"))])
+    more = of([("/loader2", bound_to("/manager")), ("/plain", None)], first)
+    assert more.bound == {"/manager": ("/loader1", "/loader2")} and first.bound == {"/manager": ("/loader1",)}
+    assert of([("/plain", None), ("/other", NodePolicy())], first) is first  # (none asked for: nothing copied)
