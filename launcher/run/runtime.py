@@ -8,8 +8,9 @@ master that already answers at the master URI, else starts ours. Here:
   checks (no socket, no process), which machines are other hosts;
 - `StopSignals`: SIGINT/SIGTERM/SIGHUP for the whole run, installed on the
   loop before anything starts;
-- `Run`: the ordered list of the run's services (`masterlink.MasterSession`,
-  `servers`, `nodeservice.NodeService`), started in order, stopped in reverse.
+- `Run`: the run's services (`masterlink.MasterSession`, `servers`,
+  `nodeservice.NodeService`), started as one list of steps in roslaunch's
+  order of lines (`Run._steps`), stopped in reverse.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import os
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING, Any, Awaitable, Callable, Coroutine
+from typing import TYPE_CHECKING, Any, Awaitable, Callable, Coroutine, Iterator, NamedTuple
 
 from launcher import compat
 from launcher.services import masterlink
@@ -47,6 +48,14 @@ if TYPE_CHECKING:  # (annotations only: each is imported where a reload or a scr
     from launcher.services.systemd import Notifier
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Step(NamedTuple):
+    """One step of a run's start (`Run._steps`)."""
+
+    service: Service | None  # the service it starts (the run's stop stops it), or None: a step of one already up
+    run: Callable[[], Awaitable[Any] | None]  # what it does; an awaitable it returns is awaited
+    guarded: bool = True  # what it awaits is abandoned at a stop signal (Stopped)
 
 
 class Stopped(Exception):
@@ -147,15 +156,16 @@ class StopSignals:
 
 
 class Run:
-    """One run on the running loop: an ordered list of services, started in order and stopped in reverse.
+    """One run on the running loop: its services, started as one list of steps and stopped in reverse.
 
     The services: the master session (`masterlink.MasterSession`), roslaunch's
     API server, rosout, the nodes (`nodeservice.NodeService`), /diagnostics and
-    the log-disk check (`servers`). Start-up keeps roslaunch's order of lines,
-    so two of them start in steps: the master session is found first (its run
-    id names the log), started after the summary and given the parameters once
-    rosout is up; the node service's `prepare` starts the other machines'
-    children right after the API server (they call it). A front-end that runs differently
+    the log-disk check (`servers`). The start (`_steps`, one list) keeps
+    roslaunch's order of lines, so two services start in several steps: the
+    master session is found first (its run id names the log), started after
+    the summary and given the parameters once rosout is up; the node service's
+    `prepare` starts the other machines' children right after the API server
+    (they call it). A front-end that runs differently
     (rostest) gives its own master session (a class), False for a server it does
     not run, and its own `body` (what the run does between its start and stop).
     """
@@ -243,48 +253,81 @@ class Run:
         return self.nodes.exit_status
 
     async def _start(self) -> None:
-        guard, up = self.signals.guard, self._up.append
-        master, plan = self.master, self.plan
-        up(master)
-        await guard(master.find())  # (a core starts its master here: a busy port is all it has to say)
-        self.log.open(master.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
+        """Each step of `_steps` in turn: its service counted as up first (a stop undoes a start begun), and what
+        it awaits abandoned at a stop signal unless the step says otherwise."""
+        for service, step, guarded in self._steps():
+            if service is not None and service not in self._up:
+                self._up.append(service)
+            begun = step()
+            if begun is not None:
+                await (self.signals.guard(begun) if guarded else begun)
+
+    def _steps(self) -> Iterator[Step]:
+        """The run's start as one list, in roslaunch's order of lines: (the service a step starts, or None; the
+        step; whether a stop signal abandons what it awaits). A generator: a step's condition may depend on what
+        the steps before it found (a master found running gets a watch)."""
+        master, nodes = self.master, self.nodes
+        yield Step(master, master.find)  # (a core starts its master here: a busy port is all it has to say)
+        yield Step(None, self._open_log)
+        yield Step(self.api, self.api.start)
         if self.core:
-            master.open_log(self.log.run_dir)  # (clients may call the master already)
-        up(self.api)
-        await guard(self.api.start())
-        if self.core:
-            console.printlog("ros_comm version %s" % masterlink.ros_version_params(plan.environ)[0].strip())
-        else:
-            up(self.nodes)
-            await self.nodes.prepare(master.run_id, master.uri, self.api.uri)
+            yield Step(None, self._say_version)
+        else:  # the other machines' children are started now: they call the API server
+            yield Step(nodes, self._prepare_nodes, guarded=False)
         if not self.opts.no_summary:
-            console.printlog(summary(plan.config, master.summary_params(), remote=plan.remote,
-                                     machines=self.nodes.remote is not None))
-        await master.start(self.log.run_dir)
-        await guard(self.api.register())
+            yield Step(None, self._say_summary)
+        yield Step(None, self._start_master, guarded=False)
+        yield Step(None, self.api.register)
         if self.rosout is not None:
-            up(self.rosout)
-            await guard(self.rosout.start())
-        self.log.timing(self._started, "master %s at %s" % ("found" if master.external else "started", master.uri))
-        await guard(master.set_parameters())
-        self.log.timing(self._started, "%d parameters set" % len(plan.config.params))
-        if self.nodes not in self._up:
-            up(self.nodes)
-        first = self.first_number + (self.rosout.processes if self.rosout is not None else 0)
-        self.nodes.start(master.uri, first, exit_when_all_dead=master.external, graph=master.graph,
-                         external=master.external)
-        if master.master is not None:  # (ours: what a node that ended registered goes with it)
-            self.nodes.fleet.listeners.append(self._process_ended)
-        if self.notifier is not None:
-            self.notifier.attach(self.nodes.fleet)
+            yield Step(self.rosout, self.rosout.start)
+        yield Step(None, self._note_master)
+        yield Step(None, master.set_parameters)
+        yield Step(None, self._note_parameters)
+        yield Step(nodes, self._start_nodes)
         if master.external:
-            self.master_watch = MasterWatch(master, self.nodes)
-            up(self.master_watch)
-            await self.master_watch.start()
+            self.master_watch = MasterWatch(master, nodes)
+            yield Step(self.master_watch, self.master_watch.start)
         for service in (self.diagnostics, self.log_disk, self.metrics):
             if service is not None:
-                up(service)
-                await guard(service.start())
+                yield Step(service, service.start)
+        yield Step(None, self._started_all)
+
+    def _open_log(self) -> None:
+        self.log.open(self.master.run_id)  # (roscore too logs to roslaunch-<host>-<pid>.log, and says so first)
+        if self.core:
+            self.master.open_log(self.log.run_dir)  # (clients may call the master already)
+
+    def _prepare_nodes(self) -> Awaitable[None]:
+        return self.nodes.prepare(self.master.run_id, self.master.uri, self.api.uri)
+
+    def _start_master(self) -> Awaitable[None]:
+        return self.master.start(self.log.run_dir)
+
+    def _note_master(self) -> None:
+        master = self.master
+        self.log.timing(self._started, "master %s at %s" % ("found" if master.external else "started", master.uri))
+
+    def _note_parameters(self) -> None:
+        self.log.timing(self._started, "%d parameters set" % len(self.plan.config.params))
+
+    def _say_version(self) -> None:
+        console.printlog("ros_comm version %s" % masterlink.ros_version_params(self.plan.environ)[0].strip())
+
+    def _say_summary(self) -> None:
+        console.printlog(summary(self.plan.config, self.master.summary_params(), remote=self.plan.remote,
+                                 machines=self.nodes.remote is not None))
+
+    def _start_nodes(self) -> None:
+        master, nodes = self.master, self.nodes
+        first = self.first_number + (self.rosout.processes if self.rosout is not None else 0)
+        nodes.start(master.uri, first, exit_when_all_dead=master.external, graph=master.graph,
+                    external=master.external)
+        if master.master is not None:  # (ours: what a node that ended registered goes with it)
+            nodes.fleet.listeners.append(self._process_ended)
+        if self.notifier is not None:
+            self.notifier.attach(nodes.fleet)
+
+    def _started_all(self) -> None:
         self.log.timing(self._started, "every node started")
         # What start-up made (the loaded launch, the modules, the master's tables) lives as long as the run:
         # out of the cyclic collector's way, a full collection no longer scans it. With 1,000 callbacks in

@@ -1,5 +1,5 @@
-"""runtime: roslaunch's summary block and value shortening, where a launch's master can be started, and its stop
-signal's guard of the start-up steps."""
+"""runtime: roslaunch's summary block and value shortening, where a launch's master can be started, the start's
+steps as one list, and the stop signal's guard of them."""
 
 from __future__ import annotations
 
@@ -98,3 +98,39 @@ def test_a_step_guarded_after_the_stop_signal_is_closed_not_left_unawaited():
         gc.collect()
     assert began == [True]
     assert [str(w.message) for w in seen if "never awaited" in str(w.message)] == []
+
+
+def _step_names(run, external: bool = False) -> list[tuple[str, str, bool]]:
+    """The run's start as its steps say it (their service's class, the step's name, guarded), walked without
+    running them (the master's `find` would say whether it found one: `external` says it here)."""
+    run.master.external = external
+    out = []
+    for service, step, guarded in run._steps():
+        name = getattr(step, "__name__", "?")
+        out.append((type(service).__name__ if service is not None else "", name, guarded))
+    return out
+
+
+def test_the_start_is_one_list_of_steps_in_roslaunchs_order():
+    """`Run._steps`: roscore's start, a launch's with our master, and with a master found running (a watch of
+    it, and the nodes exit when all are dead), each service counted up at its first step."""
+    from launcher.model.runopts import RunOptions
+    from launcher.plan.plan import Plan
+    from launcher.run.runtime import Run
+    core = Run(RunOptions(core=True), Plan(LaunchConfig(), "", {}, core=True, core_port=11311))
+    assert _step_names(core) == [
+        ("MasterSession", "find", True), ("", "_open_log", True), ("ApiServer", "start", True),
+        ("", "_say_version", True), ("", "_say_summary", True), ("", "_start_master", False),
+        ("", "register", True), ("RosoutService", "start", True), ("", "_note_master", True),
+        ("", "set_parameters", True), ("", "_note_parameters", True), ("NodeService", "_start_nodes", True),
+        ("", "_started_all", True)]
+    launch = Run(RunOptions(no_summary=True), Plan(LaunchConfig(), "http://localhost:11311/", {}))
+    ours = _step_names(launch)
+    assert [s for s in ours if s[0]] == [
+        ("MasterSession", "find", True), ("ApiServer", "start", True), ("NodeService", "_prepare_nodes", False),
+        ("RosoutService", "start", True), ("NodeService", "_start_nodes", True),
+        ("DiagnosticsService", "start", True), ("LogDiskCheck", "start", True)]
+    assert "_say_summary" not in [name for _, name, _ in ours] and launch.master_watch is None
+    found = _step_names(launch, external=True)
+    assert [s for s in found if s[0] == "MasterWatch"] == [("MasterWatch", "start", True)]
+    assert found.index(("MasterWatch", "start", True)) == found.index(("NodeService", "_start_nodes", True)) + 1
