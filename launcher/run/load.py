@@ -15,7 +15,7 @@ import os
 import sys
 from typing import Any, Callable, Mapping
 
-from launcher.master.server import advertised_host
+from launcher.net.hostname import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
 from launcher.model.runopts import RunOptions

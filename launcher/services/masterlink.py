@@ -14,7 +14,7 @@ import os
 from typing import TYPE_CHECKING, Any, Mapping
 
 from launcher.model.errors import LaunchError
-from launcher.master.server import Master, advertised_host
+from launcher.net.hostname import advertised_host
 from launcher.model.graph import Graph
 from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
@@ -23,6 +23,7 @@ from launcher.output import console
 from launcher.model.runopts import RunOptions
 
 if TYPE_CHECKING:  # (annotations only)
+    from launcher.master.server import Master
     from launcher.services.service import Params
 
 CALLER_ID = "/roslaunch"
@@ -206,6 +207,7 @@ async def start_master(port: int, environ: Mapping[str, str], allow: Any = None)
     """Our master on `port`, serving, with roscore's /rosversion and /rosdistro set. OSError if the port is taken.
 
     `allow` (a launcher.net.allow.AllowList) closes it to clients from other networks."""
+    from launcher.master.server import Master  # (here: a launch that uses a master found running loads none of it)
     master = Master(port=port, environ=environ, allow=allow)
     await master.start()
     rosversion, rosdistro = ros_version_params(environ)

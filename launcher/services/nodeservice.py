@@ -13,7 +13,7 @@ import sys
 from typing import TYPE_CHECKING, Any, Callable
 
 from launcher import compat
-from launcher.master.server import advertised_host
+from launcher.net.hostname import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.plan.specs import node_specs, packages_of
 from launcher.output import console, screen

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from launcher import compat
 from launcher.compat import orig_argv
-from launcher.master.server import advertised_host
+from launcher.net.hostname import advertised_host
 from launcher.net.slave import bind_address
 from launcher.net.xmlrpc_codec import Fault, encode_value
 from launcher.model import patterns, token as run_token

@@ -85,3 +85,45 @@ def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
         assert proc.wait(30) == 0
     finally:
         stop_group(proc, 10)
+
+
+def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(tmp_path):
+    """A robot's launches beside its roscore (or a second launch): the master is another process's, so none of
+    `launcher.master` is this launch's memory."""
+    tmp = str(tmp_path)
+    pkgs = os.path.join(tmp, "pkgs")
+    make_package(pkgs, "lean_pkg", {})
+    compile_roscpp("info_node.cpp", os.path.join(pkgs, "lean_pkg", "info_cpp"))
+    launch = write_launch(tmp, '<node pkg="lean_pkg" type="info_cpp" name="talker"/>')
+    port = free_port()
+    env = ros_env(tmp, port, pkgs)
+    core = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+                            start_new_session=True)
+    proc = None
+    try:
+        def master_up() -> bool:
+            try:
+                return master_proxy(port).getPid("/t")[0] == 1
+            except OSError:
+                return False
+        until(master_up, 60, 0.05, what="the core's master")
+        err_path = os.path.join(tmp, "importtime.err")
+        with open(err_path, "wb") as err:
+            proc = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "launcher", launch], env=env,
+                                    stdout=subprocess.DEVNULL, stderr=err, stdin=subprocess.DEVNULL,
+                                    start_new_session=True)
+
+        def registered() -> bool:
+            return proc.poll() is None and master_proxy(port).lookupNode("/t", "/talker")[0] == 1
+        until(registered, 60, 0.05, what="the node registered")
+        with open(err_path, errors="replace") as f:
+            modules = set(IMPORTED.findall(f.read()))
+        assert "launcher.run.runtime" in modules and "launcher.services.masterwatch" in modules  # (it runs)
+        assert sorted(m for m in modules if m.startswith("launcher.master")) == []
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0
+    finally:
+        if proc is not None:
+            stop_group(proc, 10)
+        stop_group(core, 10)
