@@ -10,6 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 from launcher import compat
+from launcher.net.connect import connect
 from launcher.net.linkstate import BROKEN, PublisherLinkState
 from launcher.net.tcpros import TcprosError, TopicType
 from launcher.net.transport import new_connection_id, transport_info
@@ -128,7 +129,7 @@ async def connect_publisher(host: str, port: int, link: PublisherLink, *,
     """Open `link` to a publisher's TCPROS server (within `timeout`) and complete the handshake (by the link's
     own deadline); TcprosError(why, ending) if the link ended first."""
     loop = asyncio.get_running_loop()
-    await compat.wait_for(loop.create_connection(lambda: link, host, port), timeout)
+    await compat.wait_for(connect(loop, lambda: link, host, port), timeout)
     sock = link.transport.get_extra_info("socket") if link.transport is not None and not link.closed else None
     if sock is not None:
         try:

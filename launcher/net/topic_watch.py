@@ -10,6 +10,7 @@ from collections.abc import Callable
 
 from launcher import compat
 from launcher.net import linkstate
+from launcher.net.connect import lookup_name
 from launcher.net.linkstate import BROKEN, CLOSED, ENDED, FAILED, HEADER, PublisherLinkState
 from launcher.net.tcpros import ANY_MD5, FrameCounter, ScratchPool, TcprosError, TopicType
 
@@ -93,7 +94,7 @@ async def watch_publisher(host: str, port: int, topic: str, callerid: str, publi
     `timeout`, the header by linkstate.HANDSHAKE_TIMEOUT_S; TcprosError(why, ending) if the publisher failed it."""
     loop = asyncio.get_running_loop()
     state = PublisherLinkState(topic, TopicType("*", ANY_MD5, ""), callerid, publisher_uri, loop.time())
-    family, kind, proto, _, addr = (await loop.getaddrinfo(host, port, type=socket.SOCK_STREAM))[0]
+    family, kind, proto, _, addr = (await loop.getaddrinfo(lookup_name(host), port, type=socket.SOCK_STREAM))[0]
     sock = socket.socket(family, kind, proto)
     try:
         sock.setblocking(False)

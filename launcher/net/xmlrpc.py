@@ -14,6 +14,7 @@ import socket
 from typing import Any, Iterable
 
 from launcher.net import http
+from launcher.net.connect import connect, lookup_name
 from launcher.net.xmlrpc_codec import (MAX_DEPTH, MAXINT, MININT, Encoded, Fault, XmlRpcError, dumps_fault,
                                        dumps_request, dumps_response, encode_value, loads_request,
                                        loads_response)
@@ -64,7 +65,7 @@ async def call(uri: str, method: str, *params: Any, timeout: float | None = 10.0
     reply = loop.create_future()
     deadline = None if timeout is None else loop.time() + timeout
     exchange = _Exchange(uri, request, reply)
-    connecting = loop.create_connection(lambda: exchange, host, port)
+    connecting = connect(loop, lambda: exchange, host, port)
     limit = timeout if connect_timeout is None else connect_timeout if timeout is None else min(timeout,
                                                                                                  connect_timeout)
     timer = None
@@ -158,7 +159,7 @@ def call_blocking(uri: str, method: str, *params: Any, timeout: float = 10.0) ->
     """
     host, port, request = _http_request(uri, method, params)
     reader = http.ResponseReader(MAX_RESPONSE_SIZE)
-    with socket.create_connection((host, port), timeout=timeout) as sock:
+    with socket.create_connection((lookup_name(host), port), timeout=timeout) as sock:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.sendall(request)
         try:
