@@ -96,3 +96,43 @@ def test_on_a_master_found_running_a_registration_by_name_counts_once_its_proces
             registrations.close()
             await master.stop()
     asyncio.run(main())
+
+
+def test_a_burst_of_registrations_on_a_master_found_running_asks_a_few_processes_at_a_time():
+    """The watcher's first answer reports a whole start's registrations at once: their getPid calls go
+    CALLS_AT_ONCE at a time (a hundred connections at once stayed in the launch's memory), and all are answered."""
+    from launcher.health import registration as R
+    from launcher.net.xmlrpc import dumps_response
+
+    async def main():
+        busy = [0, 0]  # (in flight, most at once)
+
+        async def answer(reader, writer):
+            busy[0] += 1
+            busy[1] = max(busy)
+            head = await reader.readuntil(b"\r\n\r\n")
+            length = int([h for h in head.split(b"\r\n") if h.lower().startswith(b"content-length:")][0][15:])
+            await reader.readexactly(length)
+            await asyncio.sleep(0.02)
+            body = dumps_response([1, "", os.getpid()])
+            writer.write(b"HTTP/1.1 200 OK\r\nContent-Length: %d\r\n\r\n%s" % (len(body), body))
+            await writer.drain()
+            busy[0] -= 1
+            writer.close()
+        server = await asyncio.start_server(answer, "127.0.0.1", 0)
+        uri = "http://127.0.0.1:%d/" % server.sockets[0].getsockname()[1]
+        graph, fleet = Graph(), Fleet()
+        registrations = Registrations(graph, fleet, verify=True)
+        try:
+            names = ["/n%d" % i for i in range(40)]
+            for name in names:
+                running(fleet, name, os.getpgrp())
+            for name in names:
+                graph.node(name, uri)
+            await until_async(lambda: all(fleet.records[n].registered for n in names), 20, what="all checked")
+            assert busy[1] == R.CALLS_AT_ONCE
+        finally:
+            registrations.close()
+            server.close()
+            await server.wait_closed()
+    asyncio.run(main())
