@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING, Awaitable, Callable
 
 from launcher import compat
 from launcher.model.errors import LaunchError
-from launcher.net.rosout import Rosout
 from launcher.services.diagnostics import Diagnostics
 from launcher.services.rosouttail import RosoutTail
 from launcher.services.server import LaunchServer
@@ -21,6 +20,7 @@ from launcher.workspace.roshome import log_root
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.state import Fleet
+    from launcher.net.rosout import Rosout
     from launcher.output.runlog import RunLog
     from launcher.services.metrics import Exporter
     from launcher.services.service import MasterLink, RunNodes
@@ -153,6 +153,7 @@ class RosoutService:
     async def start(self) -> None:
         if self.master.master is None:
             return
+        from launcher.net.rosout import Rosout  # (here: with a master found running, its own rosout logs)
         rosout = Rosout(self.master.uri, self.log.run_dir, environ=self.environ)
         try:
             await rosout.start()

@@ -88,8 +88,8 @@ def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
 
 
 def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(tmp_path):
-    """A robot's launches beside its roscore (or a second launch): the master is another process's, so none of
-    `launcher.master` is this launch's memory."""
+    """A robot's launches beside its roscore (or a second launch): the master and rosout are another process's,
+    so none of `launcher.master` nor the built-in rosout is this launch's memory."""
     tmp = str(tmp_path)
     pkgs = os.path.join(tmp, "pkgs")
     make_package(pkgs, "lean_pkg", {})
@@ -121,6 +121,7 @@ def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(t
             modules = set(IMPORTED.findall(f.read()))
         assert "launcher.run.runtime" in modules and "launcher.services.masterwatch" in modules  # (it runs)
         assert sorted(m for m in modules if m.startswith("launcher.master")) == []
+        assert "launcher.net.rosout" not in modules  # (the core's rosout logs: roslaunch starts none here)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 0
     finally:
