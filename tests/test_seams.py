@@ -19,6 +19,7 @@ from launcher.remote import handler, link
 from launcher.remote.link import RemoteNode
 from launcher.remote.parent import RemoteParent
 from launcher.rostest.runner import RostestMaster
+from launcher.run.runtime import StopSignals
 from launcher.services import server, service
 from launcher.services.masterlink import LocalParams, MasterSession, RemoteParams
 from launcher.services.masterwatch import MasterWatch
@@ -106,6 +107,7 @@ SEAMS = [
     (service.PlainService, MetricsServer),
     (service.PlainService, MasterWatch),
     (server.RunView, RunView),
+    (service.Signals, StopSignals),
 ]
 
 

@@ -170,7 +170,7 @@ class Run:
     not run, and its own `body` (what the run does between its start and stop).
     """
 
-    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Any = None, *,
+    def __init__(self, opts: RunOptions, plan: Plan, watchdog: Watchdog | None = None, *,
                  master: Callable[..., MasterSession] = MasterSession, rosout: bool = True,
                  diagnostics: bool = True, log_disk: bool = True, body: Callable[[Run], Awaitable[None]] | None = None,
                  first_number: int = 0, reap_orphans: bool = True):

@@ -24,7 +24,8 @@ from launcher.model.runopts import RunOptions
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.master.server import Master
-    from launcher.services.service import Params
+    from launcher.plan.plan import Plan
+    from launcher.services.service import Params, Signals
 
 CALLER_ID = "/roslaunch"
 DEFAULT_MASTER_PORT = 11311
@@ -236,7 +237,7 @@ class MasterSession:
 
     is_a_process = True
 
-    def __init__(self, opts: RunOptions, plan: Any, signals: Any):
+    def __init__(self, opts: RunOptions, plan: Plan, signals: Signals):
         self.opts = opts
         self.plan = plan
         self.signals = signals

@@ -34,6 +34,9 @@ from launcher.model.runopts import RunOptions
 
 if TYPE_CHECKING:  # (annotations only; the remote machinery is imported where a node runs on another machine)
     from launcher.plan.diff import Difference  # (a reload's: run/reload.py imports it when one comes)
+    from launcher.plan.plan import Plan
+    from launcher.process.watchdog import Watchdog
+    from launcher.services.service import Signals
     from launcher.output.runlog import RunLog
     from launcher.remote.parent import RemoteParent
 
@@ -48,7 +51,7 @@ class NodeService:
     sets up its master), `start` spawns this machine's nodes and hands the others to their children,
     `stop` stops them all (the machines while this one stops its own) and writes the launch's end."""
 
-    def __init__(self, opts: RunOptions, plan: Any, log: RunLog, signals: Any, watchdog: Any,
+    def __init__(self, opts: RunOptions, plan: Plan, log: RunLog, signals: Signals, watchdog: Watchdog | None,
                  end_reason: Callable[[], str]):
         self.opts = opts
         self.plan = plan
@@ -232,7 +235,7 @@ class NodeService:
 
     # ---- a reload ------------------------------------------------------------------------------------
 
-    async def reload(self, diff: Difference, plan: Any) -> None:
+    async def reload(self, diff: Difference, plan: Plan) -> None:
         """Apply a reload's difference (plan/diff) to this machine's nodes, `plan` being the new one: the
         changed and removed nodes are stopped together, then the changed ones start anew and the new ones
         start, in the launch's order; supervision-only changes apply where each node stands. (The other
@@ -243,7 +246,7 @@ class NodeService:
         self.plan = plan
         self._write_record()  # (the parameters the launch set are now the reloaded files')
 
-    async def _reload_remote(self, diff: Difference, plan: Any) -> None:
+    async def _reload_remote(self, diff: Difference, plan: Plan) -> None:
         """The other machines' part (remote.parent: the operator's stop and start calls)."""
         remote = self.remote
         if remote is None:
@@ -259,7 +262,7 @@ class NodeService:
         for refusal in refusals:  # (checked before the reload began: a child that changed its mind since)
             console.printerrlog("reload: %s" % refusal)
 
-    async def _reload_here(self, diff: Difference, plan: Any) -> None:
+    async def _reload_here(self, diff: Difference, plan: Plan) -> None:
         supervisor = self.supervisor
         restart = {c.name: c.why for c in diff.restart}
         start = {c.name: c.why for c in diff.start}

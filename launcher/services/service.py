@@ -1,5 +1,5 @@
 """The seams between a run's services, as Protocols: a service, the master session as the others see it, the run's
-nodes as the servers and watchers read and steer them.
+nodes as the servers and watchers read and steer them, the run's stop signals as the services heed them.
 
 `run/runtime.Run` starts the services and hands each the others it needs;
 each names here what it uses of another, not the other's class, so a
@@ -10,7 +10,7 @@ no cost.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Optional, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Coroutine, Optional, Protocol
 
 if TYPE_CHECKING:  # (annotations only: importing this module loads nothing of ours)
     import asyncio
@@ -22,6 +22,17 @@ if TYPE_CHECKING:  # (annotations only: importing this module loads nothing of o
     from launcher.model.graph import Graph
     from launcher.plan.specs import ProcessSpec
     from launcher.remote.parent import RemoteParent
+
+
+class Signals(Protocol):
+    """The run's stop signals as its services heed them (`run.runtime.StopSignals`)."""
+
+    event: asyncio.Event  # set at the first stop signal
+    on_signal: Optional[Callable[[], None]]  # told of each one once the nodes exist (the launch's phase decides)
+
+    def check(self) -> None: ...  # raise the run's Stopped if a stop signal came
+
+    async def guard(self, step: Coroutine[Any, Any, Any]) -> Any: ...  # the step, or Stopped at a stop signal
 
 
 class Service(Protocol):
