@@ -6,8 +6,8 @@ them): a node bound to another (`bind_to`, or a nodelet loader to its manager:
 again after its next start; a node that waits for another (`wait_for="node:..."`,
 which a `bind_to` adds) is stopped before it at the launch's end. `of` makes
 both, once per plan (`Plan.relations`: the nodes of this machine), or once per
-`launch` call a remote child is given (`joined` adds them to what it has). The
-fleet keeps what it is given (`Fleet.relate`) and steps the nodes the first
+`launch` call a remote child is given (added to what it has, `without` the
+relations of the nodes it is given again). The fleet keeps what it is given (`Fleet.relate`) and steps the nodes the first
 relation names as it steps a node (`fleet.relations`: the events a change makes
 follow, the operator's stop, the launch's stop order).
 """
@@ -52,3 +52,18 @@ def joined(relations: Relations, name: str, policy: NodePolicy) -> Relations:
         if name not in before.get(target, ()):
             before[target] = before.get(target, ()) + (name,)
     return Relations(bound, partner, before)
+
+
+def without(relations: Relations, names: Iterable[str]) -> Relations:
+    """`relations` with none of the named nodes' own (a node given again, as a remote child's parent renews it
+    with other rules): no partner, in no node's bound nodes, waiting for none. The relations to them stay: a
+    node bound to one of them is bound to what comes under its name."""
+    names = set(names)
+    if not names & (set(relations.partner) | {n for waiting in relations.stop_before.values() for n in waiting}):
+        return relations
+
+    def kept(by: Mapping[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
+        left = {node: tuple(n for n in them if n not in names) for node, them in by.items()}
+        return {node: them for node, them in left.items() if them}
+    return Relations(kept(relations.bound), {n: p for n, p in relations.partner.items() if n not in names},
+                     kept(relations.stop_before))

@@ -41,7 +41,7 @@ from launcher.process.watchdog import Watchdog
 from launcher.workspace.packages import PackageIndex
 from launcher.output.runlog import RunLog
 from launcher.model.runopts import RunOptions
-from launcher.plan.relations import of as relations_of
+from launcher.plan.relations import of as relations_of, without
 from launcher.plan.specs import node_specs
 from launcher.remote.ssh import NODE_GRACE_S
 from launcher.xml import load
@@ -290,8 +290,9 @@ class Child:
                                    opts=self.opts, run_dir=self.log.run_dir, first_number=self._number,
                                    log=console.printlog, log_error=console.printerrlog)
         self._number += len(specs) + len(failed)
-        fleet = self.supervisor.fleet  # (each call's nodes add their relations to those of the calls before)
-        fleet.relate(relations_of(((n.full_name, n.policy) for n in config.nodes), fleet.relations))
+        # each call's nodes add their relations to those of the calls before (a node given again: its new ones)
+        fleet, given = self.supervisor.fleet, [(n.full_name, n.policy) for n in config.nodes]
+        fleet.relate(relations_of(given, without(fleet.relations, (name for name, _ in given))))
         succeeded = []
         for spec in specs:
             if self.supervisor.start(spec) is not None:

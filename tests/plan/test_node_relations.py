@@ -4,7 +4,7 @@ policies (each node in the order given; a remote child's next `launch` call adds
 from __future__ import annotations
 
 from launcher.model.config import NodePolicy
-from launcher.plan.relations import Relations, joined, of
+from launcher.plan.relations import Relations, joined, of, without
 
 
 def bound_to(partner: str) -> NodePolicy:
@@ -38,3 +38,16 @@ def test_the_relations_of_more_nodes_are_added_to_those_given():
     more = of([("/loader2", bound_to("/manager")), ("/plain", None)], first)
     assert more.bound == {"/manager": ("/loader1", "/loader2")} and first.bound == {"/manager": ("/loader1",)}
     assert of([("/plain", None), ("/other", NodePolicy())], first) is first  # (none asked for: nothing copied)
+
+
+def test_a_node_given_again_has_its_new_relations_only():
+    """A remote child's parent renews /loader bound to /other now: its old relations go, the others' stay."""
+    first = of([("/manager", NodePolicy()), ("/loader", bound_to("/manager")), ("/cam", bound_to("/manager")),
+                ("/spawner", NodePolicy(wait_for=(("node", "/loader"),)))])
+    again = of([("/loader", bound_to("/other"))], without(first, ["/loader"]))
+    assert again.bound == {"/manager": ("/cam",), "/other": ("/loader",)}
+    assert again.partner == {"/cam": "/manager", "/loader": "/other"}
+    assert again.stop_before == {"/manager": ("/cam",), "/loader": ("/spawner",), "/other": ("/loader",)}
+    plain = of([("/loader", NodePolicy())], without(first, ["/loader"]))  # (its bind_to taken away)
+    assert "/loader" not in plain.partner and plain.bound == {"/manager": ("/cam",)}
+    assert without(first, ["/manager", "/nobody"]) is first  # (none of their own: nothing copied)
