@@ -37,7 +37,10 @@ def parser() -> argparse.ArgumentParser:
 
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
-    text = title + "\n" + node_table(info["nodes"])
+    if info.get("starting"):  # (no node is made yet: "no nodes" would say the launch has none)
+        text = title + "\nstarting: its nodes start once the master is up and the parameters are set"
+    else:
+        text = title + "\n" + node_table(info["nodes"])
     for u in info.get("unresponsive") or ():  # (the master's own view: callbacks to these go unanswered)
         text += ("\nWARNING: the master cannot reach %s (%s): %d failed callback(s) over %.0f s, the last: %s; "
                  "%d waiting" % (" ".join(u["names"]) or "?", u["api"], u["failures"], u["failing_s"],

@@ -67,6 +67,7 @@ class RunView(Protocol):
 
     nodes: RunNodes  # the fleet and node control: fleet, spec, package_of, remote_names, control, parent_call(s)
     fleet: Fleet | None  # every node's state, None before the nodes are started
+    starting: bool  # a launch whose nodes are not made yet (its master, parameters and rosout come first)
     run_id: str
     master_uri: str
     log_dir: str
@@ -221,7 +222,7 @@ class LaunchServer:
         info = {"pid": os.getpid(), "uri": self.uri, "run_id": run.run_id, "master_uri": run.master_uri,
                 "log_dir": log_dir, "token_file": self.token_path,
                 "events_file": os.path.join(log_dir, EVENTS_FILE) if log_dir else "",
-                "launch_files": list(run.launch_files), "nodes": nodes,
+                "launch_files": list(run.launch_files), "nodes": nodes, "starting": run.starting,
                 # the nodes our master cannot reach (its callbacks time out or are refused)
                 "unresponsive": run.unresponsive()}
         # default=str: a field a later state model adds that JSON cannot hold shows as text, not a fault

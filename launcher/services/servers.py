@@ -57,6 +57,12 @@ class RunView:
         return self.nodes.fleet
 
     @property
+    def starting(self) -> bool:
+        """A launch still setting up: its nodes are made once its master is up and its parameters are set (a core
+        makes none)."""
+        return self.nodes.fleet is None and not self._master.core
+
+    @property
     def run_id(self) -> str:
         return self._master.run_id
 

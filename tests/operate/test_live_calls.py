@@ -169,9 +169,10 @@ def a_launch_still_setting_up(tmp_path):
     from launcher.fleet import lifecycle as m
     nodes = SimpleNamespace(spec=lambda n: None, remote_names=lambda: [], made=compat.Event())
     run = SimpleNamespace(fleet=None, nodes=nodes, warnings=None, log_dir="", run_id="r", master_uri="",
-                          launch_files=[], unresponsive=lambda: [])
+                          launch_files=[], unresponsive=lambda: [], starting=True)
 
     def make_nodes() -> Fleet:
+        run.starting = False
         fleet = run.fleet = Fleet()
         fleet.add("/a")
         fleet.apply("/a", m.Event(m.START))
@@ -191,6 +192,19 @@ def test_a_status_read_before_the_nodes_were_made_is_not_kept_for_after(tmp_path
     assert status_nodes() == []
     make_nodes()
     assert status_nodes() == ["/a"]
+
+
+def test_a_status_read_before_the_nodes_were_made_says_the_launch_is_starting(tmp_path):
+    """`launcher status` during a long start (a master waited for, many parameters) said "no nodes"."""
+    from launcher.operate.status import table
+    server, make_nodes = a_launch_still_setting_up(tmp_path)
+    info = json.loads(server._build_status())
+    assert info["starting"] is True and info["nodes"] == []
+    assert table(info).splitlines()[1].startswith("starting: its nodes start once the master is up")
+    make_nodes()
+    info = json.loads(server._build_status())
+    assert info["starting"] is False and table(info).splitlines()[1].split()[0] == "NODE"
+    assert table(dict(info, nodes=[])).splitlines()[1] == "no nodes"  # (a launch of none, or a core)
 
 
 def test_changes_asked_before_the_nodes_were_made_are_answered_when_they_are(tmp_path):
