@@ -193,7 +193,11 @@ class Panes:
                 out.append(("", "\n"))
         if not rows:
             state = self.state
-            out.append(("class:dim", "no node matches the filter [%s]" % state.filter if state.filter else "no nodes"))
+            if state.filter:
+                out.append(("class:dim", "no node matches the filter [%s]" % state.filter))
+            else:  # (a launch still setting up has made no node yet: "no nodes" would say it has none)
+                out.append(("class:dim", "starting: its nodes start once the master is up and the parameters are set"
+                            if state.info.get("starting") else "no nodes"))
         return out
 
     def rule(self) -> list:

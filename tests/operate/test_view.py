@@ -225,3 +225,15 @@ def test_a_change_of_a_node_the_status_lacked_asks_for_the_status_again():
     assert not v.unknown([{"seq": 2, "event": "reload", "reason": "x"}])
     v.load({"nodes": [{"name": "/s", "state": "running"}]})
     assert not v.unknown([{"seq": 3, "node": "/s", "state": "stopped"}])
+
+
+def test_the_terminal_views_table_says_a_launch_is_starting_until_its_nodes_are_made():
+    from launcher.operate.ui import Panes
+    state = ViewState()
+    panes = Panes(state, lambda: (24, 80))
+    state.load({"nodes": [], "starting": True})
+    assert panes.table() == [("class:dim", "starting: its nodes start once the master is up and the parameters are set")]
+    state.load({"nodes": [], "starting": False})
+    assert panes.table() == [("class:dim", "no nodes")]
+    state.filter = "cam"
+    assert panes.table() == [("class:dim", "no node matches the filter [cam]")]
