@@ -7,9 +7,10 @@ again after its next start; a node that waits for another (`wait_for="node:..."`
 which a `bind_to` adds) is stopped before it at the launch's end. `of` makes
 both, once per plan (`Plan.relations`: the nodes of this machine), or once per
 `launch` call a remote child is given (added to what it has, `without` the
-relations of the nodes it is given again). The fleet keeps what it is given (`Fleet.relate`) and steps the nodes the first
-relation names as it steps a node (`fleet.relations`: the events a change makes
-follow, the operator's stop, the launch's stop order).
+relations of the nodes it is given again). The fleet keeps what it is given
+(`Fleet.relate`) and steps the nodes the first relation names as it steps a
+node (`fleet.relations`: the events a change makes follow, the operator's
+stop, the launch's stop order).
 """
 
 from __future__ import annotations
