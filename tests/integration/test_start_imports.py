@@ -41,14 +41,20 @@ def _unneeded(modules: set[str]) -> list[str]:
     return sorted(m for m in modules if any(m == n or m.startswith(n + ".") for n in NOT_NEEDED))
 
 
-def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
-    tmp = str(tmp_path)
+def _one_roscpp_node(tmp: str) -> tuple[str, int, dict]:
+    """A launch of one roscpp node (it logs "tick N" five times a second) in `tmp`, a free master port, its
+    environment."""
     pkgs = os.path.join(tmp, "pkgs")
     make_package(pkgs, "lean_pkg", {})
     compile_roscpp("info_node.cpp", os.path.join(pkgs, "lean_pkg", "info_cpp"))
     launch = write_launch(tmp, '<node pkg="lean_pkg" type="info_cpp" name="talker"/>')
     port = free_port()
-    env = ros_env(tmp, port, pkgs)
+    return launch, port, ros_env(tmp, port, pkgs)
+
+
+def test_a_plain_launch_imports_only_what_it_runs(tmp_path):
+    tmp = str(tmp_path)
+    launch, port, env = _one_roscpp_node(tmp)
     err_path = os.path.join(tmp, "importtime.err")
     with open(err_path, "wb") as err:
         proc = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "launcher", launch], env=env,
@@ -91,12 +97,7 @@ def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(t
     """A robot's launches beside its roscore (or a second launch): the master and rosout are another process's,
     so none of `launcher.master` nor the built-in rosout is this launch's memory."""
     tmp = str(tmp_path)
-    pkgs = os.path.join(tmp, "pkgs")
-    make_package(pkgs, "lean_pkg", {})
-    compile_roscpp("info_node.cpp", os.path.join(pkgs, "lean_pkg", "info_cpp"))
-    launch = write_launch(tmp, '<node pkg="lean_pkg" type="info_cpp" name="talker"/>')
-    port = free_port()
-    env = ros_env(tmp, port, pkgs)
+    launch, port, env = _one_roscpp_node(tmp)
     core = subprocess.Popen([sys.executable, "-m", "launcher", "--core", "-p", str(port)], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
                             start_new_session=True)
