@@ -48,7 +48,10 @@ def test_pid1_reaps_orphans_and_stops_at_sigterm_within_a_second(tmp_path, ros_e
         grandchild = until(orphan, 10, what="the double-forked grandchild under PID 1")
         # it ends after 2 s: then it is reaped (gone), not left a zombie
         until(lambda: stat_fields(grandchild) is None, 10, what="the orphan reaped, not left a zombie")
-        assert not [k for k in children(launch) if (stat_fields(k) or ["?"])[0] == "Z"]
+        # and no zombie stays: one may be there for a moment (the launch's own `du`, run 2 s after the start, just
+        # ended and not yet waited for by its runner), none for long
+        until(lambda: not [k for k in children(launch) if (stat_fields(k) or ["?"])[0] == "Z"], 5,
+              what="no zombie left under PID 1")
 
         started = time.monotonic()
         os.kill(launch, signal.SIGTERM)  # docker stop
