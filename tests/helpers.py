@@ -1,4 +1,4 @@
-"""What tests share: waiting for a condition with a deadline, a free port, the processes a test started, /proc walks, where things are."""
+"""What tests share: waiting for a condition with a deadline, a free port, the processes a test started, /proc walks, where things are, a launch server still setting up."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import signal
 import socket
 import subprocess
 import time
+from types import SimpleNamespace
 from typing import Any, Callable
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the checkout
@@ -164,3 +165,25 @@ def descendants(root: int) -> set[int]:
             out.add(c)
             todo.append(c)
     return out
+
+
+def launch_server_setting_up(names: tuple = ("/a",), core: bool = False) -> tuple[Any, Callable[[], Any]]:
+    """A server whose run has no fleet yet (its master and rosout are being started), and what then makes the
+    fleet and starts its nodes as `NodeService.start` does: in one step of the loop, then `made` (a core: never)."""
+    from launcher import compat
+    from launcher.fleet import lifecycle as m
+    from launcher.fleet.state import Fleet
+    from launcher.services.server import LaunchServer
+    nodes = SimpleNamespace(spec=lambda n: None, remote_names=lambda: [], made=compat.Event())
+    run = SimpleNamespace(fleet=None, nodes=nodes, warnings=None, log_dir="", run_id="r", master_uri="",
+                          launch_files=[], unresponsive=lambda: [], starting=not core)
+
+    def make_nodes() -> Any:  # (the Fleet made)
+        run.starting = False
+        fleet = run.fleet = Fleet()
+        for name in names:
+            fleet.add(name)
+            fleet.apply(name, m.Event(m.START))
+        nodes.made.set()
+        return fleet
+    return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), make_nodes

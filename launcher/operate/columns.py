@@ -47,6 +47,9 @@ def last_exit(node: dict[str, Any]) -> str:
     return exit_text(node.get("exit_code"), node.get("exit_signal"))
 
 
+# what the table says in place of its rows while a launch sets up (`launcher status`, both views): "no nodes" would
+# say the launch has none
+STARTING = "starting: its nodes start once the master is up and the parameters are set"
 HEADER = ("NODE", "STATE", "REG", "PID", "UPTIME", "RESTARTS", "LAST EXIT", "CPU", "RSS", "HOST")
 
 

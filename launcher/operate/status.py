@@ -23,7 +23,7 @@ from typing import Any
 
 from launcher.operate import client
 from launcher.fleet.state import over_limit_text
-from launcher.operate.columns import HEADER, row
+from launcher.operate.columns import HEADER, STARTING, row
 
 
 def parser() -> argparse.ArgumentParser:
@@ -37,8 +37,8 @@ def parser() -> argparse.ArgumentParser:
 
 def table(info: dict[str, Any]) -> str:
     title = "launch %s (pid %s, run_id %s)" % (info.get("uri", "?"), info.get("pid", "?"), info.get("run_id", "?"))
-    if info.get("starting"):  # (no node is made yet: "no nodes" would say the launch has none)
-        text = title + "\nstarting: its nodes start once the master is up and the parameters are set"
+    if info.get("starting"):  # (no node is made yet)
+        text = title + "\n" + STARTING
     else:
         text = title + "\n" + node_table(info["nodes"])
     for u in info.get("unresponsive") or ():  # (the master's own view: callbacks to these go unanswered)

@@ -29,7 +29,7 @@ from types import SimpleNamespace
 from typing import Any, Callable
 
 from launcher.net.xmlrpc import Fault, XmlRpcError, call_blocking
-from launcher.operate import client
+from launcher.operate import client, columns
 from launcher.operate.errors import slow
 from launcher.model import token as run_token
 from launcher.operate.view import HELP, HISTORY, NODE_OUTPUT, Line, ViewState, cut_left
@@ -110,9 +110,7 @@ class Feed:
     def _changes(self) -> None:
         def body() -> None:
             answer = json.loads(self._call("launcher_changes", self.state.seq, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
-            # (changes were dropped, or a node came that the status read at the start did not have yet: the launch
-            # was still making its nodes): the whole status again
-            if not answer["complete"] or self.state.unknown(answer["changes"]):
+            if self.state.stale(answer):  # (changes dropped, or the launch has made its nodes since): the status
                 info = json.loads(self._call("launcher_status"))
                 self.post(lambda: self.state.load(info))
             self.post(lambda: self.state.changes(answer["changes"]))
@@ -195,9 +193,8 @@ class Panes:
             state = self.state
             if state.filter:
                 out.append(("class:dim", "no node matches the filter [%s]" % state.filter))
-            else:  # (a launch still setting up has made no node yet: "no nodes" would say it has none)
-                out.append(("class:dim", "starting: its nodes start once the master is up and the parameters are set"
-                            if state.info.get("starting") else "no nodes"))
+            else:  # (a launch still setting up has made no node yet)
+                out.append(("class:dim", columns.STARTING if state.starting else "no nodes"))
         return out
 
     def rule(self) -> list:

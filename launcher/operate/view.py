@@ -71,6 +71,18 @@ class ViewState:
             shown = self.visible()
             self.selected = shown[0] if shown else ""
 
+    @property
+    def starting(self) -> bool:
+        """A launch still setting up, as its status said: no node is made yet (its master, its parameters first)."""
+        return bool(self.info.get("starting")) and not self.nodes
+
+    def stale(self, answer: dict[str, Any]) -> bool:
+        """Whether an answer of the change stream (`launcher_changes`) means the status must be read again: changes
+        were dropped; or the launch has made its nodes since the status was read (a change names a node this state
+        lacks, or the launch no longer says it is starting: a launch of no node has no change to say it by)."""
+        return (not answer["complete"] or self.unknown(answer["changes"])
+                or (self.starting and not answer.get("starting", False)))
+
     def unknown(self, lines: Iterable[dict[str, Any]]) -> bool:
         """Whether a change names a node this state does not have (the status was read before the launch had made
         its nodes): its reader reads the status again, which has it."""

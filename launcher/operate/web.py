@@ -41,7 +41,7 @@ from launcher.model import token as run_token
 from launcher.net.http import Request
 from launcher.net.open_files import raise_open_file_limit
 from launcher.net.xmlrpc import Fault, XmlRpcError, call
-from launcher.operate import client
+from launcher.operate import client, columns
 from launcher.operate.errors import slow
 from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
 from launcher.operate.ui import POLL_WAIT_S, RECENT_OUTPUT_BYTES
@@ -142,17 +142,22 @@ class Hub:
                 self.streams.discard(stream)
 
     def subscribe(self) -> StreamReply:
-        """A page's event stream: its first event is the table as it is now."""
+        """A page's event stream: its first event is the table as it is now (with what it says in place of its
+        rows while the launch sets up, "starting": a "started" event follows once it has made its nodes)."""
         snapshot = {"type": "snapshot", "nodes": list(self.state.nodes.values()), "uri": self.state.info.get("uri"),
                     "history": {name: list(h) for name, h in self.history.items()},
-                    "run_id": self.state.info.get("run_id"), "seq": self.state.seq}
+                    "run_id": self.state.info.get("run_id"), "seq": self.state.seq,
+                    "starting": columns.STARTING if self.state.starting else ""}
         return StreamReply(event_bytes(snapshot), self.streams.add, self.streams.discard)
 
     async def _changes(self) -> None:
         answer = json.loads(await read(self.uri, "launcher_changes", self.state.seq, POLL_WAIT_S,
                                        timeout=POLL_WAIT_S + 10))
-        if not answer["complete"] or self.state.unknown(answer["changes"]):  # (as the terminal view: ui.Feed)
+        if self.state.stale(answer):  # (as the terminal view: ui.Feed)
+            starting = self.state.starting
             self.state.load(json.loads(await read(self.uri, "launcher_status")))
+            if starting and not self.state.starting:
+                self.broadcast({"type": "started"})
         self.state.changes(answer["changes"])
         self.state.seq = max(self.state.seq, answer["seq"])
         if answer["changes"]:

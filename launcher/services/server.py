@@ -234,24 +234,25 @@ class LaunchServer:
         status --watch` and `launcher events -f` read instead of tailing the events file. The run's own lines
         (a reload, the master restarted, the launch's end) are in the stream too, with no "node". [1, text, JSON
         {"seq": the last one, "complete": false when older changes were dropped (read the status again),
-        "changes": [as in the events file; the steps it leaves out marked "internal": true]}]."""
+        "starting": true while the launch has made no node yet (once false, read the status again: it may have
+        none to tell of), "changes": [as in the events file; the steps it leaves out marked "internal": true]}]."""
         if not isinstance(since, int) or not isinstance(timeout, (int, float)) or timeout < 0:
             raise Fault(1, "launcher_changes(since: int, timeout: seconds)")
 
         async def changes() -> list:
             wait = min(float(timeout), CHANGES_WAIT_MAX_S)
             fleet = self.run.fleet
-            if fleet is None:  # (asked while the launch sets up: its nodes' first changes are the answer)
-                start = time.monotonic()
+            if fleet is None:  # (asked while the launch sets up: the answer comes once it has made its nodes, at
+                # once, with their first changes or none: a launch of no node has no change to tell it by)
                 try:
                     await compat.wait_for(self.run.nodes.made.wait(), wait)
                 except asyncio.TimeoutError:
-                    return [1, "changes", json.dumps({"seq": 0, "complete": True, "changes": []})]
-                fleet = self.run.fleet
-                wait = max(0.0, wait - (time.monotonic() - start))
+                    return [1, "changes", json.dumps({"seq": 0, "complete": True, "starting": self.run.starting,
+                                                      "changes": []})]
+                fleet, wait = self.run.fleet, 0.0
             await fleet.wait_change(since, wait)
             lines, complete = fleet.changes_json(since)  # (the lines as the fleet keeps them: JSON already)
-            return [1, "changes", '{"seq":%d,"complete":%s,"changes":%s}'
+            return [1, "changes", '{"seq":%d,"complete":%s,"starting":false,"changes":%s}'
                     % (fleet.seq, "true" if complete else "false", lines)]
         return changes()
 

@@ -650,3 +650,40 @@ def test_the_pages_last_exit_shows_while_a_crash_looping_node_runs_again(tmp_pat
             until(lambda: cell("exit") != "", 30, 0.2, what="the row in a new page")
     finally:
         lp.close()
+
+
+def test_a_page_opened_while_the_launch_sets_up_says_it_is_starting_until_the_nodes_come(tmp_path, browser):
+    """`launcher web` beside a launch server that has made no node yet (its master and parameters come first): the
+    page says the launch is starting, not an empty table without a word, and its rows replace that once the nodes
+    are made."""
+    import asyncio
+
+    from helpers import launch_server_setting_up
+    from launcher.operate.columns import STARTING
+    from selenium.webdriver.common.by import By
+    server, make_nodes = launch_server_setting_up(names=("/a",))
+    loop = asyncio.new_event_loop()
+    serving = threading.Thread(target=loop.run_forever, daemon=True)
+    serving.start()
+    web = None
+    try:
+        asyncio.run_coroutine_threadsafe(server.start(), loop).result(10)
+        port = free_port()
+        web = subprocess.Popen([sys.executable, "-m", "launcher.cli.tool", "web", str(port), "--uri", server.uri],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        until(lambda: raw(port, b"GET / HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nConnection: close\r\n\r\n" % port),
+              30, 0.1, what="the page server", errors=(OSError,))
+        browser.get("http://127.0.0.1:%d/" % port)
+        until(lambda: browser.find_element(By.ID, "message").text == STARTING, 10, 0.05, what="the page saying so")
+        assert not browser.find_elements(By.CSS_SELECTOR, "tr[data-node]")
+        loop.call_soon_threadsafe(make_nodes)
+        until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/a']"), 10, 0.05, what="/a's row")
+        until(lambda: browser.find_element(By.ID, "message").text == "", 10, 0.05, what="the word gone")
+    finally:
+        if web is not None:
+            web.terminate()
+            web.wait(10)
+        asyncio.run_coroutine_threadsafe(server.stop(), loop).result(10)
+        loop.call_soon_threadsafe(loop.stop)
+        serving.join(10)
+        loop.close()

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from helpers import launch_server_setting_up
 from launcher.net.xmlrpc import Fault
 from launcher.services import server as server_mod
 from launcher.services.rosouttail import RosoutTail
@@ -162,25 +163,6 @@ def test_samples_with_history_are_what_the_fleet_kept(tmp_path):
     assert json.loads(server.launcher_samples()[2]) == {"/a": [0.2, 1002]}  # (without: the last sample only)
 
 
-def a_launch_still_setting_up(tmp_path):
-    """A server whose run has no fleet yet (its master and rosout are being started), and what then makes the
-    fleet and starts its node as `NodeService.start` does: in one step of the loop, then `made`."""
-    from launcher import compat
-    from launcher.fleet import lifecycle as m
-    nodes = SimpleNamespace(spec=lambda n: None, remote_names=lambda: [], made=compat.Event())
-    run = SimpleNamespace(fleet=None, nodes=nodes, warnings=None, log_dir="", run_id="r", master_uri="",
-                          launch_files=[], unresponsive=lambda: [], starting=True)
-
-    def make_nodes() -> Fleet:
-        run.starting = False
-        fleet = run.fleet = Fleet()
-        fleet.add("/a")
-        fleet.apply("/a", m.Event(m.START))
-        nodes.made.set()
-        return fleet
-    return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), make_nodes
-
-
 def test_a_status_read_before_the_nodes_were_made_is_not_kept_for_after(tmp_path):
     # (the cached status may be half a second old, but not older than the fleet: a view attached during the
     # start read "no nodes" again when it asked at the first change, and kept that for good)
@@ -188,7 +170,7 @@ def test_a_status_read_before_the_nodes_were_made_is_not_kept_for_after(tmp_path
 
     def status_nodes():  # (as a caller gets it: the server keeps the status XML-encoded)
         return [n["name"] for n in json.loads(loads_response(dumps_response(server.launcher_status()))[2])["nodes"]]
-    server, make_nodes = a_launch_still_setting_up(tmp_path)
+    server, make_nodes = launch_server_setting_up()
     assert status_nodes() == []
     make_nodes()
     assert status_nodes() == ["/a"]
@@ -197,7 +179,7 @@ def test_a_status_read_before_the_nodes_were_made_is_not_kept_for_after(tmp_path
 def test_a_status_read_before_the_nodes_were_made_says_the_launch_is_starting(tmp_path):
     """`launcher status` during a long start (a master waited for, many parameters) said "no nodes"."""
     from launcher.operate.status import table
-    server, make_nodes = a_launch_still_setting_up(tmp_path)
+    server, make_nodes = launch_server_setting_up()
     info = json.loads(server._build_status())
     assert info["starting"] is True and info["nodes"] == []
     assert table(info).splitlines()[1].startswith("starting: its nodes start once the master is up")
@@ -208,7 +190,7 @@ def test_a_status_read_before_the_nodes_were_made_says_the_launch_is_starting(tm
 
 
 def test_changes_asked_before_the_nodes_were_made_are_answered_when_they_are(tmp_path):
-    server, make_nodes = a_launch_still_setting_up(tmp_path)
+    server, make_nodes = launch_server_setting_up()
 
     async def go():
         asked = asyncio.ensure_future(server.launcher_changes(0, 30.0))
@@ -221,7 +203,68 @@ def test_changes_asked_before_the_nodes_were_made_are_answered_when_they_are(tmp
     assert code == 1 and answer["seq"] >= 1 and [c["node"] for c in answer["changes"]] == ["/a"]
 
 
-def test_changes_asked_of_a_launch_without_nodes_end_at_their_timeout(tmp_path):
-    server, _ = a_launch_still_setting_up(tmp_path)  # (launch --core: no node is ever made)
+def test_changes_asked_while_a_launch_sets_up_end_at_their_timeout_saying_it_is_starting(tmp_path):
+    server, _ = launch_server_setting_up()
     code, _msg, text = asyncio.run(server.launcher_changes(0, 0.05))
-    assert code == 1 and json.loads(text) == {"seq": 0, "complete": True, "changes": []}
+    assert code == 1 and json.loads(text) == {"seq": 0, "complete": True, "starting": True, "changes": []}
+    core, _ = launch_server_setting_up(core=True)  # (launch --core: no node is ever made)
+    code, _msg, text = asyncio.run(core.launcher_changes(0, 0.05))
+    assert code == 1 and json.loads(text) == {"seq": 0, "complete": True, "starting": False, "changes": []}
+
+
+def test_changes_asked_of_a_launch_that_makes_no_node_are_answered_once_it_has_set_up(tmp_path):
+    """A launch of parameters alone has no change to say it is set up by: a view that attached while it set up
+    said "starting" for good."""
+    from launcher.operate.view import ViewState
+    server, make_nodes = launch_server_setting_up(names=())
+    view = ViewState()
+    view.load(json.loads(server._build_status()))
+    assert view.starting
+
+    async def go():
+        asked = asyncio.ensure_future(server.launcher_changes(0, 30.0))
+        await asyncio.sleep(0.05)
+        assert not asked.done()
+        make_nodes()
+        return await asyncio.wait_for(asked, 1.0)  # (at once: not at the end of the long poll)
+    code, _msg, text = asyncio.run(go())
+    answer = json.loads(text)
+    assert code == 1 and answer == {"seq": 0, "complete": True, "starting": False, "changes": []}
+    assert view.stale(answer)  # (its reader reads the status again: no node, and no longer starting)
+    view.load(json.loads(server._build_status()))
+    assert not view.starting and not view.stale(answer)
+
+
+def test_a_page_attached_while_the_launch_sets_up_says_so_until_the_launch_has_made_its_nodes(tmp_path):
+    """The page's table was empty, without a word, while the terminal view and `launcher status` said "starting".
+    Its hub reads a real launch server over XML-RPC here."""
+    from launcher.operate import web
+    from launcher.operate.columns import STARTING
+    server, make_nodes = launch_server_setting_up(names=("/a", "/b"))
+    events = []
+
+    class Page:  # (a page's event stream, as the hub hands it each event)
+        def send(self, data: bytes) -> bool:
+            events.append(json.loads(data.decode()[len("data: "):]))
+            return True
+
+    async def go():
+        await server.start()
+        try:
+            hub = web.Hub(server.uri, json.loads(server._build_status()), {})
+            reply = hub.subscribe()
+            reply.attach(Page())
+            events.append(json.loads(reply.first.decode()[len("data: "):]))
+            reading = asyncio.ensure_future(hub._changes())
+            await asyncio.sleep(0.1)
+            make_nodes()
+            await asyncio.wait_for(reading, 10)
+            late = json.loads(hub.subscribe().first.decode()[len("data: "):])  # (a page that comes after)
+            return late
+        finally:
+            await server.stop()
+    late = asyncio.run(go())
+    assert [e["type"] for e in events] == ["snapshot", "started", "changes"]
+    assert events[0]["starting"] == STARTING and events[0]["nodes"] == []
+    assert [c["node"] for c in events[2]["changes"]] == ["/a", "/b"]
+    assert late["starting"] == "" and [n["name"] for n in late["nodes"]] == ["/a", "/b"]

@@ -237,3 +237,21 @@ def test_the_terminal_views_table_says_a_launch_is_starting_until_its_nodes_are_
     assert panes.table() == [("class:dim", "no nodes")]
     state.filter = "cam"
     assert panes.table() == [("class:dim", "no node matches the filter [cam]")]
+
+
+def test_the_status_is_read_again_when_changes_were_dropped_or_a_launch_has_made_its_nodes_since():
+    state = ViewState()
+    state.load({"nodes": [{"name": "/a", "state": "running"}], "starting": False})
+    quiet = {"seq": 3, "complete": True, "starting": False, "changes": []}
+    assert not state.stale(quiet)
+    assert state.stale(dict(quiet, complete=False))
+    assert state.stale(dict(quiet, changes=[{"seq": 4, "node": "/new", "state": "running"}]))
+    assert not state.stale(dict(quiet, changes=[{"seq": 4, "node": "/a", "state": "stopped"}]))
+    # read while the launch set up: no node, "starting"; it stays so while the launch says it is
+    state.load({"nodes": [], "starting": True})
+    assert state.starting
+    assert not state.stale(dict(quiet, starting=True))
+    assert state.stale(quiet)  # (a launch of no node: no change says it has set up, the answer does)
+    assert state.stale({"seq": 0, "complete": True, "changes": []})  # (a launch of before: no "starting")
+    state.load({"nodes": [{"name": "/a", "state": "running"}], "starting": True})  # (a status made as it set up)
+    assert not state.starting and not state.stale(quiet)

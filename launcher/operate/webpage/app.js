@@ -6,6 +6,7 @@ const HISTORY = 60;
 const SIGNALS = {1: "SIGHUP", 2: "SIGINT", 6: "SIGABRT", 9: "SIGKILL", 11: "SIGSEGV", 15: "SIGTERM"};
 const liveLines = [];          // [text, level ("" or WARN, ERROR, FATAL: a /rosout line of an output="log" node)]
 let shownNode = null;         // whose recent output the pane shows (null: every node's, live)
+let starting = "";            // what the page says while the launch sets up (the snapshot's), until it has made its nodes
 
 const $ = (id) => document.getElementById(id);
 const text = (v) => (v === null || v === undefined) ? "-" : String(v);
@@ -106,6 +107,11 @@ function handle(ev) {
     $("title").textContent = "launch " + ev.uri + " (run " + ev.run_id + ")";
     for (const [name, h] of Object.entries(ev.history || {})) sparks.set(name, h.slice(-HISTORY));
     for (const n of ev.nodes) { nodes.set(n.name, n); draw(n.name); }
+    starting = ev.starting;  // (a launch still setting up: no row yet)
+    if (starting) $("message").textContent = starting;
+  } else if (ev.type === "started") {  // (it has made its nodes: their rows come with their changes)
+    if ($("message").textContent === starting) $("message").textContent = "";
+    starting = "";
   } else if (ev.type === "changes") {
     for (const c of ev.changes) {
       if (!c.node) continue;  // (a line of the run's own: a reload, the launch's end)
