@@ -692,7 +692,10 @@ def start_jobs(tmp_path, hosts: TestHosts, parent: str, child: str, args: tuple[
     machines, nodes = "", ""
     loaders = our_child_loaders(tmp_path, hosts) if child == "ours" else [h.env_loader for h in hosts.hosts]
     for host, loader in zip(hosts.hosts, loaders):
-        machines += '  <machine name="m%d" address="%s" env-loader="%s"/>\n' % (host.index, host.address, loader)
+        # (four children start at once, 20 runs in a row: on a loaded machine one can take more than roslaunch's
+        # default 10 s to register; what is tested here is what a cut link leaves)
+        machines += '  <machine name="m%d" address="%s" env-loader="%s" timeout="30"/>\n' % (
+            host.index, host.address, loader)
         for name, text, sleep in (("jobs", JOBS_SCRIPT, JOBS_SLEEP_S), ("daemon", DAEMON_SCRIPT, DAEMON_SLEEP_S)):
             script = os.path.join(str(tmp_path), "%s-%d.sh" % (name, host.index))
             with open(script, "w") as f:
