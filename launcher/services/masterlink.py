@@ -21,6 +21,7 @@ from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
 from launcher.output import console
 from launcher.model.runopts import RunOptions
+from launcher.workspace.packages import package_version
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.master.server import Master
@@ -74,15 +75,7 @@ def ros_version_params(environ: Mapping[str, str]) -> tuple[str, str]:
     install there is no rosversion: sensible Noetic values are used instead.
     """
     package_xml = _roslaunch_package_xml(environ)
-    version = None
-    if package_xml is not None:
-        from launcher.xml.document import XmlSyntaxError, element_text, parse_xml
-        try:
-            with open(package_xml, "rb") as f:
-                root, _ = parse_xml(f.read())
-            version = next((element_text(c) for c in root if c.tag == "version"), None)
-        except (OSError, XmlSyntaxError):  # unreadable manifest: fall back
-            version = None
+    version = package_version(package_xml) if package_xml is not None else None  # (unreadable: the default)
     distro = environ.get("ROS_DISTRO") or ("Debian" if package_xml is not None else DEFAULT_ROSDISTRO)
     return (version or DEFAULT_ROSVERSION).strip() + "\n", distro + "\n"
 

@@ -201,6 +201,46 @@ def read_package_xml(data: bytes) -> tuple[str | None, bool]:
     return "".join(name_text).strip(" \n\r\t"), is_meta
 
 
+def package_version(manifest: str) -> str | None:
+    """The text of the first `<version>` under a package.xml's root (its own text, as `rosversion PKG` reads it);
+    None if the file is unreadable, not well-formed or has none."""
+    try:
+        with open(manifest, "rb") as f:
+            data = f.read()
+    except OSError:
+        return None
+    parser = pyexpat.ParserCreate()
+    parser.buffer_text = True
+    depth = 0
+    text: list[str] | None = None  # the first <version>'s text, once it has begun
+    in_version = False
+
+    def start(tag: str, attrib: dict[str, str]) -> None:
+        nonlocal depth, text, in_version
+        depth += 1
+        if depth == 2 and tag == "version" and text is None:
+            text, in_version = [], True
+
+    def end(tag: str) -> None:
+        nonlocal depth, in_version
+        if depth == 2:
+            in_version = False
+        depth -= 1
+
+    def chars(data: str) -> None:
+        if in_version and depth == 2:
+            text.append(data)  # type: ignore[union-attr]
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(data, True)
+    except pyexpat.ExpatError:
+        return None
+    return None if text is None else "".join(text)
+
+
 def _crawl_path(root: str) -> Crawl:
     """The packages under one ROS path entry (rospkg's list_by_path rules), and what they depend on."""
     crawl = Crawl()

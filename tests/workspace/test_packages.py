@@ -473,3 +473,18 @@ def test_unreadable_package_xml_is_reported_by_launch(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().endswith("zz_good/talker __name:=t")
     assert "ignoring unreadable package manifest %s" % (tmp_path / "broken" / "package.xml") in out.stderr
+
+
+def test_package_version_is_the_text_of_the_first_version_under_the_root(tmp_path):
+    """What `rosversion roslaunch` prints, for roscore's /rosversion (read with expat, not the launch-file loader)."""
+    from launcher.workspace.packages import package_version
+    manifest = tmp_path / "package.xml"
+    manifest.write_text('<?xml version="1.0"?>\n<package format="2"><name>roslaunch</name>\n'
+                        '  <export><version>9.9</version></export>\n  <version>1.15.15</version>\n'
+                        '  <version>2.0</version>\n</package>\n')
+    assert package_version(str(manifest)) == "1.15.15"
+    manifest.write_text("<package><name>x</name></package>")
+    assert package_version(str(manifest)) is None
+    manifest.write_text("<package><version>1.0</package>")
+    assert package_version(str(manifest)) is None  # (not well-formed)
+    assert package_version(str(tmp_path / "none.xml")) is None
