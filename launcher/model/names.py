@@ -87,13 +87,41 @@ def resolve_name(name: str, namespace_: str, remappings: dict[str, str] | None =
     return remappings.get(resolved, resolved) if remappings else resolved
 
 
-def anonymous_name(id_: str) -> str:
-    """`id_<host>_<pid>_<random>`, as rosgraph.names.anonymous_name makes it."""
+def anonymous_name(id_: str, pid: int | None = None) -> str:
+    """`id_<host>_<pid>_<random>`, as rosgraph.names.anonymous_name makes it (`pid`: this process's, unless
+    the name is made for another: a launch's, by the process that reads its files, run/apart.py)."""
     import os  # lazy: only $(anon) needs these (socket costs ~2 ms to import), and the pure modules that
     import random  # import this one (the node state machine, the plan diff) load no I/O module through it
     import socket
-    name = "%s_%s_%s_%s" % (id_, socket.gethostname(), os.getpid(), random.randint(0, sys.maxsize))
+    name = "%s_%s_%s_%s" % (id_, socket.gethostname(), os.getpid() if pid is None else pid,
+                            random.randint(0, sys.maxsize))
     return name.replace(".", "_").replace("-", "_").replace(":", "_")
+
+
+class AnonNames:
+    """The names `$(anon id)` made in a run's loads, by file and id in the order they were asked for: a
+    reload of the run (run/reload.py) is given the same ones, so an anonymous node stays the same node.
+    (A first load that is not a run's needs none: `anonymous_name` makes each.) `pid`: the launch's, whose
+    names they are, where its files are read by a process of their own (run/apart.py)."""
+
+    __slots__ = ("kept", "_asked", "pid")
+
+    def __init__(self, pid: int | None = None) -> None:
+        self.kept: dict[tuple[str, str], list[str]] = {}
+        self._asked: dict[tuple[str, str], int] = {}
+        self.pid = pid
+
+    def start_load(self) -> None:
+        self._asked = {}
+
+    def name(self, id_: str, filename: str | None) -> str:
+        key = (filename or "", id_)
+        n = self._asked.get(key, 0)
+        self._asked[key] = n + 1
+        names = self.kept.setdefault(key, [])
+        if n == len(names):
+            names.append(anonymous_name(id_, self.pid))
+        return names[n]
 
 
 def is_legal_name(name: str | None) -> bool:

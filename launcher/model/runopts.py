@@ -40,6 +40,7 @@ class RunOptions:
     no_diagnostics: bool = False  # publish no /diagnostics
     master_allow: tuple[str, ...] = ()  # networks (CIDR) the master started here answers
     metrics: str | None = None  # [ADDR:]PORT where Prometheus metrics are served (services/metrics.py)
+    verbose: bool = False  # -v: a bug's traceback, not one line
 
     @classmethod
     def from_args(cls, ns: Any) -> RunOptions:

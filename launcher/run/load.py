@@ -5,8 +5,10 @@ the environment: the launch files and packages (`xml.load`), the master URI,
 which of the launch's machines are other hosts (`plan.machines`: a lookup per
 machine), and what the other machines need of this one (`check_plan`: an
 address they can reach, what OpenSSH can do). `launch` makes one at its start
-(`load_plan`, `core_plan` for roscore), a reload again (`plan_again`),
-`launcher test` one per test (`plan_for`).
+(`load_plan_apart`: in a process of its own, `core_plan` for roscore), a
+reload again (`plan_again`), `launcher test` one per test (`plan_for`).
+The XML loader is imported by the functions that read files: a launch
+whose plan was made apart never loads it.
 """
 
 from __future__ import annotations
@@ -23,10 +25,11 @@ from launcher.model.units import LOG_CHECK_THRESHOLD, parse_size
 from launcher.output import console
 from launcher.plan.command import master_uri
 from launcher.plan.machines import remote_machines
+from launcher.model.names import AnonNames
 from launcher.plan.plan import Plan
-from launcher.services import masterlink
+from launcher.run.apart import made_apart
+from launcher.services import masterlink, runrecord
 from launcher.workspace.packages import PackageIndex
-from launcher.xml import AnonNames, load, resolve_launch_arguments
 
 
 def core_plan(opts: RunOptions) -> Plan:
@@ -40,15 +43,28 @@ def core_plan(opts: RunOptions) -> Plan:
     return Plan(LaunchConfig(), "", environ, core=True, core_port=port)
 
 
-def load_plan(opts: RunOptions) -> Plan:
+def load_plan_apart(opts: RunOptions) -> Plan:
+    """`load_plan` in a process of its own (run/apart.py), with the text of the run's launcher-params.yaml: the
+    launch keeps neither the XML loader nor PyYAML. Its `$(anon)` names are the launch's (with its pid)."""
+    launch_pid = os.getpid()
+
+    def make() -> Plan:
+        plan = load_plan(opts, AnonNames(launch_pid))
+        plan.params_text = runrecord.params_text(plan.config)
+        return plan
+    return made_apart(make, opts.verbose)
+
+
+def load_plan(opts: RunOptions, anon_names: AnonNames | None = None) -> Plan:
     """Read the launch files into a plan, checked; LaunchError (file and line) for bad input."""
+    from launcher.xml import load, resolve_launch_arguments
     environ = dict(os.environ)
     warn = lambda msg: console.printerrlog("WARNING: %s" % msg)  # noqa: E731
     packages = PackageIndex(environ, warn=warn)
     files, argv = resolve_launch_arguments(list(opts.positional), packages)
     if not files:
         raise LaunchError("you must specify at least one input file")
-    anon_names = AnonNames()
+    anon_names = AnonNames() if anon_names is None else anon_names
     config = load(files, argv, environ=environ, packages=packages, warn=warn, anon_names=anon_names)
     uri = master_uri(argv, environ)
     if opts.port:
@@ -75,6 +91,7 @@ def plan_again(old: Plan, opts: RunOptions, given: list[str], warn: Callable[[st
     """The same launch read again (a reload): its files, its args with `given` ones replacing theirs, its
     environment, its master URI, its `$(anon)` names; a fresh package index (packages built since count).
     LaunchError for bad input, as at the start. Runs off the loop (it reads files)."""
+    from launcher.xml import load
     names = {a.split(":=", 1)[0] for a in given}
     argv = [a for a in old.argv if a.split(":=", 1)[0] not in names] + list(given)
     packages = PackageIndex(old.environ, warn=warn)

@@ -32,7 +32,7 @@ from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services.service import Service
 from launcher.plan.plan import Plan
-from launcher.run.load import core_plan, load_plan
+from launcher.run.load import core_plan, load_plan_apart
 from launcher.output import console
 from launcher.fleet import lifecycle
 from launcher.fleet.state import Change
@@ -82,7 +82,7 @@ def run(opts: RunOptions, *, exit_process: bool = False) -> int:
             except OSError as e:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
         raise_open_file_limit()  # every client of the master and the rosout node is a file
-        plan = core_plan(opts) if core else load_plan(opts)
+        plan = core_plan(opts) if core else load_plan_apart(opts)
         status = asyncio.run(Run(opts, plan, watchdog).main())
     finally:
         if watchdog is not None:

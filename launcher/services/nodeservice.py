@@ -151,7 +151,8 @@ class NodeService:
             problem = done.result() if not done.cancelled() and done.exception() is None else str(done.exception())
             if problem:
                 console.printerrlog("WARNING: %s (launcher report will miss it)" % problem)
-        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config)
+        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config,
+                                                             self.plan.params_text)
         task.add_done_callback(written)
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:

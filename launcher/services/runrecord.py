@@ -35,11 +35,12 @@ def params_text(config: Any) -> str:
     return dump_yaml({k: p.value for k, p in config.params.items()}) + "\n"
 
 
-def write(run_dir: str, run: dict, config: Any) -> str:
-    """Both files into `run_dir`; what went wrong, in words ("" when nothing did)."""
+def write(run_dir: str, run: dict, config: Any, params: str | None = None) -> str:
+    """Both files into `run_dir` (`params`: the parameters' text, if it was made with the plan: run/apart.py); what
+    went wrong, in words ("" when nothing did)."""
     problems = []
     for name, make in ((RUN_RECORD_FILE, lambda: json.dumps(run, indent=1, default=str) + "\n"),
-                       (PARAMS_FILE, lambda: params_text(config))):
+                       (PARAMS_FILE, lambda: params_text(config) if params is None else params)):
         path = os.path.join(run_dir, name)
         try:
             text = make()

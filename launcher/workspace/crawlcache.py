@@ -123,6 +123,11 @@ class CrawlCache:
         self.path = os.path.join(ros_home, FILE) if ros_home else None
         self._entries: dict[str, Any] | None = None
 
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled (a plan made in a process of its own, run/apart.py): the path only; the entries are read again
+        if ever looked up."""
+        return {"path": self.path, "_entries": None}
+
     def _load(self) -> dict[str, Any]:
         if self._entries is None:
             self._entries = read_cache(self.path, VERSION)  # (none, or unreadable: crawl)

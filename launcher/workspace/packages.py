@@ -319,6 +319,11 @@ class PackageIndex:
         self._source_spaces: dict[str, list[str]] = {}
         self._source_packages: dict[str, list[tuple[str, str]]] = {}
 
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled (a plan made in a process of its own, run/apart.py): without its `warn`, which told its
+        warnings there; they stay in `warnings`."""
+        return dict(self.__dict__, _warn=None)
+
     def _warning(self, text: str) -> None:
         self.warnings.append(text)
         if self._warn is not None:

@@ -10,13 +10,14 @@ from launcher.model.errors import LaunchError
 from launcher.workspace.packages import PackageIndex
 from launcher.xml.arguments import resolve_launch_arguments
 from launcher.xml.loader import XmlLoader
-from launcher.xml.substitution import AnonNames
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
 if TYPE_CHECKING:
     from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["AnonNames", "load", "load_arg_docs", "resolve_launch_arguments"]
+    from launcher.model.names import AnonNames
+
+__all__ = ["load", "load_arg_docs", "resolve_launch_arguments"]
 
 
 def load(files: list[str], argv: Iterable[str] = (), *, environ: Mapping[str, str] | None = None,

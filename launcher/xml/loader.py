@@ -26,7 +26,8 @@ from launcher.xml.document import element_text, read_launch
 from launcher.xml.policy import (POLICY_ATTR_NAMES, RESPAWN_ONLY, PolicyError, read_policy, resolve_wait_names,
                                  resolve_watch_topics)
 from launcher.xml.scope import Scope, ScopeError, add_remap_to, canonical, is_legal_name
-from launcher.xml.substitution import AnonNames, ArgNotSet, LoadBudget, SubstitutionError, resolve
+from launcher.model.names import AnonNames
+from launcher.xml.substitution import ArgNotSet, LoadBudget, SubstitutionError, resolve
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
 if TYPE_CHECKING:

@@ -32,7 +32,7 @@ import os
 import re
 
 from launcher.model.errors import shorten
-from launcher.model.names import anonymous_name
+from launcher.model.names import AnonNames, anonymous_name
 from launcher.params.values import auto_value
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
@@ -58,30 +58,6 @@ class ArgNotSet(SubstitutionError):
     def __init__(self, name: str):
         self.name = name
         super().__init__(name)
-
-
-class AnonNames:
-    """The names `$(anon id)` made in a run's loads, by file and id in the order they were asked for: a
-    reload of the run (run/reload.py) is given the same ones, so an anonymous node stays the same node.
-    (A first load that is not a run's needs none: `anonymous_name` makes each.)"""
-
-    __slots__ = ("kept", "_asked")
-
-    def __init__(self) -> None:
-        self.kept: dict[tuple[str, str], list[str]] = {}
-        self._asked: dict[tuple[str, str], int] = {}
-
-    def start_load(self) -> None:
-        self._asked = {}
-
-    def name(self, id_: str, filename: str | None) -> str:
-        key = (filename or "", id_)
-        n = self._asked.get(key, 0)
-        self._asked[key] = n + 1
-        names = self.kept.setdefault(key, [])
-        if n == len(names):
-            names.append(anonymous_name(id_))
-        return names[n]
 
 
 class LoadBudget:

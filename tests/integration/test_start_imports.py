@@ -129,3 +129,38 @@ def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(t
         if proc is not None:
             stop_group(proc, 10)
         stop_group(core, 10)
+
+
+def test_a_launch_with_rosparam_keeps_neither_pyyaml_nor_the_xml_loader(tmp_path):
+    """A robot's launch loads YAML (`<rosparam>`): reading it takes PyYAML and libyaml (about 2 MB) and the XML
+    loader; the launch reads its files in a child of its own (run/apart.py) and keeps none of them, for as long as
+    it runs. Its launcher-params.yaml (which PyYAML writes) is made there too, and says what `--dump-params` says."""
+    tmp = str(tmp_path)
+    launch, port, env = _one_roscpp_node(tmp)
+    with open(os.path.join(tmp, "params.yaml"), "w") as f:
+        f.write("gains: {p: 1.5, i: [0.1, 0.2]}\nplugins:\n  - {name: obstacles, type: 'costmap_2d::ObstacleLayer'}\n"
+                "frame: base_link\n")
+    with open(launch) as f:
+        text = f.read()
+    with open(launch, "w") as f:
+        f.write(text.replace("<launch>", '<launch>\n<rosparam command="load" file="%s" ns="ctl"/>'
+                             % os.path.join(tmp, "params.yaml")))
+    proc = subprocess.Popen([sys.executable, "-m", "launcher", launch], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True)
+    try:
+        until(lambda: proc.poll() is None and master_proxy(port).lookupNode("/t", "/talker")[0] == 1, 60, 0.05,
+              what="the node registered", errors=(OSError,))
+        assert master_proxy(port).getParam("/t", "/ctl/gains/i") == [1, "Parameter [/ctl/gains/i]", [0.1, 0.2]]
+        kept = os.path.join(tmp, "log", "latest", "launcher-params.yaml")
+        until(lambda: os.path.exists(kept), 30, 0.05, what="launcher-params.yaml written")
+        dumped = subprocess.run([sys.executable, "-m", "launcher", "--dump-params", launch], env=env,
+                                capture_output=True, text=True, timeout=60).stdout
+        with open(kept) as f:
+            assert f.read() == dumped and "costmap_2d::ObstacleLayer" in dumped
+        with open("/proc/%d/maps" % proc.pid) as f:
+            mapped = {line.split()[-1] for line in f if "/" in line}
+        assert [m for m in mapped if os.path.basename(m).startswith(("_yaml.", "libyaml"))] == []
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0
+    finally:
+        stop_group(proc, 10)

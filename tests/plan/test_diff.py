@@ -155,7 +155,7 @@ def test_an_if_branch_switched_by_an_arg(tmp_path):
 
 
 def test_anonymous_names_are_the_runs_own_on_a_reload(tmp_path):
-    from launcher.xml import AnonNames
+    from launcher.model.names import AnonNames
     (tmp_path / "inc.launch").write_text('<launch><node pkg="rospy_tutorials" type="talker" name="$(anon t)"/></launch>')
     launch = tmp_path / "a.launch"
     launch.write_text("""<launch>

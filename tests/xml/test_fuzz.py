@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import glob
 import os
+import pickle
 import shutil
 from unittest import mock
 
@@ -139,7 +140,9 @@ def _event(name: str) -> None:
 
 
 def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
+    from launcher.model.names import AnonNames
     from launcher.plan.command import node_command
+    from launcher.plan.plan import Plan
     from launcher.params.rosyaml import dump_yaml
     from launcher.xml import load
 
@@ -151,6 +154,10 @@ def _load_and_compute(path: str, argv: list[str], env: dict, packages) -> None:
             _event("load refused")
             return
         _event("loaded")
+        # (a launch's plan crosses a pipe from the process that read its files: run/apart.py)
+        plan = Plan(config, "http://127.0.0.1:11311/", env, packages=packages, anon_names=AnonNames())
+        crossed = pickle.loads(pickle.dumps(plan, pickle.HIGHEST_PROTOCOL))
+        assert repr(crossed.config) == repr(config) and crossed.packages.ros_paths == packages.ros_paths
         dump_yaml({k: p.value for k, p in config.params.items()})
         for node in list(config.nodes) + list(config.tests):
             try:

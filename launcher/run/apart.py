@@ -1,0 +1,140 @@
+"""A launch's plan made in a process of its own: what only the making needs never enters the launch's memory.
+
+Reading launch files takes the XML loader and its substitutions (0.45 MB of
+code), and for `<rosparam>` PyYAML and libyaml (2 MB more); a launch keeps
+whatever it once imported for as long as it runs, weeks on a robot, and
+CPython cannot unload a module. So `launch` reads its files in a child it
+forks for that (`made_apart`): the child makes the plan, sends it back
+pickled through a pipe, and ends; the launch goes on with the plan alone.
+
+The child is a fork, not a new interpreter: it starts in about a millisecond
+with everything the launch had imported. It writes its warnings itself, to
+the launch's own stdout and stderr, while the launch waits, so their order is
+the one roslaunch prints. A LaunchError there is the launch's (its message,
+file and line, as they would have been); any other exception is a bug, told
+with its traceback. A Ctrl-C ends both. Where a fork would not be safe (a
+thread already runs, whose locks the child would inherit held), or is not
+possible, the plan is made in the launch itself, as before.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import sys
+import threading
+import traceback
+
+from launcher.model.errors import LaunchError
+from launcher.output import console
+
+TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing; the annotations are text)
+if TYPE_CHECKING:
+    from typing import Callable, TypeVar
+
+    T = TypeVar("T")
+
+MADE, REFUSED, FAILED = "made", "refused", "failed"  # what the child sends: its value, its LaunchError, a bug
+INTERRUPTED = 130  # the child's exit status at a Ctrl-C
+
+
+def made_apart(make: Callable[[], T], verbose: bool = False) -> T:
+    """`make()`'s value, made in a forked child; its LaunchError raised here, a bug as a RuntimeError (its
+    traceback printed by the child with `verbose`). Made in this process if a thread runs."""
+    if threading.active_count() > 1 or not hasattr(os, "fork"):
+        return make()
+    console.flush()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()  # (the child must not write again what this process had buffered)
+    read_end, write_end = os.pipe()
+    # (SIGINT waits until the child has its own handler: a Ctrl-C at the fork must not make it a second launch)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pid = os.fork()
+    except OSError:
+        pid = -1
+    if pid == 0:  # the child: ends in os._exit, never returns
+        _child(make, read_end, write_end, mask, verbose)
+    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    if pid < 0:  # (no fork to be had: here, then)
+        os.close(read_end)
+        os.close(write_end)
+        return make()
+    os.close(write_end)
+    try:
+        with open(read_end, "rb") as answer:
+            data = answer.read()
+    except BaseException:  # (a Ctrl-C sent to the launch alone: its reader stops too, and its commands with it)
+        os.kill(pid, signal.SIGINT)
+        raise
+    finally:
+        _, status = os.waitpid(pid, 0)
+    return _answer(data, status)
+
+
+def _child(make: Callable[[], object], read_end: int, write_end: int, mask: set, verbose: bool) -> None:
+    code = 0
+    try:
+        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # (a background job's stays ignored)
+            signal.signal(signal.SIGINT, _interrupt_once)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        os.close(read_end)
+        try:
+            data = pickle.dumps((MADE, make()), pickle.HIGHEST_PROTOCOL)
+        except LaunchError as e:
+            data = pickle.dumps((REFUSED, _crossing(e)))
+        except KeyboardInterrupt:
+            data, code = b"", INTERRUPTED  # (the launch got the same Ctrl-C: it says nothing of ours)
+        except BaseException as e:  # noqa: BLE001 - a bug of ours: the launch says so in one line
+            if verbose:
+                traceback.print_exc()
+            data = pickle.dumps((FAILED, "%s: %s" % (type(e).__name__, e)))
+        console.flush()
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        with open(write_end, "wb") as out:
+            out.write(data)
+    except BaseException:  # noqa: BLE001 - nothing of the child may run on as a second launch
+        code = code or 1
+    finally:
+        os._exit(code)  # (not the launch's exit handlers: they are the launch's)
+
+
+def _crossing(error: LaunchError) -> LaunchError:
+    """The error as it can cross the pipe: itself where pickle gives it back with its words (a UsageError stays
+    one: `launch` exits 2 for it), else a LaunchError of its words (one made with other arguments than its text)."""
+    try:
+        back = pickle.loads(pickle.dumps(error))
+        if type(back) is type(error) and str(back) == str(error):
+            return error
+    except Exception:  # noqa: BLE001 - (any way it does not cross)
+        pass
+    return LaunchError(str(error))
+
+
+_interrupted = False
+
+
+def _interrupt_once(signum: int, frame: object) -> None:
+    """The child's SIGINT: one KeyboardInterrupt (what runs a command for the plan stops it), then none, so
+    that the child always reaches its os._exit."""
+    global _interrupted
+    if not _interrupted:
+        _interrupted = True
+        raise KeyboardInterrupt
+
+
+def _answer(data: bytes, status: int) -> T:
+    if not data:  # (ended without an answer)
+        if os.WIFEXITED(status) and os.WEXITSTATUS(status) == INTERRUPTED:
+            raise KeyboardInterrupt  # (a Ctrl-C, which the launch got too)
+        how = ("signal %d" % os.WTERMSIG(status) if os.WIFSIGNALED(status)
+               else "exit status %d" % os.WEXITSTATUS(status))
+        raise LaunchError("the process reading the launch files ended without a plan (%s)" % how)
+    kind, value = pickle.loads(data)
+    if kind == REFUSED:
+        raise value
+    if kind == FAILED:
+        raise RuntimeError("%s (while the launch files were read)" % value)
+    return value
