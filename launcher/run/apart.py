@@ -1,7 +1,7 @@
 """A launch's plan made in a process of its own: what only the making needs never enters the launch's memory.
 
-Reading launch files takes the XML loader and its substitutions (0.45 MB of
-code), and for `<rosparam>` PyYAML and libyaml (2 MB more); a launch keeps
+Reading launch files takes the XML loader and its substitutions, and for
+`<rosparam>` PyYAML and libyaml (about 2 MB once imported); a launch keeps
 whatever it once imported for as long as it runs, weeks on a robot, and
 CPython cannot unload a module. So `launch` reads its files in a child it
 forks for that (`made_apart`): the child makes the plan, sends it back
@@ -10,11 +10,12 @@ pickled through a pipe, and ends; the launch goes on with the plan alone.
 The child is a fork, not a new interpreter: it starts in about a millisecond
 with everything the launch had imported. It writes its warnings itself, to
 the launch's own stdout and stderr, while the launch waits, so their order is
-the one roslaunch prints. A LaunchError there is the launch's (its message,
-file and line, as they would have been); any other exception is a bug, told
-with its traceback. A Ctrl-C ends both. Where a fork would not be safe (a
-thread already runs, whose locks the child would inherit held), or is not
-possible, the plan is made in the launch itself, as before.
+the one roslaunch prints. A LaunchError there is the launch's (its kind and
+words: file and line); any other exception is a bug, which the launch names
+in one line (the child prints its traceback with -v). A Ctrl-C ends both.
+Where a fork would not be safe (a thread already runs, whose locks the child
+would inherit held), or is not possible, the plan is made in the launch
+itself, as before.
 """
 
 from __future__ import annotations
