@@ -1,4 +1,5 @@
-"""What tests share: waiting for a condition with a deadline, a free port, the processes a test started, /proc walks, where things are, a launch server still setting up."""
+"""What tests share: waiting for a condition with a deadline, a free port, the processes a test started, /proc walks,
+where things are, a launch server still setting up."""
 
 from __future__ import annotations
 

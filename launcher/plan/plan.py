@@ -42,7 +42,8 @@ class Plan:
         self.log_threshold = log_threshold  # the log directory's size that is warned about
         self.log_max_size = log_max_size  # node output logs are rotated past this size (0: never)
         self.core_port = core_port
-        # what a reload reads again (run/reload.py): the files, the args, the run's $(anon) names (model.names.AnonNames)
+        # what a reload reads again (run/reload.py): the files, the args, the run's $(anon) names
+        # (model.names.AnonNames)
         self.files = list(files)
         self.argv = list(argv)
         self.anon_names = anon_names

@@ -20,12 +20,12 @@ from typing import Any, Callable, Mapping
 from launcher.net.hostname import advertised_host
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
+from launcher.model.names import AnonNames
 from launcher.model.runopts import RunOptions
 from launcher.model.units import LOG_CHECK_THRESHOLD, parse_size
 from launcher.output import console
 from launcher.plan.command import master_uri
 from launcher.plan.machines import remote_machines
-from launcher.model.names import AnonNames
 from launcher.plan.plan import Plan
 from launcher.run.apart import made_apart
 from launcher.services import masterlink, runrecord

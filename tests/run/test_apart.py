@@ -160,7 +160,8 @@ def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_nam
         from launcher.run.load import load_plan_apart
         plan = load_plan_apart(RunOptions(positional=(%r,)))
         left = sorted(m for m in sys.modules if m.startswith(("launcher.xml", "yaml", "_yaml")))
-        sys.stdout.write(repr((os.getpid(), left, plan.params_text, {k: p.value for k, p in plan.config.params.items()})))
+        params = {k: p.value for k, p in plan.config.params.items()}
+        sys.stdout.write(repr((os.getpid(), left, plan.params_text, params)))
     """ % str(launch), env=env)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, out

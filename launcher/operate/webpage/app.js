@@ -6,7 +6,7 @@ const HISTORY = 60;
 const SIGNALS = {1: "SIGHUP", 2: "SIGINT", 6: "SIGABRT", 9: "SIGKILL", 11: "SIGSEGV", 15: "SIGTERM"};
 const liveLines = [];          // [text, level ("" or WARN, ERROR, FATAL: a /rosout line of an output="log" node)]
 let shownNode = null;         // whose recent output the pane shows (null: every node's, live)
-let starting = "";            // what the page says while the launch sets up (the snapshot's), until it has made its nodes
+let starting = "";            // what the page says while the launch sets up, until it has made its nodes
 
 const $ = (id) => document.getElementById(id);
 const text = (v) => (v === null || v === undefined) ? "-" : String(v);
