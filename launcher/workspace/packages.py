@@ -159,9 +159,6 @@ def read_package_xml(data: bytes) -> tuple[str | None, bool]:
     manifests are accepted; only the text of `<name>` itself counts, not that of elements inside it.
     (None, False) for a document that is not well-formed XML or has no `<name>`.
     """
-    parser = pyexpat.ParserCreate(None, " ")  # (namespace processing, as minidom)
-    parser.buffer_text = True
-    parser.namespace_prefixes = True
     path: list[str] = []  # the tags from the root down to the current element
     name_text: list[str] | None = None
     in_name = False  # inside the first <name> under the root (its text, at depth 2, is the name)
@@ -189,14 +186,7 @@ def read_package_xml(data: bytes) -> tuple[str | None, bool]:
         if in_name and len(path) == 2:
             name_text.append(text)  # type: ignore[union-attr]
 
-    parser.StartElementHandler = start
-    parser.EndElementHandler = end
-    parser.CharacterDataHandler = chars
-    try:
-        parser.Parse(data, True)
-    except pyexpat.ExpatError:
-        return None, False
-    if name_text is None:
+    if not _parsed(data, start, end, chars) or name_text is None:
         return None, False
     return "".join(name_text).strip(" \n\r\t"), is_meta
 
@@ -209,8 +199,6 @@ def package_version(manifest: str) -> str | None:
             data = f.read()
     except OSError:
         return None
-    parser = pyexpat.ParserCreate()
-    parser.buffer_text = True
     depth = 0
     text: list[str] | None = None  # the first <version>'s text, once it has begun
     in_version = False
@@ -231,14 +219,24 @@ def package_version(manifest: str) -> str | None:
         if in_version and depth == 2:
             text.append(data)  # type: ignore[union-attr]
 
+    return "".join(text) if _parsed(data, start, end, chars) and text is not None else None
+
+
+def _parsed(data: bytes, start: Callable[[str, dict[str, str]], None], end: Callable[[str], None],
+            chars: Callable[[str], None]) -> bool:
+    """`data` read by expat with these handlers, as minidom reads it (rospkg's parser: namespace processing, a
+    qualified tag as "uri local [prefix]"); False if it is not well-formed XML."""
+    parser = pyexpat.ParserCreate(None, " ")
+    parser.buffer_text = True
+    parser.namespace_prefixes = True
     parser.StartElementHandler = start
     parser.EndElementHandler = end
     parser.CharacterDataHandler = chars
     try:
         parser.Parse(data, True)
     except pyexpat.ExpatError:
-        return None
-    return None if text is None else "".join(text)
+        return False
+    return True
 
 
 def _crawl_path(root: str) -> Crawl:
