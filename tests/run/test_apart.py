@@ -12,6 +12,7 @@ import threading
 import time
 
 from helpers import ROOT, until
+from launcher.process.reaper import stat_fields
 from launcher.run.apart import made_apart
 
 
@@ -125,21 +126,13 @@ def test_a_ctrl_c_of_the_launch_alone_ends_the_child_and_the_command_it_runs():
         assert time.monotonic() - started < 5
         assert proc.returncode == 130 and out.strip() == "interrupted"
         # (killed, it is reaped by whoever it was re-parented to: init, or here a subreaper the test runs under)
-        until(lambda: _state(command) in ("Z", "gone"), 10, what="the command ended")
+        until(lambda: (stat_fields(command) or ["gone"])[0] in ("Z", "gone"), 10, what="the command ended")
         left = subprocess.run(["ps", "-o", "pid=,stat=,cmd=", "-s", str(proc.pid)], capture_output=True, text=True)
         assert [line for line in left.stdout.splitlines() if line.split()[1][0] != "Z"] == []
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-
-
-def _state(pid: int) -> str:
-    try:
-        with open("/proc/%d/stat" % pid) as f:
-            return f.read().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return "gone"
 
 
 def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_names_and_parameters(tmp_path):
