@@ -228,10 +228,21 @@ def main(argv: list[str] | None = None) -> int:
             console.printerrlog("launch --ui: no terminal (or TERM=dumb): the launch runs with plain lines")
         if opts.web:
             _start_web(opts.web, opts.port)
-        _import_asyncio_without_tls()
-        from launcher.run import runtime
-        # a real command line (argv from sys.argv) may end the process as soon as all is stopped
-        return runtime.run(RunOptions.from_args(opts), exit_process=argv is None)
+        run_opts = RunOptions.from_args(opts)
+        reading = None
+        if not run_opts.core:
+            # the launch files are read in a child forked now, before asyncio and the run's modules are
+            # imported: on the other core, while those imports go on here (run/apart.py)
+            from launcher.run.load import begin_plan
+            reading = begin_plan(run_opts)
+        try:
+            _import_asyncio_without_tls()
+            from launcher.run import runtime
+            # a real command line (argv from sys.argv) may end the process as soon as all is stopped
+            return runtime.run(run_opts, reading, exit_process=argv is None)
+        finally:
+            if reading is not None:
+                reading.abandon()  # (its child killed and reaped if the run ended before it took the plan)
     except UsageError as e:
         from launcher.output import console
         console.flush()  # (the warnings already queued there come first)

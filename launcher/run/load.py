@@ -5,10 +5,13 @@ the environment: the launch files and packages (`xml.load`), the master URI,
 which of the launch's machines are other hosts (`plan.machines`: a lookup per
 machine), and what the other machines need of this one (`check_plan`: an
 address they can reach, what OpenSSH can do). `launch` makes one at its start
-(`load_plan_apart`: in a process of its own, `core_plan` for roscore), a
-reload again (`plan_again`), `launcher test` one per test (`plan_for`).
-The XML loader is imported by the functions that read files: a launch
-whose plan was made apart never loads it.
+(`begin_plan`: in a process of its own, begun before the run's modules are
+imported; `core_plan` for roscore), a reload again (`plan_again`),
+`launcher test` one per test (`plan_for`). The XML loader is imported by the
+functions that read files: a launch whose plan was made apart never loads
+it; nor does this module import asyncio (the master's and the run record's
+modules are imported where they are used), so `launch` can fork the reader
+of its files before it imports the run.
 """
 
 from __future__ import annotations
@@ -27,13 +30,13 @@ from launcher.output import console
 from launcher.plan.command import master_uri
 from launcher.plan.machines import remote_machines
 from launcher.plan.plan import Plan
-from launcher.run.apart import made_apart
-from launcher.services import masterlink, runrecord
+from launcher.run.apart import Apart, begin_apart
 from launcher.workspace.packages import PackageIndex
 
 
 def core_plan(opts: RunOptions) -> Plan:
     """roscore: an empty launch, our master on -p or ROS_MASTER_URI's port."""
+    from launcher.services import masterlink
     environ = dict(os.environ)
     port = masterlink.master_port(opts.port, environ)
     uri_port = masterlink.master_port(None, environ)
@@ -43,16 +46,18 @@ def core_plan(opts: RunOptions) -> Plan:
     return Plan(LaunchConfig(), "", environ, core=True, core_port=port)
 
 
-def load_plan_apart(opts: RunOptions) -> Plan:
-    """`load_plan` in a process of its own (run/apart.py), with the text of the run's launcher-params.yaml: the
-    launch keeps neither the XML loader nor PyYAML. Its `$(anon)` names are the launch's (with its pid)."""
+def begin_plan(opts: RunOptions) -> Apart:
+    """`load_plan` begun in a process of its own (run/apart.py), with the text of the run's launcher-params.yaml: the
+    launch keeps neither the XML loader nor PyYAML; its `result()` is the plan. Its `$(anon)` names are the
+    launch's (with its pid)."""
     launch_pid = os.getpid()
 
     def make() -> Plan:
+        from launcher.services import runrecord
         plan = load_plan(opts, AnonNames(launch_pid))
         plan.params_text = runrecord.params_text(plan.config)
         return plan
-    return made_apart(make, opts.verbose)
+    return begin_apart(make, opts.verbose)
 
 
 def load_plan(opts: RunOptions, anon_names: AnonNames | None = None) -> Plan:

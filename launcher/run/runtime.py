@@ -32,7 +32,8 @@ from launcher.net.open_files import raise_open_file_limit
 from launcher.services.nodeservice import NodeService
 from launcher.services.service import Service
 from launcher.plan.plan import Plan
-from launcher.run.load import core_plan, load_plan_apart
+from launcher.run.apart import Apart
+from launcher.run.load import begin_plan, core_plan
 from launcher.output import console
 from launcher.fleet import lifecycle
 from launcher.fleet.state import Change
@@ -62,9 +63,12 @@ class Stopped(Exception):
     """A stop signal arrived while the run was starting."""
 
 
-def run(opts: RunOptions, *, exit_process: bool = False) -> int:
+def run(opts: RunOptions, reading: Apart | None = None, *, exit_process: bool = False) -> int:
     """`launch [pkg] file.launch ...` or `launch --core`: run until a stop signal, a `shutdown` call, a
     required node's exit, or (with a master already running) every node's exit; the exit status.
+
+    `reading`: the plan's making, begun already (`load.begin_plan`: `launch` begins it before it imports
+    this module); else it begins here.
 
     With `exit_process` (the `launch` command itself), the process ends here
     once everything is stopped and flushed, skipping the interpreter's
@@ -82,7 +86,7 @@ def run(opts: RunOptions, *, exit_process: bool = False) -> int:
             except OSError as e:
                 raise LaunchError("cannot write pid file [%s]: %s" % (pid_fn, e.strerror)) from None
         raise_open_file_limit()  # every client of the master and the rosout node is a file
-        plan = core_plan(opts) if core else load_plan_apart(opts)
+        plan = core_plan(opts) if core else (reading or begin_plan(opts)).result()
         status = asyncio.run(Run(opts, plan, watchdog).main())
     finally:
         if watchdog is not None:

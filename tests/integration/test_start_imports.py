@@ -134,7 +134,8 @@ def test_a_launch_with_a_master_found_running_imports_none_of_our_masters_code(t
 def test_a_launch_with_rosparam_keeps_neither_pyyaml_nor_the_xml_loader(tmp_path):
     """A robot's launch loads YAML (`<rosparam>`): reading it takes PyYAML and libyaml (about 2 MB) and the XML
     loader; the launch reads its files in a child of its own (run/apart.py) and keeps none of them, for as long as
-    it runs. Its launcher-params.yaml (which PyYAML writes) is made there too, and says what `--dump-params` says."""
+    it runs. Its launcher-params.yaml (which PyYAML writes) is made there too, and says what `--dump-params` says.
+    The child is forked before the launch imports asyncio and the run, and reads while they are imported."""
     tmp = str(tmp_path)
     launch, port, env = _one_roscpp_node(tmp)
     with open(os.path.join(tmp, "params.yaml"), "w") as f:
@@ -143,8 +144,10 @@ def test_a_launch_with_rosparam_keeps_neither_pyyaml_nor_the_xml_loader(tmp_path
     with open(launch) as f:
         text = f.read()
     with open(launch, "w") as f:
-        f.write(text.replace("<launch>", '<launch>\n<rosparam command="load" file="%s" ns="ctl"/>'
-                             % os.path.join(tmp, "params.yaml")))
+        # (the command runs in the reader of the launch's files: whether that process holds asyncio)
+        f.write(text.replace("<launch>", '<launch>\n<rosparam command="load" file="%s" ns="ctl"/>\n'
+                             '<param name="reader_maps_asyncio" command="sh -c \'grep -c _asyncio /proc/$PPID/maps '
+                             '|| true\'"/>' % os.path.join(tmp, "params.yaml")))
     proc = subprocess.Popen([sys.executable, "-m", "launcher", launch], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -160,6 +163,10 @@ def test_a_launch_with_rosparam_keeps_neither_pyyaml_nor_the_xml_loader(tmp_path
         with open("/proc/%d/maps" % proc.pid) as f:
             mapped = {line.split()[-1] for line in f if "/" in line}
         assert [m for m in mapped if os.path.basename(m).startswith(("_yaml.", "libyaml"))] == []
+        # the files were read by a child forked before the launch imported asyncio (which the launch maps: the
+        # Pythons this runs on build `_asyncio` as a module of its own), beside those imports
+        assert any(os.path.basename(m).startswith("_asyncio.") for m in mapped)
+        assert master_proxy(port).getParam("/t", "/reader_maps_asyncio")[2] == 0
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 0
     finally:

@@ -88,6 +88,47 @@ def test_with_a_thread_running_it_is_made_here():
         other.join()
 
 
+def test_the_making_goes_on_in_the_child_while_the_launch_does_other_work():
+    """`launch` begins the making before it imports the run's modules: `begin_apart` returns at once, the child
+    makes the value meanwhile, `result()` takes it."""
+    out = _apart("""
+        import time
+        from launcher.run.apart import begin_apart
+        started = time.monotonic()
+        making = begin_apart(lambda: (time.sleep(1.0), time.monotonic())[1])
+        begun = time.monotonic() - started
+        time.sleep(1.0)  # (the launch's imports)
+        made_at = making.result()
+        print(repr((begun, made_at - started, time.monotonic() - started)))
+    """)
+    begun, made, taken = eval(out)  # noqa: S307 - (our own repr)
+    assert begun < 0.5 and made < 1.6 and taken < 1.8  # (made beside the second, not after it: 2 s)
+
+
+def test_an_abandoned_making_leaves_no_process():
+    """A launch that ends before it takes its plan (an error of its own, a Ctrl-C in its imports): its child is
+    stopped with the command it runs (a `<param command>`), and reaped: nothing left behind, no zombie."""
+    out = _apart("""
+        import os, subprocess, time
+        from launcher.run.apart import begin_apart
+        making = begin_apart(lambda: subprocess.run(["sleep", "30"]))
+        pid = making.pid
+        def command():
+            found = subprocess.run(["pgrep", "-P", str(pid), "-x", "sleep"], capture_output=True, text=True)
+            return [int(p) for p in found.stdout.split()]
+        deadline = time.monotonic() + 30
+        while not command() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sleep, = command()
+        making.abandon()
+        state = open("/proc/%d/stat" % sleep).read().split(") ")[1][0] if os.path.exists("/proc/%d" % sleep) else "gone"
+        print(repr((pid, os.path.exists("/proc/%d" % pid), state)))
+    """)
+    pid, left, command = eval(out)  # noqa: S307 - (our own repr)
+    # (killed by the child's subprocess.run: reaped there, or by whoever it was re-parented to)
+    assert pid > 0 and not left and command in ("Z", "gone")
+
+
 def test_what_the_child_prints_comes_once_between_what_the_launch_printed_before_and_after():
     """The launch's output is a pipe (block-buffered): what it had not written yet must not be written by the child
     a second time, and the child's lines (the load's warnings) come where they are made."""
@@ -136,7 +177,7 @@ def test_a_ctrl_c_of_the_launch_alone_ends_the_child_and_the_command_it_runs():
 
 
 def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_names_and_parameters(tmp_path):
-    """The real thing: `load_plan_apart` of a launch with `<rosparam>` and `$(anon)`, in a process of its own; the
+    """The real thing: `begin_plan` of a launch with `<rosparam>` and `$(anon)`, in a process of its own; the
     same plan as one made in-process, its parameters' text made there, and neither the XML loader nor PyYAML
     imported by the launch's process."""
     from launcher.model.runopts import RunOptions
@@ -150,8 +191,8 @@ def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_nam
     proc = _run("""
         import os, pickle, sys
         from launcher.model.runopts import RunOptions
-        from launcher.run.load import load_plan_apart
-        plan = load_plan_apart(RunOptions(positional=(%r,)))
+        from launcher.run.load import begin_plan
+        plan = begin_plan(RunOptions(positional=(%r,))).result()
         left = sorted(m for m in sys.modules if m.startswith(("launcher.xml", "yaml", "_yaml")))
         params = {k: p.value for k, p in plan.config.params.items()}
         sys.stdout.write(repr((os.getpid(), left, plan.params_text, params)))
