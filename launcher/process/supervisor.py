@@ -62,6 +62,8 @@ KILL_WAIT_S = 2.0
 MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy paces crash loops)
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
+# The open relays' list is rid of its closed ones when it holds this many more than after the last time.
+SCREENS_PRUNED_AT = 16
 
 class NodeProcess:
     """One node's process as the supervisor handles it: the OS side only (its state is the fleet's record).
@@ -192,6 +194,7 @@ class Supervisor:
         # terminal, as under roslaunch
         self.relay_output = relay_output
         self.screens: list[screen.ScreenOutput] = []  # relays still open (a run's leftovers may hold one)
+        self._screens_pruned_at = SCREENS_PRUNED_AT  # (the closed ones are dropped when the list reaches this)
         self.shutdown_errors: list[str] = []
         self._pacing_active = 0
         self._pacing_queue: deque[NodeProcess] = deque()
@@ -348,8 +351,12 @@ class Supervisor:
         truncate = spec.output == "screen" and not (append or spec.respawn)
         proc.screen = screen.ScreenOutput(self.loop, spec.name, channels.sources, spec.stdout_path, truncate,
                                               spec.node_name)
-        self.screens = [s for s in self.screens if not s.closed]
         self.screens.append(proc.screen)
+        if len(self.screens) >= self._screens_pruned_at:
+            # (once the list has doubled since the last time: a scan at every spawn made a start of n nodes
+            # O(n^2), 5,000 checks for 100 nodes, half a million for 1,000)
+            self.screens = [s for s in self.screens if not s.closed]
+            self._screens_pruned_at = 2 * len(self.screens) + SCREENS_PRUNED_AT
 
     def _watch(self, proc: NodeProcess, popen: subprocess.Popen) -> None:
         if proc.group_alive and proc.pgid is not None and not proc.alive:

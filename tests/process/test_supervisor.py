@@ -309,3 +309,39 @@ def test_children_left_by_earlier_runs_are_stopped_at_shutdown(tmp_path):
     left, alive_before = asyncio.run(main())
     assert len(alive_before) >= 2  # the earlier runs' children outlived their parents
     assert not [q for q in left if pid_alive(q)]
+
+
+def test_the_open_relays_list_costs_a_start_linear_work_and_stays_bounded(tmp_path, monkeypatch):
+    """Every screen node's run has a relay; the supervisor keeps the open ones for its shutdown. Rid of the
+    closed ones at each spawn, a start of n nodes looked at every relay each time (n^2 / 2 checks); now the list is
+    rid of them when it has doubled: a start of 100 nodes is a few hundred checks, and runs that come and go (a
+    node restarted for weeks) never grow it past its bound."""
+    from launcher.output import screen
+    from launcher.process.supervisor import SCREENS_PRUNED_AT
+    checks = []
+    monkeypatch.setattr(screen.ScreenOutput, "closed", property(lambda self: checks.append(1) or not self.sources))
+
+    async def start_many() -> int:
+        sup = Supervisor(exit_when_all_dead=False)
+        started = [sup.start(spec("many-%d" % i, ["/bin/true"], tmp_path, output="screen")) for i in range(100)]
+        at_start = len(checks)
+        await until_async(lambda: not any(p.alive for p in started), 30)
+        await sup.shutdown()
+        sup.close()
+        return at_start
+
+    async def one_after_another() -> int:
+        sup = Supervisor(exit_when_all_dead=False)
+        longest = 0
+        for i in range(3 * SCREENS_PRUNED_AT):  # each run over before the next
+            p = sup.start(spec("again-%d" % i, ["/bin/true"], tmp_path, output="screen"))
+            relay = sup.screens[-1]
+            longest = max(longest, len(sup.screens))
+            await until_async(lambda: not p.alive and relay.closed, 10)
+        await sup.shutdown()
+        sup.close()
+        return longest
+    at_start = asyncio.run(start_many())
+    assert 0 < at_start < 4 * 100, at_start  # (the scan at every spawn: 4,950)
+    longest = asyncio.run(one_after_another())
+    assert longest <= SCREENS_PRUNED_AT + 2, longest  # (never pruned: 48)
