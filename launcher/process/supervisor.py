@@ -62,7 +62,7 @@ KILL_WAIT_S = 2.0
 MIN_RESPAWN_INTERVAL_S = restart.MIN_RESPAWN_INTERVAL_S  # (the restart policy paces crash loops)
 # Leftover members of a group whose leader exited are looked for at this period.
 GROUP_POLL_S = 0.02
-# The open relays' list is rid of its closed ones when it holds this many more than after the last time.
+# The open relays' list is rid of its closed ones when it holds twice what it kept the last time, and this many more.
 SCREENS_PRUNED_AT = 16
 
 class NodeProcess:
