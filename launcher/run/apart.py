@@ -4,7 +4,7 @@ Reading launch files takes the XML loader and its substitutions, and for
 `<rosparam>` PyYAML and libyaml (about 2 MB once imported); a launch keeps
 whatever it once imported for as long as it runs, weeks on a robot, and
 CPython cannot unload a module. So `launch` reads its files in a child it
-forks for that (`made_apart`): the child makes the plan, sends it back
+forks for that (`begin_apart`): the child makes the plan, sends it back
 pickled through a pipe, and ends; the launch goes on with the plan alone.
 
 The child is a fork, not a new interpreter: it starts in about a millisecond
@@ -38,18 +38,10 @@ from launcher.output import console
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing; the annotations are text)
 if TYPE_CHECKING:
-    from typing import Any, Callable, TypeVar
-
-    T = TypeVar("T")
+    from typing import Any, Callable
 
 MADE, REFUSED, FAILED = "made", "refused", "failed"  # what the child sends: its value, its LaunchError, a bug
 INTERRUPTED = 130  # the child's exit status at a Ctrl-C
-
-
-def made_apart(make: Callable[[], T], verbose: bool = False) -> T:
-    """`make()`'s value, made in a forked child; its LaunchError raised here, a bug as a RuntimeError (its
-    traceback printed by the child with `verbose`). Made in this process if a thread runs."""
-    return begin_apart(make, verbose).result()
 
 
 def begin_apart(make: Callable[[], object], verbose: bool = False) -> Apart:

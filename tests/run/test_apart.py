@@ -13,7 +13,12 @@ import time
 
 from helpers import ROOT, until
 from launcher.process.reaper import stat_fields
-from launcher.run.apart import made_apart
+from launcher.run.apart import begin_apart
+
+
+def made_apart(make):
+    """The value made apart, begun and taken at once."""
+    return begin_apart(make).result()
 
 
 def _run(code: str, **kwargs) -> subprocess.Popen:
@@ -21,10 +26,14 @@ def _run(code: str, **kwargs) -> subprocess.Popen:
                             stderr=subprocess.STDOUT, text=True, **kwargs)
 
 
+PRELUDE = ("from launcher.run.apart import begin_apart\n"
+           "made_apart = lambda make: begin_apart(make).result()\n")
+
+
 def _apart(code: str, **kwargs) -> str:
     """What a script prints, run in a process of its own: a fork copies only one thread, so `made_apart` forks
     only where no other thread runs (pytest's process has some, from other tests)."""
-    proc = _run("from launcher.run.apart import made_apart\n" + textwrap.dedent(code), **kwargs)
+    proc = _run(PRELUDE + textwrap.dedent(code), **kwargs)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, out
     return out
@@ -133,7 +142,8 @@ def test_what_the_child_prints_comes_once_between_what_the_launch_printed_before
     """The launch's output is a pipe (block-buffered): what it had not written yet must not be written by the child
     a second time, and the child's lines (the load's warnings) come where they are made."""
     proc = _run("""
-        from launcher.run.apart import made_apart
+        from launcher.run.apart import begin_apart
+        made_apart = lambda make: begin_apart(make).result()  # noqa: E731
         from launcher.output import console
         print("before")
         made_apart(lambda: (console.printlog("the child's line"), console.printerrlog("WARNING: the child's warning")))
@@ -149,7 +159,8 @@ def test_a_ctrl_c_of_the_launch_alone_ends_the_child_and_the_command_it_runs():
     before), and neither the child nor its command is left running."""
     proc = _run("""
         import subprocess, sys
-        from launcher.run.apart import made_apart
+        from launcher.run.apart import begin_apart
+        made_apart = lambda make: begin_apart(make).result()  # noqa: E731
         try:
             made_apart(lambda: subprocess.run(["sleep", "30"]))
         except KeyboardInterrupt:
