@@ -14,8 +14,8 @@ node's session.
 
 from __future__ import annotations
 
+import _signal  # (signal's C half: `signal` would bring enum, functools and collections, ~3 ms of the guard's start)
 import os
-import signal
 import sys
 import time
 
@@ -27,6 +27,17 @@ TERM_GRACE_S = 0.4
 # queue in the pipe (64 KiB, thousands of lines); the only price is noticing the launcher's death
 # up to this much later.
 READ_NAP_S = 0.05
+# The guard imports this module, from its cached bytecode; a script is compiled from its source at every run
+# (~4 ms of the 13 ms the guard's start took as `python -I -S watchdog.py`). The package's folder is its argument.
+GUARD_MAIN = "import sys; sys.path.insert(0, sys.argv[1]); from launcher.process.watchdog import _guard_main; " \
+             "_guard_main()"
+
+
+def guard_argv() -> list[str]:
+    """The guard's command: this interpreter, bare (`-I -S`), importing this module from the package's folder."""
+    package_folder = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    bytecode = ["-B"] if sys.dont_write_bytecode else []  # (-I ignores $PYTHONDONTWRITEBYTECODE)
+    return [sys.executable, "-I", "-S"] + bytecode + ["-c", GUARD_MAIN, package_folder]
 
 
 class Watchdog:
@@ -39,7 +50,7 @@ class Watchdog:
 
     @classmethod
     def start(cls) -> Watchdog | None:
-        """Start the guard: this file run by a bare interpreter, reading the pipe on its stdin.
+        """Start the guard: this module run by a bare interpreter (`GUARD_MAIN`), reading the pipe on its stdin.
 
         Spawned rather than forked: a fork of the launcher would make every
         page the launcher then writes a copy-on-write fault, ~5 ms of a
@@ -52,11 +63,11 @@ class Watchdog:
         except OSError:
             return None
         try:
-            pid = os.posix_spawn(sys.executable, [sys.executable, "-I", "-S", os.path.abspath(__file__)],
-                                 os.environ, file_actions=[(os.POSIX_SPAWN_DUP2, rfd, 0)], setsid=True)
+            pid = os.posix_spawn(sys.executable, guard_argv(), os.environ,
+                                 file_actions=[(os.POSIX_SPAWN_DUP2, rfd, 0)], setsid=True)
         except OSError as e:
             os.close(wfd)
-            from launcher.output import console  # (here: this file also runs alone as the guard, without the package)
+            from launcher.output import console  # (here: the guard imports this module, and nothing else of ours)
             console.printerrlog("WARNING: cannot start the no-orphans guard (%s): if launch is killed with "
                                 "SIGKILL, its nodes will keep running" % e.strerror)
             return None
@@ -100,7 +111,7 @@ class Watchdog:
         self._close_fd()
         if not self._groups:
             try:
-                os.kill(self.pid, signal.SIGKILL)
+                os.kill(self.pid, _signal.SIGKILL)
             except OSError:
                 pass
         try:
@@ -111,8 +122,8 @@ class Watchdog:
 
 def _serve(rfd: int) -> None:
     """The guard's whole life: follow the pipe, then clean up what is left."""
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGTSTP):
-        signal.signal(sig, signal.SIG_IGN)
+    for sig in (_signal.SIGINT, _signal.SIGTERM, _signal.SIGHUP, _signal.SIGQUIT, _signal.SIGTSTP):
+        _signal.signal(sig, _signal.SIG_IGN)
     devnull = os.open(os.devnull, os.O_RDWR)
     for fd in (0, 1, 2):
         os.dup2(devnull, fd)
@@ -144,8 +155,8 @@ def group_members(groups: set[int], *, sessions: bool = True) -> list[int]:
 
     A node's session id is its pgid, so `sessions` also finds what left the
     node's group but stayed in its session. Zombies are dead already and don't
-    count. (Here rather than in its own module because this file also runs as
-    the guard under `python -I -S`, where it can import nothing of ours.)
+    count. (Here rather than in its own module because the guard runs this
+    module under `python -I -S`, and imports nothing else of ours.)
     """
     try:
         entries = os.listdir("/proc")
@@ -170,7 +181,7 @@ def group_members(groups: set[int], *, sessions: bool = True) -> list[int]:
 def kill_groups(groups: set[int]) -> None:
     """SIGTERM every process of the groups (and their sessions), then SIGKILL what remains."""
     own = os.getpid()
-    for sig, wait in ((signal.SIGTERM, TERM_GRACE_S), (signal.SIGKILL, 0.0)):
+    for sig, wait in ((_signal.SIGTERM, TERM_GRACE_S), (_signal.SIGKILL, 0.0)):
         pids = [p for p in group_members(groups) if p != own]
         if not pids:
             return
@@ -200,7 +211,3 @@ def _guard_main() -> None:
         code = 1
     finally:
         os._exit(code)
-
-
-if __name__ == "__main__":
-    _guard_main()

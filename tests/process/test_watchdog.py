@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import signal
 import struct
 import subprocess
@@ -12,7 +13,7 @@ import termios
 import time
 import textwrap
 
-from launcher.process.watchdog import Watchdog
+from launcher.process.watchdog import Watchdog, guard_argv
 
 from helpers import descendants, pid_alive, until
 
@@ -129,3 +130,15 @@ def test_exit_waits_while_the_guard_has_groups_left():
     wd.watch(child.pid)
     wd.close()  # a group is still recorded: the guard deals with it before close returns
     assert _gone(child.pid, 0.5)  # (the guard killed it; it is our child, so reap it here)
+
+
+def test_the_guard_imports_this_module_and_no_more_than_it_needs():
+    """The guard starts beside every launch: it imports its module (cached bytecode, not a script compiled at each
+    start) and the C half of `signal`, not `signal`'s enums (enum, functools, collections: ~3 ms of its start)."""
+    argv = guard_argv()
+    out = subprocess.run(argv[:1] + ["-X", "importtime"] + argv[1:], stdin=subprocess.DEVNULL,
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    imported = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", out.stderr, re.M))
+    assert "launcher.process.watchdog" in imported
+    assert not imported & {"signal", "enum", "functools", "collections", "launcher.output", "launcher.model"}
