@@ -158,3 +158,78 @@ def test_wait_for_with_no_time_left_is_asyncios():
         got.append(await wait_for(done, 0))
         return got
     assert asyncio.run(go(compat.wait_for)) == asyncio.run(go(asyncio.wait_for)) == ["timeout", "timeout", "had it"]
+
+
+# Each case started by NodeSpawner (through libc, as Pythons before 3.10 start nodes) and by subprocess.Popen as
+# the launch called it before, in a process of its own (the spawner marks what that process inherited
+# close-on-exec): what each child reports of itself, and each failure's kind, errno and file name.
+SPAWN_BOTH_WAYS = r"""
+import json, os, subprocess, sys, tempfile
+from launcher import compat
+from launcher.process.spawn import Spawned
+
+inherited = os.open(os.devnull, os.O_RDONLY)
+os.set_inheritable(inherited, True)  # (as a shell's `3</dev/null` would be)
+spawner = compat.NodeSpawner(compat._libc())
+work = tempfile.mkdtemp()
+REPORT = ("echo cwd=$(pwd) foo=${FOO-unset} path=$PATH; ps -o pid=,pgid=,sid= -p $$; "
+          "grep -E '^Sig(Ign|Blk)' /proc/$$/status; ls /proc/$$/fd; echo to-stderr >&2")
+
+def popen(argv, cwd, env, out, err):
+    return subprocess.Popen(argv, cwd=cwd, env=env, stdout=out, stderr=err, close_fds=True,
+                            start_new_session=True)
+
+def libc(argv, cwd, env, out, err):
+    return Spawned(spawner.spawn(argv, cwd, env, out, err))
+
+results = {}
+for way, start in (("popen", popen), ("libc", libc)):
+    got = results[way] = []
+    for env in (None, {"FOO": "bar", "PATH": "/usr/bin:/bin"}):
+        path = os.path.join(work, way + "-out")
+        out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC)
+        child = start(["sh", "-c", REPORT], work, env, out, out)
+        os.close(out)
+        code = child.wait()
+        lines = open(path).read().split("\n")
+        pid, pgid, sid = lines[1].split()
+        ignored = int(lines[3].split()[1], 16) & ~(3 << 31)  # (glibc's posix_spawn leaves its own two signals,
+        # 32 and 33, ignored: reserved to glibc, below SIGRTMIN, no program can use them)
+        got.append([code, lines[0], pid == pgid == sid == str(child.pid), lines[2], ignored] + lines[4:])
+    for argv in (["sh", "-c", "exit 3"], ["sh", "-c", "kill -TERM $$"], ["sh", "-c", "kill -PIPE $$"]):
+        got.append(start(argv, work, None, None, None).wait())
+    script = os.path.join(work, "no-hash-bang")
+    with open(script, "w") as f:
+        f.write("echo hi\n")
+    os.chmod(script, 0o755)
+    for argv, cwd in ((["/nonexistent/node"], work), (["no-such-command-here"], work), (["/etc/passwd"], work),
+                      ([script], work), (["sh"], os.path.join(work, "missing")), (["sh", "a\0b"], work)):
+        try:
+            start(argv, cwd, None, None, None).wait()
+            got.append("started")
+        except (OSError, ValueError) as e:
+            got.append([type(e).__name__, getattr(e, "errno", None), getattr(e, "filename", None)])
+print(json.dumps(results))
+"""
+
+
+def test_node_spawner_starts_a_node_as_popen_did():
+    out = subprocess.run([sys.executable, "-c", SPAWN_BOTH_WAYS], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    results = __import__("json").loads(out.stdout)
+    assert results["libc"] == results["popen"]
+    (code, words, own_session, blocked, ignored, *fds), second = results["popen"][:2]
+    assert code == 0 and own_session and words.startswith("cwd=/") and "foo=unset" in words
+    assert blocked.split()[1] == "0000000000000000" and ignored == 0
+    assert "foo=bar path=/usr/bin:/bin" in second[1]
+    assert "3" not in fds and "0" in fds  # (the inherited 3 was not passed on)
+    assert results["popen"][2:5] == [3, -15, -13]  # (SIGPIPE back to its default)
+    assert results["popen"][5:] == [
+        ["FileNotFoundError", 2, "/nonexistent/node"], ["FileNotFoundError", 2, "no-such-command-here"],
+        ["PermissionError", 13, "/etc/passwd"], ["OSError", 8, results["popen"][8][2]],
+        ["FileNotFoundError", 2, results["popen"][9][2]], ["ValueError", None, None]]
+
+
+def test_nodes_are_started_by_libc_where_subprocess_would_fork():
+    spawner = compat.node_spawner()
+    assert (spawner is None) == (sys.version_info >= (3, 10))

@@ -7,7 +7,9 @@ import errno
 import os
 import signal
 import subprocess
+import time
 
+from launcher.compat import node_spawner
 from launcher.plan.specs import ProcessSpec
 from launcher.output import console
 from launcher.process.coredumps import raise_core_limit, restore_core_limit
@@ -16,6 +18,46 @@ from launcher.output.screen import Channels
 
 class SpawnError(Exception):
     """A node's process could not be started; the message says why, in roslaunch's words."""
+
+
+class Spawned:
+    """A node's process started without subprocess (before Python 3.10: `compat.NodeSpawner`), with what the
+    runners ask of a Popen: its pid, and its returncode (negative: the signal that killed it) from poll or wait."""
+
+    def __init__(self, pid: int):
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # (reaped by another: Popen says 0 too)
+                self.returncode = 0
+            else:
+                if pid == self.pid:
+                    self.returncode = _returncode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        if timeout is not None:  # (as Popen: polled, up to 50 ms apart)
+            deadline, delay = time.monotonic() + timeout, 0.0005
+            while self.poll() is None:
+                if time.monotonic() >= deadline:
+                    raise subprocess.TimeoutExpired(str(self.pid), timeout)
+                time.sleep(min(delay, max(0.0, deadline - time.monotonic())))
+                delay = min(2 * delay, 0.05)
+        if self.returncode is None:
+            try:
+                self.returncode = _returncode(os.waitpid(self.pid, 0)[1])
+            except ChildProcessError:
+                self.returncode = 0
+        return self.returncode
+
+
+def _returncode(status: int) -> int:
+    """os.waitstatus_to_exitcode (3.9), as Popen's returncode."""
+    return -os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status)
 
 
 def spawn_error_message(name: str, argv: list[str], e: OSError) -> str:
@@ -45,7 +87,7 @@ def node_environ(env: dict[str, str], changes: list[tuple[str, str]]) -> dict[st
     return None if env == _OWN_ENVIRON else env
 
 
-def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = None) -> subprocess.Popen:
+def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = None) -> subprocess.Popen | Spawned:
     """Start the node's process in a new session/process group. Raises SpawnError.
 
     `channels`: the ptys/pipes the launcher relays the node's terminal-bound streams through
@@ -69,8 +111,11 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
     command = spec.command
     env = node_environ(command.env, command.env_changes)
     core_limit = raise_core_limit() if spec.policy.enable_coredumps else None  # inherited by this node only
+    spawner = node_spawner()
     try:
         try:
+            if spawner is not None:
+                return Spawned(spawner.spawn(command.argv, command.cwd, env, stdout, stderr))
             return subprocess.Popen(command.argv, cwd=command.cwd or None, env=env, stdout=stdout,
                                     stderr=stderr, close_fds=True, start_new_session=True)
         except FileNotFoundError as e:
@@ -82,6 +127,8 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
                 os.makedirs(command.cwd, exist_ok=True)
             except OSError:
                 pass
+            if spawner is not None:
+                return Spawned(spawner.spawn(command.argv, command.cwd, env, stdout, stderr))
             return subprocess.Popen(command.argv, cwd=command.cwd, env=env, stdout=stdout,
                                     stderr=stderr, close_fds=True, start_new_session=True)
     except OSError as e:
@@ -117,7 +164,7 @@ def restore_default_signals_for_children() -> None:
 
 
 def start_process(spec: ProcessSpec, watchdog=None, append: bool = False,
-                  channels: Channels | None = None) -> subprocess.Popen | None:
+                  channels: Channels | None = None) -> subprocess.Popen | Spawned | None:
     """Spawn a node as roslaunch does, by name: the process, or None after saying why it could not start.
 
     The no-orphans guard learns the new process group before anything else can

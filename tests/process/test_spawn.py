@@ -52,3 +52,23 @@ def test_a_node_with_the_launchers_environment_inherits_it_and_another_gets_its_
         seen = dict(line.split("=", 1) for line in out.read_text().splitlines() if "=" in line)
         assert all(seen.get(k) == v for k, v in env.items() if "\n" not in v)
         assert ("ROS_NAMESPACE" in seen) == ("ROS_NAMESPACE" in env)
+
+
+def test_a_process_started_without_popen_answers_as_popen_does():
+    """Spawned (a node started through libc before 3.10) gives the runners Popen's poll, wait and returncode."""
+    import signal
+    import subprocess
+    import sys
+
+    from launcher.process.spawn import Spawned
+
+    run = Spawned(os.posix_spawn("/bin/sh", ["sh", "-c", "sleep 0.3; exit 4"], dict(os.environ)))
+    assert run.poll() is None and run.returncode is None
+    with pytest.raises(subprocess.TimeoutExpired):
+        run.wait(0.05)
+    assert run.wait(10) == 4 and run.poll() == 4 and run.returncode == 4
+    killed = Spawned(os.posix_spawn(sys.executable, [sys.executable, "-c", "import time; time.sleep(30)"],
+                                    dict(os.environ)))
+    os.kill(killed.pid, signal.SIGKILL)
+    assert killed.wait() == -signal.SIGKILL
+    assert Spawned(killed.pid).poll() == 0  # (a pid reaped already: 0, as Popen says)
