@@ -124,7 +124,7 @@ class NodeSpawner:
             if cwd:
                 libc.posix_spawn_file_actions_addchdir_np(actions, os.fsencode(cwd))
             pid = ctypes.c_int()
-            first_error = 0
+            err = first_error = 0
             for candidate in candidates:  # (as Popen: each folder of PATH; the first error not "no such file")
                 err = libc.posix_spawn(ctypes.byref(pid), candidate, actions, self._attr, c_argv, envp_pointer)
                 if err == 0:
