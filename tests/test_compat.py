@@ -172,8 +172,9 @@ inherited = os.open(os.devnull, os.O_RDONLY)
 os.set_inheritable(inherited, True)  # (as a shell's `3</dev/null` would be)
 spawner = compat.NodeSpawner(compat._libc())
 work = tempfile.mkdtemp()
-REPORT = ("echo cwd=$(pwd) foo=${FOO-unset} path=$PATH; ps -o pid=,pgid=,sid= -p $$; "
-          "grep -E '^Sig(Ign|Blk)' /proc/$$/status; ls /proc/$$/fd; echo to-stderr >&2")
+REPORT = "echo cwd=$(pwd) foo=${FOO-unset} path=$PATH; ps -o pid=,pgid=,sid= -p $$; ls /proc/$$/fd; echo to-stderr >&2"
+SIGNALS = ["grep", "-E", "^Sig(Ign|Blk)", "/proc/self/status"]  # (the started process's own, as it began: a shell's
+# changes as it forks its commands)
 
 def popen(argv, cwd, env, out, err):
     return subprocess.Popen(argv, cwd=cwd, env=env, stdout=out, stderr=err, close_fds=True,
@@ -189,13 +190,15 @@ for way, start in (("popen", popen), ("libc", libc)):
         path = os.path.join(work, way + "-out")
         out = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC)
         child = start(["sh", "-c", REPORT], work, env, out, out)
-        os.close(out)
         code = child.wait()
+        os.lseek(out, 0, os.SEEK_END)
+        start(SIGNALS, work, env, out, None).wait()
+        os.close(out)
         lines = open(path).read().split("\n")
         pid, pgid, sid = lines[1].split()
-        ignored = int(lines[3].split()[1], 16) & ~(3 << 31)  # (glibc's posix_spawn leaves its own two signals,
+        ignored = int(lines[-2].split()[1], 16) & ~(3 << 31)  # (glibc's posix_spawn leaves its own two signals,
         # 32 and 33, ignored: reserved to glibc, below SIGRTMIN, no program can use them)
-        got.append([code, lines[0], pid == pgid == sid == str(child.pid), lines[2], ignored] + lines[4:])
+        got.append([code, lines[0], pid == pgid == sid == str(child.pid), lines[-3], ignored] + lines[2:-3])
     for argv in (["sh", "-c", "exit 3"], ["sh", "-c", "kill -TERM $$"], ["sh", "-c", "kill -PIPE $$"]):
         got.append(start(argv, work, None, None, None).wait())
     script = os.path.join(work, "no-hash-bang")
