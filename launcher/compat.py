@@ -68,6 +68,7 @@ class NodeSpawner:
 
     def __init__(self, libc: Any):
         import ctypes
+        import signal
 
         self._ctypes = ctypes
         self._libc = libc
@@ -89,7 +90,7 @@ class NodeSpawner:
         sigdef = ctypes.create_string_buffer(256)  # (sigset_t: 128)
         libc.posix_spawnattr_init(self._attr)
         libc.sigemptyset(sigdef)
-        for sig in (13, 25):  # SIGPIPE, SIGXFSZ
+        for sig in (signal.SIGPIPE, signal.SIGXFSZ):
             libc.sigaddset(sigdef, sig)
         libc.posix_spawnattr_setsigdefault(self._attr, sigdef)
         libc.posix_spawnattr_setflags(self._attr, _POSIX_SPAWN_SETSID | _POSIX_SPAWN_SETSIGDEF)
