@@ -133,6 +133,9 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
                                     stderr=stderr, close_fds=True, start_new_session=True)
     except OSError as e:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
+    except ValueError:  # (a NUL, from an $(eval): no exec can be given it; this node fails, the launch goes on)
+        raise SpawnError("[%s] cannot be started: its command line or environment holds a NUL character (\\0), "
+                         "which no program can be given" % spec.name) from None
     finally:
         if channels is not None:
             channels.close_child_ends()

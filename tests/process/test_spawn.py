@@ -72,3 +72,12 @@ def test_a_process_started_without_popen_answers_as_popen_does():
     os.kill(killed.pid, signal.SIGKILL)
     assert killed.wait() == -signal.SIGKILL
     assert Spawned(killed.pid).poll() == 0  # (a pid reaped already: 0, as Popen says)
+
+
+def test_a_nul_in_a_nodes_command_or_environment_fails_that_node_by_name(tmp_path):
+    """An $(eval) can put a NUL in a node's args or env; no exec takes one. The node fails with its name (the
+    launch goes on), as a missing executable does, on every Python's way of starting it."""
+    for argv, env in ((["/bin/true", "a\0b"], dict(os.environ)), (["/bin/true"], dict(os.environ, BAD="x\0y"))):
+        with pytest.raises(SpawnError) as e:
+            spawn(ProcessSpec("nul-1", NodeCommand(argv, env, [("BAD", "x")], cwd=str(tmp_path))))
+        assert "[nul-1]" in str(e.value) and "NUL" in str(e.value)
