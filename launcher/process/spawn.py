@@ -111,13 +111,16 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
     command = spec.command
     env = node_environ(command.env, command.env_changes)
     core_limit = raise_core_limit() if spec.policy.enable_coredumps else None  # inherited by this node only
-    spawner = node_spawner()
+    spawner = node_spawner()  # (None from Python 3.10: Popen, which uses vfork there)
+
+    def start() -> subprocess.Popen | Spawned:
+        if spawner is not None:
+            return Spawned(spawner.spawn(command.argv, command.cwd, env, stdout, stderr))
+        return subprocess.Popen(command.argv, cwd=command.cwd or None, env=env, stdout=stdout, stderr=stderr,
+                                close_fds=True, start_new_session=True)
     try:
         try:
-            if spawner is not None:
-                return Spawned(spawner.spawn(command.argv, command.cwd, env, stdout, stderr))
-            return subprocess.Popen(command.argv, cwd=command.cwd or None, env=env, stdout=stdout,
-                                    stderr=stderr, close_fds=True, start_new_session=True)
+            return start()
         except FileNotFoundError as e:
             if not command.cwd or e.filename != command.cwd:
                 raise
@@ -127,10 +130,7 @@ def spawn(spec: ProcessSpec, append: bool = False, channels: Channels | None = N
                 os.makedirs(command.cwd, exist_ok=True)
             except OSError:
                 pass
-            if spawner is not None:
-                return Spawned(spawner.spawn(command.argv, command.cwd, env, stdout, stderr))
-            return subprocess.Popen(command.argv, cwd=command.cwd, env=env, stdout=stdout,
-                                    stderr=stderr, close_fds=True, start_new_session=True)
+            return start()
     except OSError as e:
         raise SpawnError(spawn_error_message(spec.name, spec.argv, e)) from None
     except ValueError:  # (a NUL, from an $(eval): no exec can be given it; this node fails, the launch goes on)
