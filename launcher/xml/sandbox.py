@@ -31,6 +31,7 @@ from __future__ import annotations
 # adds only helpers this module does not use and costs ~1 ms to import (a --nodes run with $(eval)).
 import _ast as ast
 import math
+import operator
 import re
 
 TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a start; the annotations are text)
@@ -184,13 +185,14 @@ def _checked_format(fmt: str, *args: Any, **kwargs: Any) -> str:
     return fmt.format(*args, **kwargs)
 
 
-_FIELD_NAME = re.compile(r"^\w*$")
-_SPEC_NUMBER = re.compile(r"\d+")
+# (the format checks' patterns are compiled at their first use, by re's cache: few $(eval)s format text)
+_FIELD_NAME = r"^\w*$"
+_SPEC_NUMBER = r"\d+"
 
 
 def _check_spec(spec: str) -> None:
     """A format spec's width and precision are bounded (`{:>999999999}` would be a gigabyte)."""
-    for n in _SPEC_NUMBER.findall(spec):
+    for n in re.findall(_SPEC_NUMBER, spec):
         if int(n) > MAX_SIZE:
             raise _too_big("format width %s" % n)
 
@@ -205,7 +207,7 @@ def _check_format_fields(fmt: str) -> None:
     for _, field, spec, _ in fields:
         if field is None:
             continue
-        if not _FIELD_NAME.match(field):
+        if not re.match(_FIELD_NAME, field):
             raise EvalError("format field {%s} is refused: only plain names and positions" % field)
         if spec:
             if "{" in spec:
@@ -213,11 +215,11 @@ def _check_format_fields(fmt: str) -> None:
             _check_spec(spec)
 
 
-_PERCENT = re.compile(r"%(?:\([^)]*\))?[#0\- +]*(\*|\d+)?(?:\.(\*|\d+))?")
+_PERCENT = r"%(?:\([^)]*\))?[#0\- +]*(\*|\d+)?(?:\.(\*|\d+))?"
 
 
 def _check_percent(fmt: str) -> None:
-    for width, precision in _PERCENT.findall(fmt):
+    for width, precision in re.findall(_PERCENT, fmt):
         for n in (width, precision):
             if n == "*":
                 raise EvalError("'*' widths are not supported in $(eval)")
@@ -304,21 +306,29 @@ def _modulo(a: Any, b: Any) -> Any:
     return a % b
 
 
+# (operator's C functions where the operation needs no check: one Python frame less per operation)
 _BINARY: dict[type, Callable[[Any, Any], Any]] = {
-    ast.Add: lambda a, b: a + b, ast.Sub: lambda a, b: a - b, ast.Mult: _multiply,
-    ast.Div: lambda a, b: a / b, ast.FloorDiv: lambda a, b: a // b, ast.Mod: _modulo, ast.Pow: _power,
-    ast.LShift: _lshift, ast.RShift: lambda a, b: a >> b, ast.BitAnd: lambda a, b: a & b,
-    ast.BitOr: lambda a, b: a | b, ast.BitXor: lambda a, b: a ^ b,
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: _multiply, ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv, ast.Mod: _modulo, ast.Pow: _power, ast.LShift: _lshift,
+    ast.RShift: operator.rshift, ast.BitAnd: operator.and_, ast.BitOr: operator.or_, ast.BitXor: operator.xor,
 }
 _UNARY: dict[type, Callable[[Any], Any]] = {
-    ast.UAdd: lambda a: +a, ast.USub: lambda a: -a, ast.Not: lambda a: not a, ast.Invert: lambda a: ~a,
+    ast.UAdd: operator.pos, ast.USub: operator.neg, ast.Not: operator.not_, ast.Invert: operator.invert,
 }
 _COMPARE: dict[type, Callable[[Any, Any], bool]] = {
-    ast.Eq: lambda a, b: a == b, ast.NotEq: lambda a, b: a != b, ast.Lt: lambda a, b: a < b,
-    ast.LtE: lambda a, b: a <= b, ast.Gt: lambda a, b: a > b, ast.GtE: lambda a, b: a >= b,
-    ast.Is: lambda a, b: a is b, ast.IsNot: lambda a, b: a is not b,
+    ast.Eq: operator.eq, ast.NotEq: operator.ne, ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt,
+    ast.GtE: operator.ge, ast.Is: operator.is_, ast.IsNot: operator.is_not,
     ast.In: lambda a, b: a in b, ast.NotIn: lambda a, b: a not in b,
 }
+
+
+# The errors of the user's own mistakes (1/0, int('x'), a missing key), said as EvalErrors in Python's words
+# (an EvalError, of none of these classes, passes as it is)
+_USER_ERRORS = (ArithmeticError, ValueError, TypeError, LookupError, AttributeError)
+
+
+def _user_error(e: Exception) -> EvalError:
+    return EvalError("%s: %s" % (type(e).__name__, e))
 
 
 class Evaluator:
@@ -352,6 +362,9 @@ class Evaluator:
 
     def weigh(self, value: Any) -> Any:
         """`value`, once its weight is known to be within MAX_SIZE."""
+        t = type(value)
+        if t is float or t is bool or (t is str and len(value) <= MAX_SIZE):
+            return value  # (the common values, weighed without a call)
         if self.weight(value) > MAX_SIZE:
             raise _too_big("a value of weight %d" % self.weight(value))
         return value
@@ -392,9 +405,10 @@ class Evaluator:
     def resolve(self, name: str) -> Any:
         """A name's value: a comprehension's variable, else an arg or substitution, else a builtin (the walk and
         the compiled closures both ask here)."""
-        for scope in reversed(self.local):
-            if name in scope:
-                return scope[name]
+        if self.local:
+            for scope in reversed(self.local):
+                if name in scope:
+                    return scope[name]
         value = self.lookup(name)
         if value is not NOT_FOUND:
             return value
@@ -592,10 +606,8 @@ class Evaluator:
         """f(*args): the user's own mistakes (1/0, int('x'), a missing key) become EvalErrors in Python's words."""
         try:
             return f(*args, **kwargs)
-        except EvalError:
-            raise
-        except (ArithmeticError, ValueError, TypeError, LookupError, AttributeError) as e:
-            raise EvalError("%s: %s" % (type(e).__name__, e)) from None
+        except _USER_ERRORS as e:
+            raise _user_error(e) from None
 
     _EVAL: dict[type, Callable[[Evaluator, Any], Any]] = {
         ast.Constant: _constant, ast.Name: _name, ast.BinOp: _binop, ast.UnaryOp: _unaryop,
@@ -702,7 +714,16 @@ def _compile_binop(node: ast.BinOp) -> Code | None:
     if op is None:
         return None
     left, right = _compile(node.left), _compile(node.right)
-    return lambda ev: ev.weigh(ev._apply(op, left(ev), right(ev)))
+
+    def binop(ev: Evaluator) -> Any:
+        a = left(ev)
+        b = right(ev)
+        try:  # (Evaluator._apply, inline: the commonest step of an evaluation)
+            value = op(a, b)
+        except _USER_ERRORS as e:
+            raise _user_error(e) from None
+        return ev.weigh(value)
+    return binop
 
 
 def _compile_unaryop(node: ast.UnaryOp) -> Code:
@@ -749,6 +770,9 @@ def _compile_items(nodes: list[ast.expr]) -> Callable[[Evaluator], list]:
     """The closure of `Evaluator._items`: the values of `nodes`, a starred one's items spread."""
     if not any(isinstance(n, ast.Starred) for n in nodes):
         codes = [_compile(n) for n in nodes]
+        if len(codes) == 1:  # (a call's one argument: no comprehension to run)
+            only = codes[0]
+            return lambda ev: [only(ev)]
         return lambda ev: [code(ev) for code in codes]
     parts = [(True, _compile(n.value)) if isinstance(n, ast.Starred) else (False, _compile(n)) for n in nodes]
 
@@ -809,7 +833,13 @@ def _compile_call(node: ast.Call) -> Code:
         if not callable(method):
             raise EvalError("'%s' object is not callable" % type(method).__name__)
         args = items(ev)
-        return ev.weigh(ev._apply(method, *args, **kwargs_of(ev)) if keywords else ev._apply(method, *args))
+        if keywords:
+            return ev.weigh(ev._apply(method, *args, **kwargs_of(ev)))
+        try:  # (Evaluator._apply, inline)
+            value = method(*args)
+        except _USER_ERRORS as e:
+            raise _user_error(e) from None
+        return ev.weigh(value)
     return call
 
 
