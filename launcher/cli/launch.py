@@ -6,6 +6,7 @@ a run (`--core` is a run with an empty launch) in `launcher.run.runtime`.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 from types import SimpleNamespace
@@ -186,6 +187,19 @@ def _import_asyncio_without_tls() -> None:
         del sys.modules["ssl"]
 
 
+def _pause_collector() -> bool:
+    """Pause the cyclic garbage collector; whether it ran (to resume it only then: `launch` may run in a test).
+
+    Imports, and a launch's loading, make objects that live as long as the process and leave next to no
+    cyclic garbage: the collector would only go over them again and again. A run's ~250 modules cost ~40
+    collections on their way in; imported with it paused, and then frozen (`gc.freeze`: no later
+    collection goes over them either), a 100-node start takes ~6 ms less CPU (~5%) for ~0.1 MB more
+    memory (the little garbage the imports left). A big `--dump-params`: ~10 ms."""
+    running = gc.isenabled()
+    gc.disable()
+    return running
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     opts = parse_simple_args(args)
@@ -209,8 +223,13 @@ def main(argv: list[str] | None = None) -> int:
                 _end_process(status)
             return status
         if opts.files or opts.node_args or opts.nodes or opts.find_node or opts.dump_params or opts.ros_args:
-            from launcher.cli import introspect
-            status = introspect.main(opts)
+            collecting = _pause_collector()  # (for the imports and the load: its ~10^5 objects free almost nothing)
+            try:
+                from launcher.cli import introspect
+                status = introspect.main(opts)
+            finally:
+                if collecting:
+                    gc.enable()
             if argv is None:
                 # freeing the loaded launch's 10^5 objects one by one is ~10% of a big `--nodes`
                 _end_process(status)
@@ -230,14 +249,20 @@ def main(argv: list[str] | None = None) -> int:
             _start_web(opts.web, opts.port)
         run_opts = RunOptions.from_args(opts)
         reading = None
-        if not run_opts.core:
-            # the launch files are read in a child forked now, before asyncio and the run's modules are
-            # imported: on the other core, while those imports go on here (run/apart.py)
-            from launcher.run.load import begin_plan
-            reading = begin_plan(run_opts)
         try:
-            _import_asyncio_without_tls()
-            from launcher.run import runtime
+            collecting = _pause_collector()  # (for the run's imports; the run collects as always)
+            try:
+                if not run_opts.core:
+                    # the launch files are read in a child forked now, before asyncio and the run's modules are
+                    # imported: on the other core, while those imports go on here (run/apart.py)
+                    from launcher.run.load import begin_plan
+                    reading = begin_plan(run_opts)
+                _import_asyncio_without_tls()
+                from launcher.run import runtime
+            finally:
+                if collecting:
+                    gc.freeze()  # (what they made, out of the collector's way for good: see _pause_collector)
+                    gc.enable()
             # a real command line (argv from sys.argv) may end the process as soon as all is stopped
             return runtime.run(run_opts, reading, exit_process=argv is None)
         finally:

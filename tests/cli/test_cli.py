@@ -121,3 +121,41 @@ def test_the_run_options_are_the_command_lines_with_its_defaults():
         ["--screen", "-p", "11400", "--sigint-timeout", "3", "--master-allow", "10.0.0.0/8", "a.launch", "x:=1"]))
     assert (given.screen, given.port, given.sigint_timeout, given.master_allow, given.positional) == (
         True, 11400, 3.0, ("10.0.0.0/8",), ("a.launch", "x:=1"))
+
+
+def test_an_introspection_loads_with_the_collector_paused_and_leaves_it_as_it_was(tmp_path, monkeypatch, capsys):
+    """The cyclic collector is paused for the imports and the load (their objects live to the end), and left as
+    `launch` found it: running, or paused by a caller of its own."""
+    import gc
+    from launcher.cli import introspect
+    f = tmp_path / "a.launch"
+    f.write_text('<launch><node name="n" pkg="p" type="t"/></launch>')
+    seen = []
+    load = introspect.main
+    monkeypatch.setattr(introspect, "main", lambda opts: seen.append(gc.isenabled()) or load(opts))
+    assert gc.isenabled()
+    try:
+        assert cli.main(["--nodes", str(f)]) == 0
+        assert (seen, gc.isenabled()) == ([False], True)
+        gc.disable()
+        assert cli.main(["--nodes", str(f)]) == 0
+        assert (seen, gc.isenabled()) == ([False, False], False)
+    finally:
+        gc.enable()
+    assert capsys.readouterr().out == "/n\n/n\n"
+
+
+def test_a_run_imports_with_the_collector_paused_and_runs_with_it_running(monkeypatch):
+    """A run's modules are imported with the collector paused and then frozen (out of its way for good); the run
+    itself has it running."""
+    import gc
+    from launcher.run import runtime
+    seen = []
+    monkeypatch.setattr(runtime, "run", lambda opts, reading, exit_process: seen.append(
+        (gc.isenabled(), gc.get_freeze_count())) or 0)
+    gc.unfreeze()
+    try:
+        assert cli.main(["--core", "-p", "11399"]) == 0
+        assert len(seen) == 1 and seen[0][0] is True and seen[0][1] > 0
+    finally:
+        gc.unfreeze()  # (as the run does at its end)
