@@ -18,7 +18,6 @@ import time
 from typing import Any
 
 from launcher import __version__
-from launcher.params.dump import dump_yaml
 from launcher.workspace.roshome import PARAMS_FILE, RUN_RECORD_FILE, ros_environment
 
 
@@ -32,6 +31,8 @@ def record(config: Any, run_id: str, environ: dict[str, str], packages: dict[str
 
 def params_text(config: Any) -> str:
     """The parameters the launch set, as `--dump-params` writes them (a flat map of keys to values)."""
+    # (imported here: a launch gets this text with its plan, made apart, and never needs the writer itself)
+    from launcher.params.dump import dump_yaml
     return dump_yaml({k: p.value for k, p in config.params.items()}) + "\n"
 
 

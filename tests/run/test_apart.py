@@ -189,8 +189,8 @@ def test_a_ctrl_c_of_the_launch_alone_ends_the_child_and_the_command_it_runs():
 
 def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_names_and_parameters(tmp_path):
     """The real thing: `begin_plan` of a launch with `<rosparam>` and `$(anon)`, in a process of its own; the
-    same plan as one made in-process, its parameters' text made there, and neither the XML loader nor PyYAML
-    imported by the launch's process."""
+    same plan as one made in-process, its parameters' text made there, and neither the XML loader, the YAML
+    writer nor PyYAML imported by the launch's process."""
     from launcher.model.runopts import RunOptions
     from launcher.run.load import load_plan
     from launcher.services.runrecord import params_text
@@ -204,7 +204,8 @@ def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_nam
         from launcher.model.runopts import RunOptions
         from launcher.run.load import begin_plan
         plan = begin_plan(RunOptions(positional=(%r,))).result()
-        left = sorted(m for m in sys.modules if m.startswith(("launcher.xml", "yaml", "_yaml")))
+        import launcher.run.runtime  # (nor by the run's modules: the YAML writer too is the making's)
+        left = sorted(m for m in sys.modules if m.startswith(("launcher.xml", "launcher.params", "yaml", "_yaml")))
         params = {k: p.value for k, p in plan.config.params.items()}
         sys.stdout.write(repr((os.getpid(), left, plan.params_text, params)))
     """ % str(launch), env=env)
