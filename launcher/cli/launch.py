@@ -200,6 +200,13 @@ def _pause_collector() -> bool:
     return running
 
 
+def _imports_done(collecting: bool) -> None:
+    """Resume the collector paused for a run's imports (`_pause_collector`), what they made frozen first."""
+    if collecting:
+        gc.freeze()
+        gc.enable()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     opts = parse_simple_args(args)
@@ -214,8 +221,12 @@ def main(argv: list[str] | None = None) -> int:
         if not opts.ready_timeout > 0:
             raise LaunchError("--ready-timeout must be greater than zero")
         if opts.child_name or opts.server_uri:
-            _import_asyncio_without_tls()
-            from launcher.remote.child import run_child  # a roslaunch child on another machine
+            collecting = _pause_collector()
+            try:
+                _import_asyncio_without_tls()
+                from launcher.remote.child import run_child  # a roslaunch child on another machine
+            finally:
+                _imports_done(collecting)
             status = run_child(opts)
             if argv is None:
                 # the parent's ssh session ends when this process does: skip tearing down ~150
@@ -260,9 +271,7 @@ def main(argv: list[str] | None = None) -> int:
                 _import_asyncio_without_tls()
                 from launcher.run import runtime
             finally:
-                if collecting:
-                    gc.freeze()  # (what they made, out of the collector's way for good: see _pause_collector)
-                    gc.enable()
+                _imports_done(collecting)
             # a real command line (argv from sys.argv) may end the process as soon as all is stopped
             return runtime.run(run_opts, reading, exit_process=argv is None)
         finally:

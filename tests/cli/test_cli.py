@@ -145,17 +145,24 @@ def test_an_introspection_loads_with_the_collector_paused_and_leaves_it_as_it_wa
     assert capsys.readouterr().out == "/n\n/n\n"
 
 
-def test_a_run_imports_with_the_collector_paused_and_runs_with_it_running(monkeypatch):
-    """A run's modules are imported with the collector paused and then frozen (out of its way for good); the run
-    itself has it running."""
+@pytest.mark.parametrize("argv", [["--core", "-p", "11399"], ["-c", "m1", "-u", "http://127.0.0.1:1/"]])
+def test_a_run_imports_with_the_collector_paused_and_runs_with_it_running(argv, monkeypatch):
+    """A run's modules (a remote child's too) are imported with the collector paused and then frozen (out of its
+    way for good); the run itself has it running."""
     import gc
+    from launcher.remote import child
     from launcher.run import runtime
     seen = []
     monkeypatch.setattr(runtime, "run", lambda opts, reading, exit_process: seen.append(
         (gc.isenabled(), gc.get_freeze_count())) or 0)
+    monkeypatch.setattr(child, "run_child", lambda opts: seen.append((gc.isenabled(), gc.get_freeze_count())) or 0)
+    importing = []
+    imports = cli._import_asyncio_without_tls
+    monkeypatch.setattr(cli, "_import_asyncio_without_tls", lambda: importing.append(gc.isenabled()) or imports())
     gc.unfreeze()
     try:
-        assert cli.main(["--core", "-p", "11399"]) == 0
+        assert cli.main(argv) == 0
+        assert importing == [False]
         assert len(seen) == 1 and seen[0][0] is True and seen[0][1] > 0
     finally:
         gc.unfreeze()  # (as the run does at its end)
