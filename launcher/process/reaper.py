@@ -65,8 +65,10 @@ def orphan_zombies(pid: int, own: Iterable[int], pgrp: int, proc: str = "/proc")
     own = set(own)
     found = []
     for kid in children(pid, proc):
+        if kid in own:  # (asked first: a supervised node's stat is never read, at each of the fleet's exits)
+            continue
         fields = stat_fields(kid, proc)
-        if fields is not None and fields[0] == "Z" and kid not in own and int(fields[2]) != pgrp:
+        if fields is not None and fields[0] == "Z" and int(fields[2]) != pgrp:
             found.append(kid)
     return found
 
@@ -95,8 +97,10 @@ class Reaper:
         own = set(self.own())
         left = []
         for kid in children(me):
+            if kid in own:
+                continue
             fields = stat_fields(kid)
-            if fields is not None and fields[0] != "Z" and kid not in own and int(fields[2]) != pgrp:
+            if fields is not None and fields[0] != "Z" and int(fields[2]) != pgrp:
                 left.append(kid)
         for sig in (signal.SIGTERM, signal.SIGKILL):
             for pid in left:

@@ -27,6 +27,19 @@ def test_only_orphan_zombies_outside_the_launch_group(tmp_path):
     assert reaper.orphan_zombies(1, own=[10], pgrp=1, proc=proc) == [13, 14]
 
 
+
+def test_a_supervised_nodes_stat_is_never_read(tmp_path, monkeypatch):
+    """Every node's exit is a SIGCHLD: the reaper reads /proc only for the children no runner owns (else a fleet
+    of n stopping together costs n * n reads)."""
+    kids = {pid: ("Z" if pid % 2 else "S", pid) for pid in range(10, 40)}
+    proc = fake_proc(tmp_path, 1, kids)
+    read = []
+    real = reaper.stat_fields
+    monkeypatch.setattr(reaper, "stat_fields", lambda pid, proc="/proc": read.append(pid) or real(pid, proc))
+    own = [pid for pid in kids if pid != 31]
+    assert reaper.orphan_zombies(1, own=own, pgrp=1, proc=proc) == [31]
+    assert read == [31]
+
 def test_stat_fields_survive_parentheses_in_the_name(tmp_path):
     fake_proc(tmp_path, 1, {7: ("Z", 3)})
     assert reaper.stat_fields(7, str(tmp_path))[:3] == ["Z", "1", "3"]
