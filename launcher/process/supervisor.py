@@ -507,8 +507,9 @@ class Supervisor:
             stopping = [p.stopped for p in self.procs if p.stopping]
             if not stopping and not self._deferred:
                 break
-            if stopping:
-                await asyncio.wait(stopping, return_when=asyncio.FIRST_COMPLETED)
+            if stopping:  # (woken at each end only while a deferred node may become ready: n waits on n ends else)
+                await asyncio.wait(stopping, return_when=asyncio.FIRST_COMPLETED if self._deferred
+                                   else asyncio.ALL_COMPLETED)
             busy = {p.spec.node_name for p in self.procs if (p.alive or p.stopping) and not p.leftover}
             names = set(ready_to_stop(relations, (p.spec.node_name for p in self._deferred), busy))
             ready = [p for p in self._deferred if p.spec.node_name in names]

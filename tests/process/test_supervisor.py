@@ -345,3 +345,29 @@ def test_the_open_relays_list_costs_a_start_linear_work_and_stays_bounded(tmp_pa
     assert 0 < at_start < 4 * 100, at_start  # (the scan at every spawn: 4,950)
     longest = asyncio.run(one_after_another())
     assert longest <= SCREENS_PRUNED_AT + 2, longest  # (never pruned: 48)
+
+
+def test_a_shutdown_without_ordered_nodes_waits_once_for_all_ends(tmp_path, monkeypatch):
+    """Woken at each node's end, a shutdown looked at every node again each time (n ends: n^2 looks, and n waits
+    on up to n futures): with no node to hold back until another is down, it waits once for every end."""
+    waits = []
+    real_wait = asyncio.wait
+
+    async def counted(futures, **kw):
+        waits.append(len(futures))
+        return await real_wait(futures, **kw)
+    monkeypatch.setattr(asyncio, "wait", counted)
+    # five nodes that end one after another, 0.1 s apart, at their SIGINT
+    code = ("import signal,sys,time\nsignal.signal(signal.SIGINT, lambda *a: (time.sleep(%s), sys.exit(0)))\n"
+            "open(sys.argv[1], 'w').close()\ntime.sleep(100)")
+
+    async def main():
+        sup = Supervisor(exit_when_all_dead=False)
+        started = [sup.start(spec("staggered-%d" % i, py_node(code % (0.1 * i)) + [str(tmp_path / str(i))], tmp_path))
+                   for i in range(5)]
+        await until_async(lambda: all((tmp_path / str(i)).exists() for i in range(5)), 10, what="their handlers")
+        await sup.shutdown()
+        return started
+    started = asyncio.run(main())
+    assert not any(pid_alive(p.pid) for p in started)
+    assert waits == [5]
