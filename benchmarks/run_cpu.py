@@ -16,6 +16,9 @@ is read:
 - `run`: its CPU over the whole run, start and stop (its own threads, read
   from its /proc entry while it is a zombie: never the nodes').
 
+Both come from /proc/PID/stat, in clock ticks (10 ms): a median over several
+repetitions, not one run, says how two commands differ.
+
 It prints the median of each, and each command's ratio to the first command
 (the reference). The machine's other load moves these figures: compare
 commands of one run, not runs.
