@@ -356,7 +356,7 @@ def _parse(data: bytes) -> _Unmarshaller:
 
 # The shape nearly every call has (flat scalar params, as rospy, roscpp and the
 # ROS tools send them) is read with two regular expressions; anything else
-# (arrays, structs, entities, other encodings, CR characters, ...) goes through
+# (arrays, structs, entities, other encodings, a CR in a value, ...) goes through
 # expat. The fast path accepts nothing expat would read differently.
 _FAST_CALL = re.compile(
     r"(?:<\?xml version=(['\"])1\.0\1(?:\s+encoding=(['\"])(?:utf-8|UTF-8)\2)?\s*\?>)?\s*"
@@ -365,9 +365,10 @@ _FAST_CALL = re.compile(
 _FAST_PARAM = re.compile(
     r"\s*<param>\s*<value>(?:<(string|int|i4|double|boolean)>([^<&]*)</\1>|([^<&]*))</value>\s*</param>")
 _FAST_SPACE = re.compile(r"\s*\Z")
-# what expat refuses in character data (C0 controls but TAB/LF, U+FFFE, U+FFFF, "]]>") and CR,
-# which XML turns into LF: requests with any of these go to expat
-_CONTROL_BYTES = bytes(c for c in range(32) if c not in (9, 10))
+# what expat refuses in character data (C0 controls but TAB/LF/CR, U+FFFE, U+FFFF, "]]>"): requests with any of
+# these go to expat. A CR is whitespace between tags (XmlRpc++, roscpp's client, ends its lines with CRLF), but XML
+# turns one in a value into LF: a value with a CR goes to expat too.
+_CONTROL_BYTES = bytes(c for c in range(32) if c not in (9, 10, 13))
 
 
 def _plain_xml_text(data: bytes) -> bool:
@@ -392,12 +393,15 @@ def _loads_request_fast(data: bytes) -> tuple[str, list[Any]] | None:
         pos = 0
         end = len(body)
         match = _FAST_PARAM.match
+        crs = "\r" in body
         while pos < end:
             pm = match(body, pos)
             if pm is None:
                 if _FAST_SPACE.match(body, pos):
                     break
                 return None
+            if crs and "\r" in (pm.group(2) or pm.group(3) or ""):
+                return None  # (expat reads it as LF)
             tag = pm.group(1)
             if tag is None:
                 params.append(pm.group(3))

@@ -446,6 +446,33 @@ def test_fast_path_agrees_with_expat_for_stdlib_requests(params, method):
     assert X.loads_request(body) == want
 
 
+# what roscpp's XmlRpc++ sends (captured from a roscpp node): CRLF between tags, untyped strings
+ROSCPP_REQUEST = (b'<?xml version="1.0"?>\r\n<methodCall><methodName>hasParam</methodName>\r\n<params><param><value>'
+                  b'/n1</value></param><param><value>/tcp_keepalive</value></param></params></methodCall>\r\n')
+
+
+def test_roscpps_requests_take_the_fast_path():
+    """Every roscpp node's calls to the master (a dozen at each start) are read without expat."""
+    assert C._loads_request_fast(ROSCPP_REQUEST) == _expat_only(ROSCPP_REQUEST) == ("hasParam", ["/n1", "/tcp_keepalive"])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(flat_values, max_size=5), st.sampled_from([b"\r\n", b"\r", b" \r\n\t"]))
+def test_fast_path_agrees_with_expat_with_crs_between_tags(params, ending):
+    """CRs between the tags (roscpp's CRLF lines) are whitespace, read on the fast path; a CR in a value, which XML
+    reads as a LF, goes to expat."""
+    body = xmlrpc.client.dumps(tuple(params), "getParam").encode().replace(b"\n", ending)
+    try:
+        want = _expat_only(body)
+    except X.XmlRpcError:
+        with pytest.raises(X.XmlRpcError):
+            X.loads_request(body)
+        return
+    assert X.loads_request(body) == want
+    if not any(isinstance(p, str) and set(p) & set("\r\n&<>") for p in params):  # (no CR, no entity: fast)
+        assert C._loads_request_fast(body) == want
+
+
 @pytest.mark.parametrize("body", [
     # XmlRpc++ (roscpp): untyped strings, <i4>, no prolog
     b"<?xml version=\"1.0\"?>\r\n<methodCall><methodName>getParam</methodName>\r\n<params><param><value>/node</value>"
