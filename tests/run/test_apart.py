@@ -130,8 +130,17 @@ def test_an_abandoned_making_leaves_no_process():
             time.sleep(0.05)
         sleep, = command()
         making.abandon()
-        state = open("/proc/%d/stat" % sleep).read().split(") ")[1][0] if os.path.exists("/proc/%d" % sleep) else "gone"
-        print(repr((pid, os.path.exists("/proc/%d" % pid), state)))
+        def state():
+            try:
+                with open("/proc/%d/stat" % sleep) as f:
+                    return f.read().split(") ")[1][0]
+            except OSError:
+                return "gone"
+        # (its SIGKILL is sent: on a busy machine it may run a moment longer before it dies)
+        deadline = time.monotonic() + 10
+        while state() not in ("Z", "gone") and time.monotonic() < deadline:
+            time.sleep(0.01)
+        print(repr((pid, os.path.exists("/proc/%d" % pid), state())))
     """)
     pid, left, command = eval(out)  # noqa: S307 - (our own repr)
     # (killed by the child's subprocess.run: reaped there, or by whoever it was re-parented to)
