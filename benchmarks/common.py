@@ -1,12 +1,19 @@
-"""What the benchmark scripts share: Debian's ROS tools first on PATH, a free port, a process's CPU and peak memory.
+"""What the benchmark scripts share: Debian's ROS tools first on PATH, a free port, a Debian rosmaster, a process's
+CPU and peak memory.
 
 The scripts run as `python3 benchmarks/NAME.py`, so this folder is on their import path.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
+import subprocess
+import time
+import xmlrpc.client
+from typing import Iterator
 
 ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"  # Debian's ROS scripts need Debian's python: its bin first
 
@@ -16,6 +23,32 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
+
+@contextlib.contextmanager
+def debian_rosmaster(port: int, env: dict, uri: str) -> Iterator[subprocess.Popen]:
+    """Debian's rosmaster on `port` (with `env`, Debian's bin first on its PATH) from when it answers getPid at
+    `uri` until the block ends; RuntimeError if it does not within 30 s."""
+    env = dict(env, PATH=ROS_PATH + ":" + env.get("PATH", ""))
+    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 30
+        while True:  # the master is up when it answers getPid
+            try:
+                xmlrpc.client.ServerProxy(uri).getPid("/bench")
+                break
+            except OSError:
+                if master.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError("rosmaster did not start on %s" % uri) from None
+                time.sleep(0.02)
+        yield master
+    finally:
+        master.send_signal(signal.SIGINT)
+        try:
+            master.wait(10)
+        except subprocess.TimeoutExpired:
+            master.kill()
+            master.wait()
 
 def make_package(root: str, package: str) -> str:
     """An empty package `package` under `root` (its package.xml alone); its folder."""

@@ -52,7 +52,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 from testhosts import TestHosts  # noqa: E402
 
-from common import ROS_PATH  # (this folder is on the path of a script run from it)
+from common import ROS_PATH, debian_rosmaster  # (this folder is on the path of a script run from it)
 
 NODE_CPP = """#include <ros/ros.h>
 int main(int argc, char** argv) { ros::init(argc, argv, "bench_node"); ros::NodeHandle nh; ros::spin(); return 0; }
@@ -183,27 +183,9 @@ def running_master(wanted: bool, master_uri: str, port: int, hosts: TestHosts, s
     if not wanted:
         yield
         return
-    menv = dict(os.environ, PATH=ROS_PATH, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
-    master = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=menv, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 30
-        while True:  # the master is up when it answers getPid
-            try:
-                xmlrpc.client.ServerProxy(master_uri).getPid("/bench")
-                break
-            except OSError:
-                if master.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError("rosmaster did not start on %s" % master_uri) from None
-                time.sleep(0.05)
+    menv = dict(os.environ, ROS_IP=hosts.gateway, ROS_HOME=os.path.join(scratch, "mh"))
+    with debian_rosmaster(port, menv, master_uri):
         yield
-    finally:
-        master.send_signal(signal.SIGINT)
-        try:
-            master.wait(10)
-        except subprocess.TimeoutExpired:
-            master.kill()
-            master.wait()
 
 
 def main() -> int:

@@ -37,7 +37,7 @@ import tempfile
 import time
 import xmlrpc.client
 
-from common import ROS_PATH, free_port, make_package  # (this folder is on the path of a script run from it)
+from common import ROS_PATH, debian_rosmaster, free_port, make_package  # (this folder is on the path of a script run from it)
 import reload  # (the same roscpp node as its benchmark's)
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -63,20 +63,8 @@ def one_run(argv: list[str], launch: str, env: dict, n: int) -> dict:
     port = free_port()
     uri = "http://127.0.0.1:%d/" % port
     env = dict(env, ROS_MASTER_URI=uri)
-    master_env = dict(env, PATH=ROS_PATH + ":" + env.get("PATH", ""))
-    rosmaster = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], env=master_env, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL, start_new_session=True)
-    master = xmlrpc.client.ServerProxy(uri)
-    try:
-        deadline = time.monotonic() + 30
-        while True:
-            try:
-                master.getPid("/run_cpu")
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise SystemExit("rosmaster did not answer on port %d" % port)
-                time.sleep(0.02)
+    with debian_rosmaster(port, env, uri):
+        master = xmlrpc.client.ServerProxy(uri)
         launcher = subprocess.Popen(argv + [launch], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + 60
         while registered(master) < n:
@@ -90,13 +78,6 @@ def one_run(argv: list[str], launch: str, env: dict, n: int) -> dict:
         whole, _ = stat_cpu(launcher.pid)
         launcher.wait()
         return {"start": own + children, "run": whole + children}
-    finally:
-        rosmaster.send_signal(signal.SIGINT)
-        try:
-            rosmaster.wait(10)
-        except subprocess.TimeoutExpired:
-            rosmaster.kill()
-            rosmaster.wait()
 
 
 def main() -> int:
