@@ -5,20 +5,29 @@ coalescing, slots, back-off for failing nodes); this is the loop around it.
 Every call has a deadline to connect and one to be answered, so a hung node
 holds its one slot until then and no longer; new calls start a few at a time,
 paced, so that a thousand at once never stall the master's own replies.
+
+A node API this process serves itself (the built-in rosout's, `in_process`) is
+called, not requested: each node's restart sends the rosout a publisherUpdate,
+and over a loopback connection both ends of it were this process's work (a
+quarter of the launch's CPU in a crash loop). The outbox's order and slots are
+the same for it.
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections.abc
 import logging
 import os
 import socket
 import time
 from typing import Any, Callable
 
+from launcher import compat
 from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.outbox import Callback, Outbox, Unreachable
 from launcher.net import xmlrpc
+from launcher.net.xmlrpc_codec import Fault
 from launcher.net.http import split_uri
 from launcher.net.open_files import callback_cap
 
@@ -88,6 +97,16 @@ def is_this_host(api: str) -> bool:
     return ip.is_loopback or any(ip in net for net in _own_addresses)
 
 
+def _copied(value: Any) -> Any:
+    """`value` as XML-RPC carries it: arrays (a tuple too) and structs copied, so that neither end holds the
+    other's; the rest are immutable."""
+    if isinstance(value, (list, tuple)):
+        return [_copied(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _copied(v) for k, v in value.items()}
+    return value
+
+
 def _pid_of(result: Any) -> int | None:
     """The pid in a getPid answer (code 1, an int), else None."""
     if isinstance(result, (list, tuple)) and len(result) == 3 and result[0] == 1 and type(result[2]) is int:
@@ -100,12 +119,16 @@ class Notifier:
 
     `timeout` bounds the answer to each call, `connect_timeout` the connection;
     `max_in_flight` caps the calls in flight (by default from the open-file
-    limit), a sixteenth of them for nodes whose last call failed.
+    limit), a sixteenth of them for nodes whose last call failed;
+    `in_process`: the node APIs this process serves, URI -> the dispatch its
+    XML-RPC server calls (kept by their nodes as they start and stop).
     """
 
     def __init__(self, *, timeout: float = 10.0, connect_timeout: float = CONNECT_TIMEOUT_S,
-                 max_in_flight: int | None = None, max_queued_per_api: int = 10000):
+                 max_in_flight: int | None = None, max_queued_per_api: int = 10000,
+                 in_process: dict[str, Callable[[str, list], Any]] | None = None):
         self.timeout = timeout
+        self.in_process = {} if in_process is None else in_process
         self.connect_timeout = connect_timeout
         cap = callback_cap() if max_in_flight is None else max_in_flight
         self._outbox = Outbox(max_in_flight=cap, max_failing=max(4, cap // 16), max_queued=max_queued_per_api)
@@ -202,9 +225,13 @@ class Notifier:
         started = loop.time()
         error = None
         hung = False
+        dispatch = self.in_process.get(api)
         try:
-            result = await xmlrpc.call(api, cb.method, *cb.params, timeout=self.timeout,
-                                       connect_timeout=self.connect_timeout)
+            if dispatch is not None:
+                result = await self._call_in_process(dispatch, cb)
+            else:
+                result = await xmlrpc.call(api, cb.method, *cb.params, timeout=self.timeout,
+                                           connect_timeout=self.connect_timeout)
             if logged:
                 mlog.info("%s: sec=%0.2f, result=%s", what, loop.time() - started, result)
         except asyncio.CancelledError:
@@ -232,6 +259,19 @@ class Notifier:
             log.warning("the node at %s does not answer the master (%s): its callbacks are kept and sent "
                         "again with back-off", api, error)
         self._kick()
+
+    async def _call_in_process(self, dispatch: Callable[[str, list], Any], cb: Callback) -> Any:
+        """`cb` as the API's XML-RPC server would run it: the values copied, as a request carries them; the
+        answer awaited within `timeout`; what the handler raises, the fault the server would answer with."""
+        try:
+            result = dispatch(cb.method, _copied(cb.params))
+            if isinstance(result, collections.abc.Awaitable):
+                result = await compat.wait_for(result, self.timeout)
+        except (asyncio.CancelledError, asyncio.TimeoutError):
+            raise
+        except Exception as e:  # noqa: BLE001 - a request's handler that raises is answered with a fault
+            raise Fault(1, "%s:%s" % (type(e), e)) from None
+        return _copied(result)
 
     def pending(self) -> int:
         """Callbacks queued or in flight (for tests and shutdown)."""

@@ -58,6 +58,9 @@ class Master:
         self.shutdown_reason = ""  # the message of the `shutdown` call that set shutdown_requested
         self._server: Any = None
         self._notifier: Any = None
+        # the node APIs served in this process (the built-in rosout's): URI -> their dispatch; the master's
+        # callbacks to them are calls, not requests over loopback (notify.Notifier)
+        self.in_process_apis: dict[str, Any] = {}
         self._api: Any = None
         self._tree = ParamTree()
         self._purges: set[asyncio.Task] = set()  # (process_ended's checks under way)
@@ -77,7 +80,7 @@ class Master:
     async def start(self) -> None:
         """Listen and serve; OSError if the port is taken."""
 
-        self._notifier = Notifier(timeout=self._notify_timeout)
+        self._notifier = Notifier(timeout=self._notify_timeout, in_process=self.in_process_apis)
         self._api = MasterApi(self._notifier, self._tree, graph=self.graph)
         self._api.on_shutdown = self._on_shutdown
         self.calls = CallStats(list(self._api.methods) + ["system.multicall"])

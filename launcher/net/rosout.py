@@ -310,8 +310,11 @@ class Rosout:
 
     def __init__(self, master_uri: str, log_dir: str, *, host: str | None = None,
                  environ: Mapping[str, str] | None = None, max_file_size: int = MAX_FILE_SIZE,
-                 max_backups: int = MAX_BACKUPS, name: str = "/rosout"):
+                 max_backups: int = MAX_BACKUPS, name: str = "/rosout",
+                 in_process: dict[str, Callable[[str, list], Any]] | None = None):
+        """`in_process`: a master of this process's `in_process_apis` (net.slave.SlaveNode)."""
         self.master_uri = master_uri
+        self.in_process = in_process
         self.log_dir = log_dir
         self.host = host
         self.name = name
@@ -368,7 +371,7 @@ class Rosout:
 
     async def _start_node(self, mtype: TopicType) -> None:
         self.node = SlaveNode(self.name, self.master_uri,
-                              host=self.host or default_host(self.environ))
+                              host=self.host or default_host(self.environ), in_process=self.in_process)
         await self.node.start()
         try:
             self._agg = await self.node.advertise("/rosout_agg", mtype)

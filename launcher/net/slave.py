@@ -185,7 +185,10 @@ class Subscription:
 class SlaveNode:
     """The parts of a ROS node that the graph sees: slave API, registrations, TCPROS server."""
 
-    def __init__(self, name: str, master_uri: str, *, host: str | None = None):
+    def __init__(self, name: str, master_uri: str, *, host: str | None = None,
+                 in_process: dict[str, Callable[[str, list], Any]] | None = None):
+        """`in_process`: where a master of this process finds the APIs it calls without a request (its
+        `in_process_apis`): this node's is there while its server runs."""
         self.name = name
         self.master_uri = master_uri
         self.host = host or default_host()
@@ -196,6 +199,7 @@ class SlaveNode:
         self.shutdown_requested = compat.Event()
         self.shutdown_reason = ""
         self._xmlrpc: Any = None
+        self._in_process = in_process
 
     @property
     def publications(self) -> dict[str, Publication]:
@@ -210,6 +214,8 @@ class SlaveNode:
         self._xmlrpc = XmlRpcServer(self._dispatch, bind, 0, max_connections=max(16, connection_cap() // 4))
         await self._xmlrpc.start()
         self.uri = "http://%s:%d/" % (self.host, self._xmlrpc.port)
+        if self._in_process is not None:
+            self._in_process[self.uri] = self._dispatch
 
     async def _master(self, method: str, *params: Any, timeout: float = 10.0) -> Any:
         code, status, value = await call(self.master_uri, method, self.name, *params,
@@ -269,6 +275,8 @@ class SlaveNode:
             sub.close()
         await self.tcpros.stop()
         if self._xmlrpc is not None:
+            if self._in_process is not None:
+                self._in_process.pop(self.uri, None)
             await self._xmlrpc.stop()
             self._xmlrpc = None
 

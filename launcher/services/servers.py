@@ -160,7 +160,8 @@ class RosoutService:
         if self.master.master is None:
             return
         from launcher.net.rosout import Rosout  # (here: with a master found running, its own rosout logs)
-        rosout = Rosout(self.master.uri, self.log.run_dir, environ=self.environ)
+        rosout = Rosout(self.master.uri, self.log.run_dir, environ=self.environ,
+                        in_process=self.master.master.in_process_apis)  # (our master calls it, no request)
         try:
             await rosout.start()
         except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector

@@ -114,6 +114,52 @@ def test_non_http_apis_are_skipped_and_unreachable_ones_reported_until_forgotten
     asyncio.run(scenario())
 
 
+def test_an_api_served_in_this_process_is_called_in_order_with_copies_and_no_request():
+    # nothing listens at this port: a request there would be refused, and the API reported unreachable
+    api = "http://127.0.0.1:1/"
+    calls = []
+
+    def dispatch(method, params):
+        calls.append((method, params))
+        if params[1] == "/fails":
+            raise OSError("the handler's own error")  # a request's handler raising: a fault, not an unreachable node
+        return [1, "", [params[1]]]
+
+    async def scenario():
+        n = Notifier(timeout=5, in_process={api: dispatch})
+        uris = ["http://a:1/"]
+        results = []
+        n.publisher_update(api, "/t", uris)
+        n.param_update(api, "/fails", 1)
+        n.param_update(api, "/p", {"k": [1, 2]}, results.append)
+        await until_async(lambda: n.pending() == 0 and results, 5)
+        uris.append("http://b:2/")  # the master's list changes after: the node's copy is its own, as a request's
+        assert calls == [("publisherUpdate", ["/master", "/t", ["http://a:1/"]]),
+                         ("paramUpdate", ["/master", "/fails", 1]),
+                         ("paramUpdate", ["/master", "/p", {"k": [1, 2]}])]
+        assert calls[0][1][2] is not uris
+        assert results == [[1, "", ["/p"]]]
+        assert n.unreachable() == []
+        await n.close()
+    asyncio.run(scenario())
+
+
+def test_an_in_process_api_that_does_not_answer_in_time_is_a_hung_node():
+    api = "http://127.0.0.1:1/"
+
+    def dispatch(method, params):
+        return asyncio.sleep(30)  # (an awaitable answer, as a server's handler may give)
+
+    async def scenario():
+        n = Notifier(timeout=0.2, in_process={api: dispatch})
+        n.publisher_update(api, "/t", ["http://a:1/"])
+        await until_async(lambda: n.unreachable(), 5)
+        (u,) = n.unreachable()
+        assert (u.api, u.failures) == (api, 1)
+        await n.close()
+    asyncio.run(scenario())
+
+
 def test_a_replaced_node_is_told_to_shut_down_only_if_the_process_at_its_uri_is_older_than_its_registration():
     """ros/ros_comm#2241: the old URI of a name may be another process's now (its port reused). The master asks
     it for its pid only then (never at registration: rosmaster calls nodes only to update or stop them), and

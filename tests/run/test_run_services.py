@@ -12,7 +12,7 @@ from launcher.plan.plan import Plan
 from launcher.run.runtime import Run
 from launcher.services.servers import RunView
 
-from helpers import free_port
+from helpers import free_port, until_async
 
 
 def _run(tmp_path, body, **kwargs):
@@ -61,3 +61,25 @@ def test_a_run_without_the_servers_a_front_end_leaves_out(tmp_path):
     status, stops = _run(tmp_path, body, rosout=False, diagnostics=False, log_disk=False)
     assert status == 0 and stops == ["NodeService", "ApiServer", "MasterSession"]
     assert seen["processes"][2] == [[["master", 1]], []]
+
+
+def test_our_master_calls_the_built_in_rosout_in_process_while_it_runs(tmp_path):
+    """The publisherUpdate each node's (re)start sends the rosout is a call within the launch, not a request over
+    loopback (master/notify.py); the rosout still follows the master's list of /rosout publishers."""
+    seen = {}
+    publisher = "http://127.0.0.1:1/"  # (nobody there: the rosout's attempts to connect fail, as a dead node's)
+
+    async def body(run: Run) -> None:
+        master, rosout = run.master.master, run.rosout.rosout
+        seen["apis"] = list(master.in_process_apis)
+        seen["rosout"] = rosout.node.uri
+        code, _, _ = await call(master.uri, "registerPublisher", "/talker", "/rosout", "rosgraph_msgs/Log",
+                                publisher, timeout=5)
+        assert code == 1
+        subscription = rosout.node.subscriptions["/rosout"]
+        await until_async(lambda: publisher in subscription.retries, 10, what="the rosout told of /talker")
+        seen["master"] = master
+    status, _ = _run(tmp_path, body)
+    assert status == 0
+    assert seen["apis"] == [seen["rosout"]]
+    assert seen["master"].in_process_apis == {}  # (the rosout stopped: gone with it)
