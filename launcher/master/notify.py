@@ -97,13 +97,16 @@ def is_this_host(api: str) -> bool:
     return ip.is_loopback or any(ip in net for net in _own_addresses)
 
 
+_ARRAY_OR_STRUCT = (list, tuple, dict)
+
+
 def _copied(value: Any) -> Any:
     """`value` as XML-RPC carries it: arrays (a tuple too) and structs copied, so that neither end holds the
-    other's; the rest are immutable."""
+    other's; the rest are immutable (and a publisherUpdate's array of URIs is one list copied)."""
     if isinstance(value, (list, tuple)):
-        return [_copied(v) for v in value]
+        return [_copied(v) if isinstance(v, _ARRAY_OR_STRUCT) else v for v in value]
     if isinstance(value, dict):
-        return {k: _copied(v) for k, v in value.items()}
+        return {k: _copied(v) if isinstance(v, _ARRAY_OR_STRUCT) else v for k, v in value.items()}
     return value
 
 

@@ -131,13 +131,14 @@ def test_an_api_served_in_this_process_is_called_in_order_with_copies_and_no_req
         results = []
         n.publisher_update(api, "/t", uris)
         n.param_update(api, "/fails", 1)
-        n.param_update(api, "/p", {"k": [1, 2]}, results.append)
+        value = {"k": [1, (2, 3)]}
+        n.param_update(api, "/p", value, results.append)
         await until_async(lambda: n.pending() == 0 and results, 5)
         uris.append("http://b:2/")  # the master's list changes after: the node's copy is its own, as a request's
         assert calls == [("publisherUpdate", ["/master", "/t", ["http://a:1/"]]),
                          ("paramUpdate", ["/master", "/fails", 1]),
-                         ("paramUpdate", ["/master", "/p", {"k": [1, 2]}])]
-        assert calls[0][1][2] is not uris
+                         ("paramUpdate", ["/master", "/p", {"k": [1, [2, 3]]}])]  # (a tuple arrives as an array)
+        assert calls[0][1][2] is not uris and calls[2][1][2]["k"] is not value["k"]
         assert results == [[1, "", ["/p"]]]
         assert n.unreachable() == []
         await n.close()
