@@ -1,5 +1,5 @@
 """What the benchmark scripts share: Debian's ROS tools first on PATH, a free port, a Debian rosmaster, a process's
-CPU and peak memory.
+CPU and peak memory, the launchers compared and a workspace's environment.
 
 The scripts run as `python3 benchmarks/NAME.py`, so this folder is on their import path.
 """
@@ -11,11 +11,28 @@ import os
 import signal
 import socket
 import subprocess
+import sys
 import time
 import xmlrpc.client
 from typing import Iterator
 
 ROS_PATH = "/usr/bin:/bin:/usr/sbin:/sbin"  # Debian's ROS scripts need Debian's python: its bin first
+
+
+def launcher_commands(given: list[str]) -> list[list[str]]:
+    """`--cmd LABEL=COMMAND` options as [label, command] pairs; none given: roslaunch, the reference, and our
+    `launch` beside this Python."""
+    ours = os.path.join(os.path.dirname(sys.executable), "launch")
+    return [c.split("=", 1) for c in given] or [["roslaunch", "roslaunch"], ["launch", ours]]
+
+
+def workspace_env(root: str) -> dict:
+    """This environment for a workspace of packages under `root`/pkgs, its ROS_HOME and log folder there too, and
+    Debian's bin first on PATH (roslaunch is Debian's)."""
+    env = dict(os.environ, ROS_PACKAGE_PATH=os.path.join(root, "pkgs"), ROS_HOME=os.path.join(root, "home"),
+               ROS_LOG_DIR=os.path.join(root, "log"))
+    env["PATH"] = ROS_PATH + ":" + env.get("PATH", "")
+    return env
 
 
 def free_port() -> int:

@@ -37,7 +37,8 @@ import tempfile
 import time
 import xmlrpc.client
 
-from common import ROS_PATH, debian_rosmaster, free_port, make_package  # (this folder is on the path of a script run from it)
+# (this folder is on the path of a script run from it)
+from common import debian_rosmaster, free_port, launcher_commands, make_package, workspace_env
 import reload  # (the same roscpp node as its benchmark's)
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -87,17 +88,14 @@ def main() -> int:
     ap.add_argument("--cmd", action="append", default=[],
                     help="LABEL=COMMAND (default: roslaunch, and our launch beside this Python)")
     a = ap.parse_args()
-    ours = os.path.join(os.path.dirname(sys.executable), "launch")
-    cmds = [c.split("=", 1) for c in a.cmd] or [["roslaunch", "roslaunch"], ["launch", ours]]
+    cmds = launcher_commands(a.cmd)
     with tempfile.TemporaryDirectory(prefix="run-cpu-") as root:
         pkg = make_package(os.path.join(root, "pkgs"), "bench_reload")
         reload.tiny_node(os.path.join(pkg, "tiny_node"))
         launch = os.path.join(root, "nodes.launch")
         with open(launch, "w") as f:
             f.write(reload.launch_text(a.nodes))
-        env = dict(os.environ, ROS_PACKAGE_PATH=os.path.join(root, "pkgs"), ROS_HOME=os.path.join(root, "home"),
-                   ROS_LOG_DIR=os.path.join(root, "log"))
-        env["PATH"] = ROS_PATH + ":" + env.get("PATH", "")  # (roslaunch is Debian's: its python first)
+        env = workspace_env(root)
         results: dict[str, list[dict]] = {label: [] for label, _ in cmds}
         for rep in range(a.reps):
             for label, command in (cmds if rep % 2 == 0 else cmds[::-1]):
