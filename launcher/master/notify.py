@@ -9,8 +9,8 @@ paced, so that a thousand at once never stall the master's own replies.
 A node API this process serves itself (the built-in rosout's, `in_process`) is
 called, not requested: each node's restart sends the rosout a publisherUpdate,
 and over a loopback connection both ends of it were this process's work (a
-quarter of the launch's CPU in a crash loop). The outbox's order and slots are
-the same for it.
+tenth to a fifth of the launch's CPU in a crash loop, benchmarks/crash_loop.py).
+The outbox's order and slots are the same for it.
 """
 
 from __future__ import annotations
