@@ -61,7 +61,7 @@ def children(pid: int) -> list[int]:
     return found
 
 
-def stat(pid: int) -> tuple[str, int, float]:
+def proc_stat(pid: int) -> tuple[str, int, float]:
     """(its command name, its start in ticks since boot, its CPU seconds) from /proc/PID/stat; OSError if gone."""
     with open("/proc/%d/stat" % pid) as f:
         text = f.read()
@@ -85,7 +85,7 @@ def launcher_cpu(pid: int) -> dict[int, float]:
     cpu = {}
     for p in tree(pid):
         try:
-            name, _, seconds = stat(p)
+            name, _, seconds = proc_stat(p)
         except OSError:
             continue
         if name != NODE:
@@ -93,12 +93,18 @@ def launcher_cpu(pid: int) -> dict[int, float]:
     return cpu
 
 
+def uptime_ticks() -> float:
+    """Now, in clock ticks since boot (the clock of a process's start in /proc/PID/stat)."""
+    with open("/proc/uptime") as f:
+        return float(f.read().split()[0]) * TICK
+
+
 def old_nodes(pid: int, now_ticks: float) -> list[int]:
     """The launcher's nodes that have run for MIN_AGE_S at least."""
     found = []
     for p in tree(pid):
         try:
-            name, started, _ = stat(p)
+            name, started, _ = proc_stat(p)
         except OSError:
             continue
         if name == NODE and now_ticks - started >= MIN_AGE_S * TICK:
@@ -133,8 +139,7 @@ def one_run(argv: list[str], launch: str, env: dict, a: argparse.Namespace, rng:
         kills = 0
         while time.monotonic() - began < a.seconds:
             time.sleep(1.0 / a.kills_per_s)
-            boot_ticks = float(open("/proc/uptime").read().split()[0]) * TICK
-            nodes = old_nodes(launcher.pid, boot_ticks)
+            nodes = old_nodes(launcher.pid, uptime_ticks())
             if nodes:
                 try:
                     os.kill(rng.choice(nodes), signal.SIGKILL)
