@@ -60,12 +60,26 @@ def debian_rosmaster(port: int, env: dict, uri: str) -> Iterator[subprocess.Pope
                 time.sleep(0.02)
         yield master
     finally:
-        master.send_signal(signal.SIGINT)
+        stop_process(master, 10)
+
+def stop_process(proc: subprocess.Popen, timeout: float, group: bool = False) -> None:
+    """A Ctrl-C to `proc` (to its process group with `group`), SIGKILL if it has not ended within `timeout` s;
+    returns once it is reaped."""
+    def send(sig: int) -> None:
         try:
-            master.wait(10)
-        except subprocess.TimeoutExpired:
-            master.kill()
-            master.wait()
+            if group:
+                os.killpg(proc.pid, sig)
+            else:
+                proc.send_signal(sig)
+        except ProcessLookupError:
+            pass  # (ended already: the wait reaps it)
+    send(signal.SIGINT)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        send(signal.SIGKILL)
+        proc.wait()
+
 
 def make_package(root: str, package: str) -> str:
     """An empty package `package` under `root` (its package.xml alone); its folder."""

@@ -35,7 +35,7 @@ import time
 import xmlrpc.client
 
 # (this folder is on the path of a script run from it)
-from common import free_port, launcher_commands, make_package, workspace_env
+from common import free_port, launcher_commands, make_package, stop_process, workspace_env
 import reload  # (the same roscpp node as its benchmark's)
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -151,14 +151,7 @@ def one_run(argv: list[str], launch: str, env: dict, a: argparse.Namespace, rng:
         cpu = sum(after[p] - before[p] for p in after if p in before)
         return {"kills": kills, "cpu": cpu, "per_kill_ms": cpu / max(kills, 1) * 1e3, "core_pct": cpu / elapsed * 100}
     finally:
-        try:
-            os.killpg(launcher.pid, signal.SIGINT)
-            launcher.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(launcher.pid, signal.SIGKILL)
-            launcher.wait()
-        except ProcessLookupError:
-            launcher.wait()
+        stop_process(launcher, 30, group=True)
 
 
 def main() -> int:

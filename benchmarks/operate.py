@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -33,7 +32,7 @@ import xmlrpc.client
 
 import psutil
 
-from common import free_port  # (this folder is on the path of a script run from it)
+from common import free_port, stop_process  # (this folder is on the path of a script run from it)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -146,12 +145,7 @@ def main() -> int:
                           "launcher_cpu_polled_pct": round(100 * busy, 2), "goal": "polled <= 2% of a core",
                           "ok": busy <= 0.02}))
     finally:
-        lp.send_signal(signal.SIGINT)
-        try:
-            lp.wait(120)
-        except subprocess.TimeoutExpired:
-            lp.kill()
-            lp.wait()
+        stop_process(lp, 120)
         out.close()
     return 0
 

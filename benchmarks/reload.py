@@ -25,7 +25,6 @@ import argparse
 import json
 import os
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
@@ -33,7 +32,7 @@ import tempfile
 import time
 import xmlrpc.client
 
-from common import free_port, make_package  # (this folder is on the path of a script run from it)
+from common import free_port, make_package, stop_process  # (this folder is on the path of a script run from it)
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED_BENCH = os.path.normpath(os.path.join(REPO, "..", "shared", "bench"))
@@ -189,11 +188,7 @@ def main() -> int:
         ok = max(changes) <= 0.5 and max(nothing) <= 0.3 and set(restarts) == {1}
         return 0 if ok else 1
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_process(proc, 120)
         if not os.environ.get("KEEP"):
             shutil.rmtree(tmp, ignore_errors=True)
         else:
