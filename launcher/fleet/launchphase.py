@@ -27,7 +27,7 @@ REFUSED (a runner's bug, raised as `InvalidTransition`), as the node table's.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from launcher.model.record import record
 
 STARTING, RUNNING, ENDING, STOPPING, ENDED = "starting", "running", "ending", "stopping", "ended"
 STATES = (STARTING, RUNNING, ENDING, STOPPING, ENDED)
@@ -51,7 +51,8 @@ NOTE = "note"  # nothing to do (what the mutation check puts in place of an acti
 ALL_DEAD_TEXT = "all processes on machine have died, roslaunch will exit"
 
 
-class Launch(NamedTuple):
+@record
+class Launch:
     """The launch, as the fleet keeps it."""
 
     state: str = STARTING
@@ -62,12 +63,14 @@ class Launch(NamedTuple):
     exit_when_all_dead: bool = False
 
 
-class Event(NamedTuple):
+@record
+class Event:
     kind: str
     status: int = 0  # NODE_ENDED_IT: the exit status that node asks for
 
 
-class Action(NamedTuple):
+@record
+class Action:
     kind: str
     status: int = 0
     text: str = ""

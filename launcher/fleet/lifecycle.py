@@ -36,10 +36,10 @@ Internal states, and the state the outside (README, events file, status,
 
 from __future__ import annotations
 
-from typing import NamedTuple
 
 from launcher.model.config import NodePolicy
 from launcher.fleet import restart
+from launcher.model.record import record
 
 NEW, DELAYED, HELD, STARTING = "new", "delayed", "held", "starting"
 PENDING, LAUNCHING, LOST = "pending", "launching", "lost"
@@ -114,7 +114,8 @@ END_LAUNCH = "end launch"  # the launch ends, with exit `status`
 NOTE = "note"  # nothing to do: words for the console about what the restart policy decided (`text`)
 
 
-class Rules(NamedTuple):
+@record
+class Rules:
     """What the lifecycle table reads of a node: fixed for its life in the launch."""
 
     required: bool = False
@@ -132,7 +133,8 @@ class Rules(NamedTuple):
 LOCAL_HOST = "localhost"
 
 
-class Record(NamedTuple):
+@record
+class Record:
     """One node, as the fleet keeps it. Times are the runner's clock (`now` of each step)."""
 
     name: str  # the ROS node name, /robot/driver
@@ -160,7 +162,8 @@ class Record(NamedTuple):
     uri: str = ""  # ... and this is that run's XML-RPC URI
 
 
-class Event(NamedTuple):
+@record
+class Event:
     kind: str
     pid: int | None = None
     exit_code: int | None = None
@@ -174,7 +177,8 @@ class Event(NamedTuple):
     uri: str = ""  # REGISTERED, UNREGISTERED: the registration's URI
 
 
-class Action(NamedTuple):
+@record
+class Action:
     kind: str
     delay: float = 0.0
     status: int = 0

@@ -17,9 +17,8 @@ least MIN_RESPAWN_INTERVAL_S (roslaunch's 0.1 s monitor loop gives the same pace
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 from launcher.model.config import NodePolicy
+from launcher.model.record import record
 
 MIN_RESPAWN_INTERVAL_S = 0.1
 
@@ -28,7 +27,8 @@ RESPAWN = "respawn"
 FATAL = "fatal"
 
 
-class Decision(NamedTuple):
+@record
+class Decision:
     action: str  # STAY_DOWN, RESPAWN or FATAL
     failures: int  # failed starts in a row, this run counted
     delay: float = 0.0  # seconds from now until the next start (RESPAWN)

@@ -39,7 +39,7 @@ import collections
 import collections.abc
 import json
 import time
-from typing import Callable, Iterable, NamedTuple
+from typing import Callable, Iterable
 
 from launcher import compat
 from launcher.fleet import launchphase, lifecycle
@@ -47,6 +47,7 @@ from launcher.fleet.lastexit import run_ended
 from launcher.fleet.lifecycle import LOCAL_HOST, Event, Record, Rules
 from launcher.fleet.relations import follow_ups, stop_first
 from launcher.fleet.samples import Samples
+from launcher.model.record import record
 from launcher.model.units import format_size
 from launcher.plan.relations import Relations
 
@@ -129,7 +130,8 @@ class NodeStatus:
                 "cpu_seconds": round(self.cpu_seconds, 3)}
 
 
-class Change(NamedTuple):
+@record
+class Change:
     """One step of one node: what every view listens to."""
 
     seq: int  # 1, 2, ... in the order of the changes of this run

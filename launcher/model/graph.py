@@ -10,12 +10,15 @@ through them hang, stall, systemd's READY=1 and the bound-node holds) listens he
 from __future__ import annotations
 
 import sys
-from typing import Callable, Iterable, NamedTuple
+from typing import Callable, Iterable
+
+from launcher.model.record import record
 
 NODE, TOPIC, SERVICE = "node", "topic", "service"
 
 
-class GraphChange(NamedTuple):
+@record
+class GraphChange:
     """A node registered (`present`, at `uri`) or went; a topic got its first publisher or lost its last one;
     a service got a provider or lost it (`uri` is then "")."""
 

@@ -15,12 +15,14 @@ stop, the launch's stop order).
 
 from __future__ import annotations
 
-from typing import Iterable, Mapping, NamedTuple
+from typing import Iterable, Mapping
 
 from launcher.model.config import NodePolicy
+from launcher.model.record import record
 
 
-class Relations(NamedTuple):
+@record
+class Relations:
     """Each node's relations to the other nodes of its machine, by node name, in the order the nodes were given."""
 
     bound: Mapping[str, tuple[str, ...]] = {}  # a node -> the nodes bound to it (bind_to)

@@ -21,9 +21,10 @@ import os
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING, Any, Awaitable, Callable, Coroutine, Iterator, NamedTuple
+from typing import TYPE_CHECKING, Any, Awaitable, Callable, Coroutine, Iterator
 
 from launcher import compat
+from launcher.model.record import record
 from launcher.services import masterlink
 from launcher.model.errors import LaunchError
 from launcher.services.masterlink import MasterSession
@@ -51,7 +52,8 @@ if TYPE_CHECKING:  # (annotations only: each is imported where a reload or a scr
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
-class Step(NamedTuple):
+@record
+class Step:
     """One step of a run's start (`Run._steps`)."""
 
     service: Service | None  # the service it starts (the run's stop stops it), or None: a step of one already up

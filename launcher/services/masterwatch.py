@@ -26,11 +26,12 @@ with the launch.
 from __future__ import annotations
 
 import asyncio
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST
 from launcher.model.graph import NODE, SERVICE, TOPIC
+from launcher.model.record import record
 from launcher.net.xmlrpc import call
 from launcher.output import console
 
@@ -55,7 +56,8 @@ BACK = "back"  # it answers again, with its state (the same /run_id)
 RESTARTED = "restarted"  # a new master: its /run_id changed or went
 
 
-class Answer(NamedTuple):
+@record
+class Answer:
     """One ask of the master: did it answer, its /run_id (None: not set), the nodes asked about and those
     of them it knows."""
 
