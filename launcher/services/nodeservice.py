@@ -141,19 +141,23 @@ class NodeService:
         self._write_record()
 
     def _write_record(self) -> None:
-        """The run's record and parameters into its log directory (services/runrecord.py), in a worker thread."""
+        """The run's record and parameters into its log directory (services/runrecord.py): at once when the
+        parameters' text came made with the plan (run/apart.py: two small files), else in a worker thread (the
+        YAML of thousands of parameters must not hold the loop). A thread costs a launch ~0.1 MB for good."""
         run_dir = self.log.run_dir
         if not run_dir:
             return
         run = runrecord.record(self.plan.config, os.path.basename(run_dir), self.plan.environ, self._packages, sys.argv)
 
-        def written(done: asyncio.Future) -> None:
-            problem = done.result() if not done.cancelled() and done.exception() is None else str(done.exception())
+        def written(problem: str) -> None:
             if problem:
                 console.printerrlog("WARNING: %s (launcher report will miss it)" % problem)
-        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config,
-                                                             self.plan.params_text)
-        task.add_done_callback(written)
+        if self.plan.params_text is not None:
+            written(runrecord.write(run_dir, run, self.plan.config, self.plan.params_text))
+            return
+        task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config)
+        task.add_done_callback(lambda done: written(done.result() if not done.cancelled() and done.exception() is None
+                                                    else str(done.exception())))
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:
         """What this run is, for the launch log: files, args, environment, parameters, command lines."""

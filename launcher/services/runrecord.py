@@ -4,9 +4,10 @@ versions) and `launcher-params.yaml` (the parameters it set, as `--dump-params` 
 
 The parameters live in the master only while it runs; `launcher report` reads
 both files, so a run's archive holds them after the launch has ended. Written
-once the nodes are started, in a worker thread (a launch of thousands of
-parameters must not hold its loop for the YAML), as the user's own files: the
-secrets in them are left out only where they leave the machine, by the report.
+once the nodes are started (in a worker thread when the parameters' YAML is yet
+to be made: a launch of thousands of parameters must not hold its loop for it),
+as the user's own files: the secrets in them are left out only where they leave
+the machine, by the report.
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ NOT_NEEDED = (
     "http.server", "xmlrpc.server", "lxml", "prompt_toolkit", "argparse", "email",
     "_ssl", "_hashlib", "hmac",  # libcrypto: asyncio imported without ssl (its attempt is listed), token by hand
     "datetime", "dataclasses", "uuid", "platform", "urllib", "ipaddress", "base64",
+    "concurrent.futures.thread",  # no worker thread: the run record is written at once (services/nodeservice)
 )
 IMPORTED = re.compile(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", re.M)
 
