@@ -117,20 +117,22 @@ class TestHosts:
 
     # ---- set-up -------------------------------------------------------------------------------------
 
-    def _free_subnet(self) -> int:
+    def _claim_subnet(self) -> int:
+        """A subnet no address of this machine is on, claimed by making its bridge: the bridge's name is the lock
+        (two test runs at once, as CI runs its two whole suites, may find the same subnet free; one makes it)."""
         used = _ip("-o", "-4", "addr").stdout
         for k in range(100, 250):
-            if " %s.%d." % (SUBNET_PREFIX, k) not in used:
+            if " %s.%d." % (SUBNET_PREFIX, k) not in used and \
+                    _ip("link", "add", "lt%dbr" % k, "type", "bridge", check=False).returncode == 0:
                 return k
         raise RuntimeError("no free %s.K.0/24 subnet" % SUBNET_PREFIX)
 
     def _setup(self, count: int) -> None:
-        k = self._free_subnet()
+        k = self._claim_subnet()
         tag = "lt%d" % k
         self.subnet = "%s.%d" % (SUBNET_PREFIX, k)
         self.gateway = self.subnet + ".1"
         self.bridge = tag + "br"
-        _ip("link", "add", self.bridge, "type", "bridge")
         _ip("addr", "add", self.gateway + "/24", "dev", self.bridge)
         _ip("link", "set", self.bridge, "up")
         self._keys()
