@@ -54,6 +54,13 @@ while not rospy.is_shutdown():
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
+def on_page(cond, timeout: float, period: float = 0.02, what: str = "condition"):
+    """`until` for what the page shows: an element the page drew again between its finding and its reading (a
+    stale element, as under load, when an update comes in between) means "not yet"."""
+    from selenium.common.exceptions import StaleElementReferenceException
+    return until(cond, timeout, period, what=what, errors=(StaleElementReferenceException,))
+
+
 @pytest.fixture
 def browser():
     webdriver = pytest.importorskip("selenium.webdriver") if not os.environ.get("REQUIRE_ROS") else \
@@ -119,10 +126,10 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
         def page_pid(name: str) -> str:
             cells = browser.find_elements(By.CSS_SELECTOR, "tr[data-node='%s'] td.pid" % name)
             return cells[0].text if cells else ""
-        until(lambda: all(page_pid(n) == str(pids[n]) for n in names), 30, 0.2, what="every row with its pid")
+        on_page(lambda: all(page_pid(n) == str(pids[n]) for n in names), 30, 0.2, what="every row with its pid")
         assert "127.0.0.1:%d" % port in browser.find_element(By.ID, "bound").text
         # an output="log" node's ERROR lines from /rosout, tagged and in their level's colour; not its INFO
-        until(lambda: any(e.text.startswith("[/warner] ERROR broken") for e in browser.find_elements(
+        on_page(lambda: any(e.text.startswith("[/warner] ERROR broken") for e in browser.find_elements(
             By.CSS_SELECTOR, "#output span.level-ERROR")), 30, 0.2, what="the log node's ERROR line, coloured")
         assert "fine" not in browser.find_element(By.ID, "output").text
         # restart /talker with the token: asked once, kept in the tab
@@ -132,12 +139,12 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
         alert = until(lambda: browser.switch_to.alert, 10, what="the token prompt")
         alert.send_keys(token)
         alert.accept()
-        new = until(lambda: (lambda p: p if p.isdigit() and int(p) != pids["/talker"] else None)(page_pid("/talker")),
+        new = on_page(lambda: (lambda p: p if p.isdigit() and int(p) != pids["/talker"] else None)(page_pid("/talker")),
                     60, 0.2, what="the new pid in the page")
         st = {n["name"]: n for n in status(env)["nodes"]}
         assert st["/talker"]["pid"] == int(new) and st["/talker"]["restarts"] == 1
         # a page opened later gets the last samples at once (its sparklines are not empty)
-        assert until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener'] svg polyline"), 10,
+        assert on_page(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener'] svg polyline"), 10,
                      0.2, what="a sparkline")
         def snapshot() -> dict:
             with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
@@ -160,12 +167,12 @@ def test_the_page_shows_restarts_and_lists_topics_and_the_server_refuses_strange
                     return cells
             browser.refresh()
             return None
-        cells = until(chatter, 30, 0.5, what="/chatter on the topics page")
+        cells = on_page(chatter, 30, 0.5, what="/chatter on the topics page")
         assert cells[1] == "std_msgs/String" and "/talker" in cells[2] and "/listener" in cells[3]
         shots = os.environ.get("LAUNCHER_SCREENSHOTS")  # (benchmarks/screenshots: the README's images)
         if shots:
             browser.get("http://127.0.0.1:%d/" % port)
-            until(lambda: page_pid("/talker") == new, 30, 0.2, what="page again")
+            on_page(lambda: page_pid("/talker") == new, 30, 0.2, what="page again")
             browser.save_screenshot(os.path.join(shots, "web.png"))
 
         # a raw client: no token, a foreign Origin, a foreign Host (DNS rebinding): refused
@@ -244,8 +251,9 @@ def test_the_address_printed_on_a_terminal_gives_a_page_whose_stop_button_needs_
         until(lambda: browser.current_url == "http://127.0.0.1:%d/" % port, 10, 0.1,
               what="the token out of the address bar (%s)" % browser.current_url)
         listener = {n["name"]: n for n in info["nodes"]}["/listener"]["pid"]
-        until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener'] td.pid") and browser.find_element(
-            By.CSS_SELECTOR, "tr[data-node='/listener'] td.pid").text == str(listener), 30, 0.2, what="/listener's row")
+        on_page(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener'] td.pid")
+                and browser.find_element(By.CSS_SELECTOR, "tr[data-node='/listener'] td.pid").text == str(listener),
+                30, 0.2, what="/listener's row")
         browser.find_element(By.CSS_SELECTOR, "tr[data-node='/listener'] button[data-verb='stop']").click()
 
         def no_prompt() -> bool:
@@ -257,7 +265,7 @@ def test_the_address_printed_on_a_terminal_gives_a_page_whose_stop_button_needs_
         stopped = until(lambda: no_prompt() and {n["name"]: n["state"] for n in status(env)["nodes"]}["/listener"]
                         == "stopped", 60, 0.2, what="/listener stopped by the page's button")
         assert stopped
-        until(lambda: browser.find_element(By.CSS_SELECTOR, "tr[data-node='/listener'] td.state").text == "stopped",
+        on_page(lambda: browser.find_element(By.CSS_SELECTOR, "tr[data-node='/listener'] td.state").text == "stopped",
               30, 0.2, what="the page showing /listener stopped")
         assert "token" not in browser.current_url and no_prompt()
         assert {n["name"]: n["state"] for n in status(env)["nodes"]}["/talker"] == "running"
@@ -291,12 +299,12 @@ def test_the_reload_button_applies_the_changed_files(tmp_path, browser):
         alert = until(lambda: browser.switch_to.alert, 10, what="the token prompt")
         alert.send_keys(token)
         alert.accept()
-        until(lambda: "reloaded: start /listener: new in the launch" in browser.find_element(By.ID, "message").text,
+        on_page(lambda: "reloaded: start /listener: new in the launch" in browser.find_element(By.ID, "message").text,
               30, 0.2, what="the reload's answer in the page")
         st = until(lambda: (lambda s: s if s.get("/listener", {}).get("state") == "running" else None)(
             {n["name"]: n for n in status(env)["nodes"]}), 60, 0.2, what="listener running")
         assert st["/talker"]["pid"] == talker
-        until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener']"), 30, 0.2,
+        on_page(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/listener']"), 30, 0.2,
               what="the new node's row in the page")
     finally:
         lp.close()
@@ -638,7 +646,7 @@ def test_the_pages_last_exit_shows_while_a_crash_looping_node_runs_again(tmp_pat
         def cell(name: str) -> str:
             cells = browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/crasher'] td.%s" % name)
             return cells[0].text if cells else ""
-        until(lambda: cell("restarts") not in ("", "0"), 60, 0.2, what="the crasher restarted in the page")
+        on_page(lambda: cell("restarts") not in ("", "0"), 60, 0.2, what="the crasher restarted in the page")
         for page in range(2):
             states = set()
             for _ in range(6):
@@ -647,7 +655,7 @@ def test_the_pages_last_exit_shows_while_a_crash_looping_node_runs_again(tmp_pat
                 time.sleep(0.3)  # (samples 0.3 s apart)
             assert "running" in states, states
             browser.get("http://127.0.0.1:%d/" % port)  # (a page opened later)
-            until(lambda: cell("exit") != "", 30, 0.2, what="the row in a new page")
+            on_page(lambda: cell("exit") != "", 30, 0.2, what="the row in a new page")
     finally:
         lp.close()
 
@@ -674,11 +682,11 @@ def test_a_page_opened_while_the_launch_sets_up_says_it_is_starting_until_the_no
         until(lambda: raw(port, b"GET / HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nConnection: close\r\n\r\n" % port),
               30, 0.1, what="the page server", errors=(OSError,))
         browser.get("http://127.0.0.1:%d/" % port)
-        until(lambda: browser.find_element(By.ID, "message").text == STARTING, 10, 0.05, what="the page saying so")
+        on_page(lambda: browser.find_element(By.ID, "message").text == STARTING, 10, 0.05, what="the page saying so")
         assert not browser.find_elements(By.CSS_SELECTOR, "tr[data-node]")
         loop.call_soon_threadsafe(make_nodes)
-        until(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/a']"), 10, 0.05, what="/a's row")
-        until(lambda: browser.find_element(By.ID, "message").text == "", 10, 0.05, what="the word gone")
+        on_page(lambda: browser.find_elements(By.CSS_SELECTOR, "tr[data-node='/a']"), 10, 0.05, what="/a's row")
+        on_page(lambda: browser.find_element(By.ID, "message").text == "", 10, 0.05, what="the word gone")
     finally:
         if web is not None:
             web.terminate()
