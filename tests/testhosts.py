@@ -119,7 +119,8 @@ class TestHosts:
 
     def _claim_subnet(self) -> int:
         """A subnet no address of this machine is on, claimed by making its bridge: the bridge's name is the lock
-        (two test runs at once, as CI runs its two whole suites, may find the same subnet free; one makes it)."""
+        (two test runs at once, a whole suite on two Pythons side by side, may find the same subnet free; one makes
+        it)."""
         used = _ip("-o", "-4", "addr").stdout
         for k in range(100, 250):
             if " %s.%d." % (SUBNET_PREFIX, k) not in used and \

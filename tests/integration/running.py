@@ -78,7 +78,7 @@ def compile_roscpp(source_name: str, dest: str, libs: tuple[str, ...] = ()) -> s
             flags = ("-lroscpp -lboost_chrono -lboost_filesystem -lrosconsole -lrosconsole_log4cxx "
                      "-lrosconsole_backend_interface -llog4cxx -lboost_regex -lboost_system -lboost_thread "
                      "-lroscpp_serialization -lxmlrpcpp -lrostime -lcpp_common").split()
-        made = "%s.%d.tmp" % (exe, os.getpid())  # (each test run its own: CI runs two suites at once)
+        made = "%s.%d.tmp" % (exe, os.getpid())  # (each test run its own: two suites may run at once)
         subprocess.run(["g++", "-O1", "-o", made, src] + flags + list(libs), check=True)
         os.replace(made, exe)
     shutil.copy2(exe, dest)
