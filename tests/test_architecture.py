@@ -102,7 +102,7 @@ for _part in MAY_IMPORT:
 ONLY = {_ + module: {_ + d for d in deps.split()} for module, deps in {
     "model.names": "", "model.errors": "", "model.units": "", "model.suggest": "", "model.shellwords": "",
     "model.record": "", "model.runopts": "model.record", "model.token": "", "model.patterns": "",
-    "model.config": "model.names model.record",
+    "model.config": "model.names model.record", "model.graph": "model.record",
     "workspace.roshome": "", "workspace.nodepython": "", "workspace.crawlcache": "workspace.roshome",
     "master.callstats": "",
 }.items()}
