@@ -5,7 +5,12 @@ every registration. rospy nodes never register again by themselves
 (clearpathrobotics/robot_upstart#35), so they run on, unreachable. A master
 has no way to tell anyone it started, so the launch asks it: once every
 WATCH_PERIOD_S, one system.multicall with getParam('/run_id') and, for each
-running node not yet seen registered in its current run, lookupNode. A
+running node not yet seen registered in its current run, lookupNode: each
+round for its first UNSEEN_ASKS rounds, then at gaps that double up to
+RESTING_GAP (a program that never registers, not a ROS node, costs the master
+and the launch next to nothing; a node that registers late is still seen
+within RESTING_GAP rounds), never for a node whose `registers="false"` says it
+is none. A
 restart is a /run_id that changed or went (roscore sets a new one; a bare
 rosmaster has none), seen whether or not the master stopped answering in
 between (a restart may fall between two asks). A master that stops answering
@@ -44,8 +49,11 @@ CALLER_ID = "/roslaunch"
 WATCH_PERIOD_S = 1.0
 WATCH_TIMEOUT_S = 3.0  # an answer slower than this counts as none
 # A run not seen registered by this many asks is taken for a process that does not register (not a ROS node):
-# it is not restarted with the master.
+# it is not restarted with the master, and asked about less and less often: the gaps double up to RESTING_GAP
+# rounds. Asked every second, a hundred such processes held 0.8% of a core in the launch (and the master's
+# answers); a node that registers late (a slow init_node) still reaches the run's graph within RESTING_GAP.
 UNSEEN_ASKS = 5
+RESTING_GAP = 16
 
 _UP = (lifecycle.RUNNING, lifecycle.STALLED)  # a run that may have registered, and can be restarted
 
@@ -69,6 +77,23 @@ class Answer:
     state: tuple[tuple[str, ...], tuple[str, ...]] | None = None  # (topics published, services), when asked
 
 
+@record
+class Run:
+    """What the asks told of one node's current run."""
+
+    pid: int
+    registered: bool  # seen registered
+    misses: int  # asks that found it not (yet) registered
+    due: int  # the round from which it is asked about again
+
+
+def gap(misses: int) -> int:
+    """Rounds from an ask that found a run not registered, the `misses`-th such ask, to its next ask."""
+    if misses < UNSEEN_ASKS:
+        return 1
+    return min(RESTING_GAP, 2 ** (misses - UNSEEN_ASKS + 1))
+
+
 class MasterState:
     """What the launch knows of the master: the /run_id it last had, whether it answers, and for the run of
     each node (by pid) whether it was seen registered or how many asks found it not (yet) registered."""
@@ -76,12 +101,25 @@ class MasterState:
     def __init__(self, run_id: str | None):
         self.run_id = run_id
         self.down = False
-        self.runs: dict[str, tuple[int, bool, int]] = {}  # node name -> (pid, seen registered, asks not)
+        self.round = 0  # the asks so far: one a round
+        self.runs: dict[str, Run] = {}  # node name -> its current run, once asked about
 
     def to_ask(self, running: dict[str, int]) -> list[str]:
-        """The running nodes (name -> pid) whose current run has not been seen registered yet."""
+        """A new round: the running nodes (name -> pid) to ask about in it: each whose current run was not seen
+        registered yet and is due (a new run is at once)."""
+        self.round += 1
+        return [name for name, pid in running.items() if self._due(name, pid)]
+
+    def resting(self, running: dict[str, int]) -> list[str]:
+        """The running nodes not asked about in this round though not seen registered: runs past UNSEEN_ASKS
+        misses, between two asks."""
         runs = self.runs
-        return [name for name, pid in running.items() if runs.get(name, (0, False, 0))[:2] != (pid, True)]
+        return [name for name, pid in running.items()
+                if not self._due(name, pid) and not runs[name].registered]
+
+    def _due(self, name: str, pid: int) -> bool:
+        run = self.runs.get(name)
+        return run is None or run.pid != pid or (not run.registered and run.due <= self.round)
 
     def seen(self, answer: Answer, running: dict[str, int]) -> str:
         """The verdict on one answer; `running` (name -> pid) is what was running when it was asked."""
@@ -98,9 +136,12 @@ class MasterState:
             pid = running.get(name)
             if pid is None:
                 continue
-            old_pid, _seen, misses = self.runs.get(name, (pid, False, 0))
-            misses = misses if old_pid == pid else 0
-            self.runs[name] = (pid, True, misses) if name in registered else (pid, False, misses + 1)
+            run = self.runs.get(name)
+            misses = run.misses if run is not None and run.pid == pid else 0
+            if name in registered:
+                self.runs[name] = Run(pid, True, misses, self.round)
+            else:
+                self.runs[name] = Run(pid, False, misses + 1, self.round + gap(misses + 1))
         return BACK if was_down else SAME
 
     def restarted(self, run_id: str | None, running: dict[str, int]) -> list[str]:
@@ -111,8 +152,8 @@ class MasterState:
         self.run_id = run_id
         names = []
         for name, pid in sorted(running.items()):
-            run_pid, registered, misses = self.runs.get(name, (pid, False, 0))
-            if run_pid != pid or registered or misses < UNSEEN_ASKS:
+            run = self.runs.get(name)
+            if run is None or run.pid != pid or run.registered or run.misses < UNSEEN_ASKS:
                 names.append(name)
         self.runs.clear()
         return names
@@ -141,20 +182,23 @@ class MasterWatch:
             self._task = None
 
     def _running(self) -> dict[str, int]:
-        """This machine's running nodes: name -> pid."""
+        """This machine's running nodes that register (`registers="false"`: a program that never will): name ->
+        pid."""
         fleet = self.nodes.fleet
         if fleet is None:
             return {}
         return {r.name: r.pid for r in fleet.records.values()
-                if r.state in _UP and r.pid and r.host == LOCAL_HOST}
+                if r.state in _UP and r.pid and r.host == LOCAL_HOST and r.rules.policy.registers}
 
-    def _graph_names(self, asked: list[str]) -> list[str]:
+    def _graph_names(self, asked: list[str], resting: list[str]) -> list[str]:
         """The other names whose registration someone waits for: a node a held node waits for, a node of the
-        launch (here or on another machine) running and not registered yet."""
+        launch (here or on another machine) running and not registered yet, unless its asks are resting."""
         fleet = self.nodes.fleet
         names = [name for kind, name in sorted(self.session.graph.wanted) if kind == NODE]
         if fleet is not None:
-            names += [r.name for r in fleet.records.values() if r.state in _UP and not r.registered]
+            skip = set(resting)
+            names += [r.name for r in fleet.records.values()
+                      if r.state in _UP and not r.registered and r.rules.policy.registers and r.name not in skip]
         seen = set(asked)
         return [n for n in names if not (n in seen or seen.add(n))]
 
@@ -191,7 +235,7 @@ class MasterWatch:
             running = self._running()
             names = self.state.to_ask(running)
             graph = self.session.graph
-            answer = await self._ask(names + self._graph_names(names),
+            answer = await self._ask(names + self._graph_names(names, self.state.resting(running)),
                                      any(kind in (TOPIC, SERVICE) for kind, _ in graph.wanted))
             verdict = self.state.seen(answer, running)
             if verdict in (SAME, BACK):
