@@ -17,8 +17,10 @@ class ToolError(Exception):
 class NotOurs(ToolError):
     """The run asked about is roslaunch's or roscore's (operate/lastrun.py): no events file, no states to tell."""
 
-    def __init__(self, message: str):
+    def __init__(self, message: str, run_id: str = "", run_dir: str = ""):
         super().__init__(message, EXIT_NO_LAUNCH)
+        self.run_id = run_id
+        self.run_dir = run_dir
 
 
 class NoAnswer(ToolError):

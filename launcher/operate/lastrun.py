@@ -199,7 +199,8 @@ def read(run_dir: str, latest: bool = True) -> LastRun:
     if not has_events and not ours:
         raise errors.NotOurs("%s, %s, is roslaunch's (or roscore's), not a run of `launch`: it has no %s, and "
                                "`launcher` cannot tell its nodes' states; its logs are in %s"
-                               % ("the last run" if latest else "the run", run_id, EVENTS_FILE, run_dir))
+                               % ("the last run" if latest else "the run", run_id, EVENTS_FILE, run_dir),
+                             run_id, run_dir)
     pid, host, (line_at, line) = None, "", (None, "")
     if ours:
         path = max(ours, key=_mtime)  # (the last launch, when several shared the run: see stdout_log)

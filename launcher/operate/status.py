@@ -10,7 +10,9 @@ redraws at each change of the launch's stream (`launcher_changes`, a long poll)
 and every second between them (uptimes, CPU), and once the launch has ended
 shows that run as its files tell it. When no launch answers, the last run's end and each
 node's state then (operate/lastrun.py; exit status 3: nothing runs); `--run
-RUN_ID` shows that run's.
+RUN_ID` shows that run's. A run of roslaunch's has no states to tell: that is
+said where the status would be, with `--json` as an object of its `run_id`,
+`log_dir` and the `error` in words (exit status 3).
 """
 
 from __future__ import annotations
@@ -70,7 +72,10 @@ def _main(argv: list[str]) -> int:
     try:
         first, last = client.live_or_last(opts, lambda uri: (uri, snapshot(uri)))
     except client.NotOurs as e:  # (a status to read, though not one of ours: said where the status would be)
-        sys.stdout.write("%s\n" % e)
+        if opts.json:  # (as an object, so that a script reading the status gets JSON whatever the run)
+            sys.stdout.write(json.dumps({"run_id": e.run_id, "log_dir": e.run_dir, "error": str(e)}) + "\n")
+        else:
+            sys.stdout.write("%s\n" % e)
         return e.status
     if last is not None:
         show_last(last, opts.json)

@@ -773,6 +773,11 @@ def test_after_the_launch_ended_status_events_and_logs_read_the_last_run(tmp_pat
     assert r.returncode == 3 and re.fullmatch(r"the last run, [-\w]+, is roslaunch's \(or roscore's\), not a run of "
                                               r"`launch`: it has no launcher-events.jsonl, .*\n", r.stdout), r.stdout
     assert r.stderr.startswith("launcher: ") and r.stderr.count("\n") == 1, r.stderr
+    # --json says the same as one JSON object: a script reading the status gets JSON whatever the run is
+    r = tool(env, "status", "--json")
+    said = json.loads(r.stdout)
+    assert r.returncode == 3 and said["error"].startswith("the last run, %s, is roslaunch's" % said["run_id"])
+    assert os.path.basename(said["log_dir"]) == said["run_id"] and os.path.isdir(said["log_dir"])
 
 
 Crasher = "#!/bin/sh\nsleep 0.5\nexit 3\n"

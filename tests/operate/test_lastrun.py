@@ -122,6 +122,7 @@ def test_a_roslaunch_run_is_said_to_be_one(tmp_path):
         lastrun.read(str(d))
     assert str(e.value) == ("the last run, run-5, is roslaunch's (or roscore's), not a run of `launch`: it has no "
                             "launcher-events.jsonl, and `launcher` cannot tell its nodes' states; its logs are in %s" % d)
+    assert (e.value.run_id, e.value.run_dir) == ("run-5", str(d))  # (what `status --json` prints of it)
 
 
 def test_latest_or_a_named_run(tmp_path):
