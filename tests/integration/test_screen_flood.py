@@ -131,7 +131,16 @@ def test_two_floods_and_a_crashing_neighbour_keep_every_line_whole_and_in_order(
         stop_group(proc, 30)
         cat.wait(30)
         os.close(terminal)
+    # the copies first: they are what the relay read from each node, so a failure below is in what it wrote
+    for name in ("flood1", "flood2"):
+        copy, = (tmp_path / "log" / "latest").glob("%s-*-stdout.log" % name)
+        assert flood_lines(copy.read_bytes(), [name])[name] == list(range(per_node))
     text = read(screen)
+    for name in ("flood1", "flood2"):  # (which lines the terminal lacks, should it lack any)
+        on_screen = set(int(n) for n in re.findall(rb"%s (\d{8}) ~" % name.encode(), text))
+        missing = sorted(set(range(per_node)) - on_screen)
+        assert not missing, "%s: %d lines missing on the terminal, from %d to %d" % (
+            name, len(missing), missing[0], missing[-1])
     seen = flood_lines(text, ["flood1", "flood2"])
     for name, numbers in seen.items():
         assert numbers == list(range(per_node)), "%s: %d lines, not each once in order" % (name, len(numbers))
@@ -139,10 +148,6 @@ def test_two_floods_and_a_crashing_neighbour_keep_every_line_whole_and_in_order(
     crasher = [line for line in text.replace(b"\r\n", b"\n").split(b"\n") if b"crasher line" in line]
     assert len(crasher) >= 40 and all(re.fullmatch(rb"crasher line \d+", line) for line in crasher), crasher
     assert text.count(LAST_WORDS) >= 2
-    # the copies are whole and in order as well
-    for name in ("flood1", "flood2"):
-        copy, = (tmp_path / "log" / "latest").glob("%s-*-stdout.log" % name)
-        assert flood_lines(copy.read_bytes(), [name])[name] == list(range(per_node))
     # and no byte of it was taken line by line: the fast path ran (the launch log's count)
     as_read, by_line = map(int, re.search(r"screen relay: (\d+) bytes .*, (\d+) line by line",
                                           launch_log(tmp_path)).groups())
