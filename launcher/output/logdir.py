@@ -23,19 +23,25 @@ FIRST_CHECK_DELAY_S = 2.0
 RECHECK_INTERVAL_S = 600.0
 
 def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
-    """Create `<log root>/<run_id>` and point `<log root>/latest` at it (as rosgraph.roslogging does)."""
-    root = log_root(environ)
-    run_dir = os.path.join(root, run_id)
+    """Create `<log root>/<run_id>` (`point_latest` then points `latest` at it, as rosgraph.roslogging does)."""
+    run_dir = os.path.join(log_root(environ), run_id)
     try:
         os.makedirs(run_dir, exist_ok=True)
     except OSError as e:
         raise LaunchError("unable to create directory for log files [%s]: %s" % (run_dir, e.strerror)) from None
-    latest = os.path.join(root, "latest")
+    return run_dir
+
+
+def point_latest(run_dir: str) -> None:
+    """Point `latest`, beside the run's directory, at it: once the launch log has its first line, so that
+    `launcher status` reading `latest` at that moment finds a run of `launch`'s, not a directory it cannot tell
+    from roslaunch's."""
+    latest = os.path.join(os.path.dirname(run_dir), "latest")
     try:
         if os.path.lexists(latest):
             if not os.path.islink(latest):
                 console.printerrlog("INFO: cannot create a symlink to latest log directory")
-                return run_dir
+                return
             # replace atomically: another launch may be reading it
             tmp = latest + ".%d" % os.getpid()
             os.symlink(run_dir, tmp)
@@ -44,7 +50,6 @@ def make_run_log_dir(environ: Mapping[str, str], run_id: str) -> str:
             os.symlink(run_dir, latest)
     except OSError as e:
         console.printerrlog("INFO: cannot create a symlink to latest log directory: %s" % e)
-    return run_dir
 
 
 def _du_argv(path: str) -> list[str] | None:

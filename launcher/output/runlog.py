@@ -18,7 +18,7 @@ import time
 from typing import Any, Callable, Mapping
 
 from launcher.output import console
-from launcher.output.logdir import make_run_log_dir
+from launcher.output.logdir import make_run_log_dir, point_latest
 from launcher.fleet.state import Change, visible
 
 
@@ -32,16 +32,17 @@ class RunLog:
         self._file: Any = None
 
     def open(self, run_id: str) -> str:
-        """Make the run's directory (and `latest`) and start the launch log; the directory."""
+        """Make the run's directory, start the launch log and point `latest` at the directory; the directory."""
         self.run_dir = make_run_log_dir(self.environ, run_id)
         self.path = os.path.join(self.run_dir, "roslaunch-%s-%d.log" % (socket.gethostname(), os.getpid()))
         try:
             self._file = open(self.path, "a", buffering=1)
         except OSError:
             self._file = None
-            return self.run_dir
-        console.add_handler(self._write)
-        console.printlog("... logging to %s" % self.path)
+        else:
+            console.add_handler(self._write)
+            console.printlog("... logging to %s" % self.path)
+        point_latest(self.run_dir)  # (after that first line: see point_latest)
         return self.run_dir
 
     def note(self, msg: str) -> None:

@@ -20,9 +20,33 @@ def test_log_root_follows_ros_log_dir_then_ros_home(tmp_path):
 def test_run_dir_and_latest_link(tmp_path):
     env = {"ROS_LOG_DIR": str(tmp_path / "log")}
     first = logdir.make_run_log_dir(env, "run-1")
+    logdir.point_latest(first)
     second = logdir.make_run_log_dir(env, "run-2")
     assert os.path.isdir(first) and os.path.isdir(second)
+    assert os.readlink(tmp_path / "log" / "latest") == first  # (not yet: the run's launch log comes first)
+    logdir.point_latest(second)
     assert os.readlink(tmp_path / "log" / "latest") == second
+
+
+def test_latest_points_at_a_run_whose_launch_log_has_its_first_line(tmp_path, monkeypatch):
+    """`launcher status` asked at any moment of a start reads `latest` as a run of `launch`'s, never as a directory
+    without its launch log (which it would take for roslaunch's)."""
+    from launcher.operate import lastrun
+    from launcher.output import runlog
+    env = {"ROS_LOG_DIR": str(tmp_path / "log")}
+    seen = []
+    linked = logdir.point_latest
+
+    def point_latest(run_dir):
+        seen.append(lastrun._our_launch_logs(run_dir))  # (what a reader of the run would find at that moment)
+        linked(run_dir)
+    monkeypatch.setattr(runlog, "point_latest", point_latest)
+    log = runlog.RunLog(env)
+    try:
+        run_dir = log.open("run-7")
+    finally:
+        log.close()
+    assert seen == [[log.path]] and os.readlink(tmp_path / "log" / "latest") == run_dir
 
 
 def test_check_warns_over_threshold_with_roslaunch_words(tmp_path):
