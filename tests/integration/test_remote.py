@@ -430,7 +430,8 @@ def test_restart_policy_of_a_remote_node_backoff_then_fatal(tmp_path, hosts, lau
         killed.append(pid)
     la.wait_output(r"\[talker\] on machine \[one\] FATAL: failed 3 starts in a row \(respawn_max_retries=2\)", 60,
                    stream="stderr")
-    assert "[talker] on machine [one] respawning in 0.6 s (2 failed starts in a row)" in la.stdout
+    # (said on stdout before that on stderr; the two are read apart, so it is waited for too)
+    la.wait_output(re.escape("[talker] on machine [one] respawning in 0.6 s (2 failed starts in a row)"), 30)
     evs = events(tmp_path, "/talker")
     assert [e["state"] for e in evs] == ["waiting", "running", "respawning", "running", "respawning", "running",
                                          "fatal"][-len(evs):], evs
