@@ -99,7 +99,7 @@ def test_the_watch_asks_about_no_node_that_says_it_never_registers_and_not_about
     watch = MasterWatch(session, nodes)
     running = watch._running()
     assert running == {"/driver": 10, "/plain": 12}  # never /script: its registers="false" says it is no ROS node
-    for _ in range(7):  # rounds 1-7: /driver registers at once, /plain never does (asked in each)
+    for _ in range(7):  # rounds 1-7: /driver registers at once, /plain never does (asked in 1-5 and 7)
         names = watch.state.to_ask(running)
         watch.state.seen(Answer(True, "r1", tuple(names), ("/driver",)), running)
     records[0] = records[0]._replace(registered=True)
