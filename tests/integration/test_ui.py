@@ -349,8 +349,7 @@ def test_a_killed_view_stops_its_launch_and_an_attached_one_does_not(tmp_path, t
 def kept_samples(env: dict, name: str) -> int:
     """How many samples of `name` the launch keeps (launcher_samples(true), through its server)."""
     import xmlrpc.client
-    # (no "uri" before the launch answers, or in the moment between its log directory and its first files, when
-    # the status says the run is not a launch's)
+    # (no "uri" before the launch answers: the status is then the last run's)
     uri = json.loads(tool(env, "status", "--json").stdout or "{}").get("uri")
     if not uri:
         return 0
