@@ -30,17 +30,13 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from launcher.fleet.state import LOCAL_HOST, Change
-from launcher.net import linkstate, tcpros, topic_watch, xmlrpc
-from launcher.net.http import split_uri
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
-
-log = logging.getLogger("launcher.stall")
+    from launcher.net.topic_watch import PublisherWatch
 
 CALLER_ID = "/launcher_stall_watch"
 MAX_PERIOD_S = 1.0
@@ -155,10 +151,16 @@ class StallWatch:
     def _current(self, proc: RunningNode, popen: ChildProcess | None) -> bool:
         return proc.popen is popen and proc.alive and not proc.stopping and not self.supervisor.shutting_down
 
+    def _counter(self, watch: TopicWatch) -> Callable[[int], None]:
+        """What a topic's connection calls with each count of messages read: its watch told when."""
+        return lambda count: watch.messages(count, self.loop.time())
+
     async def _watch(self, proc: RunningNode, popen: ChildProcess | None, uri: str, started_at: float) -> None:
         policy = proc.spec.policy
         watches = {t: TopicWatch(t, started_at, policy.watch_timeout, policy.watch_min_rate, policy.watch_window)
                    for t in policy.watch_topics}
+        # (imported here: the TCPROS client is loaded by a launch that watches a topic, not by every launch)
+        from launcher.net.topic_watch import PublisherWatch
         links: dict[str, PublisherWatch] = {}
         period = min(w.period() for w in watches.values())
         stalled = False
@@ -168,7 +170,7 @@ class StallWatch:
                 for topic, watch in watches.items():
                     link = links.get(topic)
                     if link is None:
-                        link = links[topic] = PublisherWatch(uri, topic, watch, max(period, 0.5))
+                        link = links[topic] = PublisherWatch(uri, topic, CALLER_ID, self._counter(watch), max(period, 0.5))
                     link.check()
                 now = self.loop.time()
                 why = "; ".join(v for v in (w.verdict(now) for w in watches.values()) if v)
@@ -186,93 +188,3 @@ class StallWatch:
                 del self.watches[proc.spec.node_name]
             for link in links.values():
                 link.close()
-
-
-class PublisherWatch:
-    """The watch's connection to a node's own publisher of one topic, opened in the background (a verdict never
-    waits for a handshake). A node that does not publish the topic yet, or whose port does not answer, is asked
-    again at the next verdict; a connection that ended is tried again as linkstate.PublisherRetry says (a refusal
-    or a header of no message type: not in this run of the node), each lie one warning line naming the publisher
-    and the topic."""
-
-    def __init__(self, uri: str, topic: str, watch: TopicWatch, timeout: float):
-        self.loop = asyncio.get_running_loop()
-        self.uri = uri
-        self.topic = topic
-        self.watch = watch
-        self.timeout = timeout
-        self.retry = linkstate.PublisherRetry()
-        self.link: topic_watch.CountingLink | None = None
-        self.task: asyncio.Task | None = None
-        self.timer: asyncio.TimerHandle | None = None   # the next attempt after a connection ended
-        self.given_up = False                           # refused: none in this run
-        self.closed = False
-
-    def check(self) -> None:
-        """At each verdict: count what came (a quiet topic's messages wait under the socket's low-water mark), or
-        ask for the topic if nothing is under way."""
-        if self.link is not None:
-            self.link.drain()
-        elif self.task is None and self.timer is None and not self.given_up:
-            self._open_soon()
-
-    def _open_soon(self) -> None:
-        self.timer = None
-        if not self.closed and self.task is None:
-            self.task = self.loop.create_task(self._open())
-
-    async def _open(self) -> None:
-        opened = self.loop.time()
-        try:
-            try:
-                code, _msg, proto = await xmlrpc.call(self.uri, "requestTopic", CALLER_ID, self.topic, [["TCPROS"]],
-                                                      timeout=self.timeout)
-            except (OSError, asyncio.TimeoutError, xmlrpc.Fault, xmlrpc.XmlRpcError, ValueError, TypeError):
-                return
-            if code != 1 or not isinstance(proto, list) or len(proto) < 3 or proto[0] != "TCPROS":
-                return  # (not published yet: asked again at the next verdict)
-            host = proto[1] or split_uri(self.uri).hostname
-            link = await topic_watch.watch_publisher(host, int(proto[2]), self.topic, CALLER_ID, self.uri,
-                                                     self._messages, timeout=self.timeout, on_close=self._closed)
-            if self.closed:
-                link.close()
-            else:
-                self.link = link
-        except tcpros.TcprosError as exc:
-            self._ended(exc.ending, opened, str(exc))
-        except (OSError, asyncio.TimeoutError, ValueError, TypeError) as exc:
-            # no connection at all (a node starting under load, or going): no lie, asked again at the next verdict
-            log.debug("cannot connect to publisher %s of %s: %s", self.uri, self.topic, exc)
-        finally:
-            self.task = None
-
-    def _messages(self, count: int) -> None:
-        self.watch.messages(count, self.loop.time())
-
-    def _closed(self, link: topic_watch.CountingLink) -> None:
-        if link is self.link:
-            self.link = None
-        assert link.state is not None
-        self._ended(link.ending or linkstate.ENDED, link.state.opened_at, link.why)
-
-    def _ended(self, how: str, opened_at: float, why: str) -> None:
-        if self.closed or how == linkstate.CLOSED:
-            return
-        now = self.loop.time()
-        due = self.retry.ended(how, opened_at, now)
-        if due is None:
-            self.given_up = True
-            what = "%s; dropping the connection, not watched again until the node starts again" % why
-        else:
-            self.timer = self.loop.call_at(due, self._open_soon)
-            what = "%s; dropping the connection, trying again in %g s" % (why, due - now)
-        log.log(logging.DEBUG if how == linkstate.ENDED else logging.WARNING, "%s", what)
-
-    def close(self) -> None:
-        self.closed = True
-        if self.timer is not None:
-            self.timer.cancel()
-        if self.task is not None:
-            self.task.cancel()
-        if self.link is not None:
-            self.link.close()

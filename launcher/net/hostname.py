@@ -32,6 +32,14 @@ def bind_address(environ: Mapping[str, str]) -> str:
     return "::" if ipv6 else "0.0.0.0"
 
 
+def listen_address(host: str) -> str:
+    """Where a server whose URIs name `host` listens: loopback only when that is a loopback name (as rospy does),
+    else every interface."""
+    if host in ("localhost", "::1") or host.startswith("127."):
+        return host if host != "localhost" else "127.0.0.1"
+    return "0.0.0.0"
+
+
 def advertised_host(environ: Mapping[str, str]) -> str:
     """The host name put in URIs (rosgraph.network.get_host_name)."""
     host = address_override(environ)

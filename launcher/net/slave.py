@@ -10,6 +10,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from launcher import compat
+from launcher.net.hostname import listen_address
 from launcher.net.open_files import connection_cap
 from launcher.net.xmlrpc import call
 from launcher.net.xmlrpc_server import XmlRpcServer
@@ -22,20 +23,10 @@ from launcher.net.tcpros_server import TcprosServer
 
 log = logging.getLogger("launcher.slave")
 
-_LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
-
-
 def default_host(environ: Mapping[str, str] | None = None) -> str:
     """The address other nodes use to reach us, chosen the way rospy/roscpp choose it."""
     env = os.environ if environ is None else environ
     return env.get("ROS_HOSTNAME") or env.get("ROS_IP") or socket.gethostname()
-
-
-def bind_address(host: str) -> str:
-    """Listen only on loopback when we told the graph a loopback name (as rospy does)."""
-    if host in _LOOPBACK_NAMES or host.startswith("127."):
-        return host if host != "localhost" else "127.0.0.1"
-    return "0.0.0.0"
 
 
 class Subscription:
@@ -207,7 +198,7 @@ class SlaveNode:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
-        bind = bind_address(self.host)
+        bind = listen_address(self.host)
         await self.tcpros.start(bind)
         # a node's API gets few clients (the master, rostopic/rosnode): a quarter of the master's
         # share of files, so that both servers flooded at once still leave the launcher its files

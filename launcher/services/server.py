@@ -37,8 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from launcher import compat
 from launcher.compat import orig_argv
-from launcher.net.hostname import advertised_host
-from launcher.net.slave import bind_address
+from launcher.net.hostname import advertised_host, listen_address
 from launcher.net.xmlrpc_codec import Fault, encode_value
 from launcher.model import patterns, token as run_token
 from launcher.fleet import processes
@@ -104,7 +103,7 @@ class LaunchServer:
                 console.printerrlog("WARNING: cannot write the run's token in [%s]: %s; start/stop/restart "
                                     "are refused" % (run_dir, e.strerror))
         # (system.multicall as roslaunch's server has it: our remote children send their reports in batches)
-        self._server = XmlRpcServer(self._dispatch, bind_address(self.host), 0, multicall=True, max_connections=64)
+        self._server = XmlRpcServer(self._dispatch, listen_address(self.host), 0, multicall=True, max_connections=64)
         await self._server.start()
         host = "[%s]" % self.host if ":" in self.host else self.host
         self.uri = "http://%s:%d/" % (host, self._server.port)

@@ -10,7 +10,7 @@ import struct
 
 import pytest
 
-from launcher.net.slave import SlaveNode, Subscription, bind_address
+from launcher.net.slave import SlaveNode, Subscription
 from launcher.net import linkstate, tcpros
 from launcher.net.publication import Publication
 from launcher.net.tcpros import TopicType, encode_frame, encode_header
@@ -181,12 +181,6 @@ def test_param_update_and_shutdown():
         assert node.shutdown_requested.is_set() and node.shutdown_reason == "kill"
         await _close(node)
     asyncio.run(main())
-
-
-def test_bind_address_stays_on_loopback_for_loopback_names():
-    assert bind_address("127.0.0.1") == "127.0.0.1"
-    assert bind_address("localhost") == "127.0.0.1"
-    assert bind_address("robot.example") == "0.0.0.0"
 
 
 async def _liar(behaviour, accepts: list[float]) -> tuple[SlaveNode, asyncio.AbstractServer]:
