@@ -30,6 +30,7 @@ NOT_NEEDED = (
     "launcher.remote",  # no node on another machine
     "launcher.operate", "launcher.bag", "launcher.rostest", "launcher.cli.introspect", "launcher.cli.check",
     "launcher.xml.sandbox",  # no $(eval)
+    "launcher.net.topic_watch",  # no watch_topic: the stall check imports its TCPROS client at its first watch
     "http.server", "xmlrpc.server", "lxml", "prompt_toolkit", "argparse", "email",
     "_ssl", "_hashlib", "hmac",  # libcrypto: asyncio imported without ssl (its attempt is listed), token by hand
     "datetime", "dataclasses", "uuid", "platform", "urllib", "ipaddress", "base64",
