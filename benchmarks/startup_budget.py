@@ -10,11 +10,19 @@ node runs) it prints the median and min wall time over `--reps` runs and the med
 VmHWM (peak resident memory, at the first spawn for a run), then, from
 one extra run under `python -X importtime`, which modules of HEAVY got
 imported and the ten largest imports by cumulative time.
+
+Then what a run's CPU and memory at its first node are made of (`decompose`): the
+interpreter alone, the standard library's modules the launch imports on its way
+to its first node, ours, and the rest (the run itself: its plan, its master,
+its parameters, the first spawn), each the median of `--reps` fresh
+interpreters; and the standard library's share again without the modules only
+asyncio brings (ASYNCIO_ONLY): what a run loop of our own would save.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shlex
@@ -26,12 +34,38 @@ import sys
 import tempfile
 import time
 
-from common import vm_hwm_mb  # (this folder is on the path of a script run from it)
+from common import cpu_seconds, vm_hwm_mb  # (this folder is on the path of a script run from it)
 
 # Modules a start should not need, or needs only for a reason worth seeing.
 HEAVY = ("argparse", "asyncio", "dataclasses", "email", "http.client", "lxml", "psutil", "uuid", "xmlrpc.client",
          "yaml", "inspect", "typing_extensions", "platform", "gettext", "locale")
 NODE = "#!/bin/sh\nexec sleep 100\n"
+# The modules `launch` imports on its way to its first node (cli/launch.py's own steps: the plan's module, asyncio
+# without TLS, the run's module); what the run imports later (the /diagnostics publisher's node) is not counted.
+RUN_IMPORTS = ("import launcher.cli.launch as cli; import launcher.run.load; cli._import_asyncio_without_tls(); "
+               "import launcher.run.runtime")
+# The modules a run loads only because asyncio does: coroutines' inspect (with ast and dis), base_events'
+# concurrent.futures. (Ours import logging, traceback and typing themselves; net.xmlrpc_server imports inspect
+# for `isawaitable`, which a loop of our own would not need.)
+ASYNCIO_ONLY = ("asyncio", "_asyncio", "concurrent", "inspect", "ast", "_ast", "dis", "opcode", "_opcode")
+# A fresh interpreter's CPU seconds and peak MB, then again once it has imported `modules` (a JSON list).
+MEASURE = """
+import importlib, resource, sys
+sys.modules["ssl"] = None  # (as the launch: asyncio without TLS)
+def now():  # (VmHWM, not ru_maxrss: that keeps the forking parent's size across the exec)
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    with open("/proc/self/status") as f:
+        hwm = [int(line.split()[1]) for line in f if line.startswith("VmHWM:")][0]
+    return [r.ru_utime + r.ru_stime, hwm / 1024.0]
+before = now()
+import json
+for name in json.loads(sys.argv[1]):
+    try:
+        importlib.import_module(name)
+    except ImportError:
+        pass
+print(json.dumps([before, now()]))
+"""
 STARTED = re.compile(rb"process\[[^\]]+\]: started with pid")
 
 
@@ -71,14 +105,14 @@ def time_nodes(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float,
     return elapsed, usage.ru_maxrss / 1024.0, err
 
 
-def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, float, bytes]:
-    """Seconds from Popen to the first 'started with pid' line, the launch's VmHWM then (MB), stderr; the
-    launch is then stopped."""
+def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[float, float, bytes, float]:
+    """Seconds from Popen to the first 'started with pid' line, the launch's VmHWM then (MB), stderr, and its CPU
+    seconds then; the launch is then stopped."""
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd + ["--skip-log-check", launch], env=env, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
     out = b""
-    elapsed = hwm = float("nan")
+    elapsed = hwm = cpu = float("nan")
     try:
         os.set_blocking(p.stdout.fileno(), True)
         while True:
@@ -89,11 +123,12 @@ def time_first_spawn(cmd: list[str], launch: str, env: dict[str, str]) -> tuple[
             if STARTED.search(line):
                 elapsed = time.perf_counter() - t0
                 hwm = vm_hwm_mb(p.pid)
+                cpu = cpu_seconds(p.pid)
                 break
     finally:
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=60)
-    return elapsed, hwm, err
+    return elapsed, hwm, err, cpu
 
 
 def imports(stderr: bytes) -> list[tuple[int, str]]:
@@ -116,6 +151,40 @@ def report(name: str, times: list[float], hwms: list[float], stderr: bytes) -> N
     print("  largest imports (cumulative): %s" % ", ".join("%s %.1f ms" % (m, us / 1e3) for us, m in top))
 
 
+def measure_imports(py: str, modules: list[str], reps: int) -> tuple[list[float], list[float]]:
+    """Median [CPU s, peak MB] of a fresh interpreter `py` before and after importing `modules`."""
+    runs = [json.loads(subprocess.run([py, "-c", MEASURE, json.dumps(modules)], check=True, capture_output=True,
+                                      text=True).stdout) for _ in range(reps)]
+    return ([statistics.median(r[at][0] for r in runs) for at in (0, 1)],
+            [statistics.median(r[at][1] for r in runs) for at in (0, 1)])
+
+
+def decompose(py: str, spawns: list[tuple], reps: int) -> None:
+    """What the first spawn's CPU and peak memory are made of (see the module's docstring)."""
+    names = json.loads(subprocess.run([py, "-c", RUN_IMPORTS + "; import json, sys; print(json.dumps("
+                                       "[n for n, m in sys.modules.items() if m is not None]))"],
+                                      check=True, capture_output=True, text=True).stdout)
+    names = [n for n in names if n != "__main__"]
+    ours = [n for n in names if n == "launcher" or n.startswith("launcher.")]
+    stdlib = [n for n in names if n not in ours]
+    lean = [n for n in stdlib if n.split(".")[0] not in ASYNCIO_ONLY]
+    (start, with_stdlib), (start_mb, stdlib_mb) = measure_imports(py, stdlib, reps)
+    (_, with_ours), (_, ours_mb) = measure_imports(py, stdlib + ours, reps)
+    (_, with_lean), (_, lean_mb) = measure_imports(py, lean, reps)
+    run_cpu = statistics.median(r[3] for r in spawns)
+    run_mb = statistics.median(r[1] for r in spawns)
+    print("first spawn's CPU and peak memory, by part (%s, medians of %d):" % (py, reps))
+    for part, cpu, mb in (("interpreter alone", start, start_mb),
+                          ("+ standard library (%d modules)" % len(stdlib), with_stdlib - start, stdlib_mb - start_mb),
+                          ("+ ours (%d modules)" % len(ours), with_ours - with_stdlib, ours_mb - stdlib_mb),
+                          ("+ the run until its first spawn", run_cpu - with_ours, run_mb - ours_mb),
+                          ("= the launch at its first spawn", run_cpu, run_mb)):
+        print("  %-36s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
+    print("  standard library without asyncio's own (%d modules): %.1f ms, %.1f MB (%.1f ms, %.1f MB less)" % (
+        len(lean), (with_lean - start) * 1e3, lean_mb - start_mb, (with_stdlib - with_lean) * 1e3,
+        stdlib_mb - lean_mb))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--reps", type=int, default=10)
@@ -126,10 +195,13 @@ def main() -> int:
     py = cmd[0] if "python" in os.path.basename(cmd[0]) else None
     with tempfile.TemporaryDirectory(prefix="startup-budget-") as root:
         launch, env = make_launch(root, args.nodes)
+        runs = {}
         for name, measure in (("--nodes", time_nodes), ("first spawn", time_first_spawn)):
-            runs = [measure(cmd, launch, env) for _ in range(args.reps)]
+            runs[name] = [measure(cmd, launch, env) for _ in range(args.reps)]
             traced = [py, "-X", "importtime"] + cmd[1:] if py else cmd
-            report(name, [r[0] for r in runs], [r[1] for r in runs], measure(traced, launch, env)[2])
+            report(name, [r[0] for r in runs[name]], [r[1] for r in runs[name]], measure(traced, launch, env)[2])
+        if py is not None:  # (the parts are a Python's: a launch command that is not one has none to show)
+            decompose(py, runs["first spawn"], args.reps)
     return 0
 
 
