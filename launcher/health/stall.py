@@ -170,7 +170,8 @@ class StallWatch:
                 for topic, watch in watches.items():
                     link = links.get(topic)
                     if link is None:
-                        link = links[topic] = PublisherWatch(uri, topic, CALLER_ID, self._counter(watch), max(period, 0.5))
+                        link = links[topic] = PublisherWatch(uri, topic, CALLER_ID, self._counter(watch),
+                                                             max(period, 0.5))
                     link.check()
                 now = self.loop.time()
                 why = "; ".join(v for v in (w.verdict(now) for w in watches.values()) if v)
