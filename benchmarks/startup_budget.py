@@ -48,7 +48,8 @@ RUN_IMPORTS = ("import launcher.cli.launch as cli; import launcher.run.load; cli
 # concurrent.futures. (Ours import logging, traceback and typing themselves; net.xmlrpc_server imports inspect
 # for `isawaitable`, which a loop of our own would not need.)
 ASYNCIO_ONLY = ("asyncio", "_asyncio", "concurrent", "inspect", "ast", "_ast", "dis", "opcode", "_opcode")
-# A fresh interpreter's CPU seconds and peak MB, then again once it has imported `modules` (a JSON list).
+# A fresh interpreter's CPU seconds and peak MB, then again after it has imported each group of modules in turn
+# (a JSON list of lists): the parts of one process, so that a part is not the difference of two noisy processes.
 MEASURE = """
 import importlib, resource, sys
 sys.modules["ssl"] = None  # (as the launch: asyncio without TLS)
@@ -57,14 +58,16 @@ def now():  # (VmHWM, not ru_maxrss: that keeps the forking parent's size across
     with open("/proc/self/status") as f:
         hwm = [int(line.split()[1]) for line in f if line.startswith("VmHWM:")][0]
     return [r.ru_utime + r.ru_stime, hwm / 1024.0]
-before = now()
+points = [now()]
 import json
-for name in json.loads(sys.argv[1]):
-    try:
-        importlib.import_module(name)
-    except ImportError:
-        pass
-print(json.dumps([before, now()]))
+for group in json.loads(sys.argv[1]):
+    for name in group:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            pass
+    points.append(now())
+print(json.dumps(points))
 """
 STARTED = re.compile(rb"process\[[^\]]+\]: started with pid")
 
@@ -151,12 +154,13 @@ def report(name: str, times: list[float], hwms: list[float], stderr: bytes) -> N
     print("  largest imports (cumulative): %s" % ", ".join("%s %.1f ms" % (m, us / 1e3) for us, m in top))
 
 
-def measure_imports(py: str, modules: list[str], reps: int) -> tuple[list[float], list[float]]:
-    """Median [CPU s, peak MB] of a fresh interpreter `py` before and after importing `modules`."""
-    runs = [json.loads(subprocess.run([py, "-c", MEASURE, json.dumps(modules)], check=True, capture_output=True,
+def measure_imports(py: str, groups: list[list[str]], reps: int) -> list[tuple[float, float]]:
+    """(CPU s, peak MB) of a fresh interpreter `py` alone, then what importing each group added: medians of `reps`."""
+    runs = [json.loads(subprocess.run([py, "-c", MEASURE, json.dumps(groups)], check=True, capture_output=True,
                                       text=True).stdout) for _ in range(reps)]
-    return ([statistics.median(r[at][0] for r in runs) for at in (0, 1)],
-            [statistics.median(r[at][1] for r in runs) for at in (0, 1)])
+    parts = [[r[0] for r in runs]] + [[[b[0] - a[0], b[1] - a[1]] for a, b in (r[i - 1:i + 1] for r in runs)]
+                                      for i in range(1, len(groups) + 1)]
+    return [(statistics.median(p[0] for p in part), statistics.median(p[1] for p in part)) for part in parts]
 
 
 def decompose(py: str, spawns: list[tuple], reps: int) -> None:
@@ -168,21 +172,20 @@ def decompose(py: str, spawns: list[tuple], reps: int) -> None:
     ours = [n for n in names if n == "launcher" or n.startswith("launcher.")]
     stdlib = [n for n in names if n not in ours]
     lean = [n for n in stdlib if n.split(".")[0] not in ASYNCIO_ONLY]
-    (start, with_stdlib), (start_mb, stdlib_mb) = measure_imports(py, stdlib, reps)
-    (_, with_ours), (_, ours_mb) = measure_imports(py, stdlib + ours, reps)
-    (_, with_lean), (_, lean_mb) = measure_imports(py, lean, reps)
-    run_cpu = statistics.median(r[3] for r in spawns)
-    run_mb = statistics.median(r[1] for r in spawns)
+    alone, with_stdlib, with_ours = measure_imports(py, [stdlib, ours], reps)
+    _, with_lean = measure_imports(py, [lean], reps)
+    run = (statistics.median(r[3] for r in spawns), statistics.median(r[1] for r in spawns))
     print("first spawn's CPU and peak memory, by part (%s, medians of %d):" % (py, reps))
-    for part, cpu, mb in (("interpreter alone", start, start_mb),
-                          ("+ standard library (%d modules)" % len(stdlib), with_stdlib - start, stdlib_mb - start_mb),
-                          ("+ ours (%d modules)" % len(ours), with_ours - with_stdlib, ours_mb - stdlib_mb),
-                          ("+ the run until its first spawn", run_cpu - with_ours, run_mb - ours_mb),
-                          ("= the launch at its first spawn", run_cpu, run_mb)):
+    for part, (cpu, mb) in (("interpreter alone", alone),
+                            ("+ standard library (%d modules)" % len(stdlib), with_stdlib),
+                            ("+ ours (%d modules)" % len(ours), with_ours),
+                            ("+ the run until its first spawn", (run[0] - alone[0] - with_stdlib[0] - with_ours[0],
+                                                                 run[1] - alone[1] - with_stdlib[1] - with_ours[1])),
+                            ("= the launch at its first spawn", run)):
         print("  %-36s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
     print("  standard library without asyncio's own (%d modules): %.1f ms, %.1f MB (%.1f ms, %.1f MB less)" % (
-        len(lean), (with_lean - start) * 1e3, lean_mb - start_mb, (with_stdlib - with_lean) * 1e3,
-        stdlib_mb - lean_mb))
+        len(lean), with_lean[0] * 1e3, with_lean[1], (with_stdlib[0] - with_lean[0]) * 1e3,
+        with_stdlib[1] - with_lean[1]))
 
 
 def main() -> int:
