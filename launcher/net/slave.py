@@ -23,6 +23,7 @@ from launcher.net.tcpros_server import TcprosServer
 
 log = logging.getLogger("launcher.slave")
 
+
 def default_host(environ: Mapping[str, str] | None = None) -> str:
     """The address other nodes use to reach us, chosen the way rospy/roscpp choose it."""
     env = os.environ if environ is None else environ

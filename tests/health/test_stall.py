@@ -56,4 +56,3 @@ def test_a_fast_topics_window_is_kept_as_its_reads_not_its_messages():
     for i in range(1000, 1500):  # 5 s at a tenth of that: under the minimum once the window has only them
         w.messages(100, i * 0.01)
     assert w.verdict(14.99) == "/points at 10000.0 Hz over the last 5 s, under watch_min_rate 50000"
-

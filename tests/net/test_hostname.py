@@ -1,4 +1,4 @@
-"""Where this machine's ROS servers listen, and the names they put in their URIs."""
+"""Where this machine's ROS servers listen: the master, from the environment; a server named by its host, from that name."""
 
 from launcher.net.hostname import bind_address, listen_address
 
