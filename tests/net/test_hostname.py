@@ -1,4 +1,5 @@
-"""Where this machine's ROS servers listen: the master, from the environment; a server named by its host, from that name."""
+"""Where this machine's ROS servers listen: the master, by the environment; a server named by its host, by that
+name."""
 
 from launcher.net.hostname import bind_address, listen_address
 
