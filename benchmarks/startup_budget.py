@@ -158,8 +158,9 @@ def measure_imports(py: str, groups: list[list[str]], reps: int) -> list[tuple[f
     """(CPU s, peak MB) of a fresh interpreter `py` alone, then what importing each group added: medians of `reps`."""
     runs = [json.loads(subprocess.run([py, "-c", MEASURE, json.dumps(groups)], check=True, capture_output=True,
                                       text=True).stdout) for _ in range(reps)]
-    parts = [[r[0] for r in runs]] + [[[b[0] - a[0], b[1] - a[1]] for a, b in (r[i - 1:i + 1] for r in runs)]
-                                      for i in range(1, len(groups) + 1)]
+    parts = [[r[0] for r in runs]]  # the interpreter alone
+    for i in range(1, len(groups) + 1):  # what each group added, within each run
+        parts.append([[r[i][0] - r[i - 1][0], r[i][1] - r[i - 1][1]] for r in runs])
     return [(statistics.median(p[0] for p in part), statistics.median(p[1] for p in part)) for part in parts]
 
 
