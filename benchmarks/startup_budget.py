@@ -13,10 +13,10 @@ imported and the ten largest imports by cumulative time.
 
 Then what a run's CPU and memory at its first node are made of (`decompose`): the
 interpreter alone, the standard library's modules the launch imports on its way
-to its first node, ours, and the rest (the run itself: its plan, its master,
-its parameters, the first spawn), each the median of `--reps` fresh
-interpreters; and the standard library's share again without the modules only
-asyncio brings (ASYNCIO_ONLY): what a run loop of our own would save.
+to its first node (those only asyncio brings, ASYNCIO_ONLY, apart: what a run
+loop of our own would save), ours, and the rest (the run itself: its plan, its
+master, its parameters, the first spawn), each part measured within one fresh
+interpreter and its median over `--reps` of them.
 """
 
 from __future__ import annotations
@@ -51,13 +51,13 @@ ASYNCIO_ONLY = ("asyncio", "_asyncio", "concurrent", "inspect", "ast", "_ast", "
 # A fresh interpreter's CPU seconds and peak MB, then again after it has imported each group of modules in turn
 # (a JSON list of lists): the parts of one process, so that a part is not the difference of two noisy processes.
 MEASURE = """
-import importlib, resource, sys
+import importlib, sys, time
 sys.modules["ssl"] = None  # (as the launch: asyncio without TLS)
-def now():  # (VmHWM, not ru_maxrss: that keeps the forking parent's size across the exec)
-    r = resource.getrusage(resource.RUSAGE_SELF)
+def now():  # (the scheduler's CPU clock: rusage's is sampled at the tick; VmHWM: ru_maxrss keeps the forking
+    # parent's size across the exec)
     with open("/proc/self/status") as f:
         hwm = [int(line.split()[1]) for line in f if line.startswith("VmHWM:")][0]
-    return [r.ru_utime + r.ru_stime, hwm / 1024.0]
+    return [time.process_time(), hwm / 1024.0]
 points = [now()]
 import json
 for group in json.loads(sys.argv[1]):
@@ -165,28 +165,28 @@ def measure_imports(py: str, groups: list[list[str]], reps: int) -> list[tuple[f
 
 
 def decompose(py: str, spawns: list[tuple], reps: int) -> None:
-    """What the first spawn's CPU and peak memory are made of (see the module's docstring)."""
+    """What the first spawn's CPU and peak memory are made of (see the module's docstring). The standard library
+    is imported in two groups, what only asyncio brings (ASYNCIO_ONLY) last: its share is measured in the same
+    processes as the rest."""
     names = json.loads(subprocess.run([py, "-c", RUN_IMPORTS + "; import json, sys; print(json.dumps("
                                        "[n for n, m in sys.modules.items() if m is not None]))"],
                                       check=True, capture_output=True, text=True).stdout)
     names = [n for n in names if n != "__main__"]
     ours = [n for n in names if n == "launcher" or n.startswith("launcher.")]
     stdlib = [n for n in names if n not in ours]
-    lean = [n for n in stdlib if n.split(".")[0] not in ASYNCIO_ONLY]
-    alone, with_stdlib, with_ours = measure_imports(py, [stdlib, ours], reps)
-    _, with_lean = measure_imports(py, [lean], reps)
-    run = (statistics.median(r[3] for r in spawns), statistics.median(r[1] for r in spawns))
+    asyncio_own = [n for n in stdlib if n.split(".")[0] in ASYNCIO_ONLY]
+    rest = [n for n in stdlib if n not in asyncio_own]
+    parts = measure_imports(py, [rest, asyncio_own, ours], reps)
+    spawn = (statistics.median(r[3] for r in spawns), statistics.median(r[1] for r in spawns))
+    parts.append(tuple(total - sum(p[i] for p in parts) for i, total in enumerate(spawn)))
     print("first spawn's CPU and peak memory, by part (%s, medians of %d):" % (py, reps))
-    for part, (cpu, mb) in (("interpreter alone", alone),
-                            ("+ standard library (%d modules)" % len(stdlib), with_stdlib),
-                            ("+ ours (%d modules)" % len(ours), with_ours),
-                            ("+ the run until its first spawn", (run[0] - alone[0] - with_stdlib[0] - with_ours[0],
-                                                                 run[1] - alone[1] - with_stdlib[1] - with_ours[1])),
-                            ("= the launch at its first spawn", run)):
-        print("  %-36s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
-    print("  standard library without asyncio's own (%d modules): %.1f ms, %.1f MB (%.1f ms, %.1f MB less)" % (
-        len(lean), with_lean[0] * 1e3, with_lean[1], (with_stdlib[0] - with_lean[0]) * 1e3,
-        with_stdlib[1] - with_lean[1]))
+    for part, (cpu, mb) in zip(("interpreter alone",
+                                "+ standard library, but for asyncio's own (%d modules)" % len(rest),
+                                "+ asyncio's own (%d modules)" % len(asyncio_own),
+                                "+ ours (%d modules)" % len(ours),
+                                "+ the run until its first spawn"), parts):
+        print("  %-56s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
+    print("  %-56s %6.1f ms  %5.1f MB" % ("= the launch at its first spawn", spawn[0] * 1e3, spawn[1]))
 
 
 def main() -> int:
