@@ -36,7 +36,6 @@ from launcher.fleet.state import LOCAL_HOST, Change
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
-    from launcher.net.topic_watch import PublisherWatch
 
 CALLER_ID = "/launcher_stall_watch"
 MAX_PERIOD_S = 1.0
