@@ -13,8 +13,9 @@ imported and the ten largest imports by cumulative time.
 
 Then what a run's CPU and memory at its first node are made of (`decompose`): the
 interpreter alone, the standard library's modules the launch imports on its way
-to its first node (those only asyncio brings, ASYNCIO_ONLY, apart: what a run
-loop of our own would save), ours, and the rest (the run itself: its plan, its
+to its first node (apart: those it imports for one use each, SINGLE_USE, and
+those only asyncio brings, ASYNCIO_ONLY, what a run loop of our own would save,
+its INSPECT part on its own), ours, and the rest (the run itself: its plan, its
 master, its parameters, the first spawn), each part measured within one fresh
 interpreter and its median over `--reps` of them.
 """
@@ -48,6 +49,12 @@ RUN_IMPORTS = ("import launcher.cli.launch as cli; import launcher.run.load; cli
 # concurrent.futures. (Ours import logging, traceback and typing themselves; net.xmlrpc_server imports inspect
 # for `isawaitable`, which a loop of our own would not need.)
 ASYNCIO_ONLY = ("asyncio", "_asyncio", "concurrent", "inspect", "ast", "_ast", "dis", "opcode", "_opcode")
+# Of asyncio's own, what its coroutines and tasks import for a few checks (add_signal_handler calls one at each
+# handler a run sets): what asyncio would cost without it.
+INSPECT = ("inspect", "ast", "_ast", "dis", "opcode", "_opcode")
+# Standard library modules a run imports for one use each, apart: what a run without that use would save.
+SINGLE_USE = (("ctypes: the subreaper's prctl", ("ctypes", "_ctypes")),
+              ("pyexpat: XML-RPC responses, package.xml", ("xml", "pyexpat")))
 # A fresh interpreter's CPU seconds and peak MB, then again after it has imported each group of modules in turn
 # (a JSON list of lists): the parts of one process, so that a part is not the difference of two noisy processes.
 MEASURE = """
@@ -166,27 +173,32 @@ def measure_imports(py: str, groups: list[list[str]], reps: int) -> list[tuple[f
 
 def decompose(py: str, spawns: list[tuple], reps: int) -> None:
     """What the first spawn's CPU and peak memory are made of (see the module's docstring). The standard library
-    is imported in two groups, what only asyncio brings (ASYNCIO_ONLY) last: its share is measured in the same
-    processes as the rest."""
+    is imported in groups, the parts apart after the rest: each part is measured in the same processes as the rest,
+    as what it adds to them."""
     names = json.loads(subprocess.run([py, "-c", RUN_IMPORTS + "; import json, sys; print(json.dumps("
                                        "[n for n, m in sys.modules.items() if m is not None]))"],
                                       check=True, capture_output=True, text=True).stdout)
     names = [n for n in names if n != "__main__"]
     ours = [n for n in names if n == "launcher" or n.startswith("launcher.")]
     stdlib = [n for n in names if n not in ours]
-    asyncio_own = [n for n in stdlib if n.split(".")[0] in ASYNCIO_ONLY]
-    rest = [n for n in stdlib if n not in asyncio_own]
-    parts = measure_imports(py, [rest, asyncio_own, ours], reps)
+
+    def top_in(group: tuple[str, ...], among: list[str]) -> list[str]:
+        return [n for n in among if n.split(".")[0] in group]
+    single = [(label, top_in(group, stdlib)) for label, group in SINGLE_USE]
+    inspect = top_in(INSPECT, stdlib)
+    asyncio_rest = [n for n in top_in(ASYNCIO_ONLY, stdlib) if n not in inspect]
+    apart = set(inspect + asyncio_rest).union(*(mods for _, mods in single))
+    rest = [n for n in stdlib if n not in apart]
+    groups = [("standard library, but for the parts below", rest)] + single + [
+        ("asyncio's own: inspect, ast, dis", inspect), ("asyncio's own: the rest", asyncio_rest), ("ours", ours)]
+    parts = measure_imports(py, [mods for _, mods in groups], reps)
     spawn = (statistics.median(r[3] for r in spawns), statistics.median(r[1] for r in spawns))
     parts.append(tuple(total - sum(p[i] for p in parts) for i, total in enumerate(spawn)))
     print("first spawn's CPU and peak memory, by part (%s, medians of %d):" % (py, reps))
-    for part, (cpu, mb) in zip(("interpreter alone",
-                                "+ standard library, but for asyncio's own (%d modules)" % len(rest),
-                                "+ asyncio's own (%d modules)" % len(asyncio_own),
-                                "+ ours (%d modules)" % len(ours),
-                                "+ the run until its first spawn"), parts):
-        print("  %-56s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
-    print("  %-56s %6.1f ms  %5.1f MB" % ("= the launch at its first spawn", spawn[0] * 1e3, spawn[1]))
+    labels = ["interpreter alone"] + ["+ %s (%d modules)" % (label, len(mods)) for label, mods in groups]
+    for part, (cpu, mb) in zip(labels + ["+ the run until its first spawn"], parts):
+        print("  %-58s %6.1f ms  %5.1f MB" % (part, cpu * 1e3, mb))
+    print("  %-58s %6.1f ms  %5.1f MB" % ("= the launch at its first spawn", spawn[0] * 1e3, spawn[1]))
 
 
 def main() -> int:
