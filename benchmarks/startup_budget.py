@@ -49,8 +49,8 @@ RUN_IMPORTS = ("import launcher.cli.launch as cli; import launcher.run.load; cli
 # concurrent.futures. (Ours import logging, traceback and typing themselves; net.xmlrpc_server imports inspect
 # for `isawaitable`, which a loop of our own would not need.)
 ASYNCIO_ONLY = ("asyncio", "_asyncio", "concurrent", "inspect", "ast", "_ast", "dis", "opcode", "_opcode")
-# Of asyncio's own, what its coroutines and tasks import for a few checks (add_signal_handler calls one at each
-# handler a run sets): what asyncio would cost without it.
+# Of asyncio's own, inspect with ast and dis: its coroutines and tasks import them for a few type checks, one of
+# which add_signal_handler makes at every handler, so that a run on asyncio cannot leave them out.
 INSPECT = ("inspect", "ast", "_ast", "dis", "opcode", "_opcode")
 # Standard library modules a run imports for one use each, apart: what a run without that use would save.
 SINGLE_USE = (("ctypes: the subreaper's prctl", ("ctypes", "_ctypes")),
@@ -185,12 +185,12 @@ def decompose(py: str, spawns: list[tuple], reps: int) -> None:
     def top_in(group: tuple[str, ...], among: list[str]) -> list[str]:
         return [n for n in among if n.split(".")[0] in group]
     single = [(label, top_in(group, stdlib)) for label, group in SINGLE_USE]
-    inspect = top_in(INSPECT, stdlib)
-    asyncio_rest = [n for n in top_in(ASYNCIO_ONLY, stdlib) if n not in inspect]
-    apart = set(inspect + asyncio_rest).union(*(mods for _, mods in single))
+    inspect_part = top_in(INSPECT, stdlib)
+    asyncio_rest = [n for n in top_in(ASYNCIO_ONLY, stdlib) if n not in inspect_part]
+    apart = set(inspect_part + asyncio_rest).union(*(mods for _, mods in single))
     rest = [n for n in stdlib if n not in apart]
     groups = [("standard library, but for the parts below", rest)] + single + [
-        ("asyncio's own: inspect, ast, dis", inspect), ("asyncio's own: the rest", asyncio_rest), ("ours", ours)]
+        ("asyncio's own: inspect, ast, dis", inspect_part), ("asyncio's own: the rest", asyncio_rest), ("ours", ours)]
     parts = measure_imports(py, [mods for _, mods in groups], reps)
     spawn = (statistics.median(r[3] for r in spawns), statistics.median(r[1] for r in spawns))
     parts.append(tuple(total - sum(p[i] for p in parts) for i, total in enumerate(spawn)))
