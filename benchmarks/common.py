@@ -26,6 +26,17 @@ def launcher_commands(given: list[str]) -> list[list[str]]:
     return [c.split("=", 1) for c in given] or [["roslaunch", "roslaunch"], ["launch", ours]]
 
 
+def tool_command(launch: list[str]) -> list[str]:
+    """The `launcher` tool (status, ui, web, ...) of the install a launch command runs: `PYTHON -m launcher` gives
+    `PYTHON -m launcher.cli.tool`, a `launch` script its `launcher` beside it; anything else, this Python's."""
+    if launch[-1] == "launcher":
+        return launch[:-1] + ["launcher.cli.tool"]
+    if os.path.basename(launch[-1]) == "launch" and os.access(os.path.join(os.path.dirname(launch[-1]), "launcher"),
+                                                                  os.X_OK):
+        return launch[:-1] + [os.path.join(os.path.dirname(launch[-1]), "launcher")]
+    return [sys.executable, "-m", "launcher.cli.tool"]
+
+
 def workspace_env(root: str) -> dict:
     """This environment for a workspace of packages under `root`/pkgs, its ROS_HOME and log folder there too, and
     Debian's bin first on PATH (roslaunch is Debian's)."""

@@ -32,6 +32,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from monitor import cpu_seconds, free_port, make_launch  # noqa: E402  (the same launch as the monitor's benchmark)
+from common import tool_command  # noqa: E402
 
 
 def window(pids: list[int], seconds: float) -> list[float]:
@@ -79,7 +80,7 @@ def main() -> None:
     ap.add_argument("--cmd", default="%s -m launcher" % sys.executable)
     args = ap.parse_args()
     cmd = shlex.split(args.cmd)
-    tool = cmd[:-1] + ["launcher.cli.tool"] if cmd[-1] == "launcher" else [sys.executable, "-m", "launcher.cli.tool"]
+    tool = tool_command(cmd)
     print("prompt_toolkit import: %.0f ms (median of 5, a fresh interpreter each)" % (1e3 * import_cost(cmd[0])))
     with tempfile.TemporaryDirectory(prefix="liveview-bench-") as root:
         launch = make_launch(root, args.n)

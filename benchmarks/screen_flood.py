@@ -55,7 +55,7 @@ import tempfile
 import termios
 import time
 
-from common import ROS_PATH, free_port  # (this folder is on the path of a script run from it)
+from common import ROS_PATH, free_port, tool_command  # (this folder is on the path of a script run from it)
 
 LINE_BYTES = 100
 FLOOD = """#!%(python)s
@@ -252,8 +252,7 @@ def one_run(label: str, cmd: str, view: bool, a: argparse.Namespace, scratch: st
             term.wait_for(rb"process\[flood\d+-\d+\]: started", a.nodes, "node start", 120)
         view_pid = None
         if view:
-            tool = shlex.split(cmd)
-            tool = tool[:-1] + ["launcher.cli.tool"] if tool[-1] == "launcher" else tool
+            tool = tool_command(shlex.split(cmd))
             command = "env %s %s ui" % (" ".join(shlex.quote("%s=%s" % kv) for kv in env.items()),
                                         " ".join(shlex.quote(x) for x in tool))
             subprocess.run(tmux + ["new-session", "-d", "-s", "b", "-x", "120", "-y", "40", command], check=True)

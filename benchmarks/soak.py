@@ -31,7 +31,7 @@ import tempfile
 import threading
 import time
 
-from common import free_port, make_package  # (this folder is on the path of a script run from it)
+from common import free_port, make_package, tool_command  # (this folder is on the path of a script run from it)
 import reload  # (the same roscpp node as its benchmark's)
 
 FLAT_BYTES = 2 * 1000 * 1000  # the bound: within 2 MB of the second minute
@@ -118,7 +118,7 @@ def main() -> int:
     a = ap.parse_args()
     views = [v for v in a.views.split(",") if v and v != "none"]
     cmd = shlex.split(a.cmd)
-    tool = cmd[:-1] + ["launcher.cli.tool"] if cmd[-1] == "launcher" else [sys.executable, "-m", "launcher.cli.tool"]
+    tool = tool_command(cmd)
     tmp = tempfile.mkdtemp(prefix="bench-soak-")
     pkg = make_package(os.path.join(tmp, "pkgs"), "bench_soak")
     if os.environ.get("LAUNCHER_BENCH"):  # (bench.py's path, as benchmarks/supervise.py takes it: a worktree's)
