@@ -21,7 +21,11 @@ nothing waits, node output is written by the caller at once, whatever its size,
 through a descriptor of the caller's own that never blocks (`_direct`: the
 terminal or pipe opened again with O_NONBLOCK, which leaves the shared one as
 it is; a regular file as it is): what the terminal does not take at once is
-queued, so the writer thread finishes the line before anything else.
+queued, so the writer thread finishes the line before anything else. Every
+write, the caller's and the writer thread's, writes again what a stream took
+only part of (`write_all`): with an unbuffered stdout (PYTHONUNBUFFERED=1) a
+blocking write cut short by a signal returns a count that the text layer
+ignores.
 """
 
 from __future__ import annotations
@@ -254,26 +258,53 @@ def _write_some(stream: TextIO, fd: int, data: bytes) -> int:
 
 def _write(stream: TextIO, text: str) -> None:
     try:
-        stream.write(text)
-        # Flushed per line: node output shares the same terminal/pipe.
-        stream.flush()
-    except (OSError, ValueError):
-        pass
+        if getattr(stream, "buffer", None) is None:  # (a capture: text only)
+            stream.write(text)
+            stream.flush()
+            return
+        # as bytes, all of them: the text layer ignores what a raw stream (below) did not take
+        data = text.encode(stream.encoding or "utf-8", stream.errors or "strict")
+    except (OSError, ValueError):  # (a closed stream; a character its encoding has not: the line is not shown)
+        return
+    _write_output(stream, data)  # Flushed per line: node output shares the same terminal/pipe.
 
 
 def _write_output(stream: TextIO, data: bytes) -> None:
     """Node output as the node wrote it: bytes, to the stream's binary buffer (text only for a capture)."""
-    try:
-        buffer = stream.buffer  # type: ignore[attr-defined]
-    except AttributeError:
+    if getattr(stream, "buffer", None) is None:
         _write(stream, data.decode(errors="replace"))
         return
     try:
         stream.flush()  # (text someone printed without flushing goes first)
-        buffer.write(data)
-        buffer.flush()
+        write_all(stream, data)
     except (OSError, ValueError):
         pass
+
+
+def write_all(stream: TextIO, data: bytes) -> None:
+    """All of `data` to the stream's binary layer, in order, waiting while it is full.
+
+    Under `python -u` or PYTHONUNBUFFERED=1 (the unit `launcher install` writes sets it, as do many container
+    images) that layer is the raw descriptor, and one write takes what the kernel took at once: less than all
+    when a signal (Ctrl-Z and fg, a profiler attaching, one the launch handles) comes in the middle of a blocking
+    write to a full terminal or pipe, or nothing when someone made the descriptor non-blocking. The rest is ours to
+    write again: the text layer and print() do not (the tail of such a write was lost on the terminal, issue 36).
+    A buffered layer takes all, or says how much it took (BlockingIOError)."""
+    buffer = stream.buffer  # type: ignore[attr-defined]
+    view = memoryview(data)
+    while True:
+        try:
+            while view:
+                taken = buffer.write(view)
+                if taken is None:  # (a raw non-blocking descriptor, full: it took nothing)
+                    select.select((), (stream.fileno(),), ())  # (this thread may wait: see the module's words)
+                else:
+                    view = view[taken:]
+            buffer.flush()
+            return
+        except BlockingIOError as e:  # (a buffered layer over a non-blocking descriptor)
+            view = view[e.characters_written:]
+            select.select((), (stream.fileno(),), ())
 
 
 _writer = _Writer()

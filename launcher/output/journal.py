@@ -20,6 +20,8 @@ import re
 import socket
 import struct
 
+from launcher.output import console
+
 EMERG, ALERT, CRIT, ERR, WARNING, NOTICE, INFO, DEBUG = range(8)
 LEVELS = {b"FATAL": CRIT, b"ERROR": ERR, b"WARN": WARNING, b"INFO": INFO, b"DEBUG": DEBUG}
 # rospy: "[INFO] [1700000000.123456]: ...", roscpp: "[ INFO] [1700000000.123456789]: ..." (perhaps coloured)
@@ -92,7 +94,7 @@ class NativeStream:
         self.prefix = process_name.encode() + b": "
         self.fallback = fallback
 
-    def write(self, data: bytes) -> None:
+    def write(self, data: bytes) -> int:
         for line in data.split(b"\n"):
             if not line:
                 continue
@@ -102,8 +104,8 @@ class NativeStream:
                     raise OSError("longer than an entry")
                 self.sock.send(entry([("MESSAGE", message), ("PRIORITY", level)] + self.fields))
             except OSError:
-                self.fallback.buffer.write(b"<%s>%s%s\n" % (level, self.prefix, message))
-                self.fallback.buffer.flush()
+                console.write_all(self.fallback, b"<%s>%s%s\n" % (level, self.prefix, message))
+        return len(data)  # (all taken: console.write_all writes again what a stream did not take)
 
     def flush(self) -> None:
         pass

@@ -7,8 +7,10 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -152,6 +154,42 @@ def test_two_floods_and_a_crashing_neighbour_keep_every_line_whole_and_in_order(
     as_read, by_line = map(int, re.search(r"screen relay: (\d+) bytes .*, (\d+) line by line",
                                           launch_log(tmp_path)).groups())
     assert by_line == 0 and as_read >= 2 * per_node * LINE_BYTES
+
+
+def test_every_line_reaches_the_terminal_of_an_unbuffered_launch_stopped_and_continued_in_a_flood(tmp_path, pkgs):
+    # PYTHONUNBUFFERED=1 (the unit `launcher install` writes, many container images): the launch's stdout is the raw
+    # descriptor. Stopped and continued (Ctrl-Z and fg, a profiler attaching) while its console thread waits in a
+    # write to the full terminal, that write ends with part of it taken; the rest used to be lost on the terminal
+    port = free_port()
+    env = dict(ros_env(str(tmp_path), port, pkgs), PYTHONUNBUFFERED="1")
+    seconds = 3
+    launch = write_launch(str(tmp_path), '<node pkg="flood_tests" type="flood" name="flood1" output="screen" '
+                                         'args="flood1 10 %d"/>' % seconds)
+    per_node = 10 * 1000 * 1000 * seconds // LINE_BYTES
+    proc, cat, terminal, screen = on_a_terminal(tmp_path, env, port, launch)
+    stops = 0
+    try:
+        until(lambda: b"flood1 00000000 ~" in read(screen), 120, 0.05, what="the flood going")
+        finished = re.compile(rb"\[flood1-\d\] process has finished")
+        while not finished.search(read(screen)[-4096:]) and stops < 20000:
+            for _ in range(50):
+                os.kill(proc.pid, signal.SIGSTOP)
+                time.sleep(0.0003)
+                os.kill(proc.pid, signal.SIGCONT)
+                time.sleep(0.0017)
+            stops += 50
+        assert finished.search(read(screen)), "the flood's end never reached the terminal"
+    finally:
+        os.kill(proc.pid, signal.SIGCONT)
+        stop_group(proc, 30)
+        cat.wait(30)
+        os.close(terminal)
+    assert stops >= 500
+    copy, = (tmp_path / "log" / "latest").glob("flood1-*-stdout.log")
+    assert flood_lines(copy.read_bytes(), ["flood1"])["flood1"] == list(range(per_node))
+    on_screen = flood_lines(read(screen), ["flood1"])["flood1"]
+    assert on_screen == list(range(per_node)), "%d of %d lines on the terminal, after %d stops" % (
+        len(set(on_screen)), per_node, stops)
 
 
 def test_a_view_attached_in_the_middle_gets_the_recent_output_and_what_follows(tmp_path, pkgs):

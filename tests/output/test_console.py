@@ -4,9 +4,14 @@ lines are dropped past the bound and counted."""
 from __future__ import annotations
 
 import fcntl
+import io
 import os
+import signal
 import sys
 import threading
+import time
+
+import pytest
 
 from launcher.output import console
 
@@ -56,3 +61,75 @@ def test_node_output_is_never_dropped_and_the_relay_is_told_when_to_wait(monkeyp
     assert b"launcher line 2999" in text and b"launcher line 0000" not in text
     assert b"console lines dropped while the output was blocked" in text
     os.close(read_end)
+
+
+def relay_through(stream, read_end: int, disturb=None) -> tuple[bytes, bytes]:
+    """Node output relayed to `stream` (the write end of a pipe of 4 KiB read slowly, so that the console's writes
+    wait for it), `disturb()` called while it goes on: (what was relayed, what the pipe's reader got)."""
+    chunks = [b"".join(b"line %06d of the flood\n" % (i * 1000 + j) for j in range(1000)) for i in range(40)]
+    got = bytearray()
+
+    def read() -> None:
+        while True:
+            data = os.read(read_end, 4096)
+            if not data:
+                return
+            got.extend(data)
+            time.sleep(0.0005)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        for chunk in chunks:
+            if not console.relay(stream, chunk):  # (the console is full: wait, as the relay does)
+                drained = threading.Event()
+                console.when_drained(drained.set)
+                assert drained.wait(30), "the console never drained"
+            if disturb is not None:
+                disturb()
+        assert console.flush(60)
+    finally:
+        console.forget(stream)
+        stream.close()
+    reader.join(30)
+    assert not reader.is_alive(), "the pipe's reader never saw its end"
+    os.close(read_end)
+    return b"".join(chunks), bytes(got)
+
+
+def unbuffered(fd: int):
+    """What sys.stdout is under `python -u` or PYTHONUNBUFFERED=1: text written through to the raw descriptor."""
+    return io.TextIOWrapper(io.FileIO(fd, "w"), write_through=True)
+
+
+def test_a_write_a_signal_cut_short_is_finished_on_an_unbuffered_stdout():
+    # the console's thread waits in a write to a full pipe; a signal there ends the write with part of it taken,
+    # and the raw stream below the text layer says so only by its count (the rest was lost on the terminal)
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, F_SETPIPE_SZ, 4096)
+    interrupted = []
+    old = signal.signal(signal.SIGUSR1, lambda *_: interrupted.append(1))
+
+    def disturb() -> None:
+        for thread in threading.enumerate():
+            if thread.name == "console":
+                for _ in range(20):
+                    signal.pthread_kill(thread.ident, signal.SIGUSR1)
+                    time.sleep(0.001)
+    try:
+        sent, got = relay_through(unbuffered(write_end), read_end, disturb)
+    finally:
+        signal.signal(signal.SIGUSR1, old)
+    assert interrupted, "no signal reached the console's thread"
+    assert got == sent, "%d of %d bytes reached the pipe" % (len(got), len(sent))
+
+
+@pytest.mark.parametrize("make", [unbuffered, lambda fd: open(fd, "w")], ids=["unbuffered", "buffered"])
+def test_node_output_waits_for_a_stdout_someone_made_non_blocking(make):
+    # a non-blocking descriptor takes what fits, then nothing: a raw stream says None, a buffered one raises
+    # BlockingIOError with what it took; the rest waits until the descriptor takes more
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, F_SETPIPE_SZ, 4096)
+    os.set_blocking(write_end, False)
+    sent, got = relay_through(make(write_end), read_end)
+    assert got == sent, "%d of %d bytes reached the pipe" % (len(got), len(sent))
