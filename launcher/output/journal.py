@@ -94,8 +94,8 @@ class NativeStream:
         self.prefix = process_name.encode() + b": "
         self.fallback = fallback
 
-    def write(self, data: bytes) -> int:
-        for line in data.split(b"\n"):
+    def write(self, data: bytes | memoryview) -> int:
+        for line in bytes(data).split(b"\n"):  # (console.write_all hands over a view)
             if not line:
                 continue
             level, _, message = line[1:].partition(b">")
