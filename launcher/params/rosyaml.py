@@ -305,7 +305,9 @@ _C_PLAIN = _checked_ints(type("PlainCSafeLoader", (yaml.CSafeLoader,), {})) if h
 # Texts on which libyaml and PyYAML's pure-Python loader (roslaunch's) disagree, found by
 # differential fuzzing: tabs (PyYAML refuses them inside plain scalars and after ':'), byte
 # order marks and Unicode line breaks, the bare non-specific tag `!`, and a comment right
-# after a block scalar indicator. Such texts go to PyYAML directly.
+# after a block scalar indicator. Such texts go to PyYAML directly. So does a '?' where a flow
+# collection may be ('[a?]', '{url: http://x?y}'): inside `[]` and `{}` PyYAML ends a plain
+# scalar at '?' and reads it as a key's mark, where libyaml keeps it in the scalar.
 _LIBYAML_DIVERGES = re.compile("[\t\ufeff\x85\u2028\u2029]|!(?:\\s|\\Z)|[|>][-+0-9]*#")
 
 
@@ -313,7 +315,7 @@ def _loaders(angles: bool, text: str) -> tuple[type, ...]:
     """Loaders to try in order: libyaml first (fast), then PyYAML's (the reference's) to decide
     any input libyaml refuses and to word the error as rosparam would."""
     c_loader, py_loader = (_C_ROS, _PY_ROS) if angles else (_C_PLAIN, _PY_PLAIN)
-    if c_loader is None or _LIBYAML_DIVERGES.search(text):
+    if c_loader is None or _LIBYAML_DIVERGES.search(text) or ("?" in text and ("[" in text or "{" in text)):
         return (py_loader,)
     return (c_loader, py_loader)
 
