@@ -18,6 +18,21 @@ from launcher.output import console
 F_SETPIPE_SZ = 1031
 
 
+def start_reading(read_end: int, got: bytearray, size: int = 65536, rest: float = 0.0) -> threading.Thread:
+    """A thread reading the pipe into `got` until its end, `size` at most a read, resting `rest` s after each."""
+    def read() -> None:
+        while True:
+            data = os.read(read_end, size)
+            if not data:
+                return
+            got.extend(data)
+            time.sleep(rest)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    return reader
+
+
 def test_node_output_is_never_dropped_and_the_relay_is_told_when_to_wait(monkeypatch):
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, F_SETPIPE_SZ, 4096)
@@ -40,15 +55,7 @@ def test_node_output_is_never_dropped_and_the_relay_is_told_when_to_wait(monkeyp
         for i in range(3000):
             console.printlog("launcher line %04d %s" % (i, "x" * 60))
         got = bytearray()
-
-        def read() -> None:
-            while True:
-                data = os.read(read_end, 65536)
-                if not data:
-                    return
-                got.extend(data)
-        reader = threading.Thread(target=read, daemon=True)
-        reader.start()
+        reader = start_reading(read_end, got)
         assert console.flush(30)
         assert resumed.is_set()
     finally:
@@ -68,17 +75,7 @@ def relay_through(stream, read_end: int, disturb=None) -> tuple[bytes, bytes]:
     wait for it), `disturb()` called while it goes on: (what was relayed, what the pipe's reader got)."""
     chunks = [b"".join(b"line %06d of the flood\n" % (i * 1000 + j) for j in range(1000)) for i in range(40)]
     got = bytearray()
-
-    def read() -> None:
-        while True:
-            data = os.read(read_end, 4096)
-            if not data:
-                return
-            got.extend(data)
-            time.sleep(0.0005)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    reader = start_reading(read_end, got, 4096, 0.0005)
     try:
         for chunk in chunks:
             if not console.relay(stream, chunk):  # (the console is full: wait, as the relay does)
