@@ -25,7 +25,9 @@ TYPE_CHECKING = False  # (typing.TYPE_CHECKING without importing typing: ~3 ms a
 if TYPE_CHECKING:
     from typing import Any
 
-VERSION = 2  # (2: documents nested more than rosyaml.MAX_DEPTH deep are no longer kept)
+# (2: documents nested more than rosyaml.MAX_DEPTH deep are no longer kept; 3: a '?' in a flow collection is read as
+# PyYAML reads it, and libyaml's reading of one, kept by 2, is no value of ROS's)
+VERSION = 3
 FILE = os.path.join("launcher", "yaml_cache.marshal")
 MAX_CHARS = 2 * 1024 * 1024  # texts kept in all: the file stays small enough to read in about a millisecond
 

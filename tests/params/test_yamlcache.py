@@ -3,6 +3,7 @@ a changed one always is, and what comes out is what the parser gives."""
 
 from __future__ import annotations
 
+import marshal
 import os
 import subprocess
 import sys
@@ -107,6 +108,15 @@ def test_a_cached_value_is_the_parsers_value(tmp_path, text):
         assert cached._learned is False  # (it came from the file)
         expected = load_yaml(text, angles=angles)
         assert repr(value) == repr(expected) and type(value) is type(expected)
+
+
+def test_a_cache_file_of_an_earlier_reading_is_not_used(tmp_path):
+    # version 2 kept libyaml's reading of a '?' inside [] (a value); roslaunch's loader refuses that text
+    path = tmp_path / yamlcache.FILE
+    path.parent.mkdir(parents=True)
+    path.write_bytes(marshal.dumps((2, {("x: [a? ]\n", True): marshal.dumps({"x": ["a?"]})})))
+    with pytest.raises(LaunchError):
+        YamlCache(str(tmp_path)).load("x: [a? ]\n")
 
 
 def test_a_broken_cache_file_is_ignored(tmp_path):
