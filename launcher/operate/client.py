@@ -7,7 +7,7 @@ each is probed with `launcher_status` and a short timeout: an entry whose
 launch is gone (roslaunch never removes its key; a launch of ours killed with
 `kill -9` cannot) or does not answer, and one that answers with a fault
 (roslaunch's or roscore's server), is no candidate; of ours, those that run
-nodes are (a bare `launch --core` only when it is the one launch of ours).
+nodes are (one still starting, then a bare `launch --core`, only when no other is).
 Only two candidates make `launcher` ask. `--uri` names a launch's API
 directly; `--launch` picks one by its key, URI or pid.
 
@@ -107,9 +107,10 @@ def survey(registered: dict[str, str]) -> list[Registered]:
 
 
 def candidates(found: list[Registered]) -> list[Registered]:
-    """The launches an operator can mean: ours that run nodes; else ours with none (a bare `launch --core`)."""
+    """The launches an operator can mean: ours that run nodes; else ours of a launch file that has none yet (in
+    its first moments, beside a `launch --core`); else ours with neither (a bare `launch --core`)."""
     ours = [r for r in found if r.kind == OURS]
-    return [r for r in ours if r.info.get("nodes")] or ours
+    return [r for r in ours if r.info.get("nodes")] or [r for r in ours if r.info.get("launch_files")] or ours
 
 
 def launches(master_uri: str) -> dict[str, str]:

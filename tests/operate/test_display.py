@@ -53,12 +53,16 @@ def test_a_launch_ended_event_reads_as_the_runs_end():
 
 
 def test_the_launches_an_operator_can_mean():
-    def r(key: str, kind: str, nodes: int = 0) -> client.Registered:
-        return client.Registered(key, "http://h:%s/" % key, kind, {"nodes": [{}] * nodes} if kind == "ours" else {})
-    roscore, stale, ours, core = r("1", "roslaunch"), r("2", "gone"), r("3", "ours", 2), r("4", "ours", 0)
+    def r(key: str, kind: str, nodes: int = 0, files: tuple = ("a.launch",)) -> client.Registered:
+        info = {"nodes": [{}] * nodes, "launch_files": list(files)} if kind == "ours" else {}
+        return client.Registered(key, "http://h:%s/" % key, kind, info)
+    roscore, stale, ours, core = r("1", "roslaunch"), r("2", "gone"), r("3", "ours", 2), r("4", "ours", 0, ())
+    starting = r("6", "ours", 0)
     candidates = client.candidates
     assert candidates([roscore, stale, ours, core]) == [ours]  # roscore, a kill -9'd launch, a bare core: not it
     assert candidates([roscore, core]) == [core]  # a bare `launch --core` when it is the only one of ours
+    assert candidates([core, starting]) == [starting]  # a launch before its nodes exist, beside the core it uses
+    assert candidates([core, starting, ours]) == [ours]
     assert candidates([roscore, stale]) == []
     assert candidates([ours, r("5", "ours", 1)]) == [ours, r("5", "ours", 1)]  # two of ours: ask
 
