@@ -1,5 +1,5 @@
 """What tests share: waiting for a condition with a deadline, a free port, the processes a test started, /proc walks,
-where things are, a launch server still setting up."""
+where things are, a launch server still setting up, a pipe's slow reader."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import random
 import signal
 import socket
 import subprocess
+import threading
 import time
 from types import SimpleNamespace
 from typing import Any, Callable
@@ -188,3 +189,18 @@ def launch_server_setting_up(names: tuple = ("/a",), core: bool = False) -> tupl
         nodes.made.set()
         return fleet
     return LaunchServer(run, {"ROS_IP": "127.0.0.1"}), make_nodes
+
+
+def start_reading(read_end: int, got: bytearray, size: int = 65536, rest: float = 0.0) -> threading.Thread:
+    """A thread reading the pipe into `got` until its end, `size` at most a read, resting `rest` s after each."""
+    def read() -> None:
+        while True:
+            data = os.read(read_end, size)
+            if not data:
+                return
+            got.extend(data)
+            time.sleep(rest)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    return reader

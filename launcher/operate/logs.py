@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import select
 import sys
 import time
 from collections import deque
@@ -103,8 +104,18 @@ class Uncoloured:
 
 
 def _write(data: bytes) -> None:
-    sys.stdout.buffer.write(data)
-    sys.stdout.buffer.flush()
+    """All of `data` to stdout. Under `python -u` or PYTHONUNBUFFERED=1 its binary layer is the raw descriptor, and
+    a write to a full terminal that a stop (Ctrl-Z, then fg) or a signal cuts short says so only by its count: the
+    rest is written again (what output/console.write_all does for a launch's console)."""
+    out = sys.stdout.buffer
+    view = memoryview(data)
+    while view:
+        taken = out.write(view)
+        if taken is None:  # (a raw descriptor someone made non-blocking, full: wait until it takes more)
+            select.select((), (out.fileno(),), ())
+        else:
+            view = view[taken:]
+    out.flush()
 
 
 def _main(argv: list[str]) -> int:

@@ -14,23 +14,9 @@ import time
 import pytest
 
 from launcher.output import console
+from tests.helpers import start_reading
 
 F_SETPIPE_SZ = 1031
-
-
-def start_reading(read_end: int, got: bytearray, size: int = 65536, rest: float = 0.0) -> threading.Thread:
-    """A thread reading the pipe into `got` until its end, `size` at most a read, resting `rest` s after each."""
-    def read() -> None:
-        while True:
-            data = os.read(read_end, size)
-            if not data:
-                return
-            got.extend(data)
-            time.sleep(rest)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    return reader
 
 
 def test_node_output_is_never_dropped_and_the_relay_is_told_when_to_wait(monkeypatch):
