@@ -17,7 +17,7 @@ import sys
 from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
 from launcher.model.errors import SHOWN_CHARS, LaunchError, shorten
 from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join
-from launcher.params.values import auto_value, convert_value
+from launcher.params.values import PARAM_TYPES, auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
 from launcher.workspace.roshome import ros_home
 from launcher.model.suggest import did_you_mean, near_file
@@ -534,6 +534,11 @@ class XmlLoader:
 
     def _command_param(self, command: str, name: str, ptype: str, scope: Scope, el: Any) -> CommandParam:
         """A stand-in for the value, run with the others once the launch is read (xml/commands.py)."""
+        if ptype not in PARAM_TYPES:
+            # refused now, whatever the command prints: roslaunch runs every command as it reads it and refuses the
+            # type after, so also where a later tag overwrites the parameter or no node takes a private one, which
+            # never run here
+            raise self._fail(scope, el, "Invalid <param> tag [%s]: Unknown type '%s'" % (name, ptype))
         # (imported by the first <param command>: few launches have one)
         from launcher.xml.commands import CommandError, CommandParam
 

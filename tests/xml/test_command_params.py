@@ -43,6 +43,21 @@ def test_a_command_whose_parameter_is_overwritten_never_runs(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.parametrize("body", [
+    '<param name="desc" type="float" command="touch {marker}"/>\n<param name="desc" value="plain"/>',
+    '<param name="~desc" type="float" command="touch {marker}"/>',  # (a launch-level ~param no node follows)
+    '<param name="desc" type="float" command="touch {marker}"/>',
+], ids=["overwritten", "taken-by-no-node", "set"])
+def test_an_unknown_type_is_refused_even_where_the_command_never_runs(tmp_path, body):
+    # roslaunch runs each command as it reads it, then refuses the type: "Unknown type 'float'"
+    marker = tmp_path / "ran"
+    f = write(tmp_path, body.format(marker=marker))
+    with pytest.raises(LaunchError) as e:
+        load([f], environ=env(tmp_path), core=False)
+    assert e.value.line == 2 and "Unknown type 'float'" in str(e.value)
+    assert not marker.exists()
+
+
 def test_the_first_failure_in_file_order_is_reported_at_its_own_line(tmp_path):
     f = write(tmp_path, '<param name="ok" command="echo fine"/>\n'
                         '<param name="slow_bad" command="sh -c \'sleep 0.5; exit 3\'"/>\n'
