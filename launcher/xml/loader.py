@@ -497,7 +497,14 @@ class XmlLoader:
         else:
             self._add_param(ns_join(scope.ns, name), typed, scope, el)
 
+    def _known_type(self, ptype: str, scope: Scope, el: Any, name: str) -> None:
+        """Refuse a `type=` roslaunch does not know, in its words. (`type=" "` is the type '' to roslaunch, though
+        convert_value takes '' for auto.)"""
+        if ptype not in PARAM_TYPES:
+            raise self._fail(scope, el, "Invalid <param> tag [%s]: Unknown type '%s'" % (name, ptype))
+
     def _convert(self, text: str, ptype: str, scope: Scope, el: Any, name: str) -> Any:
+        self._known_type(ptype, scope, el, name)
         if ptype == "yaml":
             # rosparam's angle tags exist only once a <rosparam> has been processed (an import side effect)
             return self._yaml(text, scope, el, angles=self._ros_yaml, what="<param> [%s]" % name)
@@ -534,11 +541,10 @@ class XmlLoader:
 
     def _command_param(self, command: str, name: str, ptype: str, scope: Scope, el: Any) -> CommandParam:
         """A stand-in for the value, run with the others once the launch is read (xml/commands.py)."""
-        if ptype not in PARAM_TYPES:
-            # refused now, whatever the command prints: roslaunch runs every command as it reads it and refuses the
-            # type after, so also where a later tag overwrites the parameter or no node takes a private one, which
-            # never run here
-            raise self._fail(scope, el, "Invalid <param> tag [%s]: Unknown type '%s'" % (name, ptype))
+        # the type is refused now, whatever the command prints: roslaunch runs every command as it reads it and
+        # refuses the type after, so also where a later tag overwrites the parameter or no node takes a private one,
+        # which never run here
+        self._known_type(ptype, scope, el, name)
         # (imported by the first <param command>: few launches have one)
         from launcher.xml.commands import CommandError, CommandParam
 

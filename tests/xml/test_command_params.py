@@ -47,14 +47,15 @@ def test_a_command_whose_parameter_is_overwritten_never_runs(tmp_path):
     '<param name="desc" type="float" command="touch {marker}"/>\n<param name="desc" value="plain"/>',
     '<param name="~desc" type="float" command="touch {marker}"/>',  # (a launch-level ~param no node follows)
     '<param name="desc" type="float" command="touch {marker}"/>',
-], ids=["overwritten", "taken-by-no-node", "set"])
+    '<param name="desc" type=" " command="touch {marker}"/>',  # (the type '' to roslaunch)
+], ids=["overwritten", "taken-by-no-node", "set", "blank"])
 def test_an_unknown_type_is_refused_even_where_the_command_never_runs(tmp_path, body):
     # roslaunch runs each command as it reads it, then refuses the type: "Unknown type 'float'"
     marker = tmp_path / "ran"
     f = write(tmp_path, body.format(marker=marker))
     with pytest.raises(LaunchError) as e:
         load([f], environ=env(tmp_path), core=False)
-    assert e.value.line == 2 and "Unknown type 'float'" in str(e.value)
+    assert e.value.line == 2 and "Unknown type '%s'" % ("" if 'type=" "' in body else "float") in str(e.value)
     assert not marker.exists()
 
 

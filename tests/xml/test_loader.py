@@ -234,6 +234,7 @@ def test_param_typing(ld, attrs, expected):
     ('type="int" value="4.5"', "not of type int"),
     ('type="bool" value="yes"', "bool"),
     ('type="float" value="1"', "Unknown type"),
+    ('type=" " value="1"', "Unknown type ''"),  # (roslaunch strips the type after its `or 'auto'`)
     ('type="yaml" value="[1, 2"', "YAML"),
     ('value="1" textfile="x"', "one and only one"),
     ('command="false"', "returned with code [1]"),
