@@ -378,16 +378,19 @@ class MasterSession:
 
     async def restore_parameters(self) -> None:
         """The launch's parameters set again (clear_params first), on a master that restarted and lost them."""
-        config = self.plan.config
-        await self.params.upload(list(config.clear_params), [(p.key, p.value) for p in config.params.values()])
+        await self.params.upload(list(self.plan.config.clear_params), self._parameters())
+
+    def _parameters(self) -> list[tuple[str, Any]]:
+        """What the launch sets, in roslaunch's order: roscore.xml's /rosversion and /rosdistro first (roslaunch
+        reads that file into every launch and sets its parameters on whatever master it finds, ours or not), then
+        the launch's own, which may replace them."""
+        rosversion, rosdistro = ros_version_params(self.plan.environ)
+        return [("/rosversion", rosversion), ("/rosdistro", rosdistro)] + \
+            [(p.key, p.value) for p in self.plan.config.params.values()]
 
     def summary_params(self) -> dict[str, Any]:
-        """The launch's parameters as the summary lists them (with roscore's version parameters)."""
-        params = {k: p.value for k, p in self.plan.config.params.items()}
-        rosversion, rosdistro = ros_version_params(self.plan.environ)
-        params.setdefault("/rosversion", rosversion)
-        params.setdefault("/rosdistro", rosdistro)
-        return params
+        """The launch's parameters as the summary lists them."""
+        return dict(self._parameters())
 
     async def set_parameters(self) -> None:
         """`<rosparam command="delete|dump">` in document order, then clear_params, then every parameter."""

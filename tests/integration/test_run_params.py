@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
 
 import pytest
 
@@ -69,6 +70,11 @@ def test_params_visible_to_nodes_before_they_start(tmp_path, pkgs, master):
                                                         "stale": "absent"}
         run_id = get_param(port, "/run_id")
         assert run_id and re.fullmatch(r"[0-9a-f-]{36}", run_id)
+        # roscore.xml's parameters, which roslaunch sets on every master, its own or one found running
+        env = ros_env(str(tmp_path), port, pkgs)
+        for key, argv in (("/rosversion", ["rosversion", "roslaunch"]), ("/rosdistro", ["rosversion", "-d"])):
+            said = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=30).stdout
+            assert said.strip() and get_param(port, key) == said, key
         assert "setting /run_id to %s" % run_id in lp.stdout
         assert ("auto-starting new master" in lp.stdout) is (master == "embedded")
         assert lp.wait_output(r"PARAMETERS\n(?: \* .*\n)* \* /shared/value: from-launch\n")
