@@ -5,7 +5,8 @@ starts its nodes, runs once every node has been started (roslaunch's "registrati
 complete"), is to end when a node ends it (a required node died or could not start,
 on_fatal="shutdown": "Initiating shutdown!"), when every node of this machine has died
 with a master that is not its own ("all processes on machine have died, roslaunch will
-exit") or when a stop signal comes, then stops its nodes, and has ended once they are
+exit"), when it has no process at all with such a master (a launch of parameters only:
+"No processes to monitor") or when a stop signal comes, then stops its nodes, and has ended once they are
 down. A stop signal while the nodes are being stopped (the second Ctrl-C) kills those
 still stopping.
 
@@ -36,10 +37,12 @@ STATES = (STARTING, RUNNING, ENDING, STOPPING, ENDED)
 ALL_STARTED = "all started"  # every node of the launch has been started, or failed to (registrations complete)
 NODE_ENDED_IT = "node ended it"  # a node's table said END_LAUNCH (`status`), or a required one could not be made
 ALL_DEAD = "all dead"  # no node of this machine can run again, and one ended by itself (`all_dead` below)
+NO_PROCESSES = "no processes"  # every node has been started, and none has a process, here or elsewhere: the launch
+#                                has no node, or none could be made
 STOP_SIGNAL = "stop signal"  # SIGINT, SIGTERM or SIGHUP
 STOP = "stop"  # the launch's runner stops its nodes now (its services' teardown reached them)
 ALL_STOPPED = "all stopped"  # the runner's stop of the nodes is over
-EVENTS = (ALL_STARTED, NODE_ENDED_IT, ALL_DEAD, STOP_SIGNAL, STOP, ALL_STOPPED)
+EVENTS = (ALL_STARTED, NODE_ENDED_IT, ALL_DEAD, NO_PROCESSES, STOP_SIGNAL, STOP, ALL_STOPPED)
 
 # ---- actions: what the fleet (END, SAY) and the launch's runner (STOP_ALL, KILL_ALL) carry out
 END = "end"  # the launch ends, with exit `status` (the fleet's `done`: the run's body returns)
@@ -49,6 +52,7 @@ KILL_ALL = "kill all"  # SIGKILL every node still stopping, and those waiting fo
 NOTE = "note"  # nothing to do (what the mutation check puts in place of an action)
 
 ALL_DEAD_TEXT = "all processes on machine have died, roslaunch will exit"
+NO_PROCESSES_TEXT = "No processes to monitor"  # (roslaunch's #556: a launch that only sets parameters exits)
 
 
 @record
@@ -59,8 +63,12 @@ class Launch:
     # its exit status: the first non-zero status a node ended it with (a required node's own exit code, or
     # 128 + the signal that killed it, as ROS-O's roslaunch, ros/ros_comm#2082; 1 for a start that failed)
     exit_status: int = 0
-    # roslaunch ends a launch whose nodes all died only when the master is not its own (a rule for the whole run)
+    # roslaunch ends a launch whose nodes all died, or that has no process, only when the master is not its own
+    # (its own master is a process it monitors; a rule for the whole run)
     exit_when_all_dead: bool = False
+    # why it ends, where its nodes ended it by all dying or by having no process (roslaunch's words, for the
+    # events file); "" otherwise
+    reason: str = ""
 
 
 @record
@@ -74,6 +82,7 @@ class Action:
     kind: str
     status: int = 0
     text: str = ""
+    bold: bool = False  # SAY: as roslaunch's printlog_bold
 
 
 class InvalidTransition(Exception):
@@ -128,7 +137,15 @@ def _node_ended_it(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
 def _all_dead(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
     if not n.exit_when_all_dead:  # (our own master: the launch runs on, as roslaunch's with its roscore)
         return n, []
-    return n._replace(state=ENDING), [Action(SAY, text=ALL_DEAD_TEXT), Action(END, status=n.exit_status)]
+    return n._replace(state=ENDING, reason=ALL_DEAD_TEXT), \
+        [Action(SAY, text=ALL_DEAD_TEXT), Action(END, status=n.exit_status)]
+
+
+def _no_processes(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
+    if not n.exit_when_all_dead:  # (our own master is the process roslaunch's would monitor: its roscore)
+        return n, []
+    return n._replace(state=ENDING, reason=NO_PROCESSES_TEXT), \
+        [Action(SAY, text=NO_PROCESSES_TEXT, bold=True), Action(END, status=n.exit_status)]
 
 
 def _to_end(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
@@ -153,6 +170,7 @@ TABLE = {
     (STARTING, ALL_STARTED): _all_started,
     **{(s, NODE_ENDED_IT): _node_ended_it for s in (STARTING, RUNNING, ENDING, STOPPING)},
     (RUNNING, ALL_DEAD): _all_dead,
+    (RUNNING, NO_PROCESSES): _no_processes,
     (STARTING, STOP_SIGNAL): _to_end,
     (RUNNING, STOP_SIGNAL): _to_end,
     (STOPPING, STOP_SIGNAL): _kill,
@@ -167,6 +185,8 @@ IGNORED = frozenset(
     [(s, ALL_STARTED) for s in (RUNNING, ENDING, STOPPING)]
     # roslaunch counts the dead once every node has been started, and only until the launch is to end
     + [(s, ALL_DEAD) for s in (STARTING, ENDING, STOPPING, ENDED)]
+    # told right after ALL_STARTED: a launch already to end (a stop signal, a required node) goes on ending
+    + [(s, NO_PROCESSES) for s in (ENDING, STOPPING)]
     # the launch ends already (a second signal before its nodes' stop has begun changes nothing), or has ended
     + [(ENDING, STOP_SIGNAL), (ENDED, STOP_SIGNAL)]
     # its nodes are being stopped, or are down: a second stop (another runner's shutdown) adds nothing
@@ -180,6 +200,8 @@ assert not IGNORED & TABLE.keys()
 REFUSED = frozenset(
     # no node is started once the launch has ended
     [(ENDED, ALL_STARTED)]
+    # it follows ALL_STARTED, which leaves STARTING and is refused once the launch has ended
+    + [(STARTING, NO_PROCESSES), (ENDED, NO_PROCESSES)]
     # only a stop that began can be over
     + [(s, ALL_STOPPED) for s in (STARTING, RUNNING, ENDING, ENDED)]
 )

@@ -196,13 +196,13 @@ class Fleet:
 
     def __init__(self, events_path: str | None = None, warn: Callable[[str], None] | None = None,
                  clock: Callable[[], float] = time.monotonic, exit_when_all_dead: bool = False,
-                 say: Callable[[str], None] | None = None):
+                 say: Callable[[str, bool], None] | None = None):
         self.records: dict[str, Record] = {}
         self.nodes: dict[str, NodeStatus] = {}
         self.clock = clock  # the runners' clock (the loop's): timers, uptimes
         self._events = None
         self._warn = warn
-        self.say = say  # the outcome's words ("all processes on machine have died ...")
+        self.say = say  # the outcome's words ("all processes on machine have died ..."): say(text, bold)
         self.listeners: list[Callable[[Change], None]] = []  # called after every change, in order
         self.seq = 0
         # the change stream's backlog: (seq, when kept (self.clock), the change's JSON line as it is served)
@@ -436,7 +436,7 @@ class Fleet:
             if action.kind == launchphase.END:
                 self.done.set()
             elif action.kind == launchphase.SAY and self.say is not None:
-                self.say(action.text)
+                self.say(action.text, action.bold)
         return actions
 
     def end(self, status: int) -> None:
@@ -454,6 +454,8 @@ class Fleet:
     def registrations_complete(self) -> None:
         """Every node of the launch has been started (or failed to)."""
         self.launch_step(launchphase.ALL_STARTED)
+        if not self.records:  # (a node of another machine has a record too: its machine's roslaunch is a process)
+            self.launch_step(launchphase.NO_PROCESSES)
         self._check_all_dead()
 
     def _check_all_dead(self) -> None:

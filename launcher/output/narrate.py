@@ -123,5 +123,9 @@ def attach(fleet: Fleet) -> Fleet:
     if not any(isinstance(listener, Narrator) for listener in fleet.listeners):
         fleet.listeners.insert(0, Narrator(console.printlog, console.printerrlog, console.printlog_bold))
     if fleet.say is None:
-        fleet.say = console.printlog
+        fleet.say = _say
     return fleet
+
+
+def _say(text: str, bold: bool) -> None:
+    (console.printlog_bold if bold else console.printlog)(text)

@@ -36,7 +36,7 @@ from launcher.plan.plan import Plan
 from launcher.run.apart import Apart
 from launcher.run.load import begin_plan, core_plan
 from launcher.output import console
-from launcher.fleet import lifecycle
+from launcher.fleet import launchphase, lifecycle
 from launcher.fleet.state import Change
 from launcher.process.reaper import Reaper, become_subreaper
 from launcher.process.watchdog import Watchdog
@@ -388,8 +388,13 @@ class Run:
             return "shutdown request: %s" % self.master.master.shutdown_reason
         done = self.nodes.done
         if done is not None and done.is_set():
-            return "its nodes ended it (exit status %d)" % self.nodes.exit_status
+            return self._launch_reason() or "its nodes ended it (exit status %d)" % self.nodes.exit_status
         return "ended"
+
+    def _launch_reason(self) -> str:
+        """roslaunch's words for an end its nodes made by all dying or by having no process, else ""."""
+        fleet = self.nodes.fleet
+        return fleet.launch.reason if fleet is not None else ""
 
     def _done(self) -> None:
         """roslaunch's last lines, then the launch log closed."""
@@ -399,6 +404,7 @@ class Run:
         else:
             console.printlog("shutting down processing monitor...")
             console.printlog("... shutting down processing monitor complete")
-            console.printlog_bold("done")
+            if self._launch_reason() != launchphase.NO_PROCESSES_TEXT:  # (roslaunch returns before its "done" then)
+                console.printlog_bold("done")
         self.log.close()
         sys.stdout.flush()

@@ -1,6 +1,6 @@
 """The launch's phase as a pure function: every phase x event against a matrix written out here (the next phase
 and the actions), for a launch with its own master and one with a master found running, and roslaunch's rules
-for the exit status and "all processes on machine have died"."""
+for the exit status, "all processes on machine have died" and "No processes to monitor"."""
 
 from __future__ import annotations
 
@@ -10,45 +10,48 @@ from launcher.fleet import launchphase as lp
 from launcher.fleet import lifecycle
 from launcher.fleet.launchphase import Action, Event, Launch
 
-EVENTS = [lp.ALL_STARTED, lp.NODE_ENDED_IT, lp.ALL_DEAD, lp.STOP_SIGNAL, lp.STOP, lp.ALL_STOPPED]
+EVENTS = [lp.ALL_STARTED, lp.NODE_ENDED_IT, lp.ALL_DEAD, lp.NO_PROCESSES, lp.STOP_SIGNAL, lp.STOP, lp.ALL_STOPPED]
 SHORT = {"sta": lp.STARTING, "run": lp.RUNNING, "eng": lp.ENDING, "sto": lp.STOPPING, "end": lp.ENDED}
 # Every cell: the phase after the event ("-": nothing changes, "!": a runner's bug, InvalidTransition), and (in
 # the matrix below it) the actions, in their order: E end with the node's status (3 in these cells), Z end with
-# status 0, S say "all processes on machine have died, roslaunch will exit", P stop all, K kill all; ".": none.
+# status 0, S say "all processes on machine have died, roslaunch will exit", N say "No processes to monitor" in bold,
+# P stop all, K kill all; ".": none. S and N give the launch its reason (their words).
 ACTION_CODES = {"E": Action(lp.END, status=3), "Z": Action(lp.END, status=0), "S": Action(lp.SAY, text=lp.ALL_DEAD_TEXT),
-                "P": Action(lp.STOP_ALL), "K": Action(lp.KILL_ALL)}
+                "N": Action(lp.SAY, text=lp.NO_PROCESSES_TEXT, bold=True), "P": Action(lp.STOP_ALL),
+                "K": Action(lp.KILL_ALL)}
 
-# roslaunch's own master (launch, roscore): the launch runs on when its nodes have all died.
-#        ALLST NODE  DEAD  SIGNL STOP  ALLSTOPPED
+# roslaunch's own master (launch, roscore): the launch runs on when its nodes have all died, or it has none.
+#        ALLST NODE  DEAD  NOPROC SIGNL STOP  ALLSTOPPED
 OWN = """
-sta      run   eng   -     eng   sto   !
-run      -     eng   -     eng   sto   !
-eng      -     eng   -     -     sto   !
-sto      -     sto   -     sto   -     end
-end      !     -     -     -     -     !
+sta      run   eng   -     !      eng   sto   !
+run      -     eng   -     -      eng   sto   !
+eng      -     eng   -     -      -     sto   !
+sto      -     sto   -     -      sto   -     end
+end      !     -     -     !      -     -     !
 """
 OWN_ACTIONS = """
-sta      .     E     .     .     P     !
-run      .     E     .     .     P     !
-eng      .     E     .     .     P     !
-sto      .     E     .     K     .     .
-end      !     .     .     .     .     !
+sta      .     E     .     !      .     P     !
+run      .     E     .     .      .     P     !
+eng      .     E     .     .      .     P     !
+sto      .     E     .     .      K     .     .
+end      !     .     .     !      .     .     !
 """
-# A master found running (and a remote child): the launch ends when every node of this machine has died.
-#        ALLST NODE  DEAD  SIGNL STOP  ALLSTOPPED
+# A master found running (and a remote child): the launch ends when every node of this machine has died, or when
+# it has no process at all.
+#        ALLST NODE  DEAD  NOPROC SIGNL STOP  ALLSTOPPED
 EXTERNAL = """
-sta      run   eng   -     eng   sto   !
-run      -     eng   eng   eng   sto   !
-eng      -     eng   -     -     sto   !
-sto      -     sto   -     sto   -     end
-end      !     -     -     -     -     !
+sta      run   eng   -     !      eng   sto   !
+run      -     eng   eng   eng    eng   sto   !
+eng      -     eng   -     -      -     sto   !
+sto      -     sto   -     -      sto   -     end
+end      !     -     -     !      -     -     !
 """
 EXTERNAL_ACTIONS = """
-sta      .     E     .     .     P     !
-run      .     E     SZ    .     P     !
-eng      .     E     .     .     P     !
-sto      .     E     .     K     .     .
-end      !     .     .     .     .     !
+sta      .     E     .     !      .     P     !
+run      .     E     SZ    NZ     .     P     !
+eng      .     E     .     .      .     P     !
+sto      .     E     .     .      K     .     .
+end      !     .     .     !      .     .     !
 """
 TABLES = {"own master": (False, OWN, OWN_ACTIONS), "external master": (True, EXTERNAL, EXTERNAL_ACTIONS)}
 
@@ -104,6 +107,7 @@ def test_every_phase_and_event(table, rule, phase, kind, expected, codes):
     assert actions == [ACTION_CODES[c] for c in codes if c != "."]
     assert after.exit_status == (3 if "E" in codes else 0)
     assert after.exit_when_all_dead == rule
+    assert after.reason == (lp.ALL_DEAD_TEXT if "S" in codes else lp.NO_PROCESSES_TEXT if "N" in codes else "")
 
 
 def test_the_first_node_that_fails_decides_the_exit_status():

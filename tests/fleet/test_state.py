@@ -16,7 +16,10 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
     from launcher.fleet import launchphase as lp, lifecycle as m
     from launcher.fleet.state import Fleet
     said, warned = [], []
-    fleet = Fleet(clock=lambda: 0.0, say=said.append, warn=warned.append, exit_when_all_dead=True)
+
+    def say(text, bold):
+        said.append(text if not bold else "**%s**" % text)
+    fleet = Fleet(clock=lambda: 0.0, say=say, warn=warned.append, exit_when_all_dead=True)
     for name in ("/a", "/b"):
         fleet.add(name)
         fleet.apply(name, m.Event(m.START))
@@ -34,7 +37,7 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
     fleet.launch_step(lp.ALL_STOPPED)  # (a runner's bug)
     assert warned == ["WARNING: internal error: launch: event [all stopped] in phase [ended]"]
 
-    fleet = Fleet(clock=lambda: 0.0, say=said.append)  # our own master: a required node ends it
+    fleet = Fleet(clock=lambda: 0.0, say=say)  # our own master: a required node ends it
     fleet.add("/vital", rules=m.Rules(required=True))
     fleet.apply("/vital", m.Event(m.START))
     fleet.apply("/vital", m.Event(m.SPAWNED, pid=1))
@@ -43,3 +46,29 @@ def test_the_fleet_steps_the_launchs_phase_from_its_nodes_and_carries_out_end_an
     assert fleet.done.is_set() and fleet.exit_status == 137 and fleet.launch.state == lp.ENDING
     fleet.not_started(required=True)  # (a later failure does not change the status)
     assert fleet.exit_status == 137
+
+
+def test_a_launch_without_a_process_ends_on_a_master_found_running_as_roslaunchs():
+    """roslaunch's "No processes to monitor" (its #556): a launch of parameters only, or whose every node could not
+    be made, ends with status 0 on a master found running; on its own master (a process roslaunch would monitor)
+    it runs on. A node of another machine is a process (its machine's roslaunch)."""
+    from launcher.fleet import launchphase as lp, lifecycle as m
+    from launcher.fleet.state import Fleet
+    for unstarted in (0, 2):
+        said = []
+        fleet = Fleet(clock=lambda: 0.0, say=lambda text, bold: said.append((text, bold)), exit_when_all_dead=True)
+        for _ in range(unstarted):
+            fleet.not_started(required=False)
+        fleet.registrations_complete()
+        assert said == [(lp.NO_PROCESSES_TEXT, True)], unstarted  # (said once: not "all processes ... died" too)
+        assert fleet.done.is_set() and fleet.exit_status == 0 and fleet.launch.reason == lp.NO_PROCESSES_TEXT
+
+    said = []
+    fleet = Fleet(clock=lambda: 0.0, say=lambda text, bold: said.append(text))  # our own master
+    fleet.registrations_complete()
+    assert not said and not fleet.done.is_set() and fleet.launch.state == lp.RUNNING
+
+    fleet = Fleet(clock=lambda: 0.0, say=lambda text, bold: said.append(text), exit_when_all_dead=True)
+    fleet.add("/far", host="robot2")
+    fleet.registrations_complete()
+    assert not said and not fleet.done.is_set()

@@ -11,7 +11,8 @@ import time
 import pytest
 
 from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
-from running import Launcher, RosMaster, compile_roscpp, make_package, master_proxy, ros_env, write_launch
+from running import (Launcher, RosMaster, compile_roscpp, get_param, make_package, master_proxy, ros_env,
+                     write_launch)
 
 # rospy node: prints, then spins until SIGINT
 RospySpinner = """#!%s
@@ -235,6 +236,36 @@ def test_nodes_that_exit_zero_with_external_master(tmp_path, pkgs):
     finally:
         lp.close()
         rosmaster.stop()
+
+
+@pytest.mark.parametrize("nodes", ["", '<node pkg="no_such_package" type="t" name="lost"/>'])
+def test_a_launch_without_a_process_ends_on_a_running_master_as_roslaunch_does(tmp_path, pkgs, nodes):
+    """roslaunch's #556: a launch that only sets parameters (or whose nodes all could not be made) on a master found
+    running says "No processes to monitor" and exits 0, its parameters set; Debian's roslaunch beside it."""
+    rosmaster = RosMaster(str(tmp_path))
+    launch = write_launch(str(tmp_path), '<param name="loaded/value" value="7"/>' + nodes)
+    env = ros_env(str(tmp_path), rosmaster.port, pkgs)
+    try:
+        ref = subprocess.run(["roslaunch", launch], env=dict(env, PATH=ROS_PATH), stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, timeout=60)
+        assert ref.returncode == 0 and "No processes to monitor" in ref.stdout, ref
+        master_proxy(rosmaster.port).deleteParam("/test", "/loaded")
+        lp = Launcher([launch], env, str(tmp_path))
+        try:
+            assert lp.wait(60) == 0
+        finally:
+            lp.close()
+        assert get_param(rosmaster.port, "/loaded/value") == 7
+        ours = lp.stdout
+        tail = ["No processes to monitor", "shutting down processing monitor...",
+                "... shutting down processing monitor complete"]  # (and no "done": roslaunch returns before it)
+        assert _plain_lines(ref.stdout)[-3:] == tail and _plain_lines(ours)[-3:] == tail, ours
+    finally:
+        rosmaster.stop()
+
+
+def _plain_lines(text: str) -> list[str]:
+    return [line for line in re.sub(r"\x1b(\[[0-9;]*m|\][^\x07]*\x07)", "", text).splitlines() if line.strip()]
 
 
 def test_embedded_master_keeps_running_after_nodes_finish(tmp_path, pkgs):
