@@ -81,3 +81,10 @@ class Plan:
             if node.respawn and node.required:
                 raise LaunchError("respawn and required cannot both be set to true (node [%s])" % node.full_name,
                                   node.filename or None, node.line or None)
+        for node in self.config.nodes + self.config.tests:
+            if node.machine_name and node.machine_name not in self.config.machines:
+                # (roslaunch gives every node and test its machine before it runs anything, and refuses the launch
+                # here; its --nodes, --args and --dump-params do not look)
+                raise LaunchError("unknown machine [%s]: no <machine> tag declares it (%s [%s])" % (
+                    node.machine_name, "test" if node.is_test else "node", node.full_name),
+                    node.filename or None, node.line or None)

@@ -122,12 +122,7 @@ class XmlLoader:
                     text += "\n  included from %s:%d" % (f, ln)
                 self._warn_plain(text)
         self._private_params.clear()
-        self._undeclared_cli_args()
-        for n in self.nodes + self.tests:
-            if n.machine_name and n.machine_name not in self.machines:
-                self._warn_plain("%s:%d: <%s> [%s] uses machine [%s], which no <machine> tag declares (roslaunch "
-                                 "refuses to run it)" % (n.filename, n.line, "test" if n.is_test else "node",
-                                                         n.full_name, n.machine_name))
+        self._undeclared_cli_args()  # (an unknown machine is the run's error: plan.Plan.check_nodes)
 
     def _undeclared_cli_args(self) -> None:
         """roslaunch silently ignores `name:=value` for an arg no file declares: say so (a typo, usually)."""

@@ -264,6 +264,33 @@ def test_a_launch_without_a_process_ends_on_a_running_master_as_roslaunch_does(t
         rosmaster.stop()
 
 
+def test_a_node_on_an_unknown_machine_refuses_the_launch_as_roslaunch_does(tmp_path, pkgs):
+    """roslaunch gives every node its machine before it runs anything: an undeclared machine ends the launch with
+    status 1 before its parameters are set or a node starts; Debian's roslaunch beside it."""
+    rosmaster = RosMaster(str(tmp_path))
+    report = tmp_path / "reports"
+    report.mkdir()
+    launch = write_launch(str(tmp_path), """
+      <param name="early/value" value="1"/>
+      <node pkg="run_tests" type="reporter" name="here"><env name="REPORT_DIR" value="%s"/></node>
+      <node pkg="run_tests" type="reporter" name="far" machine="nowhere"/>
+    """ % report)
+    env = ros_env(str(tmp_path), rosmaster.port, pkgs)
+    try:
+        ref = subprocess.run(["roslaunch", launch], env=dict(env, PATH=ROS_PATH), stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, timeout=60)
+        assert ref.returncode == 1 and "unknown machine [nowhere]" in ref.stderr, ref
+        lp = Launcher([launch], env, str(tmp_path))
+        try:
+            assert lp.wait(60) == 1
+        finally:
+            lp.close()
+        assert "%s:6: unknown machine [nowhere]: no <machine> tag declares it (node [/far])" % launch in lp.stderr
+        assert get_param(rosmaster.port, "/early/value") is None and not os.listdir(str(report))
+    finally:
+        rosmaster.stop()
+
+
 def _plain_lines(text: str) -> list[str]:
     return [line for line in re.sub(r"\x1b(\[[0-9;]*m|\][^\x07]*\x07)", "", text).splitlines() if line.strip()]
 

@@ -37,6 +37,20 @@ def test_respawn_with_required_is_an_error_at_the_node(required, node, words):
     assert str(e.value) == words
 
 
+@pytest.mark.parametrize("node, words", [
+    (Node("p", "t", "a", machine_name="nowhere", filename="x.launch", line=6),
+     "x.launch:6: unknown machine [nowhere]: no <machine> tag declares it (node [/a])"),
+    (Node("p", "t", "t", machine_name="gone", test_name="t", filename="y.test", line=2),
+     "y.test:2: unknown machine [gone]: no <machine> tag declares it (test [/t])"),
+])
+def test_a_node_or_test_on_an_unknown_machine_refuses_the_run_as_roslaunchs(node, words):
+    config = LaunchConfig(nodes=(Node("p", "t", "ok", machine_name="here"),) + (() if node.is_test else (node,)),
+                          tests=(node,) if node.is_test else (), machines={"here": Machine("here", "localhost")})
+    with pytest.raises(LaunchError) as e:
+        Plan(config, "http://192.0.2.1:11311/", {}).check_nodes(False)
+    assert str(e.value) == words
+
+
 def test_checked_nodes_bind_a_local_nodelet_loader_to_its_manager_and_refuse_wait_cycles():
     manager = Node("nodelet", "nodelet", "manager", args="manager")
     loader = Node("nodelet", "nodelet", "cam", args="load cam/Driver manager")

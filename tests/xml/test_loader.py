@@ -586,7 +586,7 @@ def test_warnings_for_what_roslaunch_silently_ignores(ld):
     w = "\n".join(c.warnings)
     assert "%s:4: private parameter [~unused] is not set for any node" % main in w
     assert "[~used]" not in w
-    assert "%s:3: <node> [/a] uses machine [nowhere]" % main in w
+    assert "nowhere" not in w  # (an unknown machine: the run's error, plan.Plan.check_nodes; --nodes as roslaunch's)
     assert "%s:3: respawn_delay has no effect" % main in w
     assert "%s:5: <rosparam param=\"~rp\"> outside a <node>" % main in w
 
