@@ -631,6 +631,9 @@ class XmlLoader:
             self._warn(scope, el, "<rosparam param=\"%s\"> outside a <node> sets parameters under the literal "
                                   "name [%s] (as roslaunch does), not under a node" % (param, full_param))
         if cmd == "dump":
+            if not file_:  # (roslaunch runs `rosparam dump` with no file then, and its launch dies of a TypeError)
+                self._warn(scope, el, "<rosparam command=\"dump\"> without a file= dumps nothing (roslaunch's launch "
+                                      "fails on it)")
             self.rosparam_commands.append(("dump", full_param, file_))
             return
         if cmd == "delete":

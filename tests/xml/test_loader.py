@@ -337,6 +337,13 @@ def test_rosparam_commands_are_recorded_in_order(ld):
           <rosparam command="dump" file="out.yaml" param="y"/>
         </group></launch>""")
     assert c.rosparam_commands == (("delete", "/g/x", None), ("dump", "/g/y", "out.yaml"))
+    assert not c.warnings
+
+
+def test_a_rosparam_dump_without_a_file_is_said_at_its_line(ld):
+    c = ld.load('<launch>\n<rosparam command="dump" param="y"/>\n</launch>')
+    assert c.warnings == ('%s:2: <rosparam command="dump"> without a file= dumps nothing (roslaunch\'s launch fails '
+                          'on it)' % (ld.launch / "main.launch"),)
 
 
 def test_rosparam_yaml_error_reports_the_yaml_files_own_line(ld):
