@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from launcher.model.errors import LaunchError
 from launcher.net.hostname import advertised_host
 from launcher.model.graph import Graph
+from launcher.model.names import resolve_name
 from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
@@ -114,23 +115,25 @@ async def started_by_roscore(uri: str) -> bool:
 
 
 class LocalParams:
-    """The parameter server of our own, in-process master."""
+    """The parameter server of our own, in-process master. Each key is resolved as the master resolves a client's,
+    against our caller id, as RemoteParams' calls are: a launch-level `~x` (a literal name roslaunch passes on)
+    is /roslaunch/x on either master, as on roslaunch's."""
 
     def __init__(self, master: Master):
         self.master = master
 
     async def has(self, key: str) -> bool:
-        return self.master.params.has(key)
+        return self.master.params.has(resolve_name(key, CALLER_ID))
 
     async def get(self, key: str) -> Any:
-        return self.master.params.get(key)
+        return self.master.params.get(resolve_name(key, CALLER_ID))
 
     async def set(self, key: str, value: Any) -> None:
-        self.master.set_param(key, value)
+        self.master.set_param(resolve_name(key, CALLER_ID), value)
 
     async def delete(self, key: str) -> None:
         try:
-            self.master.delete_param(key)
+            self.master.delete_param(resolve_name(key, CALLER_ID))
         except KeyError:
             pass
 
@@ -140,7 +143,7 @@ class LocalParams:
                 await self.delete(ns)
         for key, value in params:
             try:
-                self.master.set_param(key, value)
+                self.master.set_param(resolve_name(key, CALLER_ID), value)
             except ValueError as e:  # a value no client could read back (setParam refuses it too)
                 raise LaunchError("Failed to set parameter: %s" % e) from None
 

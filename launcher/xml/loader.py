@@ -16,7 +16,7 @@ import sys
 
 from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
 from launcher.model.errors import SHOWN_CHARS, LaunchError, shorten
-from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join
+from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join, resolve_name
 from launcher.params.values import PARAM_TYPES, auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
 from launcher.workspace.roshome import ros_home
@@ -628,8 +628,11 @@ class XmlLoader:
                                             "'delete' command.")
         full_param = ns_join(scope.ns, param) if param else scope.ns
         if full_param[:1] == "~":
-            self._warn(scope, el, "<rosparam param=\"%s\"> outside a <node> sets parameters under the literal "
-                                  "name [%s] (as roslaunch does), not under a node" % (param, full_param))
+            # (in a <node> too: roslaunch resolves a <rosparam>'s ~ against no node; the master resolves the name
+            # it is given against its caller, roslaunch)
+            self._warn(scope, el, "<rosparam param=\"%s\"> sets its parameters under the literal name [%s], which "
+                                  "the master resolves against roslaunch's own name, as for roslaunch: [%s], not "
+                                  "a node's" % (param, full_param, resolve_name(full_param, "/roslaunch")))
         if cmd == "dump":
             if not file_:  # (roslaunch runs `rosparam dump` with no file then, and its launch dies of a TypeError)
                 self._warn(scope, el, "<rosparam command=\"dump\"> without a file= dumps nothing (roslaunch's launch "

@@ -35,6 +35,7 @@ def pkgs(tmp_path, ros_env):
 
 LAUNCH = """
   <param name="shared/value" value="from-launch"/>
+  <rosparam param="~literal">{{a: 1}}</rosparam>
   <node pkg="run_tests" type="param_py" name="py_node" clear_params="true">
     <param name="value" value="py-private"/>
     <param name="out" value="{tmp}/py.txt"/>
@@ -70,6 +71,8 @@ def test_params_visible_to_nodes_before_they_start(tmp_path, pkgs, master):
                                                         "stale": "absent"}
         run_id = get_param(port, "/run_id")
         assert run_id and re.fullmatch(r"[0-9a-f-]{36}", run_id)
+        # a launch-level ~name is passed on as it is, and resolved by the master against roslaunch's caller id
+        assert get_param(port, "/roslaunch/literal") == {"a": 1} and get_param(port, "/literal") is None
         # roscore.xml's parameters, which roslaunch sets on every master, its own or one found running
         env = ros_env(str(tmp_path), port, pkgs)
         for key, argv in (("/rosversion", ["rosversion", "roslaunch"]), ("/rosdistro", ["rosversion", "-d"])):

@@ -595,7 +595,8 @@ def test_warnings_for_what_roslaunch_silently_ignores(ld):
     assert "[~used]" not in w
     assert "nowhere" not in w  # (an unknown machine: the run's error, plan.Plan.check_nodes; --nodes as roslaunch's)
     assert "%s:3: respawn_delay has no effect" % main in w
-    assert "%s:5: <rosparam param=\"~rp\"> outside a <node>" % main in w
+    assert "%s:5: <rosparam param=\"~rp\"> sets its parameters under the literal name [~rp], which the master " \
+           "resolves against roslaunch's own name, as for roslaunch: [/roslaunch/rp], not a node's" % main in w
 
 
 def test_undeclared_command_line_arg_is_warned_unless_read(ld):
