@@ -17,7 +17,7 @@ from launcher.master.masterlog import mlog  # master.log, in rosmaster's lines
 from launcher.master.notify import Notifier, since_boot
 from launcher.model.names import ANYTYPE, SEP, canonicalize_name, resolve_name
 from launcher.params.tree import ParamTree, copy_tree
-from launcher.net.xmlrpc_codec import MAXINT, MININT, Encoded, Fault, encode_value
+from launcher.net.xmlrpc_codec import Encoded, Fault, encode_value, unsendable
 
 
 NO_CHECK = None  # an argument passed on as it is
@@ -148,25 +148,6 @@ def param_updates(subscribers: reg.Registrations, key: str, value: Any, ignore_c
 # ---------------------------------------------------------------------------
 # the handler
 # ---------------------------------------------------------------------------
-
-def unsendable(value: Any) -> str:
-    """Why `value` could not be sent back over XML-RPC ("" if it can): what the codec reads but
-    cannot write, an <i8> outside 32 bits or a <nil/>, anywhere inside the value."""
-    stack = [value]
-    while stack:
-        v = stack.pop()
-        t = type(v)
-        if t is int:
-            if not MININT <= v <= MAXINT:
-                return "the integer %d is outside the 32-bit range XML-RPC can send" % v
-        elif t is dict:
-            stack.extend(v.values())
-        elif t is list:
-            stack.extend(v)
-        elif v is None:
-            return "a nil value cannot be sent over XML-RPC"
-    return ""
-
 
 class MasterApi:
     """Method table and state of one master. `dispatch(method, params)` answers a call."""

@@ -121,7 +121,7 @@ def _enc_list(v: list | tuple, out: list[str]) -> None:
             continue
         enc = _ENCODERS.get(t)
         if enc is None:
-            enc = _encoder_for(item)
+            enc = encoder_for(item)
         enc(item, out)
     append("</data></array></value>")
 
@@ -140,7 +140,7 @@ def _enc_dict(v: dict, out: list[str]) -> None:
         append("<member><name>" + key + "</name>")
         enc = _ENCODERS.get(type(item))
         if enc is None:
-            enc = _encoder_for(item)
+            enc = encoder_for(item)
         enc(item, out)
         append("</member>")
     append("</struct></value>")
@@ -159,7 +159,7 @@ _ENCODERS: dict[type, Callable[[Any, list[str]], None]] = {
 }
 
 
-def _encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
+def encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
     """Encoder for subclasses (an IntEnum, an OrderedDict, ...), by the first matching base."""
     for base in type(value).__mro__:
         enc = _ENCODERS.get(base)
@@ -170,19 +170,46 @@ def _encoder_for(value: Any) -> Callable[[Any, list[str]], None]:
     datetime = sys.modules.get("datetime")
     if datetime is not None and datetime.datetime not in _ENCODERS:
         _ENCODERS[datetime.datetime] = _enc_pydatetime
-        return _encoder_for(value)
+        return encoder_for(value)
     client = sys.modules.get("xmlrpc.client")
     if client is not None and client.Binary not in _ENCODERS:
         _ENCODERS[client.Binary] = _enc_binary
         _ENCODERS[client.DateTime] = _enc_datetime
-        return _encoder_for(value)
+        return encoder_for(value)
     raise TypeError("cannot marshal %s objects" % type(value))
+
+
+def unsendable(value: Any) -> str:
+    """Why `value` could not be sent back over XML-RPC ("" if it can), anywhere inside it: what the codec reads but
+    cannot write (an <i8> outside 32 bits, a <nil/>), or what a launch's YAML made that no codec writes (a date)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        t = type(v)
+        if t is str or t is float or t is bool:
+            pass
+        elif t is int:
+            if not MININT <= v <= MAXINT:
+                return "the integer %d is outside the 32-bit range XML-RPC can send" % v
+        elif isinstance(v, dict):
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple)):
+            stack.extend(v)
+        elif v is None:
+            return "a nil value cannot be sent over XML-RPC"
+        else:
+            try:
+                encoder_for(v)  # (bytes, Binary, a datetime: written as they are)
+            except TypeError:
+                hint = " (in YAML, quote it to keep it a string)" if t.__name__ == "date" else ""
+                return "a value of type %s (%s) cannot be sent over XML-RPC%s" % (t.__name__, v, hint)
+    return ""
 
 
 def _encode_value(value: Any, out: list[str]) -> None:
     enc = _ENCODERS.get(type(value))
     if enc is None:
-        enc = _encoder_for(value)
+        enc = encoder_for(value)
     enc(value, out)
 
 

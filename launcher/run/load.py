@@ -21,6 +21,7 @@ import sys
 from typing import Any, Callable, Mapping
 
 from launcher.net.hostname import advertised_host
+from launcher.net.xmlrpc_codec import unsendable
 from launcher.model.config import LaunchConfig
 from launcher.model.errors import LaunchError
 from launcher.model.names import AnonNames
@@ -118,6 +119,11 @@ def check_plan(plan: Plan, opts: RunOptions) -> None:
     limits, addresses they can reach (this machine's ROS address), the supervision extensions their
     roslaunch child cannot apply (warned about)."""
     plan.check_nodes(opts.required)
+    for param in plan.config.params.values():  # (roslaunch's run fails on such a value as it sends it)
+        problem = unsendable(param.value)
+        if problem:
+            raise LaunchError("parameter [%s] cannot be set: %s" % (param.key, problem), param.filename or None,
+                              param.line or None)
     if opts.local:
         return
     config = plan.config

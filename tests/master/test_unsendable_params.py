@@ -71,9 +71,14 @@ def test_in_process_set_param_refuses_it_too():
                 master.set_param("/cfg", {"deep": [1, 2**40]})
             with pytest.raises(ValueError, match="nil"):
                 master.set_param("/none", None)
+            import datetime  # (what YAML makes of 2015-01-01, which no XML-RPC marshaller writes)
+            with pytest.raises(ValueError, match=r"\[/day\].*type date \(2015-01-01\).*quote it"):
+                master.set_param("/day", {"when": [datetime.date(2015, 1, 1)]})
+            master.set_param("/stamp", datetime.datetime(2015, 1, 1, 12, 30))  # (a dateTime.iso8601)
             from launcher.net.xmlrpc import call
             code, _msg, root = await call(master.uri, "getParam", "/t", "/")
-            assert code == 1 and root["ok"] == 1 and "cfg" not in root and "none" not in root
+            assert code == 1 and root["ok"] == 1 and "cfg" not in root and "none" not in root and "day" not in root
+            assert str(root["stamp"]) == "20150101T12:30:00"
         finally:
             await master.stop()
     asyncio.run(scenario())

@@ -11,6 +11,8 @@ import textwrap
 import threading
 import time
 
+import pytest
+
 from helpers import ROOT, until
 from launcher.process.reaper import stat_fields
 from launcher.run.apart import begin_apart
@@ -228,3 +230,18 @@ def test_a_launchs_plan_made_apart_leaves_the_parsers_out_and_keeps_its_anon_nam
     assert text == params_text(here.config).replace(here.config.params["/who"].value, params["/who"])
     assert "plugins:" in text and "x::A" in text  # (a list of mappings: what PyYAML writes, there)
 
+
+
+def test_a_parameter_no_master_could_be_sent_refuses_the_run_at_its_line(tmp_path):
+    """roslaunch's --dump-params prints a YAML date, and its run dies of a TypeError as it sends it: ours refuses the
+    run with the tag's file and line, before anything runs."""
+    from launcher.model.errors import LaunchError
+    from launcher.model.runopts import RunOptions
+    from launcher.run.load import load_plan
+    launch = tmp_path / "a.launch"
+    launch.write_text('<launch>\n  <param name="ok" value="2015-01-01"/>\n'
+                      '  <rosparam ns="cfg">since: 2015-01-01</rosparam>\n</launch>\n')
+    with pytest.raises(LaunchError) as e:
+        load_plan(RunOptions(positional=(str(launch),)))
+    assert str(e.value) == ("%s:3: parameter [/cfg/since] cannot be set: a value of type date (2015-01-01) cannot be "
+                            "sent over XML-RPC (in YAML, quote it to keep it a string)" % launch)
