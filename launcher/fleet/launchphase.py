@@ -6,7 +6,8 @@ complete"), is to end when a node ends it (a required node died or could not sta
 on_fatal="shutdown": "Initiating shutdown!"), when every node of this machine has died
 with a master that is not its own ("all processes on machine have died, roslaunch will
 exit"), when it has no process at all with such a master (a launch of parameters only:
-"No processes to monitor") or when a stop signal comes, then stops its nodes, and has ended once they are
+"No processes to monitor"), when a node's process cannot be started while it starts its
+nodes (roslaunch's FatalProcessLaunch: a bad launch-prefix) or when a stop signal comes, then stops its nodes, and has ended once they are
 down. A stop signal while the nodes are being stopped (the second Ctrl-C) kills those
 still stopping.
 
@@ -37,12 +38,13 @@ STATES = (STARTING, RUNNING, ENDING, STOPPING, ENDED)
 ALL_STARTED = "all started"  # every node of the launch has been started, or failed to (registrations complete)
 NODE_ENDED_IT = "node ended it"  # a node's table said END_LAUNCH (`status`), or a required one could not be made
 ALL_DEAD = "all dead"  # no node of this machine can run again, and one ended by itself (`all_dead` below)
+START_FAILED = "start failed"  # a node's process of this machine could not be started (its exec failed)
 NO_PROCESSES = "no processes"  # every node has been started, and none has a process, here or elsewhere: the launch
 #                                has no node, or none could be made
 STOP_SIGNAL = "stop signal"  # SIGINT, SIGTERM or SIGHUP
 STOP = "stop"  # the launch's runner stops its nodes now (its services' teardown reached them)
 ALL_STOPPED = "all stopped"  # the runner's stop of the nodes is over
-EVENTS = (ALL_STARTED, NODE_ENDED_IT, ALL_DEAD, NO_PROCESSES, STOP_SIGNAL, STOP, ALL_STOPPED)
+EVENTS = (ALL_STARTED, NODE_ENDED_IT, START_FAILED, ALL_DEAD, NO_PROCESSES, STOP_SIGNAL, STOP, ALL_STOPPED)
 
 # ---- actions: what the fleet (END, SAY) and the launch's runner (STOP_ALL, KILL_ALL) carry out
 END = "end"  # the launch ends, with exit `status` (the fleet's `done`: the run's body returns)
@@ -66,6 +68,9 @@ class Launch:
     # roslaunch ends a launch whose nodes all died, or that has no process, only when the master is not its own
     # (its own master is a process it monitors; a rule for the whole run)
     exit_when_all_dead: bool = False
+    # roslaunch's own launch ends (status 1) when a node's process cannot be started while it starts its nodes (its
+    # FatalProcessLaunch); its remote child, and a runner on its own, go on (the node's table decides what follows)
+    start_failure_ends_it: bool = False
     # why it ends, where its nodes ended it by all dying or by having no process (roslaunch's words, for the
     # events file); "" otherwise
     reason: str = ""
@@ -141,6 +146,13 @@ def _all_dead(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
         [Action(SAY, text=ALL_DEAD_TEXT), Action(END, status=n.exit_status)]
 
 
+def _start_failed(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
+    if not n.start_failure_ends_it:
+        return n, []
+    status = n.exit_status or 1
+    return n._replace(state=ENDING, exit_status=status), [Action(END, status=status)]
+
+
 def _no_processes(n: Launch, e: Event) -> tuple[Launch, list[Action]]:
     if not n.exit_when_all_dead:  # (our own master is the process roslaunch's would monitor: its roscore)
         return n, []
@@ -170,6 +182,7 @@ TABLE = {
     (STARTING, ALL_STARTED): _all_started,
     **{(s, NODE_ENDED_IT): _node_ended_it for s in (STARTING, RUNNING, ENDING, STOPPING)},
     (RUNNING, ALL_DEAD): _all_dead,
+    (STARTING, START_FAILED): _start_failed,
     (RUNNING, NO_PROCESSES): _no_processes,
     (STARTING, STOP_SIGNAL): _to_end,
     (RUNNING, STOP_SIGNAL): _to_end,
@@ -185,6 +198,9 @@ IGNORED = frozenset(
     [(s, ALL_STARTED) for s in (RUNNING, ENDING, STOPPING)]
     # roslaunch counts the dead once every node has been started, and only until the launch is to end
     + [(s, ALL_DEAD) for s in (STARTING, ENDING, STOPPING, ENDED)]
+    # a node's start that failed once every node has been started (a respawn, an operator's start: the node's own
+    # table decides what follows), or while the launch ends anyway
+    + [(s, START_FAILED) for s in (RUNNING, ENDING, STOPPING)]
     # told right after ALL_STARTED: a launch already to end (a stop signal, a required node) goes on ending
     + [(s, NO_PROCESSES) for s in (ENDING, STOPPING)]
     # the launch ends already (a second signal before its nodes' stop has begun changes nothing), or has ended
@@ -202,6 +218,8 @@ REFUSED = frozenset(
     [(ENDED, ALL_STARTED)]
     # it follows ALL_STARTED, which leaves STARTING and is refused once the launch has ended
     + [(STARTING, NO_PROCESSES), (ENDED, NO_PROCESSES)]
+    # no node is started once the launch has ended
+    + [(ENDED, START_FAILED)]
     # only a stop that began can be over
     + [(s, ALL_STOPPED) for s in (STARTING, RUNNING, ENDING, ENDED)]
 )

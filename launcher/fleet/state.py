@@ -273,6 +273,8 @@ class Fleet:
         for action in actions:
             if action.kind == lifecycle.END_LAUNCH:
                 self.end(action.status)
+        if event.kind == lifecycle.SPAWN_FAILED and new.host == LOCAL_HOST:
+            self.launch_step(launchphase.START_FAILED)  # (the launch's phase decides whether that ends it)
         if new.state in lifecycle.ENDED and old.state not in lifecycle.ENDED:
             self._check_all_dead()
         return actions
@@ -413,6 +415,11 @@ class Fleet:
     @exit_when_all_dead.setter
     def exit_when_all_dead(self, value: bool) -> None:
         self.launch = self.launch._replace(exit_when_all_dead=value)
+
+    def start_failure_ends_the_launch(self) -> None:
+        """This is roslaunch's own launch (not a remote child, nor a runner on its own): a node's process that
+        cannot be started while it starts its nodes ends it (launchphase)."""
+        self.launch = self.launch._replace(start_failure_ends_it=True)
 
     @property
     def stopping(self) -> bool:

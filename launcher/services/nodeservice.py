@@ -112,6 +112,7 @@ class NodeService:
                            warn=console.printerrlog)
         self.fleet.listeners.append(self.log.state_change)
         self.fleet.relate(plan.relations)
+        self.fleet.start_failure_ends_the_launch()
         self.supervisor = Supervisor(sigint_timeout=self.opts.sigint_timeout,
                                      sigterm_timeout=self.opts.sigterm_timeout,
                                      exit_when_all_dead=exit_when_all_dead, watchdog=self.watchdog, fleet=self.fleet)
@@ -123,7 +124,7 @@ class NodeService:
         stop = self.signals.event
         no_start = self.opts.no_start
         for spec in specs:
-            if stop.is_set():
+            if stop.is_set() or not self.fleet.starts_allowed:  # (a stop signal; a node that ended the launch)
                 break
             if no_start:
                 self.supervisor.add(spec)  # started later by `launcher start`

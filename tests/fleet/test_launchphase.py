@@ -10,50 +10,70 @@ from launcher.fleet import launchphase as lp
 from launcher.fleet import lifecycle
 from launcher.fleet.launchphase import Action, Event, Launch
 
-EVENTS = [lp.ALL_STARTED, lp.NODE_ENDED_IT, lp.ALL_DEAD, lp.NO_PROCESSES, lp.STOP_SIGNAL, lp.STOP, lp.ALL_STOPPED]
+EVENTS = [lp.ALL_STARTED, lp.NODE_ENDED_IT, lp.START_FAILED, lp.ALL_DEAD, lp.NO_PROCESSES, lp.STOP_SIGNAL, lp.STOP,
+          lp.ALL_STOPPED]
 SHORT = {"sta": lp.STARTING, "run": lp.RUNNING, "eng": lp.ENDING, "sto": lp.STOPPING, "end": lp.ENDED}
 # Every cell: the phase after the event ("-": nothing changes, "!": a runner's bug, InvalidTransition), and (in
-# the matrix below it) the actions, in their order: E end with the node's status (3 in these cells), Z end with
-# status 0, S say "all processes on machine have died, roslaunch will exit", N say "No processes to monitor" in bold,
-# P stop all, K kill all; ".": none. S and N give the launch its reason (their words).
-ACTION_CODES = {"E": Action(lp.END, status=3), "Z": Action(lp.END, status=0), "S": Action(lp.SAY, text=lp.ALL_DEAD_TEXT),
-                "N": Action(lp.SAY, text=lp.NO_PROCESSES_TEXT, bold=True), "P": Action(lp.STOP_ALL),
-                "K": Action(lp.KILL_ALL)}
+# the matrix below it) the actions, in their order: E end with the node's status (3 in these cells), F end with
+# status 1 (a start that failed), Z end with status 0, S say "all processes on machine have died, roslaunch will
+# exit", N say "No processes to monitor" in bold, P stop all, K kill all; ".": none. S and N give the launch its
+# reason (their words).
+ACTION_CODES = {"E": Action(lp.END, status=3), "F": Action(lp.END, status=1), "Z": Action(lp.END, status=0),
+                "S": Action(lp.SAY, text=lp.ALL_DEAD_TEXT), "N": Action(lp.SAY, text=lp.NO_PROCESSES_TEXT, bold=True),
+                "P": Action(lp.STOP_ALL), "K": Action(lp.KILL_ALL)}
 
 # roslaunch's own master (launch, roscore): the launch runs on when its nodes have all died, or it has none.
-#        ALLST NODE  DEAD  NOPROC SIGNL STOP  ALLSTOPPED
+#        ALLST NODE  START DEAD  NOPROC SIGNL STOP  ALLSTOPPED
 OWN = """
-sta      run   eng   -     !      eng   sto   !
-run      -     eng   -     -      eng   sto   !
-eng      -     eng   -     -      -     sto   !
-sto      -     sto   -     -      sto   -     end
-end      !     -     -     !      -     -     !
+sta      run   eng   eng   -     !      eng   sto   !
+run      -     eng   -     -     -      eng   sto   !
+eng      -     eng   -     -     -      -     sto   !
+sto      -     sto   -     -     -      sto   -     end
+end      !     -     !     -     !      -     -     !
 """
 OWN_ACTIONS = """
-sta      .     E     .     !      .     P     !
-run      .     E     .     .      .     P     !
-eng      .     E     .     .      .     P     !
-sto      .     E     .     .      K     .     .
-end      !     .     .     !      .     .     !
+sta      .     E     F     .     !      .     P     !
+run      .     E     .     .     .      .     P     !
+eng      .     E     .     .     .      .     P     !
+sto      .     E     .     .     .      K     .     .
+end      !     .     !     .     !      .     .     !
 """
-# A master found running (and a remote child): the launch ends when every node of this machine has died, or when
-# it has no process at all.
-#        ALLST NODE  DEAD  NOPROC SIGNL STOP  ALLSTOPPED
+# A master found running: the launch ends when every node of this machine has died, or when it has no process.
+#        ALLST NODE  START DEAD  NOPROC SIGNL STOP  ALLSTOPPED
 EXTERNAL = """
-sta      run   eng   -     !      eng   sto   !
-run      -     eng   eng   eng    eng   sto   !
-eng      -     eng   -     -      -     sto   !
-sto      -     sto   -     -      sto   -     end
-end      !     -     -     !      -     -     !
+sta      run   eng   eng   -     !      eng   sto   !
+run      -     eng   -     eng   eng    eng   sto   !
+eng      -     eng   -     -     -      -     sto   !
+sto      -     sto   -     -     -      sto   -     end
+end      !     -     !     -     !      -     -     !
 """
 EXTERNAL_ACTIONS = """
-sta      .     E     .     !      .     P     !
-run      .     E     SZ    NZ     .     P     !
-eng      .     E     .     .      .     P     !
-sto      .     E     .     .      K     .     .
-end      !     .     .     !      .     .     !
+sta      .     E     F     .     !      .     P     !
+run      .     E     .     SZ    NZ     .     P     !
+eng      .     E     .     .     .      .     P     !
+sto      .     E     .     .     .      K     .     .
+end      !     .     !     .     !      .     .     !
 """
-TABLES = {"own master": (False, OWN, OWN_ACTIONS), "external master": (True, EXTERNAL, EXTERNAL_ACTIONS)}
+# A remote child (a runner on its own too): as with a master found running, but a node's start that fails is its
+# node's business (roslaunch's child answers its parent's launch call with the error and goes on).
+#        ALLST NODE  START DEAD  NOPROC SIGNL STOP  ALLSTOPPED
+CHILD = """
+sta      run   eng   -     -     !      eng   sto   !
+run      -     eng   -     eng   eng    eng   sto   !
+eng      -     eng   -     -     -      -     sto   !
+sto      -     sto   -     -     -      sto   -     end
+end      !     -     !     -     !      -     -     !
+"""
+CHILD_ACTIONS = """
+sta      .     E     .     .     !      .     P     !
+run      .     E     .     SZ    NZ     .     P     !
+eng      .     E     .     .     .      .     P     !
+sto      .     E     .     .     .      K     .     .
+end      !     .     !     .     !      .     .     !
+"""
+# (exit_when_all_dead, start_failure_ends_it, phases, actions)
+TABLES = {"own master": (False, True, OWN, OWN_ACTIONS), "external master": (True, True, EXTERNAL, EXTERNAL_ACTIONS),
+          "remote child": (True, False, CHILD, CHILD_ACTIONS)}
 
 
 def _rows(text: str) -> list[list[str]]:
@@ -64,15 +84,15 @@ def _rows(text: str) -> list[list[str]]:
 
 
 def cells():
-    for table, (all_dead_ends, phases, actions) in TABLES.items():
+    for table, (all_dead_ends, start_failure_ends, phases, actions) in TABLES.items():
         for row, acts in zip(_rows(phases), _rows(actions)):
             assert row[0] == acts[0]
             for kind, expected, codes in zip(EVENTS, row[1:], acts[1:]):
-                yield table, all_dead_ends, SHORT[row[0]], kind, expected, codes
+                yield table, (all_dead_ends, start_failure_ends), SHORT[row[0]], kind, expected, codes
 
 
 def test_the_matrices_cover_every_phase_and_event():
-    for table, (_rule, phases, actions) in TABLES.items():
+    for table, (_rule, _other, phases, actions) in TABLES.items():
         assert [r[0] for r in _rows(phases)] == [r[0] for r in _rows(actions)] == list(SHORT), table
     assert set(SHORT.values()) == set(lp.STATES)
     assert set(EVENTS) == set(lp.EVENTS)
@@ -92,7 +112,7 @@ def test_every_pair_is_done_ignored_or_refused_and_only_one_of_them():
 @pytest.mark.parametrize("table,rule,phase,kind,expected,codes", list(cells()),
                          ids=lambda x: x if isinstance(x, str) else "")
 def test_every_phase_and_event(table, rule, phase, kind, expected, codes):
-    before = Launch(phase, exit_when_all_dead=rule)
+    before = Launch(phase, exit_when_all_dead=rule[0], start_failure_ends_it=rule[1])
     event = Event(kind, status=3)
     if expected == "!":
         assert codes == "!"
@@ -105,8 +125,8 @@ def test_every_phase_and_event(table, rule, phase, kind, expected, codes):
         return
     assert after.state == SHORT[expected]
     assert actions == [ACTION_CODES[c] for c in codes if c != "."]
-    assert after.exit_status == (3 if "E" in codes else 0)
-    assert after.exit_when_all_dead == rule
+    assert after.exit_status == (3 if "E" in codes else 1 if "F" in codes else 0)
+    assert (after.exit_when_all_dead, after.start_failure_ends_it) == rule
     assert after.reason == (lp.ALL_DEAD_TEXT if "S" in codes else lp.NO_PROCESSES_TEXT if "N" in codes else "")
 
 

@@ -72,3 +72,33 @@ def test_a_launch_without_a_process_ends_on_a_master_found_running_as_roslaunchs
     fleet.add("/far", host="robot2")
     fleet.registrations_complete()
     assert not said and not fleet.done.is_set()
+
+
+def test_a_process_that_cannot_be_started_while_the_launch_starts_ends_roslaunchs_own_launch():
+    """roslaunch's FatalProcessLaunch (a bad launch-prefix): its own launch ends with status 1 when a node's exec
+    fails while it starts its nodes; not once they have all been started (a respawn's failure is the node's), not
+    for another machine's node, and not in a remote child or a supervisor on its own."""
+    from launcher.fleet import launchphase as lp, lifecycle as m
+    from launcher.fleet.state import Fleet
+
+    def failed_start(fleet, name, host=m.LOCAL_HOST):
+        fleet.add(name, host=host)
+        fleet.apply(name, m.Event(m.START))
+        fleet.apply(name, m.Event(m.SPAWN_FAILED))
+
+    fleet = Fleet(clock=lambda: 0.0)
+    fleet.start_failure_ends_the_launch()
+    failed_start(fleet, "/far", host="robot2")
+    assert not fleet.done.is_set()
+    failed_start(fleet, "/bad")
+    assert fleet.done.is_set() and fleet.exit_status == 1 and not fleet.starts_allowed
+
+    fleet = Fleet(clock=lambda: 0.0)
+    fleet.start_failure_ends_the_launch()
+    fleet.registrations_complete()  # (every node started: a later failure, a respawn's, is the node's business)
+    failed_start(fleet, "/late")
+    assert not fleet.done.is_set() and fleet.starts_allowed
+
+    fleet = Fleet(clock=lambda: 0.0)  # a remote child, a supervisor on its own
+    failed_start(fleet, "/bad")
+    assert not fleet.done.is_set() and fleet.starts_allowed

@@ -138,23 +138,58 @@ def test_missing_executable_is_reported_and_the_rest_run(tmp_path, pkgs):
         lp.close()
 
 
-def test_bad_launch_prefix_is_reported_by_name(tmp_path, pkgs):
+def test_a_bad_launch_prefix_ends_the_launch_as_roslaunch_does(tmp_path, pkgs):
+    """A node's exec that fails while the launch starts its nodes (roslaunch's FatalProcessLaunch) ends the launch
+    with status 1, said by name: the node started before it is stopped, the one after it is never started; Debian's
+    roslaunch beside it."""
+    report = tmp_path / "reports"
+    report.mkdir()
     launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="spinner" name="before"/>
       <node pkg="run_tests" type="exiter" name="prefixed" launch-prefix="/no/such/wrapper --x"/>
-      <node pkg="run_tests" type="exiter" name="fine"/>
-    """)
+      <node pkg="run_tests" type="reporter" name="after"><env name="REPORT_DIR" value="%s"/></node>
+    """ % report)
     rosmaster = RosMaster(str(tmp_path))
-    lp = Launcher([launch], ros_env(str(tmp_path), rosmaster.port, pkgs), str(tmp_path))
+    env = ros_env(str(tmp_path), rosmaster.port, pkgs)
     try:
-        # external master: when every node has ended, the launch ends (as roslaunch)
-        assert lp.wait(60) == 0
-        assert "[prefixed-1] got a 'No such file or directory' error while attempting to run:" in lp.stderr
-        assert "/no/such/wrapper --x " in lp.stderr
-        assert "[fine-2] process has finished cleanly" in lp.stdout
-        assert "all processes on machine have died, roslaunch will exit" in lp.stdout
+        ref = subprocess.run(["roslaunch", launch], env=dict(env, PATH=ROS_PATH), stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, timeout=60)
+        assert ref.returncode == 1 and "This is often caused by a bad launch-prefix" in ref.stderr, ref
+        assert "[before-1] killing on exit" in ref.stdout and "after-3" not in ref.stdout + ref.stderr
+        lp = Launcher([launch], env, str(tmp_path))
+        try:
+            assert lp.wait(60) == 1
+        finally:
+            lp.close()
+        assert "[prefixed-2] got a 'No such file or directory' error while attempting to run:" in lp.stderr
+        assert "/no/such/wrapper --x " in lp.stderr and "This is often caused by a bad launch-prefix" in lp.stderr
+        assert "[before-1] killing on exit" in lp.stdout and "after-3" not in lp.stdout + lp.stderr
+        assert not os.listdir(str(report))
+    finally:
+        rosmaster.stop()
+
+
+def test_a_respawn_whose_start_fails_is_the_nodes_business(tmp_path, pkgs):
+    """Once every node has been started, a node's start that fails (here its respawn's) ends nothing but that run:
+    it is tried again, the launch runs on."""
+    exe = os.path.join(pkgs, "run_tests", "exiter")
+    launch = write_launch(str(tmp_path), """
+      <node pkg="run_tests" type="exiter" name="flaky" respawn="true" respawn_delay="1"/>
+      <node pkg="run_tests" type="spinner" name="steady"/>
+    """)
+    lp = Launcher([launch], ros_env(str(tmp_path), free_port(), pkgs), str(tmp_path))
+    try:
+        lp.wait_output(r"process\[flaky-2\]: started with pid")
+        os.rename(exe, exe + ".away")  # (its next start: exec fails)
+        lp.wait_output(r"\[flaky-2\] got a 'No such file or directory' error", stream="stderr")
+        os.rename(exe + ".away", exe)
+        until(lambda: len(re.findall(r"process\[flaky-2\]: started with pid", lp.stdout)) >= 2, 30,
+              what="flaky started again")
+        assert lp.proc.poll() is None
+        lp.signal(signal.SIGINT)
+        assert lp.wait(30) == 0
     finally:
         lp.close()
-        rosmaster.stop()
 
 
 def test_prefix_env_cwd_output_and_log_files(tmp_path, pkgs):
