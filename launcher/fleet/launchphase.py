@@ -3,13 +3,13 @@
 A node's life is `fleet.lifecycle`'s; this is the launch's, in roslaunch's terms: it
 starts its nodes, runs once every node has been started (roslaunch's "registrations
 complete"), is to end when a node ends it (a required node died or could not start,
-on_fatal="shutdown": "Initiating shutdown!"), when every node of this machine has died
-with a master that is not its own ("all processes on machine have died, roslaunch will
-exit"), when it has no process at all with such a master (a launch of parameters only:
-"No processes to monitor"), when a node's process cannot be started while it starts its
-nodes (roslaunch's FatalProcessLaunch: a bad launch-prefix) or when a stop signal comes, then stops its nodes, and has ended once they are
-down. A stop signal while the nodes are being stopped (the second Ctrl-C) kills those
-still stopping.
+on_fatal="shutdown": "Initiating shutdown!"), when a node's process cannot be started
+while it starts its nodes (roslaunch's FatalProcessLaunch: a bad launch-prefix), when
+every node of this machine has died with a master that is not its own ("all processes
+on machine have died, roslaunch will exit"), when it has no process at all with such a
+master (a launch of parameters only: "No processes to monitor") or when a stop signal
+comes, then stops its nodes, and has ended once they are down. A stop signal while the
+nodes are being stopped (the second Ctrl-C) kills those still stopping.
 
 It does no I/O and reads no clock. The fleet (`fleet.state.Fleet`) keeps the launch's
 record beside the nodes', steps it and carries out END and SAY; the runner of the
@@ -21,8 +21,9 @@ REFUSED (a runner's bug, raised as `InvalidTransition`), as the node table's.
 
     starting  its nodes are being started
     running   every node has been started (or failed to)
-    ending    the launch is to end (a node ended it, all died, a stop signal): its services are
-              being stopped, its nodes last; no node starts again
+    ending    the launch is to end (a node ended it, a start failed, all died, no processes, a
+              stop signal): its services are being stopped, its nodes last; no node starts
+              again
     stopping  its nodes are being stopped
     ended     its nodes are down
 """
@@ -215,11 +216,9 @@ assert not IGNORED & TABLE.keys()
 # Pairs no runner sends: with TABLE and IGNORED they are every pair, each in one (tests/fleet/test_launchphase.py).
 REFUSED = frozenset(
     # no node is started once the launch has ended
-    [(ENDED, ALL_STARTED)]
+    [(ENDED, ALL_STARTED), (ENDED, START_FAILED)]
     # it follows ALL_STARTED, which leaves STARTING and is refused once the launch has ended
     + [(STARTING, NO_PROCESSES), (ENDED, NO_PROCESSES)]
-    # no node is started once the launch has ended
-    + [(ENDED, START_FAILED)]
     # only a stop that began can be over
     + [(s, ALL_STOPPED) for s in (STARTING, RUNNING, ENDING, ENDED)]
 )
