@@ -84,10 +84,11 @@ def main(opts: Any) -> int:
         config = load(files, argv, environ=environ, packages=packages, warn=_warn)
         name = resolve_node_name(opts.find_node, argv, environ)
         node = _find(config, name, files)
-        if node is None:
+        if node is None:  # (said, with exit status 0: roslaunch's print_node_filename prints and returns)
             hint = did_you_mean(name, (n for n in (_full_name(x) for x in config.nodes + config.tests) if n))
-            raise LaunchError("ERROR: cannot find node named [%s]. Run \n\tlaunch --nodes <files>\nto see list "
-                              "of node names.%s" % (name, "\n" + hint if hint else ""))
+            sys.stderr.write("ERROR: cannot find node named [%s]. Run \n\tlaunch --nodes <files>\nto see list of "
+                             "node names.%s\n" % (name, "\n" + hint if hint else ""))
+            return 0
         out.write(node.filename + "\n")
         return 0
 
