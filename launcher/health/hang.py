@@ -19,11 +19,11 @@ from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
 from launcher.net import xmlrpc
+from launcher.model.names import CALLER_ID
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
 
-CALLER_ID = "/roslaunch"
 
 
 class HangDetector:

@@ -39,6 +39,7 @@ from launcher.fleet.lifecycle import describe
 from launcher.fleet.state import Change, Fleet
 from launcher.health.outputwatch import OutputFollower
 from launcher.model.graph import NODE, Graph
+from launcher.model.names import CALLER_ID
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import HeldNode, ReadinessRunner
@@ -47,7 +48,6 @@ if TYPE_CHECKING:  # (annotations only)
 POLL_S = 0.2
 # One master call may take this long before the poll counts its conditions as not met yet.
 CALL_TIMEOUT_S = 2.0
-CALLER_ID = "/roslaunch"
 _POLLED = ("param", "output")
 
 

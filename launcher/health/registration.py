@@ -23,8 +23,8 @@ from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST, Change, Fleet
 from launcher.model.graph import NODE, Graph, GraphChange
 from launcher.net import xmlrpc
+from launcher.model.names import CALLER_ID
 
-CALLER_ID = "/roslaunch"
 CALL_TIMEOUT_S = 2.0
 # a master found running: a registration whose process does not answer getPid is asked again this often, while
 # the master still says it is there

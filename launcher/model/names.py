@@ -13,6 +13,9 @@ SEP = "/"
 PRIV_NAME = "~"
 REMAP = ":="
 ANYTYPE = "*"
+# the launch's name as a client of the master, which resolves the launch's keys against it (a literal `~x` lands at
+# /roslaunch/x), as roslaunch's
+CALLER_ID = "/roslaunch"
 
 _LEGAL_NAME = re.compile(r"^[\~\/A-Za-z][\w\/]*$")
 

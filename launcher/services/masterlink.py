@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from launcher.model.errors import LaunchError
 from launcher.net.hostname import advertised_host
 from launcher.model.graph import Graph
-from launcher.model.names import resolve_name
+from launcher.model.names import CALLER_ID, resolve_name
 from launcher.net.http import split_uri
 from launcher.net.xmlrpc import Fault, call
 from launcher.plan.machines import is_local_host
@@ -29,7 +29,6 @@ if TYPE_CHECKING:  # (annotations only)
     from launcher.plan.plan import Plan
     from launcher.services.service import Params, Signals
 
-CALLER_ID = "/roslaunch"
 DEFAULT_MASTER_PORT = 11311
 DEFAULT_ROSVERSION = "1.15.15"
 DEFAULT_ROSDISTRO = "noetic"

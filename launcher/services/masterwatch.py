@@ -39,11 +39,11 @@ from launcher.model.graph import NODE, SERVICE, TOPIC
 from launcher.model.record import record
 from launcher.net.xmlrpc import call
 from launcher.output import console
+from launcher.model.names import CALLER_ID
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.services.service import MasterLink, RunNodes
 
-CALLER_ID = "/roslaunch"
 # One call a second: a restart is noticed within about a second, and a master serving hundreds of nodes
 # does not notice one more client (a node's own traffic with it is far more).
 WATCH_PERIOD_S = 1.0

@@ -16,7 +16,7 @@ import sys
 
 from launcher.model.config import LaunchConfig, Machine, Node, NodePolicy, Param, new_param
 from launcher.model.errors import SHOWN_CHARS, LaunchError, shorten
-from launcher.model.names import PRIV_NAME, SEP, make_global_ns, ns_join, resolve_name
+from launcher.model.names import CALLER_ID, PRIV_NAME, SEP, make_global_ns, ns_join, resolve_name
 from launcher.params.values import PARAM_TYPES, auto_value, convert_value
 from launcher.params.yamlcache import YamlCache
 from launcher.workspace.roshome import ros_home
@@ -632,7 +632,7 @@ class XmlLoader:
             # it is given against its caller, roslaunch)
             self._warn(scope, el, "<rosparam param=\"%s\"> sets its parameters under the literal name [%s], which "
                                   "the master resolves against roslaunch's own name, as for roslaunch: [%s], not "
-                                  "a node's" % (param, full_param, resolve_name(full_param, "/roslaunch")))
+                                  "a node's" % (param, full_param, resolve_name(full_param, CALLER_ID)))
         if cmd == "dump":
             if not file_:  # (roslaunch runs `rosparam dump` with no file then, and its launch dies of a TypeError)
                 self._warn(scope, el, "<rosparam command=\"dump\"> without a file= dumps nothing (roslaunch's launch "
