@@ -87,7 +87,7 @@ class RunView:
     @property
     def warnings(self) -> RosoutTail | None:
         """The recent WARN/ERROR/FATAL lines of /rosout (services.rosouttail.RosoutTail), None without our rosout."""
-        return self._rosout.tail if self._rosout is not None and self._rosout.rosout is not None else None
+        return self._rosout.warnings if self._rosout is not None else None
 
     def unresponsive(self) -> list[dict]:
         """The nodes our master cannot reach (its callbacks time out or are refused)."""
@@ -151,6 +151,14 @@ class RosoutService:
         self.environ = environ
         self.rosout: Rosout | None = None
         self.tail = RosoutTail()  # its warnings, for the live views (launcher_output)
+        self.failed = False  # it could not start
+
+    @property
+    def warnings(self) -> RosoutTail | None:
+        """Its tail of warnings from the start of a run whose master is ours, before rosout is up: a view that
+        asks in between must already leave the output="log" nodes' files to it (it keeps following what it was
+        first given). None with a master found running, or once our rosout could not start."""
+        return None if self.master.external or self.failed else self.tail
 
     @property
     def processes(self) -> int:
@@ -166,6 +174,7 @@ class RosoutService:
             await rosout.start()
         except Exception as e:  # noqa: BLE001 - the launch goes on without a log collector
             console.printerrlog("could not start the built-in rosout: %s" % e)
+            self.failed = True
             try:
                 await rosout.stop()
             except Exception:  # noqa: BLE001

@@ -15,6 +15,7 @@ from launcher.net.xmlrpc import Fault
 from launcher.services import server as server_mod
 from launcher.services.rosouttail import RosoutTail
 from launcher.services.server import LaunchServer
+from launcher.services.servers import RosoutService, RunView
 from launcher.operate.web import allowed_host, parse_address, round_sample
 from launcher.fleet.state import Fleet
 
@@ -93,6 +94,24 @@ def test_log_nodes_give_their_rosout_warnings_not_their_file(tmp_path):
     assert second["output"] == {} and second["offsets"]["@rosout"] == 6
     # its file on request (the view's recent output): read as any node's
     assert output(server, {"/quiet": -15})["output"] == {"/quiet": "[WARN] careful\n"}
+
+
+def test_a_view_asking_before_our_rosout_is_up_leaves_the_log_nodes_files_to_it(tmp_path):
+    """The live view may ask as soon as the API server is up, before rosout is: a run whose master is ours gives
+    its output="log" nodes' warnings from the start (a view keeps following what it was first given: had it been
+    given their files, their INFO lines would show for the whole run). A master found running, or a rosout
+    that could not start, gives their files."""
+    def first_offsets(external: bool, failed: bool = False) -> dict:
+        server, fleet = make_server(tmp_path, ("/screen", "/quiet"), log_nodes=("/quiet",))
+        master = SimpleNamespace(external=external, master=None, core=False)
+        rosout = RosoutService(master, SimpleNamespace(run_dir=str(tmp_path)), {})
+        rosout.failed = failed
+        nodes = SimpleNamespace(fleet=fleet, spec=server.run.nodes.spec, remote_names=lambda: [])
+        server.run = RunView(master, nodes, SimpleNamespace(run_dir=str(tmp_path)), rosout, ())
+        return output(server, {})["offsets"]
+    assert first_offsets(external=False) == {"/screen": 0, "@rosout": 0}
+    assert first_offsets(external=True) == {"/screen": 0, "/quiet": 0}
+    assert first_offsets(external=False, failed=True) == {"/screen": 0, "/quiet": 0}
 
 
 def test_a_waiting_output_call_answers_when_a_warning_comes(tmp_path, monkeypatch):
