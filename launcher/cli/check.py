@@ -16,7 +16,8 @@ command line, so the top file's values are all the values they can take.
 Each load's error (roslaunch would refuse the file: kind "load"), and what the
 loaded configuration gets wrong at run time (kind "run": a node or test whose
 package or executable does not exist, a `machine=` that names no `<machine>`,
-a `$(find pkg)/path` that does not exist), is a finding with file:line and the
+a `$(find pkg)/path` that does not exist, a parameter XML-RPC cannot send: a
+YAML date, an integer beyond 32 bits), is a finding with file:line and the
 include chain, and, when found only with other arg values, the args that reach
 it (`on the branch sim:=true`). An error in one element (an `<include>`, a
 `<group>`, an `<arg>`, a `<node>` ...) skips that element only, so the findings
@@ -39,6 +40,7 @@ import sys
 from typing import Any, Container, Iterable, NamedTuple
 
 from launcher.model.errors import LaunchError
+from launcher.net.xmlrpc_codec import unsendable
 from launcher.workspace.packages import PackageIndex, package_of
 from launcher.xml import resolve_launch_arguments, sandbox
 from launcher.xml.document import read_launch
@@ -344,6 +346,12 @@ def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
                                            "its process runs (no registration with the master is awaited)"
                                            % (kind, node.full_name)),
                           node.filename, node.line, branch, "run", node.full_name)
+    for param in config.params.values():  # (roslaunch's launch fails on such a value as it sends it)
+        problem = unsendable(param.value)
+        if problem:
+            yield Finding("error", LaunchError("parameter [%s] cannot be set: %s" % (param.key, problem),
+                                               param.filename or None, param.line or None).format(),
+                          param.filename or None, param.line or None, branch, "run")
 
 
 def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:

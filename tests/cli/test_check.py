@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -100,6 +101,25 @@ def test_duplicate_names_and_unknown_machine_on_a_branch(ws):
     fs = findings(env, path)
     assert any(f.line == 5 and f.branch == ("two:=true",) and "multiple nodes named" in f.message for f in fs), fs
     assert any(f.line == 6 and f.branch == () and "machine [nowhere]" in f.message for f in fs), fs
+
+
+def test_a_parameter_xmlrpc_cannot_send_is_an_error_at_its_line(ws):
+    """A YAML date or an integer beyond 32 bits loads (roslaunch's --dump-params prints them) but fails the
+    launch as it sets them (tests/master/test_unsendable_params.py shows roslaunch's own failure)."""
+    tmp, env = ws
+    path = write(tmp, "robot.launch", '<rosparam>\n'                                           # line 3
+                 '  when: 2024-01-02\n'
+                 '  fine: "2024-01-02"\n'
+                 '</rosparam>\n'
+                 '<param name="big" type="int" value="4294967296"/>\n'                           # line 7
+                 '<param name="small" type="int" value="2147483647"/>')
+    fs = [f for f in findings(env, path) if f.severity == "error"]
+    assert [(f.line, f.kind) for f in fs] == [(3, "run"), (7, "run")], fs
+    assert "parameter [/when] cannot be set: a value of type date" in fs[0].message and "quote it" in fs[0].message
+    assert "parameter [/big] cannot be set: the integer 4294967296" in fs[1].message
+    assert fs[0].message.startswith(path + ":3: ")
+    done = run_check(env, path)
+    assert done.returncode == 1 and "/when" in done.stdout + done.stderr, (done.stdout, done.stderr)
 
 
 def test_args_compared_with_literals_in_eval_are_varied_over_those_literals(ws):
@@ -218,9 +238,10 @@ def test_junit_lists_the_errors(ws):
 # Debian's roslaunch, through its own code, on one corpus case: for each branch (the args added to the case's),
 # what `roslaunch --nodes` (the load), `roslaunch --args NODE` (each node's command line: a missing package or
 # executable fails there) and a launch (roslaunch assigns machines before it starts anything: an undeclared
-# machine fails there, "unknown machine [x]") say. It runs in one process per case, under Debian's python.
+# machine fails there, "unknown machine [x]"; it sets the parameters: a value XML-RPC cannot send fails there)
+# say. It runs in one process per case, under Debian's python.
 REFERENCE = r'''
-import json, sys
+import json, sys, xmlrpc.client
 import roslaunch.config, roslaunch.node_args, roslaunch.xmlloader
 from roslaunch.core import local_machine
 
@@ -247,6 +268,12 @@ for branch in job["branches"]:
         config.assign_machines()
     except Exception as e:
         res["launch"] = "%s: %s" % (type(e).__name__, e)
+    res["params"] = {}  # (a launch sets each parameter through xmlrpclib's marshaller, as this one: its refusals)
+    for key, param in config.params.items():
+        try:
+            xmlrpc.client.dumps((param.value,))
+        except Exception as e:
+            res["params"][key] = "%s: %s" % (type(e).__name__, e)
     out.append(res)
 json.dump(out, sys.stdout)
 '''
@@ -296,6 +323,8 @@ def test_compat_corpus(ros_env, ros_part_missing, monkeypatch):
       launch;
     - a node on a `machine=` no `<machine>` declares: roslaunch loads the file, then refuses to launch it
       ("unknown machine [x]", from assign_machines, before anything starts);
+    - a parameter XML-RPC cannot send (param_types.launch's YAML null): roslaunch loads the file, then its
+      launch fails as it sets that parameter (xmlrpclib's "cannot marshal None");
     - errors on another branch (if_unless.launch includes a missing file when `off:=true`; ros_comm's
       example.launch runs a node of a missing package when `commandline_true_arg:=false`): roslaunch given
       those args refuses too.
@@ -344,11 +373,16 @@ def test_compat_corpus(ros_env, ros_part_missing, monkeypatch):
             if r["load"] is not None:
                 kind = "load"
             else:
-                assert f.kind == "run" and f.node, ("roslaunch loads this branch", where)
+                assert f.kind == "run", ("roslaunch loads this branch", where)
+                unsendable = re.search(r"parameter \[([^]]*)\] cannot be set", f.message)
                 if "which no <machine> tag declares" in f.message:
                     assert r["launch"] and "unknown machine" in r["launch"], ("roslaunch launches it", where)
                     kind = "launch"
+                elif unsendable:
+                    assert unsendable.group(1) in r["params"], ("roslaunch sets it", where)
+                    kind = "launch"
                 else:
+                    assert f.node, ("roslaunch loads this branch", where)
                     failing = {norm.text(n) for n, e in r["args"].items() if e}
                     assert norm.text(f.node) in failing, ("roslaunch --args runs it", where)
                     kind = "args"
