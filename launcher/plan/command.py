@@ -6,7 +6,8 @@ The rules are roslaunch's (node_args.create_local_process_args and
 core.setup_env): launch-prefix split like a shell, the executable found in the
 package, `args` split like a shell, remaps `from:=to`, `__name:=`; the child
 environment is ours plus ROS_MASTER_URI, ROS_NAMESPACE (the node's namespace,
-never `__ns:=`) and the node's `<env>`s.
+never `__ns:=`) and the node's `<env>`s (a run's is given ROS_LOG_FILENAME too:
+services.nodeservice).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import os
 import sys
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from launcher import compat
 from launcher.net.hostname import advertised_host
@@ -103,7 +103,7 @@ class NodeService:
         self.signals.check()
         self.first_number = first_number
         plan = self.plan
-        specs, failed = node_specs(plan.config, plan.master_uri, plan.environ, plan.packages, plan.remote,
+        specs, failed = node_specs(plan.config, plan.master_uri, self._environ(), plan.packages, plan.remote,
                                    opts=self.opts, run_dir=self.log.run_dir, first_number=first_number,
                                    log=console.printlog, log_error=console.printerrlog)
         self.processes = len(specs) + len(failed)
@@ -159,6 +159,13 @@ class NodeService:
         task = asyncio.get_running_loop().run_in_executor(None, runrecord.write, run_dir, run, self.plan.config)
         task.add_done_callback(lambda done: written(done.result() if not done.cancelled() and done.exception() is None
                                                     else str(done.exception())))
+
+    def _environ(self) -> Mapping[str, str]:
+        """The nodes' environment: the launch's, and the path of its log file in ROS_LOG_FILENAME, as roslaunch's
+        nodes inherit it (rosgraph's logging sets it in roslaunch's own environment; a rospy node sets its own)."""
+        if not self.log.path:
+            return self.plan.environ
+        return dict(self.plan.environ, ROS_LOG_FILENAME=self.log.path)
 
     def _note_launch(self, specs: list[ProcessSpec]) -> None:
         """What this run is, for the launch log: files, args, environment, parameters, command lines."""
@@ -282,7 +289,7 @@ class NodeService:
                 if (proc := supervisor.node(name)) is not None}
         nodes = tuple(n for n in plan.config.nodes if n.full_name in restart or n.full_name in start
                       or n.full_name in supervise)
-        specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, plan.environ, plan.packages,
+        specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, self._environ(), plan.packages,
                                    plan.remote, opts=self.opts, run_dir=self.log.run_dir,
                                    first_number=self.first_number + self.processes,
                                    process_names=kept, log=console.printlog, log_error=console.printerrlog)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import socket
 import subprocess
 import time
 
@@ -217,6 +218,10 @@ def test_prefix_env_cwd_output_and_log_files(tmp_path, pkgs):
         run_dir = os.path.join(env["ROS_LOG_DIR"], run_id)
         # environment: ROS_MASTER_URI, ROS_NAMESPACE, <env> (launch-wide and per node), launch-prefix
         assert logged["ROS_MASTER_URI"] == env["ROS_MASTER_URI"]
+        # the launch's log file, as roslaunch's nodes inherit it from roslaunch's logging
+        assert logged["ROS_LOG_FILENAME"] == os.path.join(run_dir, "roslaunch-%s-%d.log"
+                                                          % (socket.gethostname(), lp.proc.pid))
+        assert os.path.exists(logged["ROS_LOG_FILENAME"])
         assert logged["ROS_NAMESPACE"] == "/grp" and "ROS_NAMESPACE" not in shown
         assert logged["NODE_ENV"] == "node-value" and "NODE_ENV" not in shown
         assert shown["PREFIX_ADDED"] == "yes" and "PREFIX_ADDED" not in logged
