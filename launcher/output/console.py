@@ -3,14 +3,20 @@
 The launcher's stdout is often something it does not control: a terminal paused
 with Ctrl-S, a pipe nobody reads, a slow SSH link. A `write` there blocks, and
 if the event loop made it, the embedded master would stop answering and
-respawns would stop. So a line is written by the caller only when that cannot
-block: nothing is queued before it, and the stream is in memory or its
-descriptor is ready for a write of that size (`select`; a line of at most
-PIPE_BUF bytes then goes through whole). Otherwise it is handed to the
-console's writer thread through a bounded queue and the caller goes on at once.
-When the queue is full the oldest lines are dropped, and the writer says how
-many once output flows again. The extra sinks (the launch's own log file) get
-every message in full, at once, from the caller.
+respawns would stop. So the caller writes a line only when nothing is queued
+before it, and only through a descriptor of its own that never blocks
+(`_direct`: the terminal or pipe opened again with O_NONBLOCK, which leaves the
+shared one as it is; a regular file as it is): what the terminal does not take
+at once is queued, and the writer thread finishes that line before anything
+else. (A terminal that select calls writable may have room for less than a
+line: a write to the shared descriptor would wait there.) A stream without such
+a descriptor (a socket, an in-memory one) is asked with `select`, and written
+to by the caller only for a line of at most PIPE_BUF bytes, which then goes
+through whole. Otherwise the line is handed to the console's writer thread
+through a bounded queue and the caller goes on at once. When the queue is full
+the oldest lines are dropped, and the writer says how many once output flows
+again. The extra sinks (the launch's own log file) get every message in full,
+at once, from the caller.
 
 Node output relayed by the launcher (output/screen.py) goes through the same
 queue, so that it keeps its order with the launcher's lines, but it is never
@@ -18,14 +24,11 @@ dropped: `relay` says when more than MAX_QUEUED_OUTPUT bytes of it wait, and
 the relay then stops reading the node until `when_drained` calls it back. The
 node then blocks in its own write, as it would on a blocked terminal. When
 nothing waits, node output is written by the caller at once, whatever its size,
-through a descriptor of the caller's own that never blocks (`_direct`: the
-terminal or pipe opened again with O_NONBLOCK, which leaves the shared one as
-it is; a regular file as it is): what the terminal does not take at once is
-queued, so the writer thread finishes the line before anything else. Every
-write, the caller's and the writer thread's, writes again what a stream took
-only part of (`write_all`): with an unbuffered stdout (PYTHONUNBUFFERED=1) a
-blocking write cut short by a signal returns a count that the text layer
-ignores.
+through the same descriptor, and what the terminal does not take at once is
+queued in the same way. Every write, the caller's and the writer thread's,
+writes again what a stream took only part of (`write_all`): with an unbuffered
+stdout (PYTHONUNBUFFERED=1) a blocking write cut short by a signal returns a
+count that the text layer ignores.
 """
 
 from __future__ import annotations
@@ -101,10 +104,21 @@ class _Writer:
 
     def put(self, stream: TextIO, text: str) -> None:
         with self._cond:
-            size = len(text) if text.isascii() else len(text.encode(errors="replace"))
-            if not self._queue and not self._writing and not self._dropped and size <= PIPE_BUF and _ready(stream):
-                _write(stream, text)  # the common case: at once, in order, from the caller
-                return
+            if not self._queue and not self._writing and not self._dropped:
+                # the common case: at once, in order, from the caller
+                fd = _direct(stream)
+                if fd is not None:  # what the descriptor does not take now, the writer thread writes first
+                    data = _encoded(stream, text)
+                    written = _write_some(stream, fd, data) if data else 0
+                    if written < len(data):
+                        self._queue.append((stream, data[written:]))  # (a line begun: finished, never dropped)
+                        self._queued_output += len(data) - written
+                        self._wake()
+                    return
+                size = len(text) if text.isascii() else len(text.encode(errors="replace"))
+                if size <= PIPE_BUF and _ready(stream):  # (a stream without a descriptor of its own: asked)
+                    _write(stream, text)
+                    return
             self._queue.append((stream, text))
             self._queued_chars += len(text)
             while self._queued_chars > MAX_QUEUED_CHARS and self._drop_oldest_line():
@@ -256,17 +270,27 @@ def _write_some(stream: TextIO, fd: int, data: bytes) -> int:
         return len(data)
 
 
-def _write(stream: TextIO, text: str) -> None:
+def _encoded(stream: TextIO, text: str) -> bytes:
+    """A launcher line as the bytes the stream's text layer would write (b"": a character its encoding has not,
+    the line is not shown)."""
     try:
-        if getattr(stream, "buffer", None) is None:  # (a capture: text only)
+        return text.encode(stream.encoding or "utf-8", stream.errors or "strict")
+    except (ValueError, LookupError):
+        return b""
+
+
+def _write(stream: TextIO, text: str) -> None:
+    if getattr(stream, "buffer", None) is None:  # (a capture: text only)
+        try:
             stream.write(text)
             stream.flush()
-            return
-        # as bytes, all of them: the text layer ignores what a raw stream (below) did not take
-        data = text.encode(stream.encoding or "utf-8", stream.errors or "strict")
-    except (OSError, ValueError):  # (a closed stream; a character its encoding has not: the line is not shown)
+        except (OSError, ValueError):  # (a closed stream)
+            pass
         return
-    _write_output(stream, data)  # Flushed per line: node output shares the same terminal/pipe.
+    # as bytes, all of them: the text layer ignores what a raw stream (below) did not take
+    data = _encoded(stream, text)
+    if data:
+        _write_output(stream, data)  # Flushed per line: node output shares the same terminal/pipe.
 
 
 def _write_output(stream: TextIO, data: bytes) -> None:
