@@ -6,9 +6,9 @@ if the event loop made it, the embedded master would stop answering and
 respawns would stop. So the caller writes a line only when nothing is queued
 before it, and only through a descriptor of its own that never blocks
 (`_direct`: the terminal or pipe opened again with O_NONBLOCK, which leaves the
-shared one as it is; a regular file as it is): what the terminal does not take
-at once is queued, and the writer thread finishes that line before anything
-else. (A terminal that select calls writable may have room for less than a
+shared one as it is; a regular file as it is): the rest of a line the terminal
+took only part of is queued, and the writer thread finishes that line before
+anything else (a line it took none of is queued as any other). (A terminal that select calls writable may have room for less than a
 line: a write to the shared descriptor would wait there.) A stream without such
 a descriptor (a socket, an in-memory one) is asked with `select`, and written
 to by the caller only for a line of at most PIPE_BUF bytes, which then goes
@@ -107,18 +107,22 @@ class _Writer:
             if not self._queue and not self._writing and not self._dropped:
                 # the common case: at once, in order, from the caller
                 fd = _direct(stream)
-                if fd is not None:  # what the descriptor does not take now, the writer thread writes first
+                if fd is not None:
                     data = _encoded(stream, text)
                     written = _write_some(stream, fd, data) if data else 0
-                    if written < len(data):
-                        self._queue.append((stream, data[written:]))  # (a line begun: finished, never dropped)
+                    if written == len(data):
+                        return
+                    if written:  # the rest of a line begun: the writer thread's first, never dropped
+                        self._queue.append((stream, data[written:]))
                         self._queued_output += len(data) - written
                         self._wake()
-                    return
-                size = len(text) if text.isascii() else len(text.encode(errors="replace"))
-                if size <= PIPE_BUF and _ready(stream):  # (a stream without a descriptor of its own: asked)
-                    _write(stream, text)
-                    return
+                        return
+                    # (none of it taken: queued as a line, below)
+                else:  # (a stream without a descriptor of its own: asked)
+                    size = len(text) if text.isascii() else len(text.encode(errors="replace"))
+                    if size <= PIPE_BUF and _ready(stream):
+                        _write(stream, text)
+                        return
             self._queue.append((stream, text))
             self._queued_chars += len(text)
             while self._queued_chars > MAX_QUEUED_CHARS and self._drop_oldest_line():
