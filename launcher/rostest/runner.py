@@ -154,7 +154,7 @@ class TestAttempt:
         run_dir = run.log.run_dir
         log_name = name.replace("/", "-")
         try:
-            command = node_command(node, master_uri=run.master.uri, environ=self.plan.environ,
+            command = node_command(node, master_uri=run.master.uri, environ=run.nodes.node_environ(),
                                    packages=self.plan.packages,
                                    log_file=os.path.join(run_dir, log_name + ".log") if run_dir else None)
         except LaunchError as e:

@@ -103,7 +103,7 @@ class NodeService:
         self.signals.check()
         self.first_number = first_number
         plan = self.plan
-        specs, failed = node_specs(plan.config, plan.master_uri, self._environ(), plan.packages, plan.remote,
+        specs, failed = node_specs(plan.config, plan.master_uri, self.node_environ(), plan.packages, plan.remote,
                                    opts=self.opts, run_dir=self.log.run_dir, first_number=first_number,
                                    log=console.printlog, log_error=console.printerrlog)
         self.processes = len(specs) + len(failed)
@@ -160,7 +160,7 @@ class NodeService:
         task.add_done_callback(lambda done: written(done.result() if not done.cancelled() and done.exception() is None
                                                     else str(done.exception())))
 
-    def _environ(self) -> Mapping[str, str]:
+    def node_environ(self) -> Mapping[str, str]:
         """The nodes' environment: the launch's, and the path of its log file in ROS_LOG_FILENAME, as roslaunch's
         nodes inherit it (rosgraph's logging sets it in roslaunch's own environment; a rospy node sets its own)."""
         if not self.log.path:
@@ -289,7 +289,7 @@ class NodeService:
                 if (proc := supervisor.node(name)) is not None}
         nodes = tuple(n for n in plan.config.nodes if n.full_name in restart or n.full_name in start
                       or n.full_name in supervise)
-        specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, self._environ(), plan.packages,
+        specs, failed = node_specs(LaunchConfig(nodes=nodes), plan.master_uri, self.node_environ(), plan.packages,
                                    plan.remote, opts=self.opts, run_dir=self.log.run_dir,
                                    first_number=self.first_number + self.processes,
                                    process_names=kept, log=console.printlog, log_error=console.printerrlog)

@@ -84,6 +84,18 @@ if __name__ == "__main__":
     rostest.rosrun("rttest", "graph", Graph)
 '''
 
+# the log file its runner gave it (rospy's init_node puts its own in ROS_LOG_FILENAME: read before it)
+LOGFILE_NODE = ROS_PY + '''import os, unittest
+AT_START = os.environ.get("ROS_LOG_FILENAME")
+import rospy, rostest
+class LogFile(unittest.TestCase):
+    def test_the_runners_log_file(self):
+        self.assertTrue(AT_START and os.path.isfile(AT_START), "ROS_LOG_FILENAME=%r" % AT_START)
+if __name__ == "__main__":
+    rospy.init_node("logfile_node")
+    rostest.rosrun("rttest", "logfile", LogFile)
+'''
+
 TALKER = RospyTalker
 
 TESTS = {
@@ -115,6 +127,7 @@ TESTS = {
                  '<test test-name="second" pkg="rttest" type="pass_node.py" name="two" ns="sub"/>'),
     "unparsable": '<test test-name="broken" pkg="rttest"\n',
     "graph": '<test test-name="graph" pkg="rttest" type="graph_node.py"/>',
+    "logfile": '<test test-name="logfile" pkg="rttest" type="logfile_node.py"/>',
     "publish": ('<node name="talker" pkg="rttest" type="talker.py"/>\n'
                 '<test test-name="publishtest" pkg="rostest" type="publishtest" name="pub">\n'
                 '  <rosparam>\n    topics:\n      - name: chatter\n        timeout: 10\n  </rosparam>\n</test>'),
@@ -128,7 +141,8 @@ def workspace(tmp_path_factory, ros_env):
     pkg = make_package(src, "rttest", {"pass_node.py": PASS_NODE, "fail_node.py": FAIL_NODE,
                                        "segv_node.py": SEGV_NODE, "sleep_node.py": SLEEP_NODE,
                                        "flaky_node.py": FLAKY_NODE, "talker.py": TALKER,
-                                       "clean_node.py": NO_STALE_NODE, "graph_node.py": GRAPH_NODE})
+                                       "clean_node.py": NO_STALE_NODE, "graph_node.py": GRAPH_NODE,
+                                       "logfile_node.py": LOGFILE_NODE})
     try:
         compile_roscpp("gtest_node.cpp", os.path.join(pkg, "gtest_node"), libs=("-lgtest", "-lpthread"))
     except subprocess.CalledProcessError:
@@ -206,7 +220,7 @@ def ours(root: str, pkg: str, name: str, *extra: str) -> Summary:
 
 @pytest.mark.parametrize("name, rc", [("pass", 0), ("fail", 2), ("gtest", 2), ("retry", 0), ("hz", 0),
                                       ("param", 0), ("publish", 0),
-                                      ("advertise", 0)])
+                                      ("advertise", 0), ("logfile", 0)])
 def test_same_results_as_rostest(workspace, name, rc):
     root, pkg = workspace
     theirs, mine = rostest(root, pkg, name), ours(root, pkg, name)
