@@ -36,6 +36,11 @@ from launcher.operate.view import HELP, HISTORY, NODE_OUTPUT, Line, ViewState, c
 from launcher.workspace.roshome import log_root
 
 POLL_WAIT_S = 20.0  # a long poll's wait (the call's own timeout is longer)
+# A view asks for the nodes' output at most every OUTPUT_PERIOD_S, and gets at most VIEW_OUTPUT_BYTES of a node's
+# newest output in one answer: a node flooding its screen (20 MB/s) is shown as a screen refreshes, with what was
+# passed over said, instead of being read whole (which cost the view most of a core; `launcher logs` has it all).
+OUTPUT_PERIOD_S = 0.1
+VIEW_OUTPUT_BYTES = 32 * 1024
 SAMPLE_PERIOD_S = 1.0  # the CPU/RSS columns' refresh
 RECENT_OUTPUT_BYTES = 16 * 1024  # of the selected node's log, for `o`
 CONTROL_TIMEOUT_S = 600.0  # a stop waits for the node's SIGINT -> SIGTERM -> SIGKILL escalation
@@ -49,12 +54,14 @@ def call(uri: str, method: str, *params: Any, timeout: float = 10.0) -> Any:
     return value
 
 
-def new_output(uri: str, offsets: dict[str, int]) -> tuple[dict[str, str], list[list[str]]]:
+def new_output(uri: str, offsets: dict[str, int]) -> tuple[dict[str, str], list[list[str]], dict[str, int]]:
     """The nodes' output after `offsets` (updated), waiting up to POLL_WAIT_S for some: (node -> text,
-    [[node, level, text], ...] the WARN/ERROR/FATAL lines of output="log" nodes from /rosout)."""
-    answer = json.loads(call(uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
+    [[node, level, text], ...] the WARN/ERROR/FATAL lines of output="log" nodes from /rosout, node -> the
+    bytes passed over: of a node further behind than VIEW_OUTPUT_BYTES, only its newest come)."""
+    asked = json.dumps(dict(offsets, **{"@most": VIEW_OUTPUT_BYTES}))
+    answer = json.loads(call(uri, "launcher_output", asked, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
     offsets.update(answer["offsets"])
-    return answer["output"], answer.get("log") or []
+    return answer["output"], answer.get("log") or [], answer.get("skipped") or {}
 
 
 def recent_output(uri: str, node: str) -> str:
@@ -129,14 +136,17 @@ class Feed:
         offsets: dict[str, int] = {}
 
         def body() -> None:
-            output, log = new_output(self.uri, offsets)
-            if output or log:
+            output, log, skipped = new_output(self.uri, offsets)
+            if output or log or skipped:
                 def show() -> None:
+                    for node, size in skipped.items():
+                        self.state.skipped(node, size)
                     for node, text in output.items():
                         self.state.output(node, text)
                     for node, level, text in log:
                         self.state.warning(node, level, text)
                 self.post(show)
+                self.ended.wait(OUTPUT_PERIOD_S)  # (what comes meanwhile is in the next answer)
         self._loop(body)
 
 

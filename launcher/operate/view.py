@@ -14,6 +14,7 @@ import collections
 from typing import Any, Iterable
 
 from launcher.fleet.lastexit import keep_last_exit
+from launcher.model.units import format_size
 from launcher.operate import columns
 
 OUTPUT_KEPT = 5000  # lines of the output pane kept for scrolling back
@@ -141,6 +142,15 @@ class ViewState:
             self.lines.append(Line(node, line.rstrip("\r")))
         if self.scroll:  # (the operator reads back: what they read stays in place)
             self.scroll = min(self.scroll + len(done), max(0, len(self.lines) - 1))
+
+    def skipped(self, node: str, size: int) -> None:
+        """Output of a node passed over (a flood, more than a view shows): said in its place; the line it was
+        in is passed over with it."""
+        self._partial.pop(node, None)
+        self.lines.append(Line(node, "... %s of output passed over (`launcher logs %s` has every line)"
+                               % (format_size(size, measured=True), node), "state"))
+        if self.scroll:
+            self.scroll = min(self.scroll + 1, max(0, len(self.lines) - 1))
 
     def warning(self, node: str, level: str, text: str) -> None:
         """A WARN, ERROR or FATAL line of an output="log" node, from /rosout: tagged with its level."""

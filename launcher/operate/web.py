@@ -44,7 +44,7 @@ from launcher.net.xmlrpc import Fault, XmlRpcError, call
 from launcher.operate import client, columns
 from launcher.operate.errors import slow
 from launcher.operate import ui as reader  # (the launch's read calls; no prompt_toolkit is imported with it)
-from launcher.operate.ui import POLL_WAIT_S, RECENT_OUTPUT_BYTES
+from launcher.operate.ui import OUTPUT_PERIOD_S, POLL_WAIT_S, RECENT_OUTPUT_BYTES, VIEW_OUTPUT_BYTES
 from launcher.operate.view import ViewState
 from launcher.operate.webserver import EventStream, PageServer, Reply, StreamReply
 
@@ -179,11 +179,13 @@ class Hub:
         offsets: dict[str, int] = {}
 
         async def body() -> None:
-            answer = json.loads(await read(self.uri, "launcher_output", json.dumps(offsets), POLL_WAIT_S,
-                                           timeout=POLL_WAIT_S + 10))
+            asked = json.dumps(dict(offsets, **{"@most": VIEW_OUTPUT_BYTES}))  # (as the terminal view: ui.new_output)
+            answer = json.loads(await read(self.uri, "launcher_output", asked, POLL_WAIT_S, timeout=POLL_WAIT_S + 10))
             offsets.update(answer["offsets"])
-            if answer["output"] or answer.get("log"):
-                self.broadcast({"type": "output", "output": answer["output"], "log": answer.get("log") or []})
+            if answer["output"] or answer.get("log") or answer.get("skipped"):
+                self.broadcast({"type": "output", "output": answer["output"], "log": answer.get("log") or [],
+                                "skipped": answer.get("skipped") or {}})
+                await asyncio.sleep(OUTPUT_PERIOD_S)
         return body
 
     async def _keepalive(self) -> None:

@@ -49,6 +49,7 @@ if TYPE_CHECKING:  # (annotations only)
 
 OUTPUT_CHECK_S = 0.5  # how often a waiting launcher_output looks at the files' sizes (a node writes its own file)
 ROSOUT_KEY = "@rosout"  # in launcher_output's offsets: the /rosout warnings' number (no node name has an "@")
+MOST_KEY = "@most"  # in launcher_output's offsets: the most bytes of a node's output one answer gives a view
 OUTPUT_MAX_BYTES = 64 * 1024  # of one node's output in one answer (a reader asks again for the rest)
 CHANGES_WAIT_MAX_S = 60.0  # a long poll's longest wait (the client's call timeout must be longer)
 STATUS_MAX_AGE_S = 0.5  # a status may be this old (uptimes), unless a node changed state meanwhile
@@ -298,19 +299,25 @@ class LaunchServer:
         CHANGES_WAIT_MAX_S) while there is none. [1, text, JSON {"offsets": {node: the next offset, "@rosout":
         the next number}, "output": {node: text}, "log": [[node, level, text], ...]}] (the offsets of every
         node followed, the output of those that wrote; a file shorter than its offset was rotated and is
-        read from its start). Without our rosout (a master found running), every node's file is followed."""
+        read from its start). Without our rosout (a master found running), every node's file is followed.
+        "@most": N > 0 among the offsets (a view, which shows a flood as a screen refreshes): of a node further
+        behind than N bytes, only the newest N come, from the first line that begins in them (if one does),
+        and "skipped": {node: bytes passed over} says so (`launcher logs` reads every byte; a launch that
+        does not know "@most" gives every byte)."""
         try:
             asked = json.loads(offsets) if isinstance(offsets, str) else None
         except ValueError:
             asked = None
-        if not isinstance(asked, dict) or not isinstance(timeout, (int, float)) or timeout < 0:
+        most = asked.pop(MOST_KEY, 0) if isinstance(asked, dict) else 0
+        if not isinstance(asked, dict) or not isinstance(timeout, (int, float)) or timeout < 0 \
+                or type(most) is not int or most < 0:
             raise Fault(1, "launcher_output(offsets: JSON {node: offset}, timeout: seconds)")
         tail = getattr(self.run, "warnings", None)
         if tail is not None and not isinstance(asked.get(ROSOUT_KEY), int):
             asked[ROSOUT_KEY] = tail.seq
 
-        def read() -> tuple[dict, dict, list]:
-            nexts, output = {}, {}
+        def read() -> tuple[dict, dict, list, dict]:
+            nexts, output, skipped = {}, {}, {}
             for name, (path, log_only) in self._output_paths().items():
                 at = asked.get(name)
                 if log_only and tail is not None and not isinstance(at, int):
@@ -327,11 +334,18 @@ class LaunchServer:
                 elif at > size:  # (rotated: logrotate moved it away and a new file began)
                     at = 0
                 if at < size:
+                    start = size - most if most and size - at > most else at
                     with open(path, "rb") as f:
-                        f.seek(at)
-                        data = f.read(min(size - at, OUTPUT_MAX_BYTES))
+                        f.seek(start)
+                        data = f.read(min(size - start, OUTPUT_MAX_BYTES))
+                    if start > at:  # (the line cut in two is passed over too, unless no other begins after it)
+                        cut = data.find(b"\n") + 1
+                        cut = cut if cut < len(data) else 0
+                        skipped[name] = start + cut - at
+                        at, data = start + cut, data[cut:]
                     at += len(data)
-                    output[name] = data.decode("utf-8", "replace")
+                    if data:
+                        output[name] = data.decode("utf-8", "replace")
                 nexts[name] = at
             log: list = []
             if tail is not None:
@@ -340,20 +354,22 @@ class LaunchServer:
                     shown = self._warnings_of()
                     log = [list(line) for line in lines if shown(line[0])]
                 nexts[ROSOUT_KEY] = tail.seq
-            return nexts, output, log
+            return nexts, output, log, skipped
 
         async def wait() -> list:
             # (the files are written by the nodes themselves: their sizes are looked at, a stat a node
             # every OUTPUT_CHECK_S, only while a reader waits)
             deadline = time.monotonic() + min(float(timeout), CHANGES_WAIT_MAX_S)
-            nexts, output, log = read()
-            while not output and not log and time.monotonic() < deadline:
+            nexts, output, log, skipped = read()
+            while not output and not log and not skipped and time.monotonic() < deadline:
                 asked.update(nexts)  # (a node first read from its end is read on from there)
                 await asyncio.sleep(min(OUTPUT_CHECK_S, max(0.0, deadline - time.monotonic())))
-                nexts, output, log = read()
+                nexts, output, log, skipped = read()
             answer = {"offsets": nexts, "output": output}
             if tail is not None:
                 answer["log"] = log
+            if skipped:
+                answer["skipped"] = skipped
             return [1, "output", json.dumps(answer, separators=(",", ":"))]
         return wait()
 

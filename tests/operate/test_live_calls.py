@@ -57,6 +57,31 @@ def test_output_from_the_end_then_what_follows_and_the_last_bytes_on_request(tmp
     assert output(server, {"/a": 18, "/b": 4})["output"] == {"/a": "fresh\n"}
 
 
+def test_a_view_far_behind_gets_the_newest_output_from_a_line_start_and_how_much_was_passed_over(tmp_path):
+    server, _ = make_server(tmp_path, ("/a", "/b"))
+    lines = b"".join(b"line %04d\n" % i for i in range(1000))  # 10 bytes each
+    (tmp_path / "a-stdout.log").write_bytes(lines)
+    (tmp_path / "b-stdout.log").write_bytes(b"short\n")
+    answer = output(server, {"/a": 0, "/b": 0, "@most": 95})
+    # the newest 95 bytes begin inside line 990; it is passed over with the rest before it
+    assert answer["output"] == {"/a": "".join("line %04d\n" % i for i in range(991, 1000)), "/b": "short\n"}
+    assert answer["skipped"] == {"/a": 9910} and answer["offsets"] == {"/a": 10000, "/b": 6}
+    # within the bound: every byte, nothing said passed over
+    with open(tmp_path / "a-stdout.log", "ab") as f:
+        f.write(b"one more\n")
+    later = output(server, dict(answer["offsets"], **{"@most": 95}))
+    assert later["output"] == {"/a": "one more\n"} and "skipped" not in later
+    # a line longer than the bound: its newest bytes, from where they begin
+    with open(tmp_path / "b-stdout.log", "ab") as f:
+        f.write(b"x" * 200 + b"\n")
+    long = output(server, {"/a": 10009, "/b": 6, "@most": 50})
+    assert long["output"] == {"/b": "x" * 49 + "\n"} and long["skipped"] == {"/b": 151}
+    # without "@most" (`launcher logs`, the recent output): every byte
+    assert output(server, {"/a": 0})["output"]["/a"].startswith("line 0000\n")
+    with pytest.raises(Fault):
+        asyncio.run(server.launcher_output(json.dumps({"@most": -1}), 0))
+
+
 def test_a_waiting_output_call_answers_when_a_node_writes(tmp_path, monkeypatch):
     monkeypatch.setattr(server_mod, "OUTPUT_CHECK_S", 0.01)
     server, _ = make_server(tmp_path, ("/a",))

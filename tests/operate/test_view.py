@@ -103,6 +103,17 @@ def test_output_lines_are_whole_tagged_and_muted_nodes_hidden():
     assert len(v.output_rows(10)) == 3
 
 
+def test_output_passed_over_is_said_in_its_place_with_the_line_it_cut():
+    v = view(node("/a"), node("/b"))
+    v.output("/a", "whole\nhalf a li")
+    v.output("/b", "bee\n")
+    v.skipped("/a", 1900000)  # (the launch gives the newest output of a flood, from a line's start)
+    v.output("/a", "newest\n")
+    assert v.output_rows(10) == ["[/a] whole", "[/b] bee",
+                                 "[/a] ... 1.9MB of output passed over (`launcher logs /a` has every line)",
+                                 "[/a] newest"]
+
+
 def test_scrolling_back_holds_the_lines_in_place_while_output_comes():
     v = view(node("/a"))
     v.output("/a", "".join("line %d\n" % i for i in range(100)))

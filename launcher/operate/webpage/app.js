@@ -84,6 +84,10 @@ function draw(name) {
   tr.querySelector("svg").innerHTML = spark(h.map((s) => s[0]), 0.05, "#c60") + spark(h.map((s) => s[1]), 0, "#06c");
 }
 
+function sizeText(n) {
+  return n >= 1e9 ? (n / 1e9).toFixed(1) + "GB" : n >= 1e6 ? (n / 1e6).toFixed(1) + "MB"
+    : n >= 1e3 ? (n / 1e3).toFixed(1) + "kB" : n + "B";
+}
 function addOutput(name, chunk, level = "") {
   for (const line of chunk.split("\n")) if (line) liveLines.push(["[" + name + "] " + (level ? level + " " : "") + line, level]);
   if (liveLines.length > 2000) liveLines.splice(0, liveLines.length - 2000);
@@ -134,6 +138,9 @@ function handle(ev) {
       draw(name);
     }
   } else if (ev.type === "output") {
+    // (a flood: the launch gave only a node's newest output, and says how much it passed over)
+    for (const [name, size] of Object.entries(ev.skipped || {}))
+      addOutput(name, "... " + sizeText(size) + " of output passed over (`launcher logs " + name + "` has every line)");
     for (const [name, chunk] of Object.entries(ev.output)) addOutput(name, chunk);
     for (const [name, level, line] of ev.log || []) addOutput(name, line, level);
   } else if (ev.type === "gone") {
