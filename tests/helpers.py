@@ -192,10 +192,14 @@ def launch_server_setting_up(names: tuple = ("/a",), core: bool = False) -> tupl
 
 
 def start_reading(read_end: int, got: bytearray, size: int = 65536, rest: float = 0.0) -> threading.Thread:
-    """A thread reading the pipe into `got` until its end, `size` at most a read, resting `rest` s after each."""
+    """A thread reading the pipe (or a pty's master) into `got` until its end, `size` at most a read, resting `rest`
+    s after each. A pty's end is EIO, once every descriptor of its other side is closed."""
     def read() -> None:
         while True:
-            data = os.read(read_end, size)
+            try:
+                data = os.read(read_end, size)
+            except OSError:  # (EIO: a pty whose other side is closed)
+                return
             if not data:
                 return
             got.extend(data)

@@ -15,12 +15,11 @@ import struct
 import subprocess
 import sys
 import termios
-import threading
 import time
 
 import pytest
 
-from helpers import ROS_PYTHON, free_port, until
+from helpers import ROS_PYTHON, free_port, start_reading, until
 from running import Launcher, compile_roscpp, make_package, master_up, ros_env, stop_group, write_launch
 
 pytestmark = pytest.mark.integration
@@ -186,17 +185,7 @@ def test_a_screen_node_sees_the_terminal_resized(tmp_path, pkgs):
     os.close(own)
     screen = bytearray()
 
-    def read_terminal() -> None:  # (the terminal must be read, or the launcher blocks writing to it)
-        while True:
-            try:
-                data = os.read(terminal, 65536)
-            except OSError:  # EIO: the launcher and its nodes have closed the terminal
-                return
-            if not data:
-                return
-            screen.extend(data)
-    reader = threading.Thread(target=read_terminal, daemon=True)
-    reader.start()
+    reader = start_reading(terminal, screen)  # (the terminal must be read, or the launcher blocks writing to it)
     try:
         until(lambda: b"SIZE 80x24" in screen, 60, 0.1, what="the node's first size")
         fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))

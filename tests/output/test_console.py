@@ -122,7 +122,7 @@ def test_node_output_waits_for_a_stdout_someone_made_non_blocking(make):
 
 
 def test_a_launcher_line_never_waits_for_a_terminal_with_room_for_less_than_the_line(monkeypatch):
-    # a terminal nobody reads, with room for 1 KiB: select calls it writable, and a 4 KiB line written to the
+    # a terminal nobody reads, with a little room: select calls it writable, and a 4 KiB line written to the
     # shared (blocking) descriptor would wait there, in the event loop's thread, until someone reads
     master, slave = pty.openpty()
     tty.setraw(slave)
@@ -137,35 +137,27 @@ def test_a_launcher_line_never_waits_for_a_terminal_with_room_for_less_than_the_
             break
     os.set_blocking(slave, True)
     got = bytearray()
-    while len(got) < 1024:
-        got += os.read(master, 1024 - len(got))
-    assert select.select((), (slave,), (), 10)[1], "the terminal has room, and says so"  # (once the pty moved it)
-    put_returned, reading = threading.Event(), threading.Event()
-
-    def read_later() -> None:  # (it reads once the line was put, or after 10 s: a launch waiting there is caught)
-        put_returned.wait(10)
-        reading.set()
-        while True:
-            try:
-                data = os.read(master, 65536)
-            except OSError:  # (EIO: the terminal's other end is closed)
-                return
-            if not data:
-                return
-            got.extend(data)
-    reader = threading.Thread(target=read_later, daemon=True)
-    reader.start()
+    deadline = time.monotonic() + 30
+    while not select.select((), (slave,), (), 0.05)[1]:  # (read a little at a time until it has some room)
+        assert time.monotonic() < deadline, "the terminal never had room"
+        got += os.read(master, 256)
+    readers: list[threading.Thread] = []
+    # (the terminal is read once the line was put, or after 10 s: a launch waiting there is caught, not hung)
+    late = threading.Timer(10, lambda: readers.append(start_reading(master, got)))
+    late.start()
     line = "launcher line " + "y" * 4000  # (at most PIPE_BUF: written from the caller when select said writable)
     try:
         console.printlog(line)
-        put_returned.set()
-        assert not reading.is_set(), "the launcher's line waited for the terminal's reader"
+        late.cancel()
+        late.join()
+        assert not readers, "the launcher's line waited for the terminal's reader"
+        readers.append(start_reading(master, got))
         console.printlog("the next line")
         assert console.flush(30)
     finally:
-        put_returned.set()
+        late.cancel()
         console.forget(stream)
         stream.close()
-    reader.join(10)
+    readers[-1].join(10)
     os.close(master)
     assert bytes(got) == b"x" * filled + (line + "\nthe next line\n").encode()
