@@ -150,6 +150,16 @@ def pid_alive(pid: int) -> bool:
         return False
 
 
+def ignoring(pid: int, *signals: int) -> bool:
+    """The process ignores each of these signals (a script's `trap ''` has run): its SigIgn mask in /proc."""
+    try:
+        with open("/proc/%d/status" % pid) as f:
+            mask = int(next(line for line in f if line.startswith("SigIgn:")).split()[1], 16)
+    except (OSError, StopIteration):
+        return False
+    return all(mask >> (sig - 1) & 1 for sig in signals)
+
+
 def descendants(root: int) -> set[int]:
     """Every process below `root` (children, their children, ...), from one read of /proc."""
     kids: dict[int, list[int]] = {}

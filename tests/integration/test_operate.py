@@ -16,7 +16,7 @@ import xmlrpc.client
 
 import pytest
 
-from helpers import ROS_PATH, ROS_PYTHON, free_port, pid_alive, until
+from helpers import ROS_PATH, ROS_PYTHON, free_port, ignoring, pid_alive, until
 from running import (Launcher, RosMaster, compile_roscpp, get_param, kill_leftovers, make_package, master_proxy,
                      master_up, ros_env, write_launch)
 
@@ -278,6 +278,9 @@ def test_second_ctrl_c_kills_the_nodes_still_stopping(tmp_path, pkgs):
     try:
         lp.wait_output(r"process\[stubborn2-3\]: started")
         pids = lp.started_pids()
+        # (started is spawned: a loaded machine may not have run their `trap` yet, and the first SIGINT ends them)
+        until(lambda: all(ignoring(pid, signal.SIGINT, signal.SIGTERM) for pid in pids.values()), 30,
+              what="both nodes ignoring SIGINT and SIGTERM")
         lp.signal(signal.SIGINT)
         lp.wait_output(r"\[stubborn-2\] killing on exit")
         t0 = time.monotonic()
