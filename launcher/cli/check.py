@@ -17,7 +17,7 @@ Each load's error (roslaunch would refuse the file: kind "load"), and what the
 loaded configuration gets wrong at run time (kind "run": a node or test whose
 package or executable does not exist, a `machine=` that names no `<machine>`,
 a `$(find pkg)/path` that does not exist, a parameter XML-RPC cannot send: a
-YAML date, an integer beyond 32 bits), is a finding with file:line and the
+YAML date or null, an integer beyond 32 bits), is a finding with file:line and the
 include chain, and, when found only with other arg values, the args that reach
 it (`on the branch sim:=true`). An error in one element (an `<include>`, a
 `<group>`, an `<arg>`, a `<node>` ...) skips that element only, so the findings

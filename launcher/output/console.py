@@ -6,17 +6,18 @@ if the event loop made it, the embedded master would stop answering and
 respawns would stop. So the caller writes a line only when nothing is queued
 before it, and only through a descriptor of its own that never blocks
 (`_direct`: the terminal or pipe opened again with O_NONBLOCK, which leaves the
-shared one as it is; a regular file as it is): the rest of a line the terminal
+shared one as it is; a regular file as it is). The rest of a line the terminal
 took only part of is queued, and the writer thread finishes that line before
-anything else (a line it took none of is queued as any other). (A terminal that select calls writable may have room for less than a
-line: a write to the shared descriptor would wait there.) A stream without such
-a descriptor (a socket, an in-memory one) is asked with `select`, and written
-to by the caller only for a line of at most PIPE_BUF bytes, which then goes
-through whole. Otherwise the line is handed to the console's writer thread
-through a bounded queue and the caller goes on at once. When the queue is full
-the oldest lines are dropped, and the writer says how many once output flows
-again. The extra sinks (the launch's own log file) get every message in full,
-at once, from the caller.
+anything else; a line it took none of is queued as any other. (A terminal that
+select calls writable may have room for less than a line: a write to the
+shared descriptor would wait there.) A stream without such a descriptor (a
+socket, an in-memory one) is asked with `select`, and written to by the caller
+only for a line of at most PIPE_BUF bytes, which then goes through whole.
+Otherwise the line is handed to the console's writer thread through a bounded
+queue and the caller goes on at once. When the queue is full the oldest lines
+are dropped, and the writer says how many once output flows again. The extra
+sinks (the launch's own log file) get every message in full, at once, from the
+caller.
 
 Node output relayed by the launcher (output/screen.py) goes through the same
 queue, so that it keeps its order with the launcher's lines, but it is never
