@@ -105,7 +105,8 @@ def test_duplicate_names_and_unknown_machine_on_a_branch(ws):
 
 def test_a_parameter_xmlrpc_cannot_send_is_an_error_at_its_line(ws):
     """A YAML date or an integer beyond 32 bits loads (roslaunch's --dump-params prints them) but fails the
-    launch as it sets them (tests/master/test_unsendable_params.py shows roslaunch's own failure)."""
+    launch as it sets them (test_compat_corpus proves such a finding against roslaunch's own marshalling;
+    tests/run/test_apart.py shows our launch's refusal)."""
     tmp, env = ws
     path = write(tmp, "robot.launch", '<rosparam>\n'                                           # line 3
                  '  when: 2024-01-02\n'
