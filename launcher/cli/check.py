@@ -40,7 +40,7 @@ import sys
 from typing import Any, Container, Iterable, NamedTuple
 
 from launcher.model.errors import LaunchError
-from launcher.net.xmlrpc_codec import unsendable
+from launcher.run.load import unsendable_params
 from launcher.workspace.packages import PackageIndex, package_of
 from launcher.xml import resolve_launch_arguments, sandbox
 from launcher.xml.document import read_launch
@@ -346,12 +346,8 @@ def _check_config(config: Any, packages: Any, branch: tuple[str, ...],
                                            "its process runs (no registration with the master is awaited)"
                                            % (kind, node.full_name)),
                           node.filename, node.line, branch, "run", node.full_name)
-    for param in config.params.values():  # (roslaunch's launch fails on such a value as it sends it)
-        problem = unsendable(param.value)
-        if problem:
-            yield Finding("error", LaunchError("parameter [%s] cannot be set: %s" % (param.key, problem),
-                                               param.filename or None, param.line or None).format(),
-                          param.filename or None, param.line or None, branch, "run")
+    for e in unsendable_params(config):
+        yield Finding("error", e.format(), e.filename, e.line, branch, "run")
 
 
 def _check_find_paths(filename: str, packages: Any) -> Iterable[Finding]:

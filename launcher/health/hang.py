@@ -18,12 +18,11 @@ import asyncio
 from typing import TYPE_CHECKING
 
 from launcher.fleet.state import LOCAL_HOST, Change
-from launcher.net import xmlrpc
 from launcher.model.names import CALLER_ID
+from launcher.net import xmlrpc
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.fleet.runner import ChildProcess, Runner, RunningNode
-
 
 
 class HangDetector:

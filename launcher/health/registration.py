@@ -22,8 +22,8 @@ from typing import Any
 from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST, Change, Fleet
 from launcher.model.graph import NODE, Graph, GraphChange
-from launcher.net import xmlrpc
 from launcher.model.names import CALLER_ID
+from launcher.net import xmlrpc
 
 CALL_TIMEOUT_S = 2.0
 # a master found running: a registration whose process does not answer getPid is asked again this often, while

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 from launcher.net.hostname import advertised_host
 from launcher.net.xmlrpc_codec import unsendable
@@ -114,16 +114,23 @@ def plan_for(config: LaunchConfig, master_uri: str, environ: Mapping[str, str], 
     return Plan(config, master_uri, environ, remote_machines=remote_machines(config, environ), **fields)
 
 
+def unsendable_params(config: LaunchConfig) -> Iterator[LaunchError]:
+    """Each parameter XML-RPC cannot send (a YAML date or null, an integer beyond 32 bits), at its tag: roslaunch's
+    launch fails on it as it sets it; `launcher check` reports it."""
+    for param in config.params.values():
+        problem = unsendable(param.value)
+        if problem:
+            yield LaunchError("parameter [%s] cannot be set: %s" % (param.key, problem), param.filename or None,
+                              param.line or None)
+
+
 def check_plan(plan: Plan, opts: RunOptions) -> None:
     """The plan's checks (plan.plan.Plan.check_nodes), then what the other machines need of this one: OpenSSH's
     limits, addresses they can reach (this machine's ROS address), the supervision extensions their
     roslaunch child cannot apply (warned about)."""
     plan.check_nodes(opts.required)
-    for param in plan.config.params.values():  # (roslaunch's run fails on such a value as it sends it)
-        problem = unsendable(param.value)
-        if problem:
-            raise LaunchError("parameter [%s] cannot be set: %s" % (param.key, problem), param.filename or None,
-                              param.line or None)
+    for error in unsendable_params(plan.config):
+        raise error
     if opts.local:
         return
     config = plan.config

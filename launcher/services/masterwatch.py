@@ -36,10 +36,10 @@ from typing import TYPE_CHECKING, Any
 from launcher.fleet import lifecycle
 from launcher.fleet.state import LOCAL_HOST
 from launcher.model.graph import NODE, SERVICE, TOPIC
+from launcher.model.names import CALLER_ID
 from launcher.model.record import record
 from launcher.net.xmlrpc import call
 from launcher.output import console
-from launcher.model.names import CALLER_ID
 
 if TYPE_CHECKING:  # (annotations only)
     from launcher.services.service import MasterLink, RunNodes
